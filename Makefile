@@ -1,0 +1,26 @@
+# Quick start targets: each sets up .venv/ itself on a fresh machine (Python 3.11+).
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+
+.PHONY: demo test test-all setup clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+## The main job: a simulated rover through the router and all five services, live on screen.
+demo: $(STAMP)
+	$(BIN)/soilocp run --synthetic mixed --duration 40
+
+## The whole test suite.
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -ra
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -1,0 +1,6 @@
+"""Message contracts: a pydantic v2 model for every payload that crosses a process boundary.
+
+Consumers in other languages use the JSON Schema files written by ``soilocp schemas export DIR``.
+"""
+
+from .sensor import SensorSample, VEHICLE_ID_PATTERN, parse_sensor_line  # noqa: F401

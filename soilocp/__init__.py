@@ -1,0 +1,13 @@
+"""soilocp: soil strength K and optimal control parameters (mu_T, S_T, S_E) for wheeled robots.
+
+This package is the pure library (no transport, no Zenoh import): the traction model, the OCP
+formulas, the normal-force solver, slip, the soil-strength estimators, calibration, the vehicle
+simulator, the Kalman observer and the offline pipeline.  The Zenoh services in ``services/`` are
+thin adapters around it, and ``soilocp estimate`` runs the very same functions offline.
+
+Equation numbers refer to Kim & Lee, "Soil Strength-based Estimation of Optimal Control
+Parameters for Wheeled Robots on Rough Terrain"; corrections to the printed equations follow
+``shared/design/method-notes.md`` and are named in each docstring.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,1 @@
+"""Click command modules of the ``soilocp`` console command, one module per area."""

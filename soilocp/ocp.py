@@ -1,0 +1,76 @@
+"""Optimal control parameters from soil strength K: S_T (eq. 7, corrected), mu_T (eq. 8) and
+S_E (eq. 10).  Vectorised over K.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .checks import positive
+from .constants import DEFAULT_CONSTANTS, ModelConstants
+from .traction import net_traction
+
+
+def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
+    """S_T(K): the slip of maximum net traction, eq. 7 with its sign corrected (method-notes §1).
+
+    Setting d mu/dS = 0 in eq. 6 (S > 0) gives
+        S_T = (1/C3) ln( C1 C3 sqrt(K) (1 - e^{-C2 K}) / C6 ),
+    the reciprocal of the printed ln argument (the print is negative for every soil).
+
+    For very weak soil (K below about 9 with the paper's constants) the argument is < 1: the curve
+    falls from S = 0 on and has no interior peak; S_T is then 0 (the peak is at the origin).
+    """
+    c = constants
+    k = positive("soil_strength", soil_strength)
+    arg = c.C1 * c.C3 * np.sqrt(k) * -np.expm1(-c.C2 * k) / c.C6
+    st = np.log(arg) / c.C3
+    st = np.maximum(st, 0.0)
+    return st if st.ndim else float(st)
+
+
+def max_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
+    """mu_T(K) = mu(S_T(K), K): eq. 8 (eq. 6 evaluated at the corrected S_T of eq. 7)."""
+    k = positive("soil_strength", soil_strength)
+    st = np.asarray(optimal_slip_traction(k, constants))
+    if constants.bridge_slip > 0:
+        # at the origin the peak is the bridge's end point, where the printed curve starts
+        st = np.maximum(st, constants.bridge_slip)
+    mu = net_traction(st, k, constants)
+    return mu if np.ndim(mu) else float(mu)
+
+
+def optimal_slip_efficiency(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
+    """S_E(K) = (K - alpha) / beta, eq. 10 (alpha = 677.4, beta = -5242.9 by default).
+
+    The paper's empirical line (method-notes §5: eq. 9 with the printed constants has no interior
+    efficiency peak for K <= 120, so the line is the model).  It reaches 0 at K = alpha; above that
+    the most efficient slip is the smallest one, so S_E is clamped at 0 rather than going negative.
+    """
+    k = positive("soil_strength", soil_strength)
+    se = np.maximum((k - constants.alpha) / constants.beta, 0.0)
+    return se if se.ndim else float(se)
+
+
+@dataclass(frozen=True)
+class OCP:
+    soil_strength: float
+    mu_T: float
+    S_T: float
+    S_E: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"soil_strength": self.soil_strength, "mu_T": self.mu_T, "S_T": self.S_T, "S_E": self.S_E}
+
+
+def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:
+    """All three OCPs for one K (eqs. 7 corrected, 8, 10)."""
+    k = float(positive("soil_strength", soil_strength))
+    return OCP(
+        soil_strength=k,
+        mu_T=float(max_traction(k, constants)),
+        S_T=float(optimal_slip_traction(k, constants)),
+        S_E=float(optimal_slip_efficiency(k, constants)),
+    )
