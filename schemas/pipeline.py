@@ -1,0 +1,86 @@
+"""Messages between the physics stages: normal forces -> observer -> soil strength -> OCP.
+
+The same models are produced by the offline ``soilocp estimate`` path and by the live services,
+and are serialised as JSON on Zenoh (floats round-trip exactly), so the live OCP stream equals
+the offline one on the same log.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from .sensor import VehicleId
+
+PIPELINE_SCHEMA_VERSION = 1
+
+Quad = tuple[float, float, float, float]
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    schema_version: Literal[1] = PIPELINE_SCHEMA_VERSION
+    vehicle_id: VehicleId
+    seq: int = Field(ge=0, description="Sequence number of the sensor sample this derives from")
+    stamp: float = Field(ge=0, description="Stamp of that sensor sample, s")
+
+
+class NormalForces(_Message):
+    """Normal force per wheel from the specific force (eqs. 16-25, zero-warp solution)."""
+
+    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR")
+    lift_off: bool = Field(description="True if a wheel's normal force is <= 0 (no traction information)")
+
+
+ObserverStructure = Literal["shared", "per_wheel", "none"]
+
+
+class ObserverOutput(_Message):
+    """Kalman observer estimate (eqs. 26-35, with the state chosen observable: method-notes §7)."""
+
+    mu: Quad = Field(description="Net traction coefficient per wheel (F_DP/W, eq. 6's mu)")
+    mu_var: Quad = Field(description="Variance of mu per wheel")
+    resistance: Quad = Field(description="Longitudinal motion-resistance coefficient mu_xR per wheel (eq. 15)")
+    gross: Quad = Field(description="Gross traction coefficient mu + mu_xR per wheel (what eq. 13 sees)")
+    gross_var: Quad = Field(description="Variance of the gross coefficient per wheel")
+    wheel_speed: Quad = Field(description="Filtered wheel angular speed, rad/s")
+    ground_speed: float = Field(description="Filtered longitudinal CoM speed, m/s")
+    yaw_rate: float = Field(description="Filtered yaw rate, rad/s")
+    normal_force: Quad = Field(description="F_z used in this step, N")
+    rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
+    reset: bool = Field(description="True if the filter was (re)initialised at this sample (start or time gap)")
+
+
+class SoilEstimate(_Message):
+    """Soil strength K from per-wheel slip (eq. 1) and observed traction (eqs. 36-37, corrected)."""
+
+    slip: Quad = Field(description="Slip per wheel from the filtered speeds (eq. 1), > 0 driving")
+    informative: tuple[bool, bool, bool, bool] = Field(description="Wheel used for the K update this step")
+    soil_strength: Optional[float] = Field(description="K estimate (null: no estimate)")
+    soil_strength_std: Optional[float] = Field(description="1-sigma uncertainty of K")
+    log_k_std: Optional[float] = Field(description="1-sigma uncertainty of ln K")
+    soil_class: Optional[str] = Field(description="Most probable soil class")
+    soil_class_confidence: Optional[float] = Field(description="Probability of that class, 0..1")
+    status: str = Field(description="ok | uncertain | holding | no_estimate (see soilocp.soil_strength)")
+    reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
+    mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
+
+
+class OcpEstimate(_Message):
+    """Optimal control parameters from K (eqs. 7 corrected, 8, 10): one record per sensor sample."""
+
+    soil_strength: Optional[float] = Field(description="K, null when there is no estimate")
+    soil_strength_std: Optional[float] = Field(description="1-sigma of K")
+    soil_class: Optional[str] = None
+    soil_class_confidence: Optional[float] = None
+    mu_T: Optional[float] = Field(description="Maximum net traction coefficient (eq. 8)")
+    S_T: Optional[float] = Field(description="Slip of maximum traction (eq. 7, sign corrected)")
+    S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10)")
+    te_at_S_E: Optional[float] = Field(default=None, description="Tractive efficiency (eq. 9) at S_E, when defined")
+    status: str = Field(description="ok | uncertain | holding | no_estimate, or stale (set by the live publisher)")
+    reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    mu: Quad = Field(description="Observed net traction per wheel")
+    slip: Quad = Field(description="Slip per wheel (eq. 1)")

@@ -1,0 +1,355 @@
+"""Kalman observer of per-wheel traction (paper eqs. 11-15 and 26-35), on filterpy.
+
+State and observability (method-notes §7)
+-----------------------------------------
+The paper's state (eq. 26) is [mu_1..4, mu_xR_1..4, mu_yR_1..4, psi_dot, omega_1..4] with
+measurements [V_x_dot, psi_dot, omega_1..4] (eq. 28).  It is not observable: each wheel equation
+(eq. 13) sees only mu_i + mu_xR_i, the accelerometer (eq. 29) sees sum(mu_i Fz_i), and the yaw
+equation (eq. 11) one more mix, so 17 states face 6 independent measurement directions and the
+observability matrix has rank 10 (see :func:`observability_rank`).
+
+The default ``structure="shared"`` makes the estimate determined: one longitudinal resistance
+coefficient mu_xR shared by the four wheels (the wheels run on the same soil at similar slip), and
+one lateral coefficient mu_yR.  Then the wheel equations give mu_i + mu_xR, the accelerometer gives
+sum(mu_i Fz_i), hence mu_xR and every mu_i: full rank.  We also add the CoM speed V as a state,
+driven by the same net traction (V_dot = sum(mu_i Fz_i)/m + g sin(pitch)) and measured by
+ground_speed: that smooths the slip of eq. 1 with the physics instead of a low-pass filter.
+
+``structure="none"`` drops motion-resistance compensation (mu_i absorbs mu_xR: the paper's
+Figs. 11 and 13), ``structure="per_wheel"`` keeps the paper's full state (made well-posed only by
+its prior; reported rank-deficient).
+
+Corrections to the print
+------------------------
+* Eq. 29's V_x_dot is the accelerometer's specific force f_x (method-notes §3): sum(mu_i Fz_i)/m
+  is a specific force, which is why it has no slope term.
+* Eq. 35 mixes indices (P_k with M_k+1); we use the standard predict/update of filterpy with the
+  Joseph-form covariance update, re-symmetrised and with variances clamped (as robot_localization
+  does), and per-row innovation (Mahalanobis) gating.
+* Eqs. 33-34: A(t) and B(t) are rebuilt each step from the current normal forces and torques and
+  discretised by zero-order hold.  A is nilpotent (A @ A = 0: traction coefficients drive speeds,
+  speeds drive nothing), so the ZOH of the augmented system is exactly F = I + A dt, G = b dt
+  and the process noise Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3; ``discretization=
+  "expm"`` computes the same by the matrix exponential (Van Loan) for checking.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+from filterpy.kalman import KalmanFilter
+from pydantic import BaseModel, ConfigDict, Field
+
+from .normal_force import STANDARD_GRAVITY
+from .vehicle import VehicleParams
+
+Structure = Literal["shared", "per_wheel", "none"]
+
+
+class ObserverConfig(BaseModel):
+    """Noise, prior and structure of the traction observer (documented defaults)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    structure: Structure = Field("shared", description="shared | per_wheel (paper eq. 26) | none (no MR compensation)")
+    discretization: Literal["series", "expm"] = Field("series", description="exact ZOH by series (A nilpotent) or expm")
+    # process noise: random-walk intensities (per sqrt(s)) of the coefficient states
+    q_mu: float = Field(4.0, gt=0, description="Random-walk intensity of mu_i, 1/sqrt(s): slip sweeps move mu by ~1/s")
+    q_resistance: float = Field(0.3, gt=0, description="Random-walk intensity of mu_xR, 1/sqrt(s)")
+    q_lateral: float = Field(0.5, gt=0, description="Random-walk intensity of mu_yR, 1/sqrt(s)")
+    q_wheel_speed: float = Field(2.0, gt=0, description="Unmodelled wheel acceleration, rad/s^2/sqrt(Hz) (torque ripple)")
+    q_ground_speed: float = Field(0.3, gt=0, description="Unmodelled CoM acceleration, m/s^2/sqrt(Hz)")
+    q_yaw_rate: float = Field(0.5, gt=0, description="Unmodelled yaw acceleration, rad/s^2/sqrt(Hz)")
+    # measurement noise (1-sigma)
+    r_specific_force: float = Field(0.08, gt=0, description="Accelerometer f_x noise incl. vibration, m/s^2")
+    r_yaw_rate: float = Field(0.01, gt=0, description="Gyro noise, rad/s")
+    r_wheel_speed: float = Field(0.03, gt=0, description="Encoder speed noise incl. quantisation, rad/s")
+    r_ground_speed: float = Field(0.02, gt=0, description="GNSS / visual-odometry speed noise, m/s")
+    # initial covariance (1-sigma)
+    p0_mu: float = Field(0.5, gt=0)
+    p0_resistance: float = Field(0.2, gt=0)
+    p0_lateral: float = Field(0.5, gt=0)
+    p0_speed: float = Field(0.1, gt=0)
+    # robustness
+    gate_sigma: float = Field(5.0, gt=0, description="Reject a measurement row whose innovation exceeds this many sigma")
+    max_gap: float = Field(0.5, gt=0, description="A time step longer than this (s) re-initialises the filter")
+    variance_floor: float = Field(1e-10, gt=0)
+    variance_ceiling: float = Field(1e4, gt=0)
+    gravity: float = Field(STANDARD_GRAVITY, gt=0)
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Index map of the observer state for a given structure."""
+
+    structure: Structure
+    n_res: int  # longitudinal resistance states: 1 (shared), 4 (per wheel) or 0
+    n_lat: int  # lateral resistance states: 1 or 4
+
+    @property
+    def mu(self) -> slice:
+        return slice(0, 4)
+
+    @property
+    def res(self) -> slice:
+        return slice(4, 4 + self.n_res)
+
+    @property
+    def lat(self) -> slice:
+        return slice(4 + self.n_res, 4 + self.n_res + self.n_lat)
+
+    @property
+    def omega(self) -> slice:
+        s = 4 + self.n_res + self.n_lat
+        return slice(s, s + 4)
+
+    @property
+    def v(self) -> int:
+        return 4 + self.n_res + self.n_lat + 4
+
+    @property
+    def psi(self) -> int:
+        return self.v + 1
+
+    @property
+    def n(self) -> int:
+        return self.psi + 1
+
+    @staticmethod
+    def of(structure: Structure) -> "StateLayout":
+        if structure == "shared":
+            return StateLayout(structure, 1, 1)
+        if structure == "per_wheel":
+            return StateLayout(structure, 4, 4)
+        if structure == "none":
+            return StateLayout(structure, 0, 1)
+        raise ValueError(f"observer structure must be shared, per_wheel or none, got {structure!r}")
+
+    def resistance_matrix(self) -> np.ndarray:
+        """(4, n_res) map from resistance states to each wheel's mu_xR."""
+        if self.n_res == 1:
+            return np.ones((4, 1))
+        if self.n_res == 4:
+            return np.eye(4)
+        return np.zeros((4, 0))
+
+
+# measurement rows: f_x, yaw rate, omega_1..4, ground speed
+N_MEAS = 7
+
+
+def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
+                     pitch: float, g: float = STANDARD_GRAVITY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A(t), b(t), H(t) of eq. 33, built from eqs. 11-15 and 29 at the current Fz and torques.
+
+    omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w          (eqs. 13-15)
+    V_dot       = sum(mu_i Fz_i) / m + g sin(pitch)                  (longitudinal, REP-103 pitch)
+    psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z          (eqs. 11-12), Fx_i = mu_i Fz_i
+    M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29), psi_dot, omega_1..4, V]
+    """
+    n = layout.n
+    A = np.zeros((n, n))
+    b = np.zeros(n)
+    H = np.zeros((N_MEAS, n))
+    R, Iw, m, Iz = vehicle.wheel_radius, vehicle.wheel_inertia, vehicle.mass, vehicle.yaw_inertia
+    om = layout.omega
+    wheel_gain = -R * fz / Iw
+    A[om, layout.mu] = np.diag(wheel_gain)
+    if layout.n_res:
+        A[om, layout.res] = wheel_gain[:, None] * layout.resistance_matrix()
+    b[om] = torque / Iw
+    A[layout.v, layout.mu] = fz / m
+    b[layout.v] = g * np.sin(pitch)
+    yaw_arm = np.array([-vehicle.c, -vehicle.c, vehicle.d, vehicle.d])
+    A[layout.psi, layout.mu] = yaw_arm * fz / Iz
+    lat_arm = np.array([vehicle.a, vehicle.b, vehicle.b, vehicle.a]) * fz
+    if layout.n_lat == 1:
+        A[layout.psi, layout.lat] = -lat_arm.sum() / Iz
+    else:
+        A[layout.psi, layout.lat] = -lat_arm / Iz
+    H[0, layout.mu] = fz / m
+    H[1, layout.psi] = 1.0
+    H[2:6, om] = np.eye(4)
+    H[6, layout.v] = 1.0
+    return A, b, H
+
+
+def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
+    q = np.zeros(layout.n)
+    q[layout.mu] = cfg.q_mu**2
+    q[layout.res] = cfg.q_resistance**2
+    q[layout.lat] = cfg.q_lateral**2
+    q[layout.omega] = cfg.q_wheel_speed**2
+    q[layout.v] = cfg.q_ground_speed**2
+    q[layout.psi] = cfg.q_yaw_rate**2
+    return np.diag(q)
+
+
+def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: str = "series"):
+    """Zero-order-hold discretisation of x_dot = A x + b + w (eq. 33 -> eq. 34).
+
+    Returns (F, G, Qd) with x_k+1 = F x_k + G + w_k.  ``series`` is exact when A @ A = 0 (our A);
+    ``expm`` uses the matrix exponential of the augmented system [[A, b], [0, 0]] and Van Loan's
+    method for Qd, exact for any A.
+    """
+    n = A.shape[0]
+    if method == "series":
+        F = np.eye(n) + A * dt
+        G = b * dt + A @ b * (dt * dt / 2.0)
+        AQ = A @ Qc
+        Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + A @ Qc @ A.T * (dt**3 / 3.0)
+        return F, G, Qd
+    if method == "expm":
+        aug = np.zeros((n + 1, n + 1))
+        aug[:n, :n] = A
+        aug[:n, n] = b
+        E = scipy.linalg.expm(aug * dt)
+        F, G = E[:n, :n], E[:n, n]
+        vl = np.zeros((2 * n, 2 * n))
+        vl[:n, :n] = -A
+        vl[:n, n:] = Qc
+        vl[n:, n:] = A.T
+        V = scipy.linalg.expm(vl * dt)
+        Qd = V[n:, n:].T @ V[:n, n:]
+        return F, G, (Qd + Qd.T) / 2.0
+    raise ValueError(f"discretization must be 'series' or 'expm', got {method!r}")
+
+
+def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, tol: float = 1e-9) -> int:
+    """Rank of the observability matrix [H; H F; ...; H F^(n-1)] of the discretised model.
+
+    With the paper's full state (``per_wheel``) it is below the state dimension (method-notes §7);
+    with ``shared`` or ``none`` it is full.
+    """
+    layout = StateLayout.of(structure)
+    fz = np.full(4, vehicle.mass * STANDARD_GRAVITY / 4) if fz is None else np.asarray(fz, float)
+    A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0)
+    F, _, _ = discretize(A, b, np.zeros_like(A), 0.01)
+    blocks, M = [], H
+    for _ in range(layout.n):
+        blocks.append(M)
+        M = M @ F
+    O = np.vstack(blocks)
+    # scale rows so that the tolerance is relative
+    O = O / np.maximum(np.linalg.norm(O, axis=1, keepdims=True), 1e-300)
+    return int(np.linalg.matrix_rank(O, tol=tol))
+
+
+@dataclass
+class ObserverEstimate:
+    mu: np.ndarray
+    mu_var: np.ndarray
+    resistance: np.ndarray
+    gross: np.ndarray
+    gross_var: np.ndarray
+    wheel_speed: np.ndarray
+    ground_speed: float
+    yaw_rate: float
+    rejected: int
+    reset: bool
+    extra: dict = field(default_factory=dict)
+
+
+class TractionObserver:
+    """One vehicle's traction observer: filterpy KalmanFilter with matrices rebuilt every step."""
+
+    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None = None):
+        self.vehicle = vehicle
+        self.cfg = config or ObserverConfig()
+        self.layout = StateLayout.of(self.cfg.structure)
+        self._Qc = continuous_process_noise(self.layout, self.cfg)
+        self._R = np.diag(
+            [
+                self.cfg.r_specific_force**2,
+                self.cfg.r_yaw_rate**2,
+                *([self.cfg.r_wheel_speed**2] * 4),
+                self.cfg.r_ground_speed**2,
+            ]
+        )
+        self.kf = KalmanFilter(dim_x=self.layout.n, dim_z=N_MEAS)
+        self._last_stamp: float | None = None
+        self.steps = 0
+
+    def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
+        L, c = self.layout, self.cfg
+        x = np.zeros(L.n)
+        x[L.omega] = wheel_speed
+        x[L.v] = ground_speed
+        x[L.psi] = yaw_rate
+        p = np.zeros(L.n)
+        p[L.mu] = c.p0_mu**2
+        p[L.res] = c.p0_resistance**2
+        p[L.lat] = c.p0_lateral**2
+        p[L.omega] = c.r_wheel_speed**2
+        p[L.v] = c.p0_speed**2
+        p[L.psi] = c.r_yaw_rate**2
+        self.kf.x = x
+        self.kf.P = np.diag(p)
+
+    def step(self, stamp: float, specific_force_x: float, yaw_rate: float, pitch: float,
+             wheel_speed, wheel_torque, ground_speed: float, normal_force) -> ObserverEstimate:
+        """One predict/update cycle (eq. 35, standard form) for a sample at ``stamp``."""
+        fz = np.asarray(normal_force, dtype=float)
+        torque = np.asarray(wheel_torque, dtype=float)
+        omega = np.asarray(wheel_speed, dtype=float)
+        reset = False
+        dt = None if self._last_stamp is None else stamp - self._last_stamp
+        if dt is None or dt <= 0 or dt > self.cfg.max_gap:
+            self._initialise(omega, ground_speed, yaw_rate)
+            reset = True
+        else:
+            A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
+            F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
+            # filterpy: x = F x + B u with B = G (column) and u = 1
+            self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
+        self._last_stamp = stamp
+        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
+        z = np.array([specific_force_x, yaw_rate, *omega, ground_speed])
+        rejected = 0
+        if not reset:
+            innov = z - H @ self.kf.x
+            s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + np.diag(self._R)
+            keep = innov**2 <= (self.cfg.gate_sigma**2) * s
+            rejected = int(np.count_nonzero(~keep))
+            if keep.any():
+                idx = np.flatnonzero(keep)
+                self.kf.update(z[idx], R=self._R[np.ix_(idx, idx)], H=H[idx])
+            self._condition()
+        self.steps += 1
+        return self.estimate(rejected, reset)
+
+    def _condition(self) -> None:
+        """Keep P symmetric positive definite (symmetrise, clamp variances) over long runs."""
+        P = (self.kf.P + self.kf.P.T) / 2.0
+        d = np.clip(np.diag(P), self.cfg.variance_floor, self.cfg.variance_ceiling)
+        np.fill_diagonal(P, d)
+        self.kf.P = P
+
+    def estimate(self, rejected: int = 0, reset: bool = False) -> ObserverEstimate:
+        L = self.layout
+        x, P = self.kf.x, self.kf.P
+        mu = x[L.mu].copy()
+        M = L.resistance_matrix()
+        res = M @ x[L.res] if L.n_res else np.zeros(4)
+        # gross_i = mu_i + (M x_res)_i : its variance from the joint covariance
+        J = np.zeros((4, L.n))
+        J[:, L.mu] = np.eye(4)
+        if L.n_res:
+            J[:, L.res] = M
+        gross_var = np.einsum("ij,jk,ik->i", J, P, J)
+        return ObserverEstimate(
+            mu=mu,
+            mu_var=np.diag(P)[L.mu].copy(),
+            resistance=res,
+            gross=mu + res,
+            gross_var=gross_var,
+            wheel_speed=x[L.omega].copy(),
+            ground_speed=float(x[L.v]),
+            yaw_rate=float(x[L.psi]),
+            rejected=rejected,
+            reset=reset,
+        )

@@ -1,0 +1,116 @@
+"""Validation of raw sensor samples beyond the schema: the checks that need per-vehicle history.
+
+Used by the live gateway and by the offline ``soilocp estimate`` alike, so both reject the same
+samples for the same reasons.  Each rejection carries a machine-readable ``code``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Optional
+
+from pydantic import ValidationError
+
+from schemas.sensor import SensorSample, format_validation_error
+
+#: Machine-readable rejection codes.
+REJECTION_CODES = (
+    "malformed_json",  # not JSON, or not a JSON object
+    "non_finite",  # NaN / Infinity anywhere
+    "schema",  # missing / extra / wrongly typed field
+    "out_of_range",  # physically impossible value
+    "vehicle_mismatch",  # payload vehicle_id differs from the key's
+    "stamp_backwards",  # stamp earlier than the previous accepted sample's
+    "duplicate_seq",  # same seq as the previous accepted sample
+    "old_seq",  # seq lower than the previous accepted sample's
+)
+
+
+class SampleRejected(ValueError):
+    """A sample that must not be used, with a machine-readable ``code`` and a human reason."""
+
+    def __init__(self, code: str, message: str, seq: Optional[int] = None):
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message
+        self.seq = seq
+
+
+def _find_non_finite(obj, path="") -> Optional[str]:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return path or "<sample>"
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            r = _find_non_finite(v, f"{path}.{k}" if path else str(k))
+            if r:
+                return r
+    if isinstance(obj, list):
+        for i, v in enumerate(obj):
+            r = _find_non_finite(v, f"{path}.{i}")
+            if r:
+                return r
+    return None
+
+
+_RANGE_TYPES = {"less_than_equal", "greater_than_equal", "less_than", "greater_than"}
+
+
+def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None) -> SensorSample:
+    """Parse and schema-check one raw payload; SampleRejected says which field, which value, why."""
+    try:
+        obj = json.loads(payload)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SampleRejected("malformed_json", f"not valid JSON: {exc}") from None
+    if not isinstance(obj, dict):
+        raise SampleRejected("malformed_json", f"expected a JSON object, got {type(obj).__name__}")
+    seq = obj.get("seq") if isinstance(obj.get("seq"), int) and not isinstance(obj.get("seq"), bool) else None
+    bad = _find_non_finite(obj)
+    if bad:
+        raise SampleRejected("non_finite", f"{bad}: must be finite, got {obj_get(obj, bad)!r}", seq)
+    try:
+        sample = SensorSample.model_validate(obj)
+    except ValidationError as exc:
+        errors = exc.errors(include_url=False)
+        code = "out_of_range" if errors and all(e.get("type") in _RANGE_TYPES for e in errors) else "schema"
+        raise SampleRejected(code, format_validation_error(exc), seq) from None
+    if expected_vehicle_id is not None and sample.vehicle_id != expected_vehicle_id:
+        raise SampleRejected(
+            "vehicle_mismatch",
+            f"vehicle_id: payload says {sample.vehicle_id!r} but it arrived for {expected_vehicle_id!r}",
+            seq,
+        )
+    return sample
+
+
+def obj_get(obj, path: str):
+    cur = obj
+    for part in path.split("."):
+        cur = cur[int(part)] if isinstance(cur, list) else cur.get(part)
+    return cur
+
+
+class SampleValidator:
+    """Per-vehicle ordering checks: stamps must not go backwards, seq must strictly increase."""
+
+    def __init__(self) -> None:
+        self.last_seq: Optional[int] = None
+        self.last_stamp: Optional[float] = None
+
+    def check(self, sample: SensorSample) -> None:
+        """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it."""
+        if self.last_seq is not None:
+            if sample.seq == self.last_seq:
+                raise SampleRejected("duplicate_seq", f"seq: {sample.seq} was already accepted", sample.seq)
+            if sample.seq < self.last_seq:
+                raise SampleRejected(
+                    "old_seq", f"seq: {sample.seq} is older than the last accepted {self.last_seq}", sample.seq
+                )
+            if sample.stamp < self.last_stamp:
+                raise SampleRejected(
+                    "stamp_backwards",
+                    f"stamp: {sample.stamp!r} is before the last accepted {self.last_stamp!r}",
+                    sample.seq,
+                )
+        self.last_seq = sample.seq
+        self.last_stamp = sample.stamp
