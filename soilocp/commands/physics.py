@@ -1,0 +1,171 @@
+"""Physics subcommands: ``soilocp ocp``, ``soilocp curves``, ``soilocp calibrate``.
+
+Pure library only (no Zenoh).  Bad input ends with a click usage error (exit code 2) naming the
+option, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from ..constants import ModelConstants, load_constants
+
+
+def _constants(path: str | None) -> ModelConstants:
+    try:
+        return load_constants(path)
+    except ValueError as exc:  # pydantic's ValidationError is a ValueError too
+        raise click.BadParameter(str(exc), param_hint="'--constants'") from None
+
+
+def _soil_k(text: str, option: str) -> tuple[str, float]:
+    """Parse NAME=K (e.g. sand=50) with K finite and > 0."""
+    name, sep, value = text.partition("=")
+    name = name.strip()
+    try:
+        k = float(value) if sep else float("nan")
+    except ValueError:
+        k = float("nan")
+    if not name or not (math.isfinite(k) and k > 0):
+        raise click.BadParameter(f"expected SOIL=K with a finite K > 0 (e.g. sand=50), got {text!r}", param_hint=option)
+    return name, k
+
+
+constants_option = click.option(
+    "--constants",
+    "constants_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Model constants JSON (from `soilocp calibrate`); default: the paper's constants.",
+)
+
+
+# ------------------------------------------------------------------------------------- ocp
+@click.command("ocp")
+@click.option(
+    "--soil-strength",
+    "-k",
+    "soil_strength",
+    type=float,
+    multiple=True,
+    metavar="K",
+    help="Soil strength K > 0 (repeat for several).",
+)
+@click.option("--table", is_flag=True, help="Also list the reference soils of the constants (sand, gravel, ...).")
+@constants_option
+@click.option("--json", "as_json", is_flag=True, help="JSON output: keys soil_strength, mu_T, S_T, S_E.")
+def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | None, as_json: bool) -> None:
+    """Optimal control parameters for soil strength K: mu_T (eq. 8), S_T (eq. 7, corrected), S_E (eq. 10).
+
+    With one K and --json, prints one JSON object; with several K (or --table), a JSON list.
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from ..ocp import ocp_from_soil_strength
+
+    for k in soil_strength:
+        if not (math.isfinite(k) and k > 0):
+            raise click.BadParameter(f"soil strength K must be a finite number > 0, got {k!r}", param_hint="'--soil-strength'")
+    if not soil_strength and not table:
+        raise click.UsageError("give at least one --soil-strength K, or --table for the reference soils")
+    c = _constants(constants_file)
+    rows: list[tuple[str, float]] = [("", k) for k in soil_strength]
+    if table:
+        rows += list(c.soils.items())
+    results = [(name, ocp_from_soil_strength(k, c)) for name, k in rows]
+    if as_json:
+        dicts = [r.as_dict() for _, r in results]
+        click.echo(json.dumps(dicts[0] if len(dicts) == 1 and not table else dicts))
+        return
+    t = Table(title="Optimal control parameters" + (f" ({constants_file})" if constants_file else " (paper constants)"))
+    if table:
+        t.add_column("soil")
+    for col in ("K", "mu_T (eq. 8)", "S_T (eq. 7)", "S_E (eq. 10)"):
+        t.add_column(col, justify="right")
+    for name, r in results:
+        cells = [f"{r.soil_strength:g}", f"{r.mu_T:.4f}", f"{r.S_T:.4f}", f"{r.S_E:.4f}"]
+        t.add_row(*([name or "-"] if table else []), *cells)
+    Console(width=100).print(t)
+
+
+# ----------------------------------------------------------------------------------- curves
+@click.command("curves")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Directory for the PNG files.")
+@constants_option
+@click.option("--soil", "soils", multiple=True, help="Soil of the constants to draw (repeat); default: sand, gravel, EST, grass.")
+def curves(out_dir: str, constants_file: str | None, soils: tuple[str, ...]) -> None:
+    """Write the paper's Figs. 3 (traction-slip), 4 (tractive efficiency) and 5 (OCPs vs K) as PNGs."""
+    from ..curves import write_figures
+
+    c = _constants(constants_file)
+    try:
+        paths = write_figures(out_dir, c, list(soils) or None)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--soil' / '--out'") from None
+    for name, p in paths.items():
+        click.echo(f"{name}: {p}")
+
+
+# -------------------------------------------------------------------------------- calibrate
+@click.command("calibrate")
+@click.argument("data", type=click.Path(dir_okay=False))
+@click.option("--out", "out_file", type=click.Path(dir_okay=False), required=True, help="Constants JSON to write.")
+@click.option(
+    "--anchor",
+    default=None,
+    metavar="SOIL=K",
+    help="Soil whose K is fixed to set the scale of K (default: sand=50, or the first data soil with a reference K).",
+)
+@click.option("--fix-k", "fix_k", multiple=True, metavar="SOIL=K", help="Also fix this soil's K (repeat).")
+@click.option("--constants", "initial_file", type=click.Path(dir_okay=False), default=None, help="Initial constants (start values, C4, bridge, alpha/beta fallback).")
+@click.option("--no-efficiency", is_flag=True, help="Do not refit S_E's alpha, beta (eq. 10); keep the initial ones.")
+def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ...], initial_file: str | None, no_efficiency: bool) -> None:
+    """Fit C1..C6 and K per soil to testbed DATA (CSV) by nonlinear least squares (paper §2.2).
+
+    DATA columns: slip, soil, and mu (F_DP/W) or drawbar_pull + normal_load [N]; optional
+    gross_traction (or gross_force [N]) lets C4 be fitted.  K is identifiable only up to a common
+    scale, so one soil's K is fixed (the anchor).  Then S_E's alpha, beta (eq. 10) are refitted
+    through the tractive-efficiency peaks (eq. 9) of the fitted model, if it has them.
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from ..calibration import fit_constants, read_testbed_csv
+    from ..constants import save_constants
+
+    initial = _constants(initial_file)
+    anchor_kv = _soil_k(anchor, "'--anchor'") if anchor else None
+    fixed = dict(_soil_k(x, "'--fix-k'") for x in fix_k)
+    try:
+        d = read_testbed_csv(data)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'DATA'") from None
+    try:
+        res = fit_constants(d, anchor=anchor_kv, fixed_k=fixed, initial=initial, fit_efficiency=not no_efficiency)
+    except ValueError as exc:
+        raise click.UsageError(f"calibration failed: {exc}") from None
+    save_constants(res.constants, out_file)
+
+    con = Console(width=110)
+    t = Table(title=f"Calibration of {data}: {len(d)} rows, {len(d.soils)} soils, rms residual {res.rms:.4g}")
+    for col, just in (("parameter", "left"), ("value", "right"), ("± std error", "right"), ("", "left")):
+        t.add_column(col, justify=just)
+    for p in res.parameters:
+        t.add_row(p.name, f"{p.value:.6g}", "-" if p.std_error is None else f"{p.std_error:.3g}", p.status)
+    eff = res.efficiency
+    t.add_row("alpha (eq. 10)", f"{eff.alpha:.6g}", "-", "fitted" if eff.fitted else "kept")
+    t.add_row("beta (eq. 10)", f"{eff.beta:.6g}", "-", "fitted" if eff.fitted else "kept")
+    con.print(t)
+    for soil, sp in eff.peaks.items():
+        con.print(f"  eq. 9 peak {soil}: " + (f"S = {sp:.4f}" if sp is not None else f"none ({eff.reasons.get(soil, '')})"))
+    for note in res.notes:
+        con.print(f"note: {note}")
+    con.print(f"wrote {out_file}")
+
+
+COMMANDS = [ocp, curves, calibrate]
