@@ -272,6 +272,7 @@ class TractionObserver:
         )
         self.kf = KalmanFilter(dim_x=self.layout.n, dim_z=N_MEAS)
         self._last_stamp: float | None = None
+        self._one = np.ones(1)
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -298,16 +299,17 @@ class TractionObserver:
         omega = np.asarray(wheel_speed, dtype=float)
         reset = False
         dt = None if self._last_stamp is None else stamp - self._last_stamp
+        # ZOH over [k-1, k] with the inputs (Fz, T, pitch) of sample k held: the same matrices
+        # serve the prediction to k and the measurement model at k.
+        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
         if dt is None or dt <= 0 or dt > self.cfg.max_gap:
             self._initialise(omega, ground_speed, yaw_rate)
             reset = True
         else:
-            A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
             F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
             # filterpy: x = F x + B u with B = G (column) and u = 1
-            self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
+            self.kf.predict(u=self._one, B=G[:, None], F=F, Q=Qd)
         self._last_stamp = stamp
-        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
         z = np.array([specific_force_x, yaw_rate, *omega, ground_speed])
         rejected = 0
         if not reset:

@@ -4,6 +4,7 @@ S_E (eq. 10).  Vectorised over K.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,11 +67,17 @@ class OCP:
 
 
 def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:
-    """All three OCPs for one K (eqs. 7 corrected, 8, 10)."""
+    """All three OCPs for one K: eq. 7 (sign corrected), eq. 8, eq. 10.
+
+    Scalar fast path (the live services call it for every sample): the same formulas as
+    :func:`optimal_slip_traction`, :func:`max_traction` and :func:`optimal_slip_efficiency`
+    evaluated with ``math``; tests check that both paths agree.
+    """
     k = float(positive("soil_strength", soil_strength))
-    return OCP(
-        soil_strength=k,
-        mu_T=float(max_traction(k, constants)),
-        S_T=float(optimal_slip_traction(k, constants)),
-        S_E=float(optimal_slip_efficiency(k, constants)),
-    )
+    c = constants
+    amp = c.C1 * -math.expm1(-c.C2 * k)
+    st = max(math.log(c.C3 * math.sqrt(k) * amp / c.C6) / c.C3, 0.0)  # eq. 7 corrected
+    s_eval = max(st, c.bridge_slip)  # peak at the origin: the bridge's end point
+    mu_pos = amp * (1.0 - math.exp(-c.C3 * s_eval)) - (c.C5 / k + c.C6 * s_eval / math.sqrt(k))  # eq. 6/8
+    se = max((k - c.alpha) / c.beta, 0.0)  # eq. 10
+    return OCP(soil_strength=k, mu_T=mu_pos, S_T=st, S_E=se)

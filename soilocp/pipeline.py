@@ -24,7 +24,7 @@ from .observer import ObserverConfig, TractionObserver
 from .ocp import ocp_from_soil_strength
 from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
 from .soil_strength import SoilConfig, make_soil_estimator
-from .traction import tractive_efficiency
+from .traction import curve_unchecked
 from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -200,7 +200,9 @@ class OcpStage:
         o = ocp_from_soil_strength(soil.soil_strength, self.constants)
         te: Optional[float] = None
         if 0 < o.S_E < 1:
-            te = float(tractive_efficiency(o.S_E, o.soil_strength, self.constants))
+            te = float(curve_unchecked("net", np.asarray(o.S_E), np.asarray(o.soil_strength), self.constants)[0]
+                       / curve_unchecked("gross", np.asarray(o.S_E), np.asarray(o.soil_strength), self.constants)[0]
+                       * (1.0 - o.S_E))  # eq. 9 = tractive_efficiency(), without the per-call checks
         return OcpEstimate(mu_T=o.mu_T, S_T=o.S_T, S_E=o.S_E, te_at_S_E=te, **common)
 
 

@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .checks import as_float_array
 from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from .traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
 
 Status = Literal["ok", "uncertain", "holding", "no_estimate"]
 
@@ -143,7 +143,7 @@ class BayesSoilEstimator:
         self._class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self._names) - 1)
         self._hold = _HoldLogic(cfg)
         self._last_stamp: Optional[float] = None
-        self._model = gross_traction_with_derivatives if cfg.measurement == "gross" else net_traction_with_derivatives
+        self._kind = cfg.measurement
 
     def _predict(self, dt: float) -> None:
         cfg = self.cfg
@@ -177,7 +177,7 @@ class BayesSoilEstimator:
         any_info = False
         if use.any():
             s = slip[use][:, None]
-            h, dh_ds, _ = self._model(s, self.k_grid[None, :], self.c)
+            h, dh_ds, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
             sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * cfg.slip_sigma) ** 2
             r2 = (obs[use][:, None] - h) ** 2 / sig2
             like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob

@@ -75,6 +75,10 @@ def _net_pos(s, k, c):
 def _odd_bridged(one_sided, slip, soil_strength, c: ModelConstants):
     """Odd extension of a one-sided curve, with the linear bridge of method-notes §8 near S=0."""
     s, k = _inputs(slip, soil_strength)
+    return _odd_bridged_unchecked(one_sided, s, k, c)
+
+
+def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants):
     sign = np.where(s < 0, -1.0, 1.0)
     a = np.abs(s)
     b = c.bridge_slip
@@ -137,3 +141,10 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
     mu = net_traction(s, k, constants)
     g = gross_traction(s, k, constants)
     return mu / g * (1.0 - s)
+
+
+def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants):
+    """(value, d/dS, d/dK) of the ``gross`` (eq. 3) or ``net`` (eq. 6) curve, for validated float
+    arrays that already broadcast: the estimators' hot loop, which checks its inputs once."""
+    one_sided = _gross_pos if kind == "gross" else _net_pos
+    return _odd_bridged_unchecked(one_sided, slip, soil_strength, constants)

@@ -1,0 +1,114 @@
+"""Offline commands: estimate (sensor log -> estimates), evaluate (against truth), plot."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+
+def _fmt(v, spec=".3f"):
+    return "—" if v is None else format(v, spec)
+
+
+@click.command()
+@click.argument("sensors", type=click.Path(exists=True, dir_okay=False))
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="ESTIMATES.jsonl to write")
+@click.option("--vehicle", type=click.Path(exists=True, dir_okay=False), help="Vehicle parameters JSON")
+@click.option("--constants", type=click.Path(exists=True, dir_okay=False), help="Model constants JSON (soilocp calibrate)")
+@click.option("--config", type=click.Path(exists=True, dir_okay=False), help="Pipeline config JSON (observer, soil)")
+@click.option("--no-compensation", is_flag=True, help="Observer without motion-resistance compensation (paper Figs. 11, 13)")
+@click.option("--method", type=click.Choice(["bayes", "paper"]), default=None, help="Soil-strength estimator")
+@click.option("--full", is_flag=True, help="Also write normal forces, gross traction and resistance per record")
+def estimate(sensors, out, vehicle, constants, config, no_compensation, method, full):
+    """Run the whole chain on a sensor log: validate -> normal forces -> observer -> slip + K -> OCPs.
+
+    Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
+    their line number and skipped.
+    """
+    from ..estimate import estimate_file
+    from ..pipeline import load_pipeline_config
+
+    try:
+        cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    if no_compensation:
+        cfg = cfg.model_copy(update={"observer": cfg.observer.model_copy(update={"structure": "none"})})
+    if method:
+        soil = cfg.soil.model_copy(update={"method": method, **({"measurement": "net"} if method == "paper" else {})})
+        cfg = cfg.model_copy(update={"soil": soil})
+    t0 = time.perf_counter()
+    summary = estimate_file(sensors, out, cfg, full=full)
+    dt = time.perf_counter() - t0
+    rate = summary.estimates / dt if dt > 0 else float("inf")
+    click.echo(
+        f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
+        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses} -> {out}",
+        err=True,
+    )
+
+
+@click.command()
+@click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False), help="TRUTH.jsonl from soilocp simulate")
+@click.argument("estimates", type=click.Path(exists=True, dir_okay=False))
+@click.option("--settle", default=2.0, show_default=True, help="Seconds after each terrain change before errors count")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table")
+@click.option("--check", is_flag=True, help="Exit 1 unless every target is met on every segment")
+def evaluate(truth, estimates, settle, as_json, check):
+    """Accuracy of ESTIMATES against simulator truth, per terrain segment, with the targets."""
+    from ..evaluation import TARGETS, evaluate_files, results_as_json
+
+    try:
+        results = evaluate_files(truth, estimates, settle)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    ok = all(all(r.passes().values()) for r in results)
+    if as_json:
+        click.echo(json.dumps({"targets": TARGETS, "segments": results_as_json(results), "all_pass": ok}, indent=2))
+    else:
+        t = Table(title=f"K and OCP accuracy vs truth (settle {settle:g} s)")
+        for col in ("seg", "soil", "K true", "coverage", "K med err", "K p90 err", "conv (s)",
+                    "|mu_T| err", "|S_T| err", "|S_E| err", "class acc", "pass"):
+            t.add_column(col, justify="right")
+        for r in results:
+            p = r.passes()
+            t.add_row(
+                str(r.index), r.soil_class, f"{r.soil_strength:g}", f"{r.coverage:.0%}",
+                _fmt(r.k_median_rel, ".1%"), _fmt(r.k_p90_rel, ".1%"), _fmt(r.convergence_s, ".2f"),
+                _fmt(r.mu_T_median_abs, ".4f"), _fmt(r.S_T_median_abs, ".4f"), _fmt(r.S_E_median_abs, ".4f"),
+                _fmt(r.class_accuracy, ".0%"), "yes" if all(p.values()) else "no: " + ",".join(k for k, v in p.items() if not v),
+            )
+        Console(width=160).print(t)
+        counts = {}
+        for r in results:
+            for k, v in r.statuses.items():
+                counts[k] = counts.get(k, 0) + v
+        click.echo(f"statuses: {counts}")
+    if check and not ok:
+        sys.exit(1)
+
+
+@click.command()
+@click.option("--truth", type=click.Path(exists=True, dir_okay=False), help="TRUTH.jsonl (optional)")
+@click.option("--estimates", "estimates", required=True, multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="ESTIMATES.jsonl (repeat to compare, e.g. with/without compensation)")
+@click.option("--label", "labels", multiple=True, help="Label for each --estimates")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Directory for the PNGs")
+def plot(truth, estimates, labels, out):
+    """PNG time series like the paper's Figs. 8-18: normal forces, slip, mu, K, OCPs (estimate vs truth)."""
+    from ..timeseries_plots import plot_run
+
+    if labels and len(labels) != len(estimates):
+        raise click.UsageError("give one --label per --estimates")
+    paths = plot_run(truth, list(estimates), list(labels) or None, Path(out))
+    for p in paths:
+        click.echo(str(p))
+
+
+COMMANDS = [estimate, evaluate, plot]

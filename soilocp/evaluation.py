@@ -1,0 +1,169 @@
+"""Accuracy of estimates against simulator truth: K error per terrain segment after a settle
+time, convergence after each change, OCP errors and soil-class accuracy, checked against the
+project's targets."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterable, Optional
+
+import numpy as np
+
+#: The accuracy targets (issue: "Simulated rover ... measured against truth").
+TARGETS = {
+    "k_median_rel": 0.10,
+    "k_p90_rel": 0.25,
+    "convergence_s": 1.5,
+    "convergence_band": 0.15,
+    "ocp_median_abs": 0.02,
+    "class_accuracy": 0.95,
+    "settle_s": 2.0,
+}
+
+
+@dataclass
+class SegmentResult:
+    index: int
+    soil_class: str
+    soil_strength: float
+    start: float
+    end: float
+    settled_samples: int
+    coverage: float  # fraction of settled samples with an estimate
+    k_median_rel: Optional[float]
+    k_p90_rel: Optional[float]
+    convergence_s: Optional[float]  # None: never converged within the band
+    mu_T_median_abs: Optional[float]
+    S_T_median_abs: Optional[float]
+    S_E_median_abs: Optional[float]
+    class_accuracy: Optional[float]
+    statuses: dict = field(default_factory=dict)
+
+    def passes(self) -> dict[str, bool]:
+        t = TARGETS
+
+        def le(v, lim):
+            return v is not None and v <= lim
+
+        return {
+            "k_median": le(self.k_median_rel, t["k_median_rel"]),
+            "k_p90": le(self.k_p90_rel, t["k_p90_rel"]),
+            "convergence": le(self.convergence_s, t["convergence_s"]),
+            "ocp": all(le(v, t["ocp_median_abs"]) for v in (self.mu_T_median_abs, self.S_T_median_abs, self.S_E_median_abs)),
+            "class": self.class_accuracy is not None and self.class_accuracy >= t["class_accuracy"],
+        }
+
+
+def _read_jsonl(path: str | Path) -> list[dict]:
+    out = []
+    with open(path, encoding="utf-8") as f:
+        for lineno, line in enumerate(f, 1):
+            if line.strip():
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError as exc:
+                    raise ValueError(f"{path}:{lineno}: not valid JSON: {exc}") from None
+    return out
+
+
+def _segments(stamps: np.ndarray, k_true: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges [i0, i1) of constant true K under the CoM."""
+    change = np.flatnonzero(np.abs(np.diff(k_true)) > 1e-9 * np.maximum(k_true[1:], 1)) + 1
+    bounds = np.concatenate([[0], change, [len(k_true)]])
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = TARGETS["settle_s"]) -> list[SegmentResult]:
+    """Join truth and estimates on (vehicle_id, seq) and score each terrain segment."""
+    est_by_key = {(e["vehicle_id"], e["seq"]): e for e in estimates}
+    rows = [(t, est_by_key.get((t["vehicle_id"], t["seq"]))) for t in truth]
+    if not rows:
+        raise ValueError("truth log is empty")
+    if all(e is None for _, e in rows):
+        raise ValueError("no estimate matches the truth log (vehicle_id/seq differ?)")
+    stamps = np.array([t["stamp"] for t, _ in rows])
+    k_true = np.array([t["soil_strength"] for t, _ in rows])
+    results = []
+    for idx, (i0, i1) in enumerate(_segments(stamps, k_true)):
+        t0, t_end = stamps[i0], stamps[i1 - 1]
+        seg = rows[i0:i1]
+        kt = k_true[i0]
+        k_est = np.array([e["soil_strength"] if e and e.get("soil_strength") is not None else np.nan for _, e in seg])
+        rel = np.abs(k_est - kt) / kt
+        ts = stamps[i0:i1]
+        settled = ts >= t0 + settle
+        rel_settled = rel[settled]
+        n_settled = int(settled.sum())
+        have = np.isfinite(rel_settled)
+        statuses: dict[str, int] = {}
+        for _, e in seg:
+            s = e["status"] if e else "missing"
+            statuses[s] = statuses.get(s, 0) + 1
+
+        def med_p(vals):
+            if n_settled == 0:
+                return None, None
+            v = np.where(np.isfinite(vals), vals, np.inf)  # no estimate counts as a miss
+            return float(np.median(v)), float(np.percentile(v, 90))
+
+        kmed, kp90 = med_p(rel_settled)
+        # convergence: first time after which the estimate stays inside the band to segment end
+        inside = np.isfinite(rel) & (rel <= TARGETS["convergence_band"])
+        conv = None
+        if inside[-1]:
+            outside = np.flatnonzero(~inside)
+            first_ok = 0 if outside.size == 0 else int(outside[-1]) + 1
+            conv = float(ts[first_ok] - t0)
+
+        def ocp_err(name):
+            vals = []
+            for (t, e), ok in zip(seg, settled):
+                if not ok:
+                    continue
+                if e is None or e.get(name) is None:
+                    vals.append(np.inf)
+                else:
+                    vals.append(abs(e[name] - t[name]))
+            return float(np.median(vals)) if vals else None
+
+        cls_ok = [bool(e and e.get("soil_class") == t.get("soil_class")) for (t, e), ok in zip(seg, settled) if ok]
+        results.append(
+            SegmentResult(
+                index=idx,
+                soil_class=str(seg[0][0].get("soil_class", "?")),
+                soil_strength=float(kt),
+                start=float(t0),
+                end=float(t_end),
+                settled_samples=n_settled,
+                coverage=float(have.mean()) if n_settled else 0.0,
+                k_median_rel=None if kmed is None or math.isinf(kmed) else kmed,
+                k_p90_rel=None if kp90 is None or math.isinf(kp90) else kp90,
+                convergence_s=conv,
+                mu_T_median_abs=_fin(ocp_err("mu_T")),
+                S_T_median_abs=_fin(ocp_err("S_T")),
+                S_E_median_abs=_fin(ocp_err("S_E")),
+                class_accuracy=float(np.mean(cls_ok)) if cls_ok else None,
+                statuses=statuses,
+            )
+        )
+    return results
+
+
+def _fin(v):
+    return None if v is None or not math.isfinite(v) else v
+
+
+def evaluate_files(truth: str | Path, estimates: str | Path, settle: float = TARGETS["settle_s"]) -> list[SegmentResult]:
+    return evaluate_records(_read_jsonl(truth), _read_jsonl(estimates), settle)
+
+
+def results_as_json(results: Iterable[SegmentResult]) -> list[dict]:
+    out = []
+    for r in results:
+        d = asdict(r)
+        d["passes"] = r.passes()
+        out.append(d)
+    return out
