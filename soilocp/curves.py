@@ -64,6 +64,7 @@ def plot_traction_slip(path: Path, soils: Mapping[str, float], constants: ModelC
     ax.set_ylabel("net traction coefficient μ = F_DP / W [-]")
     ax.set_title("Fig. 3: traction-slip curves, eq. 6 (dots: peaks S_T, μ_T of eqs. 7-8)")
     ax.set_xlim(-1, 1)
+    ax.margins(y=0.12)  # room for the peak labels under the title
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()

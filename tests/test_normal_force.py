@@ -1,0 +1,166 @@
+"""Normal forces, eqs. 16-25 (method-notes §2-3): zero-warp least-squares solution from the measured
+specific force.  Checked against rigid-body statics derived here independently of the library:
+
+    sum F_i = m f_z,   sum x_i F_i = -h m f_x,   sum y_i F_i = -h m f_y,   F1 - F2 + F3 - F4 = 0
+
+(moments about the CoM of the contact forces acting at height -h; wheels 1 LR, 2 LF, 3 RF, 4 RR).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from soilocp.normal_force import (
+    STANDARD_GRAVITY,
+    gravity_from_attitude,
+    load_vector,
+    normal_forces,
+    static_normal_forces,
+    system_matrix,
+)
+from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+G = STANDARD_GRAVITY
+V = DEFAULT_VEHICLE
+WARP = np.array([1.0, -1.0, 1.0, -1.0])
+
+
+def statics(v: VehicleParams, f) -> np.ndarray:
+    """Independent zero-warp rigid-body solution (see module docstring)."""
+    x = np.array([-v.a, v.b, v.b, -v.a])
+    y = np.array([v.c, v.c, -v.d, -v.d])
+    M = np.vstack([np.ones(4), x, y, WARP])
+    fx, fy, fz = f
+    rhs = np.array([v.mass * fz, -v.h * v.mass * fx, -v.h * v.mass * fy, 0.0])
+    return np.linalg.solve(M, rhs)
+
+
+def test_matrix_is_rank_3_with_warp_null_vector():
+    A = system_matrix(V)
+    assert np.linalg.matrix_rank(A) == 3  # method-notes erratum 2: eq. 25's inverse does not exist
+    np.testing.assert_allclose(A @ WARP, 0.0, atol=1e-12)
+
+
+def test_static_split_at_rest():
+    F = normal_forces(V, [0.0, 0.0, G])
+    m = V.mass
+    rear, front = F[0] + F[3], F[1] + F[2]
+    left, right = F[0] + F[1], F[2] + F[3]
+    assert rear == pytest.approx(m * G * V.b / (V.a + V.b))
+    assert front == pytest.approx(m * G * V.a / (V.a + V.b))
+    assert left == pytest.approx(m * G * V.d / (V.c + V.d))
+    assert right == pytest.approx(m * G * V.c / (V.c + V.d))
+    assert F.sum() == pytest.approx(m * G)
+    assert np.all(F > 0)
+
+
+def test_asymmetric_static_split():
+    v = VehicleParams(mass=100.0, a=0.4, b=0.2, c=0.3, d=0.1, h=0.25)
+    F = normal_forces(v, [0.0, 0.0, G])
+    np.testing.assert_allclose(F, statics(v, (0.0, 0.0, G)), rtol=1e-12)
+    assert F[0] + F[3] == pytest.approx(100 * G * 0.2 / 0.6)  # CoM nearer the front: front carries more
+    assert F[2] + F[3] == pytest.approx(100 * G * 0.3 / 0.4)  # CoM nearer the right wheels
+
+
+def test_climbing_slope_loads_the_rear_and_total_is_m_g_cos():
+    pitch = -math.radians(15)  # REP-103: nose up = negative pitch
+    f = gravity_from_attitude(0.0, pitch)
+    assert f[0] > 0  # at rest on a climb f_x = -g sin(pitch) > 0
+    F = static_normal_forces(V, 0.0, pitch)
+    flat = static_normal_forces(V)
+    assert F[0] + F[3] > flat[0] + flat[3]
+    assert F.sum() == pytest.approx(V.mass * G * math.cos(pitch))
+    np.testing.assert_allclose(F, statics(V, f), rtol=1e-12)
+
+
+def test_side_slope_loads_the_downhill_side():
+    roll = math.radians(10)  # left side up
+    F = static_normal_forces(V, roll, 0.0)
+    assert F[2] + F[3] > F[0] + F[1]  # right (downhill) wheels carry more
+    left = F[0] + F[1]
+    f = gravity_from_attitude(roll, 0.0)
+    assert left == pytest.approx(V.mass * (V.d * f[2] - V.h * f[1]) / (V.c + V.d))
+
+
+def test_forward_acceleration_transfers_load_to_the_rear():
+    accel = 2.0
+    F = normal_forces(V, [accel, 0.0, G])
+    flat = normal_forces(V, [0.0, 0.0, G])
+    transfer = V.mass * accel * V.h / (V.a + V.b)
+    assert (F[0] + F[3]) - (flat[0] + flat[3]) == pytest.approx(transfer)
+    assert (F[1] + F[2]) - (flat[1] + flat[2]) == pytest.approx(-transfer)
+    # braking moves it forward
+    Fb = normal_forces(V, [-accel, 0.0, G])
+    assert Fb[1] + Fb[2] > flat[1] + flat[2]
+
+
+def test_lift_off_is_reported_not_clipped():
+    F = normal_forces(V, [0.0, 30.0, G])  # violent lateral force: left wheels lift
+    assert F[0] < 0 and F[1] < 0
+    assert F.sum() == pytest.approx(V.mass * G)
+
+
+def test_time_series_shape():
+    f = np.array([[0.0, 0.0, G], [1.0, 0.5, G], [-1.0, 0.0, 9.0]])
+    F = normal_forces(V, f)
+    assert F.shape == (3, 4)
+    np.testing.assert_allclose(F[1], normal_forces(V, f[1]))
+    np.testing.assert_allclose(F.sum(axis=1), V.mass * f[:, 2])
+
+
+lengths = st.floats(0.05, 2.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.builds(VehicleParams, mass=st.floats(1.0, 2000.0), a=lengths, b=lengths, c=lengths, d=lengths, h=st.floats(0.01, 2.0)),
+    st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(0.0, 30.0)),
+)
+def test_properties_for_random_geometry_and_specific_force(v, f):
+    F = normal_forces(v, f)
+    A, B = system_matrix(v), load_vector(v, f)
+    scale = v.mass * (abs(f[0]) + abs(f[1]) + abs(f[2]) + 1.0) * (v.a + v.b + v.c + v.d + v.h)
+    np.testing.assert_allclose(A @ F, B, atol=1e-9 * scale)  # eqs. 21-24 hold exactly
+    assert F.sum() == pytest.approx(v.mass * f[2], abs=1e-9 * scale)  # vertical balance
+    assert F[0] + F[2] == pytest.approx(F[1] + F[3], abs=1e-9 * scale)  # zero warp
+    np.testing.assert_allclose(F, statics(v, f), atol=1e-9 * scale)
+    assert np.dot(B, WARP) == pytest.approx(0.0, abs=1e-9 * scale)  # B orthogonal to the null vector
+
+
+@pytest.mark.parametrize("field", ["a", "b", "c", "d", "h", "mass"])
+@pytest.mark.parametrize("value", [0.0, -0.3, float("nan"), float("inf")])
+def test_bad_geometry_rejected_by_vehicle_params(field, value):
+    with pytest.raises(ValueError, match=field):
+        VehicleParams(**{field: value})
+
+
+@pytest.mark.parametrize("field", ["a", "b", "c", "d", "h"])
+@pytest.mark.parametrize("value", [0.0, -0.3, float("nan")])
+def test_bad_geometry_rejected_by_solver(field, value):
+    # an unvalidated object (model_construct skips pydantic) must still not give silent garbage
+    v = VehicleParams.model_construct(**(V.model_dump() | {field: value}))
+    with pytest.raises(ValueError, match=f"geometry {field}"):
+        normal_forces(v, [0.0, 0.0, G])
+
+
+@pytest.mark.parametrize("f", [[0.0, G], [0.0, 0.0, G, 1.0], np.zeros((3, 2)), 9.81])
+def test_wrong_specific_force_shape(f):
+    with pytest.raises(ValueError, match="specific_force"):
+        normal_forces(V, f)
+
+
+@pytest.mark.parametrize("f", [[float("nan"), 0.0, G], [0.0, float("inf"), G], "up"])
+def test_non_finite_specific_force(f):
+    with pytest.raises(ValueError, match="specific_force"):
+        normal_forces(V, f)
+
+
+@pytest.mark.parametrize(("roll", "pitch", "name"), [(float("nan"), 0.0, "roll"), (0.0, float("inf"), "pitch")])
+def test_bad_attitude(roll, pitch, name):
+    with pytest.raises(ValueError, match=name):
+        gravity_from_attitude(roll, pitch)
