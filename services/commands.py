@@ -1,0 +1,156 @@
+"""Console commands of the services area: ``service``, ``router``, ``run``, ``schemas``.
+
+Zenoh and the physics are imported inside the command bodies, so ``soilocp --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Optional
+
+import click
+
+SERVICE_NAMES = ("gateway", "normal-force", "observer", "soil-strength", "ocp", "vehicle")
+
+
+def _fatal(prefix: str, message: str, code: int = 2) -> None:
+    click.echo(f"{prefix}: error: {message}", err=True)
+    sys.exit(code)
+
+
+def _service_class(name: str):
+    if name == "gateway":
+        from .gateway import GatewayService as cls
+    elif name == "normal-force":
+        from .normal_force import NormalForceService as cls
+    elif name == "observer":
+        from .observer import ObserverService as cls
+    elif name == "soil-strength":
+        from .soil_strength import SoilStrengthService as cls
+    elif name == "ocp":
+        from .ocp import OcpService as cls
+    else:
+        from .vehicle import VehicleService as cls
+    return cls
+
+
+@click.command("service")
+@click.argument("name", type=click.Choice(SERVICE_NAMES))
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Service config file (JSON); env SOILOCP_CONFIG.")
+@click.option("--vehicle-id", "vehicle_ids", multiple=True, help="Vehicle id (repeatable); env SOILOCP_VEHICLE_ID.")
+@click.option("--connect", multiple=True, help="Zenoh endpoint to connect to (repeatable); env SOILOCP_CONNECT.")
+@click.option("--listen", multiple=True, help="Zenoh endpoint to listen on (repeatable, peer mode); env SOILOCP_LISTEN.")
+@click.option("--mode", type=click.Choice(["client", "peer"]), help="Zenoh mode; env SOILOCP_MODE (default client).")
+@click.option("--log-level", type=click.Choice(["debug", "info", "warning", "error"]), help="env SOILOCP_LOG_LEVEL.")
+@click.option("--stale-timeout", type=float, help="OCP: stale after this many seconds without input; env SOILOCP_STALE_TIMEOUT.")
+@click.option("--pipeline-config", type=click.Path(dir_okay=False), help="Physics PipelineConfig file (JSON).")
+@click.option("--scenario", help="vehicle: simulator scenario to publish in real time.")
+@click.option("--replay", type=click.Path(dir_okay=False), help="vehicle: sensor log (JSON Lines) to replay.")
+@click.option("--speed", type=float, default=1.0, show_default=True, help="vehicle: replay speed factor (0 = as fast as possible).")
+@click.option("--duration", type=float, help="vehicle: seconds of scenario / log to publish.")
+@click.option("--rate", type=float, default=100.0, show_default=True, help="vehicle: scenario sample rate, Hz.")
+@click.option("--seed", type=int, default=0, show_default=True, help="vehicle: scenario noise seed.")
+@click.option("--wait-timeout", type=float, default=20.0, show_default=True,
+              help="vehicle: wait at most this long for the pipeline services before publishing (0: don't wait).")
+def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
+                scenario, replay, speed, duration, rate, seed, wait_timeout) -> None:
+    """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
+    from .runtime import ConfigError, load_service_config, run_service
+
+    prefix = f"soilocp service {name}"
+    overrides = dict(vehicle_ids=vehicle_ids, connect=connect, listen=listen, mode=mode, log_level=log_level,
+                     stale_timeout_s=stale_timeout, pipeline_config=pipeline_config)
+    kwargs = {}
+    try:
+        cfg = load_service_config(name, config_path=config_path, overrides=overrides)
+        if name == "vehicle":
+            from schemas import keys
+            from .vehicle import replay_source, scenario_source
+
+            if (scenario is None) == (replay is None):
+                raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
+            if replay is not None:
+                source = replay_source(replay, duration)
+                describe = f"replay {replay}"
+            else:
+                if rate <= 0:
+                    raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
+                source = scenario_source(scenario, cfg.vehicle_id, duration=duration, rate=rate, seed=seed)
+                describe = f"scenario {scenario}"
+            kwargs = dict(source=source, speed=speed, describe=describe,
+                          wait_for=keys.PIPELINE_SERVICES if wait_timeout > 0 else (), wait_timeout_s=wait_timeout)
+        elif scenario or replay:
+            raise ConfigError("--scenario/--replay are options of the vehicle service only")
+        sys.exit(run_service(_service_class(name), cfg, **kwargs))
+    except ConfigError as exc:
+        _fatal(prefix, str(exc))
+    except ValueError as exc:
+        _fatal(prefix, str(exc))
+
+
+@click.command("router")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Deployment config; its 'router' section.")
+@click.option("--listen", multiple=True, help="Endpoint to listen on (repeatable); default tcp/127.0.0.1:7447; env SOILOCP_LISTEN.")
+@click.option("--connect", multiple=True, help="Endpoint of another router, e.g. a fleet router; env SOILOCP_ROUTER_CONNECT.")
+def router_cmd(config_path, listen, connect) -> None:
+    """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
+    from .router import router_settings, run_router
+    from .runtime import ConfigError
+
+    try:
+        sys.exit(run_router(router_settings(config_path, listen, connect)))
+    except ConfigError as exc:
+        _fatal("soilocp router", str(exc))
+
+
+@click.command("run")
+@click.option("--synthetic", "scenario", metavar="SCENARIO", help="Drive a simulator scenario in real time.")
+@click.option("--replay", type=click.Path(exists=True, dir_okay=False), help="Replay a sensor log instead.")
+@click.option("--speed", type=float, default=1.0, show_default=True, help="Replay speed factor (0 = as fast as possible).")
+@click.option("--vehicle-id", default="rover1", show_default=True)
+@click.option("--duration", type=float, help="Stop after this many seconds of driving (default: when the source ends).")
+@click.option("--listen", multiple=True, help="Router endpoint(s); default tcp/127.0.0.1:7447.")
+@click.option("--pipeline-config", type=click.Path(exists=True, dir_okay=False), help="Physics PipelineConfig file.")
+@click.option("--stale-timeout", type=float, default=0.5, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--log-dir", type=click.Path(file_okay=False), help="Where each process's log goes (default: a new temp dir).")
+@click.option("--plain", is_flag=True, help="Periodic plain lines instead of the live table (automatic without a TTY).")
+def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
+            plain) -> None:
+    """Start the router, the five services and a source as separate processes; show live OCPs."""
+    from schemas import keys
+
+    from .run import RunOptions, run_system
+
+    if (scenario is None) == (replay is None):
+        _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
+    try:
+        keys.check_vehicle_id(vehicle_id)
+        if duration is not None and duration <= 0:
+            raise ValueError(f"--duration {duration!r}: must be > 0 s")
+        if speed < 0:
+            raise ValueError(f"--speed {speed!r}: must be >= 0")
+    except ValueError as exc:
+        _fatal("soilocp run", str(exc))
+    opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
+                      listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
+                      seed=seed, log_dir=log_dir, plain=plain)
+    sys.exit(run_system(opts))
+
+
+@click.group("schemas")
+def schemas_group() -> None:
+    """Message contracts (JSON Schema for consumers in other languages)."""
+
+
+@schemas_group.command("export")
+@click.argument("directory", type=click.Path(file_okay=False))
+def schemas_export(directory: str) -> None:
+    """Write one JSON Schema file per message model into DIRECTORY."""
+    from schemas.export import export_schemas
+
+    for p in export_schemas(directory):
+        click.echo(str(p))
+
+
+COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
