@@ -83,7 +83,7 @@ class TestbedData:
         return len(self.soil)
 
 
-def testbed_from_arrays(slip, mu, soil: Sequence[str], gross=None, source: str = "<arrays>") -> TestbedData:
+def build_testbed(slip, mu, soil: Sequence[str], gross=None, source: str = "<arrays>") -> TestbedData:
     """Validate arrays into :class:`TestbedData` (1-D, equal length, finite, |slip| <= 1)."""
     s = as_float_array("slip", slip, shape=(-1,))
     m = as_float_array("mu", mu, shape=(-1,))
@@ -130,7 +130,7 @@ def read_testbed_csv(path: str | Path) -> TestbedData:
         cols = set(header)
         if "mu" in cols and "drawbar_pull" in cols:
             raise ValueError(f"{p} line 1: give either 'mu' or 'drawbar_pull' + 'normal_load', not both")
-        force_mode = "mu" not in cols
+        force_mode = "mu" not in cols and ("drawbar_pull" in cols or "normal_load" in cols)
         need = ["slip", "soil"] + (["drawbar_pull", "normal_load"] if force_mode else ["mu"])
         missing = [c for c in need if c not in cols]
         if missing:
