@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# Build the soilocp image with no container registry.
+#
+#   scripts/build-images.sh [--no-cache]
+#
+# 1. the base image: BASE_IMAGE (default soilocp-base:local) is built by build-base-image.sh
+#    unless it exists already (a BASE_IMAGE of another name, e.g. python:3.11-slim, must be
+#    present locally or pullable);
+# 2. deploy/wheelhouse/: every dependency wheel (+ the build backend) by `pip wheel` on the host,
+#    reusing the wheels already there when they still satisfy the requirements (no index query);
+# 3. `docker build` of the Dockerfile as SOILOCP_IMAGE (default soilocp:local).
+# Environment: BASE_IMAGE, SOILOCP_IMAGE, PYTHON (interpreter whose pip builds the wheels; must be
+# the base image's CPython minor version; default .venv/bin/python, else python3).
+# Prints the time of each step.
+set -euo pipefail
+
+root="$(cd "$(dirname "$0")/.." && pwd)"
+base="${BASE_IMAGE:-soilocp-base:local}"
+image="${SOILOCP_IMAGE:-soilocp:local}"
+build_opts=()
+for arg in "$@"; do
+    case "$arg" in
+        --no-cache) build_opts+=(--no-cache) ;;
+        -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+        *) echo "build-images: unknown argument $arg" >&2; exit 2 ;;
+    esac
+done
+if [[ -z "${PYTHON:-}" ]]; then
+    if [[ -x "$root/.venv/bin/python" ]]; then PYTHON="$root/.venv/bin/python"; else PYTHON=python3; fi
+fi
+t0=$(date +%s)
+
+# --- 1. base ------------------------------------------------------------------------------
+if [[ "$base" == soilocp-base:* ]]; then
+    "$root/scripts/build-base-image.sh" "$base"
+elif ! docker image inspect "$base" >/dev/null 2>&1; then
+    echo "build-images: base image $base is not present locally; docker build will try to pull it"
+fi
+t1=$(date +%s)
+
+# The wheels are built for the host's CPython: the base image must run the same minor version.
+host_py="$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+if docker image inspect "$base" >/dev/null 2>&1; then
+    base_py="$(docker run --rm --entrypoint python3 "$base" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+    if [[ "$host_py" != "$base_py" ]]; then
+        echo "build-images: host python $host_py ($PYTHON) != base image python $base_py: wheels would not match" >&2
+        exit 1
+    fi
+fi
+
+# --- 2. wheelhouse --------------------------------------------------------------------------
+wheelhouse="$root/deploy/wheelhouse"
+tmp="$(mktemp -d)"
+trap 'rm -rf "$tmp"' EXIT
+reqs=("$root" "setuptools>=68" "wheel")   # the build backend too: the image builds soilocp offline
+if "$PYTHON" -m pip wheel -q --no-index --find-links "$wheelhouse" -w "$tmp" "${reqs[@]}" >/dev/null 2>&1; then
+    echo "build-images: wheelhouse up to date (no index query)"
+else
+    rm -f "$tmp"/*.whl
+    "$PYTHON" -m pip wheel -q --find-links "$wheelhouse" -w "$tmp" "${reqs[@]}"
+fi
+rm -f "$tmp"/soilocp-*.whl     # the image installs soilocp itself from the source tree
+rm -f "$wheelhouse"/*.whl
+mv "$tmp"/*.whl "$wheelhouse"/
+echo "build-images: $(ls "$wheelhouse"/*.whl | wc -l) wheels, $(du -sh "$wheelhouse" | cut -f1) in deploy/wheelhouse"
+t2=$(date +%s)
+
+# --- 3. image -------------------------------------------------------------------------------
+docker build -q "${build_opts[@]}" --build-arg BASE_IMAGE="$base" -t "$image" "$root" >/dev/null
+t3=$(date +%s)
+echo "build-images: $image from $base: base $((t1 - t0)) s, wheels $((t2 - t1)) s, image $((t3 - t2)) s, total $((t3 - t0)) s"
+docker image ls "$image"
