@@ -1,0 +1,177 @@
+"""Drive scenarios for the simulated rover: terrain segments (soil strength K, grade, cross-slope)
+laid out along the distance travelled, a speed, a default duration and a controller mode.
+
+Segments are placed by distance along the path: segment j covers [start_j, start_j + length_j)
+and the last segment extends without end.  Each wheel sees the segment at its own position
+(distance of the CoM + the wheel's x offset), so the front wheels cross a soil change first.
+
+Angles follow the sensor-log conventions (REP-103, method-notes): ``grade`` > 0 is a climb
+(the rover's pitch is -grade, nose up), ``cross_slope`` > 0 means the ground rises to the left
+(the rover's roll is +cross_slope, left side up, so the right wheels are the lower ones).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from .constants import REFERENCE_SOILS
+
+Mode = Literal["cruise", "excitation"]
+MODES: tuple[str, ...] = ("cruise", "excitation")
+
+
+Axle = Literal["front", "rear"]
+
+
+@dataclass(frozen=True)
+class SweepParams:
+    """Slip sweep of one axle in ``excitation`` mode (a traction test): that axle's wheels track a
+    triangle wave of driving slip (eq. 1) between ``s_min`` and ``s_max`` with period ``period``
+    seconds, while the other axle brakes to hold the speed.
+
+    The default sweeping axle is the REAR one: with the default rover the front axle carries 54 %
+    of the weight, and the sweep's mean traction on the heavier axle exceeds what the lighter axle
+    can brake at its traction peak, on every soil (e.g. sand: 107 N mean vs 104 N max; firm: 304 N
+    vs 298 N), so a front sweep cannot hold the speed.  ``axle="front"`` is available; then a
+    governor cuts the sweep when the rover overspeeds (the truth records the actual set-point).
+    """
+
+    s_min: float = 0.05
+    s_max: float = 0.6
+    period: float = 1.2
+    axle: Axle = "rear"
+
+    def __post_init__(self) -> None:
+        if self.axle not in ("front", "rear"):
+            raise ValueError(f"sweep axle must be 'front' or 'rear', got {self.axle!r}")
+        for name in ("s_min", "s_max", "period"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"sweep {name} must be a finite number, got {v!r}")
+        if not 0.0 <= self.s_min < self.s_max < 0.95:
+            raise ValueError(
+                f"sweep slips must satisfy 0 <= s_min < s_max < 0.95, got s_min={self.s_min}, s_max={self.s_max}"
+            )
+        if self.period <= 0:
+            raise ValueError(f"sweep period must be > 0 s, got {self.period}")
+
+    def slip_at(self, t: float) -> float:
+        """Triangle wave: s_min at t = 0, s_max at t = period/2, s_min again at t = period."""
+        phase = (t / self.period) % 1.0
+        tri = 1.0 - abs(2.0 * phase - 1.0)
+        return self.s_min + (self.s_max - self.s_min) * tri
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One stretch of terrain: soil class and strength K, grade and cross-slope (rad), length (m)."""
+
+    soil_class: str
+    soil_strength: float
+    length: float = math.inf
+    grade: float = 0.0
+    cross_slope: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.soil_strength) and self.soil_strength > 0):
+            raise ValueError(f"segment soil_strength must be a finite K > 0, got {self.soil_strength!r}")
+        if not self.length > 0:
+            raise ValueError(f"segment length must be > 0 m, got {self.length!r}")
+        for name in ("grade", "cross_slope"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and abs(v) < math.radians(45)):
+                raise ValueError(f"segment {name} must be finite and within +-45 deg, got {v!r} rad")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named drive: terrain segments by distance, target speed, default duration and mode."""
+
+    name: str
+    description: str
+    segments: tuple[Segment, ...]
+    speed: float = 1.0
+    duration: float = 30.0
+    mode: Mode = "excitation"
+    sweep: SweepParams = field(default_factory=SweepParams)
+
+    def __post_init__(self) -> None:
+        if not self.segments:
+            raise ValueError(f"scenario {self.name!r} needs at least one segment")
+        if self.mode not in MODES:
+            raise ValueError(f"scenario mode must be one of {MODES}, got {self.mode!r}")
+        if not (math.isfinite(self.speed) and 0 < self.speed <= 5):
+            raise ValueError(f"scenario speed must be in (0, 5] m/s, got {self.speed!r}")
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"scenario duration must be > 0 s, got {self.duration!r}")
+
+    @property
+    def starts(self) -> np.ndarray:
+        """Distance (m) at which each segment starts."""
+        lengths = np.array([s.length for s in self.segments[:-1]], dtype=float)
+        return np.concatenate([[0.0], np.cumsum(lengths)])
+
+    def segment_index(self, distance) -> np.ndarray:
+        """Index of the segment at each distance (m); before the start -> the first segment."""
+        idx = np.searchsorted(self.starts, np.asarray(distance, dtype=float), side="right") - 1
+        return np.clip(idx, 0, len(self.segments) - 1)
+
+    def with_overrides(self, *, sweep: SweepParams | None = None, speed: float | None = None) -> "Scenario":
+        return replace(self, sweep=sweep or self.sweep, speed=self.speed if speed is None else speed)
+
+
+def _single(name: str, soil: str, description: str, **kw) -> Scenario:
+    return Scenario(name, description, (Segment(soil, REFERENCE_SOILS[soil]),), **kw)
+
+
+_SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        _single("sand", "sand", "Flat sand (K=50) at 1 m/s, front-axle slip sweep"),
+        _single("gravel", "gravel", "Flat gravel (K=80) at 1 m/s, front-axle slip sweep"),
+        _single("EST", "EST", "Flat 'expected soil type' (K=120) at 1 m/s, front-axle slip sweep"),
+        _single("grass", "grass", "Flat grass (K=200) at 1 m/s, front-axle slip sweep"),
+        _single("firm", "firm", "Flat firm soil (K=300) at 1 m/s, front-axle slip sweep"),
+        Scenario(
+            "sandy-slope",
+            "Sand (K=50) on a 10 deg climb with a 3 deg cross-slope (left side up), 1 m/s",
+            (Segment("sand", REFERENCE_SOILS["sand"], grade=math.radians(10.0), cross_slope=math.radians(3.0)),),
+        ),
+        Scenario(
+            "mixed",
+            "Abrupt soil changes by distance: sand -> gravel -> grass -> firm, 12 m each at 1 m/s",
+            (
+                Segment("sand", REFERENCE_SOILS["sand"], length=12.0),
+                Segment("gravel", REFERENCE_SOILS["gravel"], length=12.0),
+                Segment("grass", REFERENCE_SOILS["grass"], length=12.0),
+                Segment("firm", REFERENCE_SOILS["firm"]),
+            ),
+            duration=50.0,
+        ),
+        Scenario(
+            "flat-cruise",
+            "Flat gravel (K=80) at constant 1 m/s, no excitation: slip ~0, K not identifiable",
+            (Segment("gravel", REFERENCE_SOILS["gravel"]),),
+            mode="cruise",
+        ),
+    )
+}
+
+
+def list_scenarios() -> list[Scenario]:
+    """All built-in scenarios, in a stable order."""
+    return list(_SCENARIOS.values())
+
+
+def get_scenario(name: str | Scenario) -> Scenario:
+    """Look a scenario up by name (a Scenario passes through); ValueError lists the valid names."""
+    if isinstance(name, Scenario):
+        return name
+    try:
+        return _SCENARIOS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"scenario must be one of {', '.join(_SCENARIOS)}; got {name!r}") from None

@@ -1,0 +1,604 @@
+"""Simulated 4-wheel, differentially steered rover (paper Fig. 6) with ground truth.
+
+This is the truth the whole project is measured against.  It uses the library's physics and
+nothing else: the traction model of :mod:`soilocp.traction` (net traction mu, eq. 6; gross
+traction g, eq. 3; motion resistance r = g - mu, eq. 4, odd in slip and bridged near S = 0,
+method-notes §8), the zero-warp normal-force solver of :mod:`soilocp.normal_force` (eqs. 16-25
+corrected, method-notes §2-3), slip eq. 1 with the standstill floor of :mod:`soilocp.slip`
+(method-notes §6, §10) and the OCPs of :mod:`soilocp.ocp`.
+
+Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
+
+* slip of wheel i, eq. 1: S_i = (omega_i R_w - V_i) / max(|omega_i R_w|, |V_i|, floor), with the
+  ground speed at the wheel V_i = V - psi_dot * y_i (differential steering);
+* wheel i, eq. 13: I_w omega_i' = T_i - R_w (mu_i + r_i) Fz_i: the wheel sees gross traction;
+* body, longitudinal: m V' = sum(mu_i Fz_i) - m g sin(grade) (net traction already contains
+  the motion resistance; -g sin(grade) is the x component of gravity, eq. 20 with pitch = -grade);
+* yaw, eqs. 11-12: I_z psi'' = d (Fx3 + Fx4) - c (Fx1 + Fx2) - M_zR with Fx_i = mu_i Fz_i and the
+  skid-steer resistance moment M_zR = mu_y (a (Fz1 + Fz4) + b (Fz2 + Fz3)) tanh(psi'/eps), which
+  opposes the yaw rate smoothly (eq. 12 with a regularised sign);
+* normal forces from the TRUE specific force f = (V', V psi', 0) + g_R(roll, pitch) (eq. 20's
+  gravity reaction plus the acceleration, method-notes §3) through the zero-warp solver; the
+  acceleration is the previous sub-step's, so the forces are explicit in the step.
+
+Lateral sliding is not modelled (the rover tracks its heading); grade and cross-slope are those
+of the segment under the CoM, taken as pitch = -grade and roll = +cross_slope.
+
+Stiffness (method-notes §10): at low speed the wheel-slip time constants are well below 1 ms,
+so every sub-step (default <= 2.5 ms, several per sensor interval) is a backward-Euler step of
+(omega_1..4, V, psi') solved by Newton's method with the analytic Jacobian (d g/dS, d mu/dS and
+d S/d omega, d S/dV; the 6x6 system is reduced to 2x2 by eliminating the diagonal wheel block).
+For speed, eqs. 3 and 6 and their slip derivatives are sampled from :mod:`soilocp.traction` on a
+fine slip grid (1e-4) per soil strength and interpolated (error < 2e-7 in mu); the truth record
+reports values computed by :mod:`soilocp.traction` itself at the reported state.
+
+Energy is booked per sub-step so that a test can close the balance
+motor work = kinetic + potential energy change + dissipation (+ the integrator's own, >= 0).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.sensor import VEHICLE_ID_PATTERN, SensorSample
+
+from .constants import DEFAULT_CONSTANTS, ModelConstants
+from .normal_force import STANDARD_GRAVITY, gravity_from_attitude, normal_forces
+from .ocp import ocp_from_soil_strength
+from .scenarios import MODES, Scenario, SweepParams, get_scenario
+from .sensor_models import SensorNoise, SensorSuite
+from .slip import DEFAULT_FLOOR
+from .traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from .vehicle import DEFAULT_VEHICLE, VehicleParams
+
+TRUTH_SCHEMA_ID = "soilocp.truth_record/1"
+
+_F4 = tuple[float, float, float, float]
+_F3 = tuple[float, float, float]
+
+
+class TruthRecord(BaseModel):
+    """Ground truth of the simulated rover at one sensor sample (same vehicle_id / seq / stamp).
+
+    Per-wheel lists are in the paper's order: 1 left-rear, 2 left-front, 3 right-front, 4 right-rear.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, title="TruthRecord", json_schema_extra={"$id": TRUTH_SCHEMA_ID})
+
+    vehicle_id: str
+    seq: int = Field(ge=0)
+    stamp: float = Field(ge=0, description="s, equal to the sensor sample's stamp")
+    mode: Literal["cruise", "excitation"] = Field(description="Wheel-speed controller mode")
+    segment: int = Field(ge=0, description="Index of the terrain segment under the CoM")
+    soil_class: str = Field(description="Soil class of the segment under the CoM")
+    soil_strength: float = Field(gt=0, description="True soil strength K under the CoM")
+    wheel_soil_strength: _F4 = Field(description="True K under each wheel (front wheels cross changes first)")
+    grade: float = Field(description="Grade under the CoM, rad, > 0 = climb (pitch = -grade)")
+    cross_slope: float = Field(description="Cross-slope under the CoM, rad, > 0 = left side up (roll = +cross_slope)")
+    roll: float = Field(description="True roll, rad (REP-103, > 0 left side up)")
+    pitch: float = Field(description="True pitch, rad (REP-103, > 0 nose down; < 0 on a climb)")
+    distance: float = Field(description="Distance travelled by the CoM, m")
+    heading: float = Field(description="Yaw angle relative to the start, rad")
+    yaw_rate: float = Field(description="True yaw rate, rad/s, > 0 turning left")
+    slip: _F4 = Field(description="Slip per wheel, eq. 1 with V_i = V - yaw_rate*y_i (> 0 driving)")
+    mu: _F4 = Field(description="Net traction coefficient per wheel, eq. 6 (F_DP / Fz)")
+    motion_resistance: _F4 = Field(description="Motion-resistance coefficient per wheel, eq. 4 (= gross - mu)")
+    gross_traction: _F4 = Field(description="Gross traction coefficient per wheel, eq. 3 (what the wheel's eq. 13 sees)")
+    normal_force: _F4 = Field(description="Normal force per wheel, N (zero-warp solution from specific_force)")
+    ground_speed: float = Field(description="Longitudinal speed of the CoM, m/s")
+    wheel_speed: _F4 = Field(description="True wheel angular speeds, rad/s")
+    wheel_torque: _F4 = Field(description="True motor torques at the wheels, N m")
+    specific_force: _F3 = Field(description="True specific force at the CoM, m/s^2 (body x fwd, y left, z up)")
+    speed_command: float = Field(description="Vehicle speed set-point, m/s (ramps up from rest)")
+    slip_command: float | None = Field(description="Front-axle slip set-point in excitation mode (None in cruise)")
+    mu_T: float = Field(description="Maximum traction coefficient for the true K under the CoM (eq. 8)")
+    S_T: float = Field(description="Slip of maximum traction for the true K under the CoM (eq. 7 corrected)")
+    S_E: float = Field(description="Slip of best efficiency for the true K under the CoM (eq. 10)")
+    motor_work: float = Field(description="Work done by the four motors since the start, J")
+    kinetic_energy: float = Field(description="Body translation + yaw + wheel spin kinetic energy, J")
+    potential_energy: float = Field(description="m g (height gained since the start), J")
+    slip_dissipation: float = Field(description="Energy dissipated by slip, sum Fz g (omega R_w - V_i) dt, J (>= 0)")
+    resistance_work: float = Field(
+        description="Work of motion resistance, sum Fz r V_i dt, J (can be < 0 for K < ~125, method-notes §8)"
+    )
+    yaw_dissipation: float = Field(description="Energy dissipated by the skid-steer moment M_zR, J (>= 0)")
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Wheel-speed PI controllers (one per wheel) and the outer speed / heading loops."""
+
+    wheel_kp: float = 10.0  #: N m per rad/s
+    wheel_ki: float = 200.0  #: N m per rad
+    torque_limit: float = 40.0  #: |T| max per wheel, N m
+    speed_kp: float = 0.5  #: rear-axle speed loop (excitation), m/s per m/s
+    speed_ki: float = 2.0  #: 1/s
+    yaw_kp: float = 1.0  #: heading correction, rad/s per rad/s of yaw rate
+    yaw_ki: float = 2.0  #: 1/s
+    ramp_time: float = 2.0  #: smooth start: speed (and sweep amplitude) ramp from 0, s
+    #: Sweep governor: when the braking axle cannot hold the speed, the slip set-point
+    #: is scaled by 1 - gain * (overspeed fraction - deadband).  The truth records the set-point.
+    governor_gain: float = 4.0
+    governor_deadband: float = 0.08
+    #: Excitation: the speed-holding axle never brakes harder than this slip, so that it stays on
+    #: the stable side of the traction peak (past it a braking wheel locks).
+    brake_slip_limit: float = 0.35
+
+    def __post_init__(self) -> None:
+        for name, v in self.__dict__.items():
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"controller {name} must be finite and >= 0, got {v!r}")
+        if self.torque_limit <= 0:
+            raise ValueError(f"controller torque_limit must be > 0 N m, got {self.torque_limit!r}")
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Integrator and resistance-moment settings."""
+
+    max_substep: float = 0.0025  #: s; sub-steps per sensor interval = ceil(interval / max_substep)
+    lateral_resistance: float = 0.2  #: mu_y of eq. 12
+    yaw_rate_eps: float = 0.05  #: rad/s, smoothing of sign(psi') in M_zR
+    slip_floor: float = DEFAULT_FLOOR  #: m/s, floor on eq. 1's denominator (standstill)
+    newton_tol: float = 1e-8  #: accept a Newton iterate once its update is below this (rad/s, m/s)
+    newton_max_iter: int = 8
+
+    def __post_init__(self) -> None:
+        for name, v in self.__dict__.items():
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"sim parameter {name} must be finite and > 0, got {v!r}")
+
+
+DEFAULT_CONTROLLER = ControllerParams()
+DEFAULT_SIM = SimParams()
+
+
+def slip_and_partials(omega, v_wheel, wheel_radius: float, floor: float = DEFAULT_FLOOR):
+    """Eq. 1 exactly as :func:`soilocp.slip.slip_ratio` (denominator floored, method-notes §6/§10),
+    plus its partial derivatives dS/d omega and dS/dV for the Newton Jacobian.
+
+    Returns (S, dS/d omega, dS/dV).  Branches: rim faster (D = |rho|): S = 1 - V/rho;
+    ground faster (D = |V|): S = rho/V - 1; both below the floor: S = (rho - V)/floor.
+    """
+    rho = omega * wheel_radius
+    arho, av = np.abs(rho), np.abs(v_wheel)
+    d = np.maximum(np.maximum(arho, av), floor)
+    s = (rho - v_wheel) / d
+    rim = (arho >= av) & (arho >= floor)
+    gnd = ~rim & (av >= floor)
+    inv_d2 = 1.0 / (d * d)
+    ds_drho = np.where(rim, v_wheel * np.sign(rho) * inv_d2, 1.0 / d)
+    ds_dv = np.where(gnd, -rho * np.sign(v_wheel) * inv_d2, -1.0 / d)
+    return s, ds_drho * wheel_radius, ds_dv
+
+
+class _TractionTable:
+    """Gross (eq. 3) and net (eq. 6) traction and their slip derivatives, sampled from
+    :mod:`soilocp.traction` on a uniform slip grid per soil strength and linearly interpolated.
+
+    The integrator's inner loop is scalar Python (four wheels: numpy's per-call overhead would
+    dominate), so the tables are Python lists indexed in O(1).
+    """
+
+    STEP = 1e-4
+    SPAN = 2.0  # |S| <= 2 for eq. 1 with the max() denominator
+
+    def __init__(self, constants: ModelConstants):
+        self.constants = constants
+        self.n = int(round(2 * self.SPAN / self.STEP)) + 1
+        self.grid = np.linspace(-self.SPAN, self.SPAN, self.n)
+        self._tabs: dict[float, tuple[list[float], ...]] = {}
+
+    def tables(self, k: float) -> tuple[list[float], list[float], list[float], list[float]]:
+        """(g, dg/dS, mu, dmu/dS) sampled on the grid for soil strength k (built once per k)."""
+        k = float(k)
+        if k not in self._tabs:
+            g, dg, _ = gross_traction_with_derivatives(self.grid, k, self.constants)
+            mu, dmu, _ = net_traction_with_derivatives(self.grid, k, self.constants)
+            self._tabs[k] = (g.tolist(), dg.tolist(), mu.tolist(), dmu.tolist())
+        return self._tabs[k]
+
+    def lookup(self, s: float, tabs) -> tuple[float, float, float, float]:
+        u = (s + self.SPAN) / self.STEP
+        if u <= 0.0:
+            i, fr = 0, 0.0
+        elif u >= self.n - 1:
+            i, fr = self.n - 2, 1.0
+        else:
+            i = int(u)
+            fr = u - i
+        g, dg, mu, dmu = tabs
+        return (
+            g[i] + fr * (g[i + 1] - g[i]),
+            dg[i] + fr * (dg[i + 1] - dg[i]),
+            mu[i] + fr * (mu[i + 1] - mu[i]),
+            dmu[i] + fr * (dmu[i + 1] - dmu[i]),
+        )
+
+
+def _smoothstep(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _check_args(duration, rate, seed, mode, vehicle_id):
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 2000):
+        raise ValueError(f"rate must be in (0, 2000] Hz, got {rate!r}")
+    if duration is not None and not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if mode is not None and mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    # the sensor schema validates the id pattern; check it here so that a bad id fails at once
+    if not isinstance(vehicle_id, str) or not re.match(VEHICLE_ID_PATTERN, vehicle_id):
+        raise ValueError(f"vehicle_id must match {VEHICLE_ID_PATTERN}, got {vehicle_id!r}")
+
+
+def simulate(
+    scenario: str | Scenario,
+    *,
+    duration: float | None = None,
+    rate: float = 100.0,
+    seed: int = 0,
+    vehicle: VehicleParams = DEFAULT_VEHICLE,
+    constants: ModelConstants = DEFAULT_CONSTANTS,
+    mode: str | None = None,
+    noise: SensorNoise | None = None,
+    vehicle_id: str = "rover1",
+    sweep: SweepParams | None = None,
+    controller: ControllerParams = DEFAULT_CONTROLLER,
+    params: SimParams = DEFAULT_SIM,
+) -> Iterator[tuple[SensorSample, TruthRecord]]:
+    """Drive ``scenario`` and yield ``(SensorSample, TruthRecord)`` pairs lazily, one per sensor
+    sample at ``stamp = seq / rate`` (seq 0 = at rest at t = 0), for ``duration`` seconds
+    (default: the scenario's).  Arguments are checked at once (ValueError), before the first sample.
+
+    ``mode`` overrides the scenario's controller mode; ``sweep`` its front-axle slip sweep;
+    ``noise`` the sensor noise levels (None = :class:`SensorNoise` defaults;
+    ``SensorNoise.noiseless()`` = exact truth through the sensors).  The same seed gives the same logs.
+    """
+    sc = get_scenario(scenario)
+    _check_args(duration, rate, seed, mode, vehicle_id)
+    if not isinstance(vehicle, VehicleParams):
+        raise ValueError(f"vehicle must be a VehicleParams, got {type(vehicle).__name__}")
+    if sweep is not None:
+        sc = sc.with_overrides(sweep=sweep)
+    run = _Run(
+        sc,
+        duration=float(duration if duration is not None else sc.duration),
+        rate=float(rate),
+        rng=np.random.default_rng(seed),
+        vehicle=vehicle,
+        constants=constants,
+        mode=mode or sc.mode,
+        noise=noise if noise is not None else SensorNoise(),
+        vehicle_id=vehicle_id,
+        ctl=controller,
+        par=params,
+    )
+    return run.samples()
+
+
+class _Run:
+    """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
+
+    def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par):
+        self.sc, self.duration, self.rate, self.mode = sc, duration, rate, mode
+        self.v, self.c, self.ctl, self.par, self.vehicle_id = vehicle, constants, ctl, par, vehicle_id
+        self.interval = 1.0 / rate
+        self.n_sub = max(1, math.ceil(self.interval / par.max_substep - 1e-9))
+        self.h = self.interval / self.n_sub
+        self.sensors = SensorSuite(noise, rng, self.interval)
+        self.table = _TractionTable(constants)
+        self.x_w = np.array(vehicle.wheel_x)
+        self.y_w = np.array(vehicle.wheel_y)
+        self.ys = [float(q) for q in vehicle.wheel_y]
+        self.front = [xq > 0 for xq in vehicle.wheel_x]
+        self.absx = [abs(float(q)) for q in vehicle.wheel_x]
+        # normal_forces is linear in the specific force (B of eq. 24 is): Fz = f @ N exactly.
+        self.fz_matrix = normal_forces(vehicle, np.eye(3))
+        self._nz = self.fz_matrix.T.tolist()  # per wheel: (dFz/dfx, dFz/dfy, dFz/dfz)
+        self._ocp_cache: dict[float, object] = {}
+        # state
+        self.t = 0.0
+        self.w = [0.0] * 4  # wheel speeds, rad/s
+        self.V = 0.0  # CoM longitudinal speed, m/s
+        self.r = 0.0  # yaw rate, rad/s
+        self.prev = [0.0] * 6  # previous (w, V, r), for the Newton predictor
+        self.dist = 0.0
+        self.heading = 0.0
+        self.z = 0.0
+        self.wheel_angle = np.zeros(4)
+        self.acc = 0.0  # V' of the last sub-step
+        self.i_wheel = [0.0] * 4
+        self.i_speed = 0.0
+        self.i_yaw = 0.0
+        self.torque = [0.0] * 4
+        self.slips, self.gross, self.mus = [0.0] * 4, [0.0] * 4, [0.0] * 4
+        self.slip_cmd: float | None = None
+        self.speed_cmd = 0.0
+        self.energy = dict(motor_work=0.0, slip_dissipation=0.0, resistance_work=0.0, yaw_dissipation=0.0)
+        self.newton_iters = 0
+        self.newton_failures = 0
+        self.substeps = 0
+        self._terrain()
+        self.f_used = self._specific_force()
+        self.fz = self._fz(self.f_used)
+
+    # --- terrain -------------------------------------------------------------------------
+    def _terrain(self) -> None:
+        segs = self.sc.segments
+        if len(segs) == 1 and hasattr(self, "seg"):
+            return
+        seg_wheels = [int(j) for j in self.sc.segment_index(self.dist + self.x_w)]
+        seg_com = int(self.sc.segment_index(self.dist))
+        if hasattr(self, "seg") and seg_com == self.seg and seg_wheels == self.seg_wheels:
+            return
+        self.seg_wheels, self.seg = seg_wheels, seg_com
+        seg = segs[self.seg]
+        self.k_wheels = np.array([segs[j].soil_strength for j in seg_wheels])
+        self.k_tabs = [self.table.tables(k) for k in self.k_wheels]
+        self.roll, self.pitch = seg.cross_slope, -seg.grade
+        self.f_grav = [float(q) for q in gravity_from_attitude(self.roll, self.pitch, STANDARD_GRAVITY)]
+
+    def _specific_force(self) -> tuple[float, float, float]:
+        """True specific force: acceleration (V', V psi', 0) + gravity reaction (eq. 20), body frame."""
+        fg = self.f_grav
+        return (fg[0] + self.acc, fg[1] + self.V * self.r, fg[2])
+
+    def _fz(self, f) -> list[float]:
+        """Zero-warp normal forces (eqs. 16-25 corrected), via the exact linear map of normal_forces."""
+        return [n[0] * f[0] + n[1] * f[1] + n[2] * f[2] for n in self._nz]
+
+    # --- controller ----------------------------------------------------------------------
+    def _references(self, t: float) -> list[float]:
+        """Wheel-speed references for the sub-step ending at t (explicit in the step)."""
+        ctl, R, h, sc = self.ctl, self.v.wheel_radius, self.h, self.sc
+        ramp = _smoothstep(t / ctl.ramp_time) if ctl.ramp_time > 0 else 1.0
+        v_ref = sc.speed * ramp
+        self.speed_cmd = v_ref
+        # heading hold: a yaw-rate PI commands a small differential (V_i = V - r_c y_i)
+        self.i_yaw += h * self.r
+        r_c = -(ctl.yaw_kp * self.r + ctl.yaw_ki * self.i_yaw)
+        if self.mode == "cruise":
+            self.slip_cmd = None
+            return [max(v_ref - r_c * yi, 0.0) / R for yi in self.ys]
+        # excitation: one axle sweeps driving slip, the other holds the speed by braking
+        s_cmd = sc.sweep.slip_at(t) * ramp
+        over = (self.V - sc.speed) / sc.speed - ctl.governor_deadband
+        if over > 0:
+            s_cmd *= max(0.0, 1.0 - ctl.governor_gain * over)
+        self.slip_cmd = s_cmd
+        err = v_ref - self.V
+        v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
+        # the braking axle stays on the stable side of the traction peak: slip >= -brake_slip_limit
+        v_min = self.V * (1.0 - ctl.brake_slip_limit)
+        if v_hold < v_min:
+            v_hold = v_min
+            if err > 0:
+                self.i_speed += h * err
+        else:
+            self.i_speed += h * err
+        self.i_speed = min(max(self.i_speed, -2.0), 2.0)
+        out = []
+        sweep_front = sc.sweep.axle == "front"
+        for front, yi in zip(self.front, self.ys):
+            if front == sweep_front:
+                out.append(max(self.V - r_c * yi, 0.0) / (R * (1.0 - s_cmd)))
+            else:
+                out.append(max(v_hold - r_c * yi, 0.0) / R)
+        return out
+
+    # --- one backward-Euler sub-step -----------------------------------------------------
+    def _substep(self) -> None:
+        """Backward Euler for (omega_1..4, V, psi') by Newton's method (analytic Jacobian, the
+        diagonal wheel block eliminated).  Eq. 13 per wheel with gross traction, the longitudinal
+        and yaw equations (eqs. 11-12) with net traction; Fz from the previous acceleration."""
+        v, ctl, par, h = self.v, self.ctl, self.par, self.h
+        t_new = self.t + h
+        self._terrain()
+        f = self._specific_force()  # previous sub-step's acceleration
+        fz = self._fz(f)
+        w_ref = self._references(t_new)
+        R, m, Iw, Iz, ys = v.wheel_radius, v.mass, v.wheel_inertia, v.yaw_inertia, self.ys
+        kp, tmax = ctl.wheel_kp, ctl.torque_limit
+        t_int = [ctl.wheel_ki * q for q in self.i_wheel]
+        muy, eps, floor, tol = par.lateral_resistance, par.yaw_rate_eps, par.slip_floor, par.newton_tol
+        lz = sum(ax * fzi for ax, fzi in zip(self.absx, fz))
+        g_x = self.f_grav[0]  # m V' = sum(mu Fz) - m g_x  (g_x = g sin(grade))
+        w0, V0, r0 = self.w, self.V, self.r
+        x0 = [*w0, V0, r0]
+        x = [2.0 * a - b for a, b in zip(x0, self.prev)]  # linear predictor
+        tabs = self.k_tabs
+        span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
+        Fw, BV, Br, inv, gs, mus, tq, traw, ss = ([0.0] * 4 for _ in range(9))
+        for it in range(par.newton_max_iter):
+            V, r = x[4], x[5]
+            sum_fx = sum_yfx = s_asv = s_asvy = s_asvyy = 0.0
+            a11c = a12c = a21c = a22c = b1c = b2c = 0.0
+            for i in range(4):
+                wi, yi, fzi = x[i], ys[i], fz[i]
+                vi = V - r * yi
+                # eq. 1 (slip_ratio's floored denominator) and its partials
+                rho = wi * R
+                arho, av = abs(rho), abs(vi)
+                d = max(arho, av, floor)
+                s = (rho - vi) / d
+                if arho >= av and arho >= floor:
+                    sw = (vi if rho > 0 else -vi) / (d * d) * R
+                    sv = -1.0 / d
+                elif av >= floor:
+                    sw = R / d
+                    sv = (-rho if vi > 0 else rho) / (d * d)
+                else:
+                    sw = R / d
+                    sv = -1.0 / d
+                # table lookup (inlined _TractionTable.lookup: this loop is the hot path)
+                u = (s + span) * inv_step
+                if u <= 0.0:
+                    j, fr = 0, 0.0
+                elif u >= last:
+                    j, fr = last - 1, 1.0
+                else:
+                    j = int(u)
+                    fr = u - j
+                tg, tdg, tmu, tdmu = tabs[i]
+                g = tg[j] + fr * (tg[j + 1] - tg[j])
+                dg = tdg[j] + fr * (tdg[j + 1] - tdg[j])
+                mu = tmu[j] + fr * (tmu[j + 1] - tmu[j])
+                dmu = tdmu[j] + fr * (tdmu[j + 1] - tdmu[j])
+                tr = kp * (w_ref[i] - wi) + t_int[i]
+                if tr > tmax:
+                    T, kpe = tmax, 0.0
+                elif tr < -tmax:
+                    T, kpe = -tmax, 0.0
+                else:
+                    T, kpe = tr, kp
+                fwi = Iw * (wi - w0[i]) - h * (T - R * g * fzi)
+                invi = 1.0 / (Iw + h * kpe + h * R * fzi * dg * sw)
+                bvi = h * R * fzi * dg * sv
+                bri = -bvi * yi
+                ai = fzi * dmu
+                cvi = -h * ai * sw
+                cri = -cvi * yi
+                asv = ai * sv
+                fx = mu * fzi
+                sum_fx += fx
+                sum_yfx += yi * fx
+                s_asv += asv
+                s_asvy += asv * yi
+                s_asvyy += asv * yi * yi
+                a11c += cvi * bvi * invi
+                a12c += cvi * bri * invi
+                a21c += cri * bvi * invi
+                a22c += cri * bri * invi
+                b1c += cvi * fwi * invi
+                b2c += cri * fwi * invi
+                Fw[i], BV[i], Br[i], inv[i], gs[i], mus[i], tq[i], traw[i], ss[i] = fwi, bvi, bri, invi, g, mu, T, tr, s
+            th = math.tanh(r / eps)
+            FV = m * (V - V0) - h * (sum_fx - m * g_x)
+            Fr = Iz * (r - r0) - h * (-sum_yfx - muy * lz * th)
+            A11 = m - h * s_asv - a11c
+            A12 = h * s_asvy - a12c
+            A21 = h * s_asvy - a21c
+            A22 = Iz - h * s_asvyy + h * muy * lz * (1.0 - th * th) / eps - a22c
+            b1 = FV - b1c
+            b2 = Fr - b2c
+            det = A11 * A22 - A12 * A21
+            dV = (b1 * A22 - A12 * b2) / det
+            dr = (A11 * b2 - A21 * b1) / det
+            dw = [(Fw[i] - BV[i] * dV - Br[i] * dr) * inv[i] for i in range(4)]
+            if abs(dV) < tol and abs(dr) < tol and abs(dw[0]) < tol and abs(dw[1]) < tol and abs(dw[2]) < tol and abs(dw[3]) < tol:
+                break  # accept x itself: the stored forces are exactly those of the accepted state
+            x = [x[0] - dw[0], x[1] - dw[1], x[2] - dw[2], x[3] - dw[3], V - dV, r - dr]
+        else:
+            self.newton_failures += 1
+        self.newton_iters += it + 1
+        self.substeps += 1
+        w, V, r = x[:4], x[4], x[5]
+        # wheel PI integrators, with anti-windup (hold while saturated and pushing further)
+        for i in range(4):
+            err = w_ref[i] - w[i]
+            if abs(traw[i]) < tmax or (err > 0) != (traw[i] > 0):
+                self.i_wheel[i] += h * err
+        # energy book (backward Euler: powers at the new state, torques held over the step)
+        e = self.energy
+        vis = [V - r * yi for yi in ys]
+        e["motor_work"] += h * sum(T * wi for T, wi in zip(tq, w))
+        e["slip_dissipation"] += h * sum(fzi * g * (R * wi - vi) for fzi, g, wi, vi in zip(fz, gs, w, vis))
+        e["resistance_work"] += h * sum(fzi * (g - mu) * vi for fzi, g, mu, vi in zip(fz, gs, mus, vis))
+        e["yaw_dissipation"] += h * muy * lz * th * r
+        self.z += h * V * g_x / STANDARD_GRAVITY
+        # advance
+        self.prev = x0
+        self.acc = (V - V0) / h
+        self.w, self.V, self.r = w, V, r
+        self.torque = tq[:]
+        self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
+        self.f_used, self.fz = f, fz
+        self.wheel_angle = self.wheel_angle + h * np.array(w)
+        self.dist += h * V
+        self.heading += h * r
+        self.t = t_new
+
+    # --- records -------------------------------------------------------------------------
+    def _ocp(self, k: float):
+        if k not in self._ocp_cache:
+            self._ocp_cache[k] = ocp_from_soil_strength(k, self.c)
+        return self._ocp_cache[k]
+
+    def _records(self, seq: int) -> tuple[SensorSample, TruthRecord]:
+        v = self.v
+        stamp = seq / self.rate
+        w = np.array(self.w)
+        # the accepted Newton iterate's own slip and forces: exactly what the dynamics used
+        # (eq. 1 as slip_ratio; eqs. 3/6 from the sampled table, within 2e-7 of soilocp.traction)
+        s, g, mu = np.array(self.slips), np.array(self.gross), np.array(self.mus)
+        seg = self.sc.segments[self.seg]
+        ocp = self._ocp(seg.soil_strength)
+        ke = 0.5 * (v.mass * self.V**2 + v.yaw_inertia * self.r**2 + v.wheel_inertia * float(w @ w))
+        tup = lambda a: tuple(float(q) for q in a)  # noqa: E731
+        truth = TruthRecord(
+            vehicle_id=self.vehicle_id,
+            seq=seq,
+            stamp=stamp,
+            mode=self.mode,
+            segment=self.seg,
+            soil_class=seg.soil_class,
+            soil_strength=seg.soil_strength,
+            wheel_soil_strength=tup(self.k_wheels),
+            grade=seg.grade,
+            cross_slope=seg.cross_slope,
+            roll=self.roll,
+            pitch=self.pitch,
+            distance=self.dist,
+            heading=self.heading,
+            yaw_rate=self.r,
+            slip=tup(s),
+            mu=tup(mu),
+            motion_resistance=tup(g - mu),
+            gross_traction=tup(g),
+            normal_force=tup(self.fz),
+            ground_speed=self.V,
+            wheel_speed=tup(self.w),
+            wheel_torque=tup(self.torque),
+            specific_force=tup(self.f_used),
+            speed_command=self.speed_cmd,
+            slip_command=self.slip_cmd,
+            mu_T=ocp.mu_T,
+            S_T=ocp.S_T,
+            S_E=ocp.S_E,
+            kinetic_energy=ke,
+            potential_energy=v.mass * STANDARD_GRAVITY * self.z,
+            **self.energy,
+        )
+        read = self.sensors.read(
+            specific_force=self.f_used,
+            roll=self.roll,
+            pitch=self.pitch,
+            yaw_rate=self.r,
+            wheel_angle=self.wheel_angle,
+            wheel_speed=self.w,
+            wheel_torque=self.torque,
+            ground_speed=self.V,
+        )
+        sample = SensorSample(vehicle_id=self.vehicle_id, seq=seq, stamp=stamp, **read)
+        return sample, truth
+
+    def samples(self) -> Iterator[tuple[SensorSample, TruthRecord]]:
+        n = max(1, int(round(self.duration * self.rate)))
+        for seq in range(n):
+            if seq:
+                for _ in range(self.n_sub):
+                    self._substep()
+                    if not (np.all(np.isfinite(self.w)) and math.isfinite(self.V) and math.isfinite(self.r)):
+                        raise RuntimeError(f"simulation diverged at t={self.t:.4f} s (state {self.w}, {self.V}, {self.r})")
+            yield self._records(seq)
