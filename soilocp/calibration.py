@@ -55,8 +55,19 @@ TESTBED_SLIPS: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
 
 #: Brixius constants in the order they are reported.
 CONSTANT_NAMES: tuple[str, ...] = ("C1", "C2", "C3", "C4", "C5", "C6")
-#: Constants that the model requires to be > 0 (ModelConstants' own bounds).
-_POSITIVE = {"C1", "C2", "C3", "C6"}
+#: Search bounds.  C1, C2, C3, C6 must be > 0 (ModelConstants' own bounds).  The upper bounds
+#: are generous physical limits that stop the fit from running along a flat ridge: with noisy
+#: drawbar-only data from few soils, C1 (1 - exp(-C2 K)) ~ C1 C2 K leaves C1 -> inf, C2 -> 0 nearly
+#: free.  C1 + C4 is the saturated gross traction coefficient, which no tyre on soil brings near 3.
+PARAMETER_BOUNDS: dict[str, tuple[float, float]] = {
+    "C1": (1e-6, 3.0),
+    "C2": (1e-7, 1.0),
+    "C3": (1e-3, 100.0),
+    "C4": (-1.0, 1.0),
+    "C5": (-1e3, 1e3),
+    "C6": (1e-6, 100.0),
+    "K": (1e-2, 1e5),
+}
 #: Condition number (of the column-scaled Jacobian) above which the fit is reported ill-posed.
 ILL_CONDITIONED = 1e8
 
@@ -401,8 +412,11 @@ def fit_constants(
     names = c_free + [f"K[{n}]" for n in k_free]
 
     x0 = [getattr(initial, n) for n in c_free] + [_initial_k(data, n, initial) for n in k_free]
-    lower = [1e-9 if n in _POSITIVE else -np.inf for n in c_free] + [1e-3] * len(k_free)
-    x0 = np.maximum(np.array(x0, dtype=float), np.array(lower) * 10)
+    bounds = [PARAMETER_BOUNDS[n] for n in c_free] + [PARAMETER_BOUNDS["K"]] * len(k_free)
+    lower, upper = (np.array(b, dtype=float) for b in zip(*bounds))
+    # start strictly inside the box
+    margin = 1e-6 * (upper - lower)
+    x0 = np.clip(np.array(x0, dtype=float), lower + margin, upper - margin)
     row_soil = np.array([soils.index(s) for s in data.soil])
     y = data.mu if not has_gross else np.concatenate([data.mu, data.gross])
     n_res = len(y)
@@ -426,16 +440,20 @@ def fit_constants(
         residuals,
         x0,
         jac="3-point",
-        bounds=(lower, np.full(len(lower), np.inf)),
+        bounds=(lower, upper),
         x_scale="jac",
-        xtol=1e-12,
+        xtol=1e-10,
         ftol=1e-12,
-        gtol=1e-12,
-        max_nfev=5000,
+        gtol=1e-10,
+        max_nfev=2000,
     )
     if not sol.success:
-        raise ValueError(f"calibration did not converge: {sol.message}")
+        raise ValueError(
+            f"calibration did not converge ({sol.message}); the data may not determine the "
+            f"parameters - add soils, slips or gross traction"
+        )
     x = sol.x
+    at_bound = [n for n, v, lo, hi in zip(names, x, lower, upper) if min(v - lo, hi - v) <= 1e-6 * (hi - lo)]
     J = sol.jac
     dof = n_res - len(names)
     s2 = float(2.0 * sol.cost / dof)
@@ -451,7 +469,8 @@ def fit_constants(
     params: list[ParameterEstimate] = []
     for n in CONSTANT_NAMES:
         if n in fitted:
-            params.append(ParameterEstimate(n, float(fitted[n]), float(errors[n]), "fitted"))
+            status = "at bound" if n in at_bound else "fitted"
+            params.append(ParameterEstimate(n, float(fitted[n]), float(errors[n]), status))
         else:
             params.append(ParameterEstimate(n, float(getattr(initial, n)), None, "fixed"))
     soil_k: dict[str, float] = {}
@@ -459,7 +478,8 @@ def fit_constants(
         key = f"K[{n}]"
         if key in fitted:
             soil_k[n] = float(fitted[key])
-            params.append(ParameterEstimate(key, soil_k[n], float(errors[key]), "fitted"))
+            status = "at bound" if key in at_bound else "fitted"
+            params.append(ParameterEstimate(key, soil_k[n], float(errors[key]), status))
         else:
             soil_k[n] = fixed[n]
             status = "anchor" if n == anchor_name else "fixed"
@@ -486,6 +506,12 @@ def fit_constants(
     kept = sorted(set(initial.soils) - set(soils))
     if kept:
         notes.append(f"soils not in the data kept from the initial constants: {', '.join(kept)}")
+    if at_bound:
+        notes.append(
+            f"{', '.join(at_bound)} ended at the search bound {[PARAMETER_BOUNDS.get(n, PARAMETER_BOUNDS['K']) for n in at_bound]}: "
+            "the data do not determine them (typically C1 vs C2 from drawbar pull of few soils); "
+            "their values and standard errors are not estimates - add gross traction (wheel torque) or more soils"
+        )
     if condition > ILL_CONDITIONED:
         notes.append(f"the fit is ill-conditioned (condition number {condition:.3g}): standard errors are unreliable")
     notes.append(eff.message)

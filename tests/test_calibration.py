@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from soilocp.calibration import (
+    PARAMETER_BOUNDS,
     TESTBED_SLIPS,
     efficiency_peak,
     fit_constants,
@@ -63,6 +64,20 @@ def test_noisy_testbed_recovers_constants_within_standard_errors(seed):
         k_fit = res.constants.soils[name]
         assert optimal_slip_traction(k_fit, res.constants) == pytest.approx(optimal_slip_traction(k, TRUTH), abs=0.01)
         assert max_traction(k_fit, res.constants) == pytest.approx(max_traction(k, TRUTH), abs=0.01)
+
+
+def test_flat_ridge_stops_at_the_bound_and_is_reported():
+    # seed 3, drawbar only: the noise favours C1 -> inf, C2 -> 0 (C1 (1 - e^{-C2 K}) ~ C1 C2 K);
+    # the fit must stop at C1's physical bound, fast, and say the value is not an estimate
+    data = synthetic_testbed(TRUTH, SOILS, noise=0.01, seed=3)
+    res = fit_constants(data)
+    c1 = res.parameter("C1")
+    assert c1.status == "at bound" and c1.value == pytest.approx(PARAMETER_BOUNDS["C1"][1])
+    assert any("C1 ended at the search bound" in n and "not estimates" in n for n in res.notes)
+    # the same testbed with gross traction (wheel torque) determines C1
+    res = fit_constants(synthetic_testbed(TRUTH, SOILS, noise=0.01, seed=3, with_gross=True))
+    assert res.parameter("C1").status == "fitted"
+    assert res.parameter("C1").value == pytest.approx(TRUTH.C1, rel=0.1)
 
 
 def test_drawbar_only_fit_keeps_c4_and_says_so():

@@ -64,6 +64,7 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
     With one K and --json, prints one JSON object; with several K (or --table), a JSON list.
     """
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from ..ocp import ocp_from_soil_strength
@@ -82,14 +83,14 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
         dicts = [r.as_dict() for _, r in results]
         click.echo(json.dumps(dicts[0] if len(dicts) == 1 and not table else dicts))
         return
-    t = Table(title="Optimal control parameters" + (f" ({constants_file})" if constants_file else " (paper constants)"))
+    t = Table(title="Optimal control parameters" + (f" ({escape(constants_file)})" if constants_file else " (paper constants)"))
     if table:
         t.add_column("soil")
     for col in ("K", "mu_T (eq. 8)", "S_T (eq. 7)", "S_E (eq. 10)"):
         t.add_column(col, justify="right")
     for name, r in results:
         cells = [f"{r.soil_strength:g}", f"{r.mu_T:.4f}", f"{r.S_T:.4f}", f"{r.S_E:.4f}"]
-        t.add_row(*([name or "-"] if table else []), *cells)
+        t.add_row(*([escape(name) or "-"] if table else []), *cells)
     Console(width=100).print(t)
 
 
@@ -133,6 +134,7 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     through the tractive-efficiency peaks (eq. 9) of the fitted model, if it has them.
     """
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from ..calibration import fit_constants, read_testbed_csv
@@ -152,20 +154,20 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     save_constants(res.constants, out_file)
 
     con = Console(width=110)
-    t = Table(title=f"Calibration of {data}: {len(d)} rows, {len(d.soils)} soils, rms residual {res.rms:.4g}")
+    t = Table(title=f"Calibration of {escape(data)}: {len(d)} rows, {len(d.soils)} soils, rms residual {res.rms:.4g}")
     for col, just in (("parameter", "left"), ("value", "right"), ("± std error", "right"), ("", "left")):
         t.add_column(col, justify=just)
     for p in res.parameters:
-        t.add_row(p.name, f"{p.value:.6g}", "-" if p.std_error is None else f"{p.std_error:.3g}", p.status)
+        t.add_row(escape(p.name), f"{p.value:.6g}", "-" if p.std_error is None else f"{p.std_error:.3g}", p.status)
     eff = res.efficiency
     t.add_row("alpha (eq. 10)", f"{eff.alpha:.6g}", "-", "fitted" if eff.fitted else "kept")
     t.add_row("beta (eq. 10)", f"{eff.beta:.6g}", "-", "fitted" if eff.fitted else "kept")
     con.print(t)
     for soil, sp in eff.peaks.items():
-        con.print(f"  eq. 9 peak {soil}: " + (f"S = {sp:.4f}" if sp is not None else f"none ({eff.reasons.get(soil, '')})"))
+        con.print(f"  eq. 9 peak {soil}: " + (f"S = {sp:.4f}" if sp is not None else f"none ({eff.reasons.get(soil, '')})"), markup=False)
     for note in res.notes:
-        con.print(f"note: {note}")
-    con.print(f"wrote {out_file}")
+        con.print(f"note: {note}", markup=False)
+    con.print(f"wrote {out_file}", markup=False)
 
 
 COMMANDS = [ocp, curves, calibrate]
