@@ -131,11 +131,11 @@ def _single(name: str, soil: str, description: str, **kw) -> Scenario:
 _SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
-        _single("sand", "sand", "Flat sand (K=50) at 1 m/s, front-axle slip sweep"),
-        _single("gravel", "gravel", "Flat gravel (K=80) at 1 m/s, front-axle slip sweep"),
-        _single("EST", "EST", "Flat 'expected soil type' (K=120) at 1 m/s, front-axle slip sweep"),
-        _single("grass", "grass", "Flat grass (K=200) at 1 m/s, front-axle slip sweep"),
-        _single("firm", "firm", "Flat firm soil (K=300) at 1 m/s, front-axle slip sweep"),
+        _single("sand", "sand", "Flat sand (K=50) at 1 m/s, slip-sweep traction test"),
+        _single("gravel", "gravel", "Flat gravel (K=80) at 1 m/s, slip-sweep traction test"),
+        _single("EST", "EST", "Flat 'expected soil type' (K=120) at 1 m/s, slip-sweep traction test"),
+        _single("grass", "grass", "Flat grass (K=200) at 1 m/s, slip-sweep traction test"),
+        _single("firm", "firm", "Flat firm soil (K=300) at 1 m/s, slip-sweep traction test"),
         Scenario(
             "sandy-slope",
             "Sand (K=50) on a 10 deg climb with a 3 deg cross-slope (left side up), 1 m/s",

@@ -38,6 +38,7 @@ motor work = kinetic + potential energy change + dissipation (+ the integrator's
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 from collections.abc import Iterator
@@ -301,6 +302,8 @@ class _Run:
         self.x_w = np.array(vehicle.wheel_x)
         self.y_w = np.array(vehicle.wheel_y)
         self.ys = [float(q) for q in vehicle.wheel_y]
+        self.xs = [float(q) for q in vehicle.wheel_x]
+        self._starts = [float(q) for q in sc.starts]
         self.front = [xq > 0 for xq in vehicle.wheel_x]
         self.absx = [abs(float(q)) for q in vehicle.wheel_x]
         # normal_forces is linear in the specific force (B of eq. 24 is): Fz = f @ N exactly.
@@ -338,8 +341,9 @@ class _Run:
         segs = self.sc.segments
         if len(segs) == 1 and hasattr(self, "seg"):
             return
-        seg_wheels = [int(j) for j in self.sc.segment_index(self.dist + self.x_w)]
-        seg_com = int(self.sc.segment_index(self.dist))
+        starts, d = self._starts, self.dist
+        seg_wheels = [max(bisect.bisect_right(starts, d + xi) - 1, 0) for xi in self.xs]
+        seg_com = max(bisect.bisect_right(starts, d) - 1, 0)
         if hasattr(self, "seg") and seg_com == self.seg and seg_wheels == self.seg_wheels:
             return
         self.seg_wheels, self.seg = seg_wheels, seg_com
