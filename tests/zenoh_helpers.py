@@ -1,0 +1,153 @@
+"""Helpers for the services tests: ephemeral ports, child processes that are always reaped,
+client sessions with explicit endpoints (multicast scouting off) and bounded waits."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterable, Optional
+
+PIPELINE = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nobody listens on right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+def wait_for(pred: Callable[[], object], timeout: float, interval: float = 0.05):
+    """Poll ``pred`` until it returns something truthy (returned) or ``timeout`` s pass (None)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = pred()
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            return None
+        time.sleep(interval)
+
+
+class Procs:
+    """Child processes of one test; :meth:`close` stops and reaps every one (SIGTERM, then SIGKILL)."""
+
+    def __init__(self, log_dir: Path):
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, subprocess.Popen] = {}
+        self._n = 0
+
+    def spawn(self, name: str, args: Iterable[str], env: Optional[dict] = None) -> subprocess.Popen:
+        self._n += 1
+        log = open(self.log_dir / f"{name}.{self._n}.log", "wb")
+        e = dict(os.environ)
+        for k in list(e):
+            if k.startswith("SOILOCP_"):
+                del e[k]
+        e.update(env or {})
+        try:
+            p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", *args], stdin=subprocess.DEVNULL,
+                                 stdout=log, stderr=subprocess.STDOUT, env=e, start_new_session=True)
+        finally:
+            log.close()
+        self.procs[name] = p
+        self._last_log = self.log_dir / f"{name}.{self._n}.log"
+        return p
+
+    def log_text(self, name: str) -> str:
+        return "\n".join(p.read_text(errors="replace") for p in sorted(self.log_dir.glob(f"{name}.*.log")))
+
+    def alive(self) -> dict[str, bool]:
+        return {n: p.poll() is None for n, p in self.procs.items()}
+
+    def close(self, timeout: float = 5.0) -> dict[str, Optional[int]]:
+        for p in self.procs.values():
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + timeout
+        codes = {}
+        for n, p in self.procs.items():
+            try:
+                p.wait(max(0.05, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            codes[n] = p.returncode
+        return codes
+
+
+def client_config(ep: str):
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([ep]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return c
+
+
+@contextmanager
+def client(ep: str):
+    """A client session on ``ep`` (waits up to ~20 s for the router)."""
+    import zenoh
+
+    last = None
+    for _ in range(40):
+        try:
+            s = zenoh.open(client_config(ep))
+            break
+        except zenoh.ZError as exc:
+            last = exc
+            time.sleep(0.5)
+    else:
+        raise RuntimeError(f"no router on {ep}: {last}")
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+def alive_services(session, vid: str) -> set[str]:
+    out = set()
+    for r in session.liveliness().get(f"soilocp/{vid}/alive/*", timeout=1.0):
+        if r.ok is not None:
+            out.add(str(r.ok.key_expr).rsplit("/", 1)[-1])
+    return out
+
+
+def wait_alive(session, vid: str, services: Iterable[str] = PIPELINE, timeout: float = 60.0) -> bool:
+    want = set(services)
+    return bool(wait_for(lambda: want <= alive_services(session, vid), timeout, interval=0.2))
+
+
+def get_payloads(session, selector: str, timeout: float = 3.0) -> list[bytes]:
+    return [r.ok.payload.to_bytes() for r in session.get(selector, timeout=timeout) if r.ok is not None]
+
+
+def start_pipeline(procs: Procs, ep: str, vid: str, extra: Iterable[str] = ()) -> None:
+    for name in PIPELINE:
+        procs.spawn(name, ["service", name, "--vehicle-id", vid, "--connect", ep, *extra])
+
+
+def write_log(path: Path, vid: str, duration: float, scenario: str = "sandy-slope", seed: int = 1) -> list[str]:
+    """A sensor log from the simulator (JSON Lines, one SensorSample per line); returns the lines."""
+    from soilocp.simulator import simulate
+
+    lines = [s.model_dump_json() for s, _t in simulate(scenario, duration=duration, seed=seed, vehicle_id=vid)]
+    path.write_text("\n".join(lines) + "\n")
+    return lines
