@@ -54,7 +54,7 @@ def plot_traction_slip(path: Path, soils: Mapping[str, float], constants: ModelC
     s = np.linspace(-1.0, 1.0, 2001)
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
     for name, k in soils.items():
-        (line,) = ax.plot(s, net_traction(s, k, constants), label=f"{name} (K = {k:g})")
+        (line,) = ax.plot(s, net_traction(s, k, constants), label=f"{name} (K = {k:.4g})")
         st, mt = optimal_slip_traction(k, constants), max_traction(k, constants)
         ax.plot([st, -st], [mt, -mt], "o", color=line.get_color(), ms=6)
         ax.annotate(f"S_T={st:.3f}\nμ_T={mt:.3f}", (st, mt), textcoords="offset points", xytext=(6, 4), fontsize=7)
@@ -84,23 +84,25 @@ def plot_tractive_efficiency(
     plt = _pyplot()
     s = np.linspace(max(constants.bridge_slip, 1e-3), 0.99, 1000)
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
-    top = 1.05
+    top, bottom = 1.05, -0.05
     for name, k in soils.items():
         te = tractive_efficiency(s, k, constants)
         top = max(top, float(np.max(te)) * 1.05)
-        (line,) = ax.plot(s, te, label=f"{name} (K = {k:g})")
+        bottom = min(bottom, float(np.min(te)))
+        (line,) = ax.plot(s, te, label=f"{name} (K = {k:.4g})")
         se = optimal_slip_efficiency(k, constants)
         if 0 < se < 1:
             ax.plot([se], [float(tractive_efficiency(se, k, constants))], "D", color=line.get_color(), ms=6)
             ax.axvline(se, color=line.get_color(), ls=":", lw=0.8)
     ax.axhline(1.0, color="k", ls="--", lw=0.8, label="TE = 1 (output = input power)")
-    ax.set_ylim(min(-0.1, ax.get_ylim()[0]), min(top, 3.0))
+    ax.set_ylim(max(bottom, -0.5), min(top, 3.0))  # clip the S -> 0 branches, keep the peaks in view
     ax.set_xlim(0, 1)
     ax.set_xlabel("slip ratio S [-]")
     ax.set_ylabel("tractive efficiency TE = (F_DP / F_GT)(1 - S) [-]")
     ax.set_title(
         "Fig. 4: tractive efficiency, eq. 9 (diamonds: S_E of eq. 10)\n"
-        "caveat (method-notes §5): with C5 < 0, TE > 1 near S = 0 - no interior peak on weak soil",
+        "caveat (method-notes §5): eq. 9 is meaningful only where 0 < TE <= 1; with C5 < 0, TE > 1 near S = 0\n"
+        "and weak soils have no interior peak, so eq. 10 is an empirical line, not eq. 9's argmax",
         fontsize=9,
     )
     ax.grid(alpha=0.3)

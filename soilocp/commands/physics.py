@@ -155,7 +155,7 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
 
     con = Console(width=110)
     t = Table(title=f"Calibration of {escape(data)}: {len(d)} rows, {len(d.soils)} soils, rms residual {res.rms:.4g}")
-    for col, just in (("parameter", "left"), ("value", "right"), ("± std error", "right"), ("", "left")):
+    for col, just in (("parameter", "left"), ("value", "right"), ("± std error", "right"), ("status", "left")):
         t.add_column(col, justify=just)
     for p in res.parameters:
         t.add_row(escape(p.name), f"{p.value:.6g}", "-" if p.std_error is None else f"{p.std_error:.3g}", p.status)
