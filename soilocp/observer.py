@@ -57,12 +57,12 @@ class ObserverConfig(BaseModel):
     structure: Structure = Field("shared", description="shared | per_wheel (paper eq. 26) | none (no MR compensation)")
     discretization: Literal["series", "expm"] = Field("series", description="exact ZOH by series (A nilpotent) or expm")
     # process noise: random-walk intensities (per sqrt(s)) of the coefficient states
-    q_mu: float = Field(4.0, gt=0, description="Random-walk intensity of mu_i, 1/sqrt(s): slip sweeps move mu by ~1/s")
-    q_resistance: float = Field(0.3, gt=0, description="Random-walk intensity of mu_xR, 1/sqrt(s)")
-    q_lateral: float = Field(0.5, gt=0, description="Random-walk intensity of mu_yR, 1/sqrt(s)")
-    q_wheel_speed: float = Field(2.0, gt=0, description="Unmodelled wheel acceleration, rad/s^2/sqrt(Hz) (torque ripple)")
-    q_ground_speed: float = Field(0.3, gt=0, description="Unmodelled CoM acceleration, m/s^2/sqrt(Hz)")
-    q_yaw_rate: float = Field(0.5, gt=0, description="Unmodelled yaw acceleration, rad/s^2/sqrt(Hz)")
+    q_mu: float = Field(1.0, gt=0, description="Random-walk intensity of mu_i, 1/sqrt(s): slip sweeps move mu by ~1/s")
+    q_resistance: float = Field(0.1, gt=0, description="Random-walk intensity of mu_xR, 1/sqrt(s)")
+    q_lateral: float = Field(0.3, gt=0, description="Random-walk intensity of mu_yR, 1/sqrt(s)")
+    q_wheel_speed: float = Field(0.3, gt=0, description="Unmodelled wheel acceleration, rad/s^2/sqrt(Hz) (torque ripple)")
+    q_ground_speed: float = Field(0.1, gt=0, description="Unmodelled CoM acceleration, m/s^2/sqrt(Hz)")
+    q_yaw_rate: float = Field(0.2, gt=0, description="Unmodelled yaw acceleration, rad/s^2/sqrt(Hz)")
     # measurement noise (1-sigma)
     r_specific_force: float = Field(0.08, gt=0, description="Accelerometer f_x noise incl. vibration, m/s^2")
     r_yaw_rate: float = Field(0.01, gt=0, description="Gyro noise, rad/s")
@@ -75,6 +75,9 @@ class ObserverConfig(BaseModel):
     p0_speed: float = Field(0.1, gt=0)
     # robustness
     gate_sigma: float = Field(5.0, gt=0, description="Reject a measurement row whose innovation exceeds this many sigma")
+    gate_patience: int = Field(
+        10, ge=1, description="After this many consecutive rejections a row is accepted again (the model, not the sensor, is off)"
+    )
     max_gap: float = Field(0.5, gt=0, description="A time step longer than this (s) re-initialises the filter")
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
@@ -273,6 +276,7 @@ class TractionObserver:
         self.kf = KalmanFilter(dim_x=self.layout.n, dim_z=N_MEAS)
         self._last_stamp: float | None = None
         self._one = np.ones(1)
+        self._rejections = np.zeros(N_MEAS, dtype=int)
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -316,6 +320,10 @@ class TractionObserver:
             innov = z - H @ self.kf.x
             s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + np.diag(self._R)
             keep = innov**2 <= (self.cfg.gate_sigma**2) * s
+            # a row rejected again and again means the state has lost the sensor: re-acquire it
+            # rather than coast on a diverging prediction
+            keep |= self._rejections >= self.cfg.gate_patience
+            self._rejections = np.where(keep, 0, self._rejections + 1)
             rejected = int(np.count_nonzero(~keep))
             if keep.any():
                 idx = np.flatnonzero(keep)

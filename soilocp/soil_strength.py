@@ -118,10 +118,15 @@ class _HoldLogic:
         age = stamp - self.last_update
         if age > cfg.hold_after + cfg.expire_after:
             return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", (None, None, None)
+        if age == 0.0 or self.held is None:
+            self.held = (k, k_std, log_std)  # fresh: this sample updated the belief
+        else:
+            # no information this sample: report the last informed estimate, not the belief
+            # that is diffusing towards the change prior (method-notes §9: never drift)
+            k, _, _ = self.held
+            k_std, log_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0), log_std
         if age > cfg.hold_after:
-            hk, hs, hl = self.held
-            return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (hk, hs, hl)
-        self.held = (k, k_std, log_std)
+            return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (k, k_std, log_std)
         if log_std is not None and log_std > cfg.uncertain_log_sigma:
             return "uncertain", f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: K poorly determined", (k, k_std, log_std)
         return "ok", "", (k, k_std, log_std)
@@ -181,20 +186,15 @@ class BayesSoilEstimator:
             sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * cfg.slip_sigma) ** 2
             r2 = (obs[use][:, None] - h) ** 2 / sig2
             like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            # informative only if the model distinguishes the K's the belief still allows
-            live = self.p > 1e-3 * self.p.max()
-            spread = h[:, live].max(axis=1) - h[:, live].min(axis=1)
-            useful = spread > 0.5 * np.sqrt(sig2.min(axis=1))
-            loglike = np.log(like).sum(axis=0) * cfg.temper
+            # Where the curve is insensitive to K (saturation, small slip) the likelihood is flat
+            # over the grid and the update changes nothing: the grid gates on d h/dK by itself.
+            loglike = np.log(np.prod(like, axis=0)) * cfg.temper
             post = self.p * np.exp(loglike - loglike.max())
             total = post.sum()
             if total > 0 and np.isfinite(total):
                 self.p = post / total
-                any_info = bool(useful.any())
-            used = np.zeros(4, dtype=bool)
-            used[np.flatnonzero(use)[useful]] = True
-        else:
-            used = use
+                any_info = True
+        used = use
         if any_info:
             self._hold.last_update = stamp
         mean = float(self.p @ self.theta)
@@ -204,7 +204,7 @@ class BayesSoilEstimator:
         status, reason, (rk, rs, rl) = self._hold.status(stamp, k, k_std, log_std)
         cls = conf = None
         if rk is not None:
-            if status == "holding":
+            if not any_info:
                 cls, conf = classify(rk, rl, self.c)
             else:
                 masses = np.bincount(self._class_idx, weights=self.p, minlength=len(self._names))
