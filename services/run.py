@@ -366,6 +366,8 @@ def run_system(opts: RunOptions) -> int:
             failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
     finally:
         snap_running = monitor.snapshot()  # what the table showed last, before anything stops
+        if session is not None and not failures:
+            _final_health(session, group, vehicle, monitor, opts.vehicle_id)
         group.stop_all()
         for child in group.children:
             if child.outcome in ("died", "killed"):
@@ -393,6 +395,31 @@ def run_system(opts: RunOptions) -> int:
         console.print("interrupted: everything stopped")
         return 130 if interrupted["sig"] == signal.SIGINT else 143
     return 0
+
+
+def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monitor: Monitor, vid: str) -> None:
+    """Stop the source first, let the pipeline drain, then ask every service for its counters,
+    so that the summary's counts are consistent with each other."""
+    if vehicle is not None and vehicle.proc is not None and vehicle.proc.poll() is None:
+        vehicle.stopping = True
+        vehicle.proc.send_signal(signal.SIGTERM)
+        try:
+            vehicle.proc.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            pass
+    time.sleep(0.5)
+    try:
+        for reply in session.get(keys.vehicle_status_all(vid), timeout=2.0):
+            if reply.ok is None:
+                continue
+            try:
+                h = ServiceHealth.model_validate_json(reply.ok.payload.to_bytes())
+            except ValueError:
+                continue
+            with monitor.lock:
+                monitor.health[h.service] = h
+    except Exception:  # the summary falls back to the last periodic reports
+        pass
 
 
 def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monitor, stop: threading.Event,
@@ -428,7 +455,8 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
                 print(plain_line(opts.vehicle_id, snap, elapsed), flush=True)
             if failures:
                 break
-            if opts.duration is not None and elapsed >= opts.duration + 0.5:
+            # the source stops itself after the duration; this is only the safety net (slow start)
+            if opts.duration is not None and elapsed >= opts.duration + 15.0:
                 break
             if source_done_at is not None and now - source_done_at > 1.0:
                 break  # the last samples have had time to run through the pipeline
