@@ -149,6 +149,7 @@ class SimParams:
     yaw_rate_eps: float = 0.05  #: rad/s, smoothing of sign(psi') in M_zR
     slip_floor: float = DEFAULT_FLOOR  #: m/s, floor on eq. 1's denominator (standstill)
     newton_tol: float = 1e-8  #: accept a Newton iterate once its update is below this (rad/s, m/s)
+    newton_loose_tol: float = 1e-5  #: intermediate sub-steps: accept the first update below this
     newton_max_iter: int = 8
 
     def __post_init__(self) -> None:
@@ -319,7 +320,7 @@ class _Run:
         self.dist = 0.0
         self.heading = 0.0
         self.z = 0.0
-        self.wheel_angle = np.zeros(4)
+        self.wheel_angle = [0.0] * 4
         self.acc = 0.0  # V' of the last sub-step
         self.i_wheel = [0.0] * 4
         self.i_speed = 0.0
@@ -402,10 +403,15 @@ class _Run:
         return out
 
     # --- one backward-Euler sub-step -----------------------------------------------------
-    def _substep(self) -> None:
+    def _substep(self, final: bool) -> None:
         """Backward Euler for (omega_1..4, V, psi') by Newton's method (analytic Jacobian, the
         diagonal wheel block eliminated).  Eq. 13 per wheel with gross traction, the longitudinal
-        and yaw equations (eqs. 11-12) with net traction; Fz from the previous acceleration."""
+        and yaw equations (eqs. 11-12) with net traction; Fz from the previous acceleration.
+
+        The last sub-step before a sample (``final``) iterates until the update is below
+        ``newton_tol`` and keeps the iterate whose forces were evaluated, so that the reported state
+        and forces are exactly consistent; intermediate sub-steps accept the first update once it is
+        below ``newton_loose_tol`` (then they are linearly implicit Euler steps, also L-stable)."""
         v, ctl, par, h = self.v, self.ctl, self.par, self.h
         t_new = self.t + h
         self._terrain()
@@ -416,6 +422,7 @@ class _Run:
         kp, tmax = ctl.wheel_kp, ctl.torque_limit
         t_int = [ctl.wheel_ki * q for q in self.i_wheel]
         muy, eps, floor, tol = par.lateral_resistance, par.yaw_rate_eps, par.slip_floor, par.newton_tol
+        loose = par.newton_loose_tol
         lz = sum(ax * fzi for ax, fzi in zip(self.absx, fz))
         g_x = self.f_grav[0]  # m V' = sum(mu Fz) - m g_x  (g_x = g sin(grade))
         w0, V0, r0 = self.w, self.V, self.r
@@ -423,13 +430,15 @@ class _Run:
         x = [2.0 * a - b for a, b in zip(x0, self.prev)]  # linear predictor
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
-        Fw, BV, Br, inv, gs, mus, tq, traw, ss = ([0.0] * 4 for _ in range(9))
+        Fw, BV, inv, gs, mus, tq, traw, ss = ([0.0] * 4 for _ in range(8))
+        hkp = h * kp
+        hrfz = [h * R * q for q in fz]
         for it in range(par.newton_max_iter):
             V, r = x[4], x[5]
             sum_fx = sum_yfx = s_asv = s_asvy = s_asvyy = 0.0
-            a11c = a12c = a21c = a22c = b1c = b2c = 0.0
+            a11c = a12c = a22c = b1c = b2c = 0.0
             for i in range(4):
-                wi, yi, fzi = x[i], ys[i], fz[i]
+                wi, yi = x[i], ys[i]
                 vi = V - r * yi
                 # eq. 1 (slip_ratio's floored denominator) and its partials
                 rho = wi * R
@@ -465,44 +474,47 @@ class _Run:
                 elif tr < -tmax:
                     T, kpe = -tmax, 0.0
                 else:
-                    T, kpe = tr, kp
-                fwi = Iw * (wi - w0[i]) - h * (T - R * g * fzi)
-                invi = 1.0 / (Iw + h * kpe + h * R * fzi * dg * sw)
-                bvi = h * R * fzi * dg * sv
-                bri = -bvi * yi
-                ai = fzi * dmu
-                cvi = -h * ai * sw
-                cri = -cvi * yi
+                    T, kpe = tr, hkp
+                # residual of eq. 13 and the Jacobian entries (Br = -BV y, Cr = -CV y are folded in)
+                k1 = hrfz[i] * dg
+                fwi = Iw * (wi - w0[i]) - h * T + hrfz[i] * g
+                invi = 1.0 / (Iw + kpe + k1 * sw)
+                bvi = k1 * sv
+                ai = fz[i] * dmu
                 asv = ai * sv
-                fx = mu * fzi
+                q = -h * ai * sw * invi
+                qb = q * bvi
+                qf = q * fwi
+                fx = mu * fz[i]
                 sum_fx += fx
                 sum_yfx += yi * fx
                 s_asv += asv
                 s_asvy += asv * yi
                 s_asvyy += asv * yi * yi
-                a11c += cvi * bvi * invi
-                a12c += cvi * bri * invi
-                a21c += cri * bvi * invi
-                a22c += cri * bri * invi
-                b1c += cvi * fwi * invi
-                b2c += cri * fwi * invi
-                Fw[i], BV[i], Br[i], inv[i], gs[i], mus[i], tq[i], traw[i], ss[i] = fwi, bvi, bri, invi, g, mu, T, tr, s
+                a11c += qb
+                a12c += qb * yi
+                a22c += qb * yi * yi
+                b1c += qf
+                b2c += qf * yi
+                Fw[i], BV[i], inv[i], gs[i], mus[i], tq[i], traw[i], ss[i] = fwi, bvi, invi, g, mu, T, tr, s
             th = math.tanh(r / eps)
             FV = m * (V - V0) - h * (sum_fx - m * g_x)
             Fr = Iz * (r - r0) - h * (-sum_yfx - muy * lz * th)
             A11 = m - h * s_asv - a11c
-            A12 = h * s_asvy - a12c
-            A21 = h * s_asvy - a21c
+            A12 = h * s_asvy + a12c  # = A21 (the reduced Jacobian is symmetric)
             A22 = Iz - h * s_asvyy + h * muy * lz * (1.0 - th * th) / eps - a22c
             b1 = FV - b1c
-            b2 = Fr - b2c
-            det = A11 * A22 - A12 * A21
+            b2 = Fr + b2c
+            det = A11 * A22 - A12 * A12
             dV = (b1 * A22 - A12 * b2) / det
-            dr = (A11 * b2 - A21 * b1) / det
-            dw = [(Fw[i] - BV[i] * dV - Br[i] * dr) * inv[i] for i in range(4)]
-            if abs(dV) < tol and abs(dr) < tol and abs(dw[0]) < tol and abs(dw[1]) < tol and abs(dw[2]) < tol and abs(dw[3]) < tol:
+            dr = (A11 * b2 - A12 * b1) / det
+            dw = [(Fw[i] - BV[i] * (dV - ys[i] * dr)) * inv[i] for i in range(4)]
+            big = max(abs(dV), abs(dr), abs(dw[0]), abs(dw[1]), abs(dw[2]), abs(dw[3]))
+            if big < tol:
                 break  # accept x itself: the stored forces are exactly those of the accepted state
             x = [x[0] - dw[0], x[1] - dw[1], x[2] - dw[2], x[3] - dw[3], V - dV, r - dr]
+            if not final and big < loose:
+                break  # intermediate sub-step: one small Newton update (linearly implicit Euler) suffices
         else:
             self.newton_failures += 1
         self.newton_iters += it + 1
@@ -516,9 +528,14 @@ class _Run:
         # energy book (backward Euler: powers at the new state, torques held over the step)
         e = self.energy
         vis = [V - r * yi for yi in ys]
-        e["motor_work"] += h * sum(T * wi for T, wi in zip(tq, w))
-        e["slip_dissipation"] += h * sum(fzi * g * (R * wi - vi) for fzi, g, wi, vi in zip(fz, gs, w, vis))
-        e["resistance_work"] += h * sum(fzi * (g - mu) * vi for fzi, g, mu, vi in zip(fz, gs, mus, vis))
+        pm = ps = pr = 0.0
+        for i in range(4):
+            pm += tq[i] * w[i]
+            ps += fz[i] * gs[i] * (R * w[i] - vis[i])
+            pr += fz[i] * (gs[i] - mus[i]) * vis[i]
+        e["motor_work"] += h * pm
+        e["slip_dissipation"] += h * ps
+        e["resistance_work"] += h * pr
         e["yaw_dissipation"] += h * muy * lz * th * r
         self.z += h * V * g_x / STANDARD_GRAVITY
         # advance
@@ -528,7 +545,7 @@ class _Run:
         self.torque = tq[:]
         self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
         self.f_used, self.fz = f, fz
-        self.wheel_angle = self.wheel_angle + h * np.array(w)
+        self.wheel_angle = [a + h * wi for a, wi in zip(self.wheel_angle, w)]
         self.dist += h * V
         self.heading += h * r
         self.t = t_new
@@ -601,8 +618,8 @@ class _Run:
         n = max(1, int(round(self.duration * self.rate)))
         for seq in range(n):
             if seq:
-                for _ in range(self.n_sub):
-                    self._substep()
-                    if not (np.all(np.isfinite(self.w)) and math.isfinite(self.V) and math.isfinite(self.r)):
-                        raise RuntimeError(f"simulation diverged at t={self.t:.4f} s (state {self.w}, {self.V}, {self.r})")
+                for k in range(self.n_sub):
+                    self._substep(final=k == self.n_sub - 1)
+                if not all(map(math.isfinite, (*self.w, self.V, self.r))):
+                    raise RuntimeError(f"simulation diverged at t={self.t:.4f} s (state {self.w}, {self.V}, {self.r})")
             yield self._records(seq)
