@@ -31,8 +31,8 @@ Identifiability (read this before trusting a number):
 S_E (eq. 10): the peaks of eq. 9 come from the *fitted* model, so method-notes §5 applies: with a
 negative C5 the drawbar coefficient is positive at zero slip, "TE" exceeds 1 near S = 0 and there
 is no interior peak on weak soils.  A soil counts only if eq. 9 has an interior maximum with
-0 < TE <= 1 and positive gross traction.  With fewer than two such soils (of different K) the
-initial alpha, beta are kept and the result says so.
+0 < TE <= 1 and positive gross traction.  If any calibrated soil has no such peak (or there are
+fewer than two soils of different K) the initial alpha, beta are kept and the result says so.
 """
 
 from __future__ import annotations
@@ -313,9 +313,10 @@ def efficiency_peak(soil_strength: float, constants: ModelConstants) -> tuple[fl
 def fit_efficiency_line(soils: Mapping[str, float], constants: ModelConstants) -> EfficiencyFit:
     """Fit S_E = (K - alpha) / beta (eq. 10) through the eq. 9 peaks of ``constants`` at ``soils``.
 
-    Least-squares line through (K, S_peak) over the soils with a valid interior peak (see
-    :func:`efficiency_peak`).  Needs two such soils of different K; otherwise ``constants``' own
-    alpha, beta are kept and ``fitted`` is False, with the reason in ``message``.
+    Least-squares line through (K, S_peak) of the soils (peaks from :func:`efficiency_peak`).
+    Every soil must have a valid interior peak, and there must be two soils of different K:
+    otherwise ``constants``' own alpha, beta are kept and ``fitted`` is False, with the reason in
+    ``message`` (a line through some soils would be extrapolated where eq. 9 is invalid).
     """
     peaks: dict[str, float | None] = {}
     reasons: dict[str, str] = {}
@@ -324,11 +325,17 @@ def fit_efficiency_line(soils: Mapping[str, float], constants: ModelConstants) -
         if why:
             reasons[name] = why
     good = [(soils[n], sp) for n, sp in peaks.items() if sp is not None]
-    if len({k for k, _ in good}) < 2:
+    missing = [n for n, sp in peaks.items() if sp is None]
+    keep = f"kept alpha={constants.alpha:g}, beta={constants.beta:g}"
+    if missing:
+        # a line through the other soils would be extrapolated exactly where eq. 9 is invalid
         msg = (
-            f"S_E line not fitted: only {len(good)} soil(s) have an interior eq. 9 peak "
-            f"(method-notes §5); kept alpha={constants.alpha:g}, beta={constants.beta:g}"
+            f"S_E line not fitted: no interior eq. 9 peak with 0 < TE <= 1 for {', '.join(missing)} "
+            f"(method-notes §5); {keep}"
         )
+        return EfficiencyFit(constants.alpha, constants.beta, False, peaks, reasons, msg)
+    if len({k for k, _ in good}) < 2:
+        msg = f"S_E line not fitted: needs eq. 9 peaks of at least two soils of different K; {keep}"
         return EfficiencyFit(constants.alpha, constants.beta, False, peaks, reasons, msg)
     ks, ss = np.array(good).T
     slope, intercept = np.polyfit(ks, ss, 1)

@@ -144,6 +144,8 @@ def test_efficiency_line_falls_back_without_interior_peaks():
     assert not eff.fitted and (eff.alpha, eff.beta) == (600.0, -5000.0)
     assert (res.constants.alpha, res.constants.beta) == (600.0, -5000.0)
     assert eff.peaks["sand"] is None and "smallest slip" in eff.reasons["sand"]
+    # grass alone has a peak: "some soils without a peak" is enough to keep alpha, beta
+    assert eff.peaks["grass"] is not None and "sand" in eff.message and "grass" not in eff.message
     assert "not fitted" in eff.message and "§5" in eff.message
 
 
