@@ -185,6 +185,9 @@ def zenoh_config(
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     if connect_timeout_ms is not None:
         conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
+    # After a lost link (router restarted), retry quickly: the default backoff grows to several
+    # seconds, far longer than the stale timeout of the OCP output.
+    conf.insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
     return conf
 
 

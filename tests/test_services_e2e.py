@@ -424,3 +424,110 @@ def test_soilocp_run_replay_without_tty_prints_lines_and_summary(tmp_path):
     assert "died" not in out and "killed" not in out
     logs = sorted(x.name for x in (tmp_path / "logs").iterdir())
     assert logs == sorted(f"{n}.log" for n in ("router", *PIPELINE, "vehicle"))
+
+
+def test_router_restart_services_rejoin_and_ocps_resume(procs, tmp_path):
+    vid = "rejoin1"
+    ep = endpoint(free_port())
+    log = tmp_path / "drive.jsonl"
+    write_log(log, vid, duration=20.0, scenario="sand")
+    procs.spawn("router", ["router", "--listen", ep])
+    start_pipeline(procs, ep, vid)
+    ocps = Collector()
+    with client(ep) as s:
+        assert wait_alive(s, vid), alive_services(s, vid)
+    procs.spawn("vehicle", ["service", "vehicle", "--vehicle-id", vid, "--connect", ep, "--replay", str(log)])
+    # the test's own client is on a peer-less router that is about to die: use fresh ones
+    with client(ep) as s:
+        s.declare_subscriber(f"soilocp/{vid}/ocp", ocps)
+        assert wait_for(lambda: len(ocps) >= 100, 30)
+    seq_at_kill = ocps.models(OcpEstimate)[-1].seq
+    router = procs.procs["router"]
+    router.send_signal(signal.SIGKILL)
+    router.wait(10)
+    time.sleep(0.5)
+    procs.spawn("router", ["router", "--listen", ep])
+    after = Collector()
+    with client(ep) as s:
+        s.declare_subscriber(f"soilocp/{vid}/ocp", after)
+        assert wait_for(lambda: len(after) >= 100, 40), "OCPs did not resume after the router restart"
+        assert wait_alive(s, vid, timeout=10)
+    seqs = [e.seq for e in after.models(OcpEstimate)]
+    assert seqs[0] > seq_at_kill and seqs == sorted(seqs)
+    assert all(procs.procs[n].poll() is None for n in PIPELINE)
+
+
+def _pids_from_logs(log_dir: Path) -> dict[str, int]:
+    """pid of each process of a ``soilocp run``, from the first JSON log line that names it."""
+    out = {}
+    for f in log_dir.glob("*.log"):
+        for line in f.read_text(errors="replace").splitlines():
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(rec, dict) and "pid" in rec:
+                out[f.stem] = rec["pid"]
+                break
+    return out
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+class _RunProc:
+    """``soilocp run`` in its own process group with its stdout read by a thread."""
+
+    def __init__(self, args, tmp_path):
+        self.log_dir = tmp_path / "runlogs"
+        self.p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", *args, "--log-dir", str(self.log_dir)],
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        self.lines: list[str] = []
+        self.t = threading.Thread(target=lambda: self.lines.extend(iter(self.p.stdout.readline, "")), daemon=True)
+        self.t.start()
+
+    def text(self) -> str:
+        return "".join(self.lines)
+
+    def close(self):
+        if self.p.poll() is None:
+            os.killpg(self.p.pid, signal.SIGKILL)
+            self.p.wait()
+        for pid in _pids_from_logs(self.log_dir).values():  # never leave a child behind
+            if _pid_alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def test_soilocp_run_ctrl_c_stops_every_process_and_a_dead_service_fails_the_run(tmp_path):
+    ep = endpoint(free_port())
+    run = _RunProc(["--synthetic", "sand", "--duration", "60", "--listen", ep], tmp_path / "a")
+    try:
+        assert wait_for(lambda: "K_±_std=" in run.text() and "services_alive=5/5" in run.text(), 60), run.text()
+        assert wait_for(lambda: len(_pids_from_logs(run.log_dir)) == 7, 10), _pids_from_logs(run.log_dir)
+        pids = _pids_from_logs(run.log_dir)
+        os.killpg(run.p.pid, signal.SIGINT)  # what Ctrl-C on the terminal does
+        assert run.p.wait(15) == 130, run.text()
+        run.t.join(5)
+        assert "interrupted" in run.text() and "summary" in run.text()
+        assert not [n for n, pid in pids.items() if _pid_alive(pid)]
+    finally:
+        run.close()
+
+    ep = endpoint(free_port())
+    run = _RunProc(["--synthetic", "sand", "--duration", "60", "--listen", ep], tmp_path / "b")
+    try:
+        assert wait_for(lambda: "services_alive=5/5" in run.text(), 60), run.text()
+        assert wait_for(lambda: len(_pids_from_logs(run.log_dir)) == 7, 10)
+        pids = _pids_from_logs(run.log_dir)
+        os.kill(pids["soil-strength"], signal.SIGKILL)
+        assert run.p.wait(15) == 1, run.text()
+        run.t.join(5)
+        assert "FAILED" in run.text() and "soil-strength died" in run.text()
+        assert not [n for n, pid in pids.items() if _pid_alive(pid)]
+    finally:
+        run.close()
