@@ -39,6 +39,7 @@ motor work = kinetic + potential energy change + dissipation (+ the integrator's
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import re
 from collections.abc import Iterator
@@ -233,8 +234,8 @@ def _smoothstep(x: float) -> float:
 def _check_args(duration, rate, seed, mode, vehicle_id):
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 2000):
         raise ValueError(f"rate must be in (0, 2000] Hz, got {rate!r}")
-    if duration is not None and not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    if duration is not None and not (isinstance(duration, (int, float)) and not math.isnan(duration) and duration > 0):
+        raise ValueError(f"duration must be > 0 s (math.inf = endless, for a live vehicle), got {duration!r}")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if mode is not None and mode not in MODES:
@@ -261,7 +262,7 @@ def simulate(
 ) -> Iterator[tuple[SensorSample, TruthRecord]]:
     """Drive ``scenario`` and yield ``(SensorSample, TruthRecord)`` pairs lazily, one per sensor
     sample at ``stamp = seq / rate`` (seq 0 = at rest at t = 0), for ``duration`` seconds
-    (default: the scenario's).  Arguments are checked at once (ValueError), before the first sample.
+    (default: the scenario's; ``math.inf`` = endless, for a live synthetic vehicle).  Arguments are checked at once (ValueError), before the first sample.
 
     ``mode`` overrides the scenario's controller mode; ``sweep`` its front-axle slip sweep;
     ``noise`` the sensor noise levels (None = :class:`SensorNoise` defaults;
@@ -271,6 +272,10 @@ def simulate(
     _check_args(duration, rate, seed, mode, vehicle_id)
     if not isinstance(vehicle, VehicleParams):
         raise ValueError(f"vehicle must be a VehicleParams, got {type(vehicle).__name__}")
+    if not isinstance(constants, ModelConstants):
+        raise ValueError(f"constants must be a ModelConstants, got {type(constants).__name__}")
+    if noise is not None and not isinstance(noise, SensorNoise):
+        raise ValueError(f"noise must be a SensorNoise or None, got {type(noise).__name__}")
     if sweep is not None:
         sc = sc.with_overrides(sweep=sweep)
     run = _Run(
@@ -351,7 +356,7 @@ class _Run:
         seg = segs[self.seg]
         self.k_wheels = np.array([segs[j].soil_strength for j in seg_wheels])
         self.k_tabs = [self.table.tables(k) for k in self.k_wheels]
-        self.roll, self.pitch = seg.cross_slope, -seg.grade
+        self.roll, self.pitch = seg.cross_slope, 0.0 - seg.grade  # (0.0 - x: no "-0.0" in the logs)
         self.f_grav = [float(q) for q in gravity_from_attitude(self.roll, self.pitch, STANDARD_GRAVITY)]
 
     def _specific_force(self) -> tuple[float, float, float]:
@@ -615,8 +620,8 @@ class _Run:
         return sample, truth
 
     def samples(self) -> Iterator[tuple[SensorSample, TruthRecord]]:
-        n = max(1, int(round(self.duration * self.rate)))
-        for seq in range(n):
+        n = itertools.count() if math.isinf(self.duration) else range(max(1, int(round(self.duration * self.rate))))
+        for seq in n:
             if seq:
                 for k in range(self.n_sub):
                     self._substep(final=k == self.n_sub - 1)

@@ -295,7 +295,11 @@ def test_rover_file_is_the_default_vehicle():
     assert load_vehicle(ROOT / "soilocp/data/rover.json") == DEFAULT_VEHICLE
 
 
-def test_simulate_is_lazy():
-    gen = simulate("mixed", duration=1000.0)
+def test_simulate_is_lazy_and_can_be_endless():
+    gen = simulate("mixed", duration=math.inf)
     first = next(gen)
     assert first[0].seq == 0 and first[1].soil_class == "sand"
+    for _ in range(20):
+        sample, truth = next(gen)
+    assert sample.seq == truth.seq == 20 and sample.stamp == pytest.approx(0.2)
+    gen.close()
