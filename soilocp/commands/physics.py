@@ -45,7 +45,7 @@ constants_option = click.option(
 
 
 # ------------------------------------------------------------------------------------- ocp
-@click.command("ocp")
+@click.command("ocp", short_help="mu_T, S_T, S_E for soil strength K (eqs. 7-10).")
 @click.option(
     "--soil-strength",
     "-k",
@@ -95,7 +95,7 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
 
 
 # ----------------------------------------------------------------------------------- curves
-@click.command("curves")
+@click.command("curves", short_help="PNGs of the paper's Figs. 3-5 (traction, efficiency, OCPs vs K).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Directory for the PNG files.")
 @constants_option
 @click.option("--soil", "soils", multiple=True, help="Soil of the constants to draw (repeat); default: sand, gravel, EST, grass.")
@@ -113,7 +113,7 @@ def curves(out_dir: str, constants_file: str | None, soils: tuple[str, ...]) -> 
 
 
 # -------------------------------------------------------------------------------- calibrate
-@click.command("calibrate")
+@click.command("calibrate", short_help="Fit C1..C6 and K per soil to testbed data (paper §2.2).")
 @click.argument("data", type=click.Path(dir_okay=False))
 @click.option("--out", "out_file", type=click.Path(dir_okay=False), required=True, help="Constants JSON to write.")
 @click.option(
