@@ -61,7 +61,7 @@ def test_ocp_uses_the_constants_file(tmp_path):
     assert custom["S_E"] == pytest.approx((80 - 500) / -4000)
 
 
-@pytest.mark.parametrize("k", ["0", "-50", "nan", "inf", "abc"])
+@pytest.mark.parametrize("k", ["0", "-50", "nan", "inf", "abc", "1e-320"])
 def test_ocp_bad_k_is_a_usage_error(k):
     r = run("ocp", "--soil-strength", k)
     assert r.exit_code == 2

@@ -78,7 +78,17 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
     rows: list[tuple[str, float]] = [("", k) for k in soil_strength]
     if table:
         rows += list(c.soils.items())
-    results = [(name, ocp_from_soil_strength(k, c)) for name, k in rows]
+    results = []
+    for name, k in rows:
+        try:
+            r = ocp_from_soil_strength(k, c)
+        except ValueError as exc:  # e.g. K so small that eq. 7's argument underflows
+            raise click.BadParameter(f"K = {k!r}: {exc}", param_hint="'--soil-strength'") from None
+        if not all(math.isfinite(v) for v in r.as_dict().values()):
+            raise click.BadParameter(
+                f"K = {k!r} is outside the model's numeric range (OCPs {r.as_dict()})", param_hint="'--soil-strength'"
+            )
+        results.append((name, r))
     if as_json:
         dicts = [r.as_dict() for _, r in results]
         click.echo(json.dumps(dicts[0] if len(dicts) == 1 and not table else dicts))
