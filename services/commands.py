@@ -126,6 +126,10 @@ def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_conf
         _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
     try:
         keys.check_vehicle_id(vehicle_id)
+        if scenario is not None:
+            from soilocp.scenarios import get_scenario
+
+            get_scenario(scenario)  # ValueError listing the known scenarios
         if duration is not None and duration <= 0:
             raise ValueError(f"--duration {duration!r}: must be > 0 s")
         if speed < 0:

@@ -50,11 +50,14 @@ def replay_source(path: str, duration: Optional[float] = None) -> Iterator[tuple
 
 def scenario_source(scenario: str, vehicle_id: str, *, duration: Optional[float], rate: float, seed: int
                     ) -> Iterator[tuple[bytes, Optional[float]]]:
-    """Samples of a simulator scenario as ``(SensorSample JSON, stamp)``."""
+    """Samples of a simulator scenario as ``(SensorSample JSON, stamp)``.
+
+    Not a generator itself: a bad scenario name or argument raises ValueError here, at startup.
+    """
     from soilocp.simulator import simulate  # the simulator is only needed for this source
 
-    for sample, _truth in simulate(scenario, duration=duration, rate=rate, seed=seed, vehicle_id=vehicle_id):
-        yield sample.model_dump_json().encode(), sample.stamp
+    samples = simulate(scenario, duration=duration, rate=rate, seed=seed, vehicle_id=vehicle_id)
+    return ((sample.model_dump_json().encode(), sample.stamp) for sample, _truth in samples)
 
 
 class VehicleService(Service):

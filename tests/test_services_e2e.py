@@ -370,12 +370,24 @@ def test_kill9_of_a_service_and_restart_resumes_ocps_and_flags_stale(router, pro
 
 def test_service_waits_for_late_router_and_stops_cleanly_on_sigterm(procs):
     ep = endpoint(free_port())
-    gw = procs.spawn("gateway", ["service", "gateway", "--vehicle-id", "late1", "--connect", ep])
+    # one process may serve several vehicles: each id gets its own keys, token and state
+    gw = procs.spawn("gateway", ["service", "gateway", "--vehicle-id", "late1", "--vehicle-id", "late2",
+                                 "--connect", ep])
     time.sleep(2.0)
     assert gw.poll() is None, procs.log_text("gateway")  # still waiting, not crashed
     procs.spawn("router", ["router", "--listen", ep])
     with client(ep) as s:
         assert wait_alive(s, "late1", ["gateway"], timeout=30), procs.log_text("gateway")
+        assert wait_alive(s, "late2", ["gateway"], timeout=5)
+        rej = Collector()
+        s.declare_subscriber("soilocp/*/rejected", rej)
+        time.sleep(0.3)
+        sample = dict(vehicle_id="late1", seq=0, stamp=0.0, specific_force=[0.0, 0.0, 9.81], roll=0.0, pitch=0.0,
+                      yaw_rate=0.0, wheel_speed=[0.0] * 4, wheel_torque=[0.0] * 4, ground_speed=0.0)
+        s.put("soilocp/late2/sensors/raw", json.dumps(sample).encode())
+        assert wait_for(lambda: len(rej) == 1, 10)
+        r = rej.models(Rejection)[0]
+        assert (r.vehicle_id, r.code) == ("late2", "vehicle_mismatch")
     gw.send_signal(signal.SIGTERM)
     assert gw.wait(5) == 0
     log = procs.log_text("gateway")
