@@ -106,8 +106,9 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         def med_p(vals):
             if n_settled == 0:
                 return None, None
-            v = np.where(np.isfinite(vals), vals, np.inf)  # no estimate counts as a miss
-            return float(np.median(v)), float(np.percentile(v, 90))
+            v = np.sort(np.where(np.isfinite(vals), vals, np.inf))  # no estimate counts as a miss
+            # order statistics, not interpolation: inf - inf would give nan
+            return float(v[(len(v) - 1) // 2]), float(v[min(int(np.ceil(0.9 * len(v))) - 1, len(v) - 1)])
 
         kmed, kp90 = med_p(rel_settled)
         # convergence: first time after which the estimate stays inside the band to segment end

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import positive
+from .checks import positive, positive_scalar
 from .constants import DEFAULT_CONSTANTS, ModelConstants
 from .traction import net_traction
 
@@ -73,10 +73,13 @@ def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEF
     :func:`optimal_slip_traction`, :func:`max_traction` and :func:`optimal_slip_efficiency`
     evaluated with ``math``; tests check that both paths agree.
     """
-    k = float(positive("soil_strength", soil_strength))
+    k = positive_scalar("soil_strength", soil_strength)
     c = constants
     amp = c.C1 * -math.expm1(-c.C2 * k)
-    st = max(math.log(c.C3 * math.sqrt(k) * amp / c.C6) / c.C3, 0.0)  # eq. 7 corrected
+    arg = c.C3 * math.sqrt(k) * amp / c.C6
+    if not (arg > 0 and math.isfinite(c.C5 / k)):
+        raise ValueError(f"soil_strength must be a K the model can evaluate (>~1e-300), got {k!r}")
+    st = max(math.log(arg) / c.C3, 0.0)  # eq. 7 corrected
     s_eval = max(st, c.bridge_slip)  # peak at the origin: the bridge's end point
     mu_pos = amp * (1.0 - math.exp(-c.C3 * s_eval)) - (c.C5 / k + c.C6 * s_eval / math.sqrt(k))  # eq. 6/8
     se = max((k - c.alpha) / c.beta, 0.0)  # eq. 10

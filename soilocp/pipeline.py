@@ -23,7 +23,7 @@ from .normal_force import normal_forces
 from .observer import ObserverConfig, TractionObserver
 from .ocp import ocp_from_soil_strength
 from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
-from .soil_strength import SoilConfig, make_soil_estimator
+from .soil_strength import SoilConfig, make_soil_estimator, slip_uncertainty
 from .traction import curve_unchecked
 from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
@@ -76,7 +76,7 @@ def load_pipeline_config(
 
 
 def _quad(a) -> tuple[float, float, float, float]:
-    return tuple(float(x) for x in a)  # type: ignore[return-value]
+    return tuple(np.asarray(a, dtype=float).tolist())  # type: ignore[return-value]
 
 
 class NormalForceStage:
@@ -156,7 +156,8 @@ class SoilStage:
             observed, var = obs.gross, obs.gross_var
         else:
             observed, var = obs.mu, obs.mu_var
-        st = self.estimator.update(obs.stamp, s.slip, observed, var, informative)
+        speed = np.maximum(np.abs(v_wheel), np.abs(np.asarray(obs.wheel_speed)) * cfg.vehicle.wheel_radius)
+        st = self.estimator.update(obs.stamp, s.slip, observed, var, informative, slip_uncertainty(speed, cfg.soil))
         return SoilEstimate(
             vehicle_id=obs.vehicle_id,
             seq=obs.seq,

@@ -24,31 +24,33 @@ Mode = Literal["cruise", "excitation"]
 MODES: tuple[str, ...] = ("cruise", "excitation")
 
 
-Axle = Literal["front", "rear"]
-
-
 @dataclass(frozen=True)
 class SweepParams:
     """Slip sweep of one axle in ``excitation`` mode (a traction test): that axle's wheels track a
-    triangle wave of driving slip (eq. 1) between ``s_min`` and ``s_max`` with period ``period``
-    seconds, while the other axle brakes to hold the speed.
+    triangle wave of driving slip (eq. 1) from ``s_min`` up to ``s_max`` and back in ``period``
+    seconds, then hold ``s_min`` for ``dwell`` seconds; the FRONT axle sweeps, the rear axle brakes
+    to hold the speed.
 
-    The default sweeping axle is the REAR one: with the default rover the front axle carries 54 %
-    of the weight, and the sweep's mean traction on the heavier axle exceeds what the lighter axle
-    can brake at its traction peak, on every soil (e.g. sand: 107 N mean vs 104 N max; firm: 304 N
-    vs 298 N), so a front sweep cannot hold the speed.  ``axle="front"`` is available; then a
-    governor cuts the sweep when the rover overspeeds (the truth records the actual set-point).
+    Why the front axle and the dwell (default rover: h/L = 0.6, 54 % of the weight on the front):
+
+    * Sweeping the rear axle instead (front braking) is statically unstable on strong soil:
+      acceleration moves load onto the driving rear and off the braking front, which accelerates
+      the rover more; with |mu| ~ 1 the loop gain h (mu_r - mu_f) / L exceeds 1 (from K ~ 170
+      on).  With the front sweeping and the rear braking the same loop is negative feedback.
+    * The heavier front axle's mean traction over a bare 0.05-0.6 triangle exceeds what the
+      lighter rear can brake even at its peak, on every soil (sand: 107 N vs 104 N; firm: 304 N
+      vs 298 N), so without the dwell the rover would run away; the dwell at ``s_min`` lets the
+      rear pull the speed back every cycle.  A governor still cuts the sweep if the rover
+      overspeeds (the truth records the actual set-point).
     """
 
     s_min: float = 0.05
     s_max: float = 0.6
     period: float = 1.2
-    axle: Axle = "rear"
+    dwell: float = 0.4
 
     def __post_init__(self) -> None:
-        if self.axle not in ("front", "rear"):
-            raise ValueError(f"sweep axle must be 'front' or 'rear', got {self.axle!r}")
-        for name in ("s_min", "s_max", "period"):
+        for name in ("s_min", "s_max", "period", "dwell"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"sweep {name} must be a finite number, got {v!r}")
@@ -58,11 +60,15 @@ class SweepParams:
             )
         if self.period <= 0:
             raise ValueError(f"sweep period must be > 0 s, got {self.period}")
+        if self.dwell < 0:
+            raise ValueError(f"sweep dwell must be >= 0 s, got {self.dwell}")
 
     def slip_at(self, t: float) -> float:
-        """Triangle wave: s_min at t = 0, s_max at t = period/2, s_min again at t = period."""
-        phase = (t / self.period) % 1.0
-        tri = 1.0 - abs(2.0 * phase - 1.0)
+        """s_min at t = 0, s_max at period/2, s_min at period, held until period + dwell; repeats."""
+        tc = t % (self.period + self.dwell)
+        if tc >= self.period:
+            return self.s_min
+        tri = 1.0 - abs(2.0 * tc / self.period - 1.0)
         return self.s_min + (self.s_max - self.s_min) * tri
 
 

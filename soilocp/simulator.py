@@ -18,8 +18,8 @@ Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
   skid-steer resistance moment M_zR = mu_y (a (Fz1 + Fz4) + b (Fz2 + Fz3)) tanh(psi'/eps), which
   opposes the yaw rate smoothly (eq. 12 with a regularised sign);
 * normal forces from the TRUE specific force f = (V', V psi', 0) + g_R(roll, pitch) (eq. 20's
-  gravity reaction plus the acceleration, method-notes §3) through the zero-warp solver; the
-  acceleration is the previous sub-step's, so the forces are explicit in the step.
+  gravity reaction plus the acceleration, method-notes §3) through the zero-warp solver, solved
+  together with the dynamics in each step (see ``_Run._substep`` for why not lagged).
 
 Lateral sliding is not modelled (the rover tracks its heading); grade and cross-slope are those
 of the segment under the CoM, taken as pitch = -grade and roll = +cross_slope.
@@ -125,10 +125,12 @@ class ControllerParams:
     yaw_kp: float = 1.0  #: heading correction, rad/s per rad/s of yaw rate
     yaw_ki: float = 2.0  #: 1/s
     ramp_time: float = 2.0  #: smooth start: speed (and sweep amplitude) ramp from 0, s
-    #: Sweep governor: when the braking axle cannot hold the speed, the slip set-point
-    #: is scaled by 1 - gain * (overspeed fraction - deadband).  The truth records the set-point.
+    #: Sweep governor: when the braking axle cannot hold the cycle-mean speed (low-pass, time
+    #: constant governor_tau), the slip set-point is scaled by 1 - gain * (overspeed - deadband).
+    #: The truth records the actual set-point.
     governor_gain: float = 4.0
-    governor_deadband: float = 0.08
+    governor_deadband: float = 0.05
+    governor_tau: float = 1.5
     #: Excitation: the speed-holding axle never brakes harder than this slip, so that it stays on
     #: the stable side of the traction peak (past it a braking wheel locks).
     brake_slip_limit: float = 0.35
@@ -137,8 +139,8 @@ class ControllerParams:
         for name, v in self.__dict__.items():
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"controller {name} must be finite and >= 0, got {v!r}")
-        if self.torque_limit <= 0:
-            raise ValueError(f"controller torque_limit must be > 0 N m, got {self.torque_limit!r}")
+        if self.governor_tau <= 0 or self.torque_limit <= 0:
+            raise ValueError(f"controller torque_limit and governor_tau must be > 0, got {self.torque_limit!r}, {self.governor_tau!r}")
 
 
 @dataclass(frozen=True)
@@ -330,6 +332,7 @@ class _Run:
         self.i_wheel = [0.0] * 4
         self.i_speed = 0.0
         self.i_yaw = 0.0
+        self.v_mean = 0.0  # low-passed speed for the sweep governor
         self.torque = [0.0] * 4
         self.slips, self.gross, self.mus = [0.0] * 4, [0.0] * 4, [0.0] * 4
         self.slip_cmd: float | None = None
@@ -381,9 +384,12 @@ class _Run:
         if self.mode == "cruise":
             self.slip_cmd = None
             return [max(v_ref - r_c * yi, 0.0) / R for yi in self.ys]
-        # excitation: one axle sweeps driving slip, the other holds the speed by braking
+        # excitation: the front axle sweeps driving slip, the rear holds the speed by braking
+        # (scenarios.SweepParams explains why not the other way round)
         s_cmd = sc.sweep.slip_at(t) * ramp
-        over = (self.V - sc.speed) / sc.speed - ctl.governor_deadband
+        # the governor acts on the cycle-mean speed, not on the excursions within one sweep
+        self.v_mean += h / ctl.governor_tau * (self.V - self.v_mean)
+        over = (self.v_mean - sc.speed) / sc.speed - ctl.governor_deadband
         if over > 0:
             s_cmd *= max(0.0, 1.0 - ctl.governor_gain * over)
         self.slip_cmd = s_cmd
@@ -399,9 +405,8 @@ class _Run:
             self.i_speed += h * err
         self.i_speed = min(max(self.i_speed, -2.0), 2.0)
         out = []
-        sweep_front = sc.sweep.axle == "front"
         for front, yi in zip(self.front, self.ys):
-            if front == sweep_front:
+            if front:
                 out.append(max(self.V - r_c * yi, 0.0) / (R * (1.0 - s_cmd)))
             else:
                 out.append(max(v_hold - r_c * yi, 0.0) / R)
@@ -411,7 +416,13 @@ class _Run:
     def _substep(self, final: bool) -> None:
         """Backward Euler for (omega_1..4, V, psi') by Newton's method (analytic Jacobian, the
         diagonal wheel block eliminated).  Eq. 13 per wheel with gross traction, the longitudinal
-        and yaw equations (eqs. 11-12) with net traction; Fz from the previous acceleration.
+        and yaw equations (eqs. 11-12) with net traction, and the normal forces (zero-warp solution
+        of eqs. 16-25) from the specific force of the SAME step, f = ((V - V0)/h, V psi', 0) + g_R.
+
+        The load transfer is implicit on purpose: with h/L = 0.6 and |mu| ~ 1 the loop
+        acceleration -> Fz -> traction -> acceleration has a gain above 1 (one axle driving, the
+        other braking), and a one-step lag turns it into a numerical oscillation of the whole
+        rover.
 
         The last sub-step before a sample (``final``) iterates until the update is below
         ``newton_tol`` and keeps the iterate whose forces were evaluated, so that the reported state
@@ -420,30 +431,37 @@ class _Run:
         v, ctl, par, h = self.v, self.ctl, self.par, self.h
         t_new = self.t + h
         self._terrain()
-        f = self._specific_force()  # previous sub-step's acceleration
-        fz = self._fz(f)
         w_ref = self._references(t_new)
-        R, m, Iw, Iz, ys = v.wheel_radius, v.mass, v.wheel_inertia, v.yaw_inertia, self.ys
+        R, m, Iw, Iz, ys, ax = v.wheel_radius, v.mass, v.wheel_inertia, v.yaw_inertia, self.ys, self.absx
         kp, tmax = ctl.wheel_kp, ctl.torque_limit
         t_int = [ctl.wheel_ki * q for q in self.i_wheel]
         muy, eps, floor, tol = par.lateral_resistance, par.yaw_rate_eps, par.slip_floor, par.newton_tol
         loose = par.newton_loose_tol
-        lz = sum(ax * fzi for ax, fzi in zip(self.absx, fz))
-        g_x = self.f_grav[0]  # m V' = sum(mu Fz) - m g_x  (g_x = g sin(grade))
+        gx, gy, gz = self.f_grav  # m V' = sum(mu Fz) - m gx  (gx = g sin(grade))
+        nz = self._nz
         w0, V0, r0 = self.w, self.V, self.r
         x0 = [*w0, V0, r0]
         x = [2.0 * a - b for a, b in zip(x0, self.prev)]  # linear predictor
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
-        Fw, BV, inv, gs, mus, tq, traw, ss = ([0.0] * 4 for _ in range(8))
-        hkp = h * kp
-        hrfz = [h * R * q for q in fz]
+        Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz = ([0.0] * 4 for _ in range(10))
+        hkp, hR, inv_h = h * kp, h * R, 1.0 / h
         for it in range(par.newton_max_iter):
             V, r = x[4], x[5]
-            sum_fx = sum_yfx = s_asv = s_asvy = s_asvyy = 0.0
-            a11c = a12c = a22c = b1c = b2c = 0.0
+            f = (gx + (V - V0) * inv_h, gy + V * r, gz)
+            lz = lzV = lzr = 0.0
+            sum_fx = sum_yfx = 0.0
+            eVV = eVr = eRV = eRr = 0.0  # sums for the V and yaw rows' own partials
+            a11c = a12c = a21c = a22c = b1c = b2c = 0.0
             for i in range(4):
                 wi, yi = x[i], ys[i]
+                nx_, ny_, nz_ = nz[i]
+                fzi = nx_ * f[0] + ny_ * f[1] + nz_ * f[2]
+                zV = nx_ * inv_h + ny_ * r  # dFz/dV
+                zr = ny_ * V  # dFz/d psi'
+                lz += ax[i] * fzi
+                lzV += ax[i] * zV
+                lzr += ax[i] * zr
                 vi = V - r * yi
                 # eq. 1 (slip_ratio's floored denominator) and its partials
                 rho = wi * R
@@ -480,40 +498,45 @@ class _Run:
                     T, kpe = -tmax, 0.0
                 else:
                     T, kpe = tr, hkp
-                # residual of eq. 13 and the Jacobian entries (Br = -BV y, Cr = -CV y are folded in)
-                k1 = hrfz[i] * dg
-                fwi = Iw * (wi - w0[i]) - h * T + hrfz[i] * g
+                # wheel row (eq. 13) and its partials
+                fwi = Iw * (wi - w0[i]) - h * T + hR * g * fzi
+                k1 = hR * fzi * dg
                 invi = 1.0 / (Iw + kpe + k1 * sw)
-                bvi = k1 * sv
-                ai = fz[i] * dmu
-                asv = ai * sv
-                q = -h * ai * sw * invi
-                qb = q * bvi
-                qf = q * fwi
-                fx = mu * fz[i]
+                bvi = k1 * sv + hR * g * zV
+                bri = -k1 * sv * yi + hR * g * zr
+                # body rows: d(mu Fz)/dV and d(mu Fz)/d psi'
+                ai = fzi * dmu
+                dFV = ai * sv + mu * zV
+                dFr = -ai * sv * yi + mu * zr
+                eVV += dFV
+                eVr += dFr
+                eRV += yi * dFV
+                eRr += yi * dFr
+                q = -h * ai * sw * invi  # CV_i / Dw_i  (and Cr_i = -CV_i y_i)
+                a11c += q * bvi
+                a12c += q * bri
+                a21c -= q * yi * bvi
+                a22c -= q * yi * bri
+                b1c += q * fwi
+                b2c -= q * yi * fwi
+                fx = mu * fzi
                 sum_fx += fx
                 sum_yfx += yi * fx
-                s_asv += asv
-                s_asvy += asv * yi
-                s_asvyy += asv * yi * yi
-                a11c += qb
-                a12c += qb * yi
-                a22c += qb * yi * yi
-                b1c += qf
-                b2c += qf * yi
-                Fw[i], BV[i], inv[i], gs[i], mus[i], tq[i], traw[i], ss[i] = fwi, bvi, invi, g, mu, T, tr, s
+                Fw[i], BV[i], Br[i], inv[i] = fwi, bvi, bri, invi
+                gs[i], mus[i], tq[i], traw[i], ss[i], fz[i] = g, mu, T, tr, s, fzi
             th = math.tanh(r / eps)
-            FV = m * (V - V0) - h * (sum_fx - m * g_x)
-            Fr = Iz * (r - r0) - h * (-sum_yfx - muy * lz * th)
-            A11 = m - h * s_asv - a11c
-            A12 = h * s_asvy + a12c  # = A21 (the reduced Jacobian is symmetric)
-            A22 = Iz - h * s_asvyy + h * muy * lz * (1.0 - th * th) / eps - a22c
+            FV = m * (V - V0) - h * (sum_fx - m * gx)
+            Fr = Iz * (r - r0) + h * (sum_yfx + muy * lz * th)
+            A11 = m - h * eVV - a11c
+            A12 = -h * eVr - a12c
+            A21 = h * (eRV + muy * lzV * th) - a21c
+            A22 = Iz + h * (eRr + muy * (lzr * th + lz * (1.0 - th * th) / eps)) - a22c
             b1 = FV - b1c
-            b2 = Fr + b2c
-            det = A11 * A22 - A12 * A12
+            b2 = Fr - b2c
+            det = A11 * A22 - A12 * A21
             dV = (b1 * A22 - A12 * b2) / det
-            dr = (A11 * b2 - A12 * b1) / det
-            dw = [(Fw[i] - BV[i] * (dV - ys[i] * dr)) * inv[i] for i in range(4)]
+            dr = (A11 * b2 - A21 * b1) / det
+            dw = [(Fw[i] - BV[i] * dV - Br[i] * dr) * inv[i] for i in range(4)]
             big = max(abs(dV), abs(dr), abs(dw[0]), abs(dw[1]), abs(dw[2]), abs(dw[3]))
             if big < tol:
                 break  # accept x itself: the stored forces are exactly those of the accepted state
@@ -542,14 +565,14 @@ class _Run:
         e["slip_dissipation"] += h * ps
         e["resistance_work"] += h * pr
         e["yaw_dissipation"] += h * muy * lz * th * r
-        self.z += h * V * g_x / STANDARD_GRAVITY
+        self.z += h * V * gx / STANDARD_GRAVITY
         # advance
         self.prev = x0
         self.acc = (V - V0) / h
         self.w, self.V, self.r = w, V, r
         self.torque = tq[:]
         self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
-        self.f_used, self.fz = f, fz
+        self.f_used, self.fz = f, fz[:]
         self.wheel_angle = [a + h * wi for a, wi in zip(self.wheel_angle, w)]
         self.dist += h * V
         self.heading += h * r
@@ -625,6 +648,9 @@ class _Run:
             if seq:
                 for k in range(self.n_sub):
                     self._substep(final=k == self.n_sub - 1)
-                if not all(map(math.isfinite, (*self.w, self.V, self.r))):
-                    raise RuntimeError(f"simulation diverged at t={self.t:.4f} s (state {self.w}, {self.V}, {self.r})")
+                if not (all(map(math.isfinite, (*self.w, self.V, self.r))) and max(map(abs, self.f_used)) < 100.0):
+                    raise RuntimeError(
+                        f"simulation diverged at t={self.t:.4f} s: wheel speeds {self.w}, V {self.V}, yaw rate "
+                        f"{self.r}, specific force {self.f_used} (controller gains or vehicle out of range?)"
+                    )
             yield self._records(seq)

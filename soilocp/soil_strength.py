@@ -53,7 +53,11 @@ class SoilConfig(BaseModel):
     q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
     change_rate: float = Field(0.5, ge=0, description="Hazard of an abrupt terrain change, 1/s (mixing with uniform)")
     model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
-    slip_sigma: float = Field(0.01, ge=0, description="Uncertainty of the filtered slip, 1-sigma")
+    slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
+    speed_sigma: float = Field(
+        0.008, ge=0, description="Error of the filtered speeds, m/s: slip error grows as speed_sigma / speed at low speed"
+    )
+    slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
     outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
     temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
     uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
@@ -98,9 +102,19 @@ def classify(soil_strength: float, log_k_std: float, constants: ModelConstants =
     return names[i], float(probs[i])
 
 
-def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig) -> np.ndarray:
+def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
+    """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
+    dS ~ dV / V, which dominates at low speed (method-notes §6, §9)."""
+    v = np.maximum(np.abs(np.asarray(speed, dtype=float)), 1e-3)
+    return np.hypot(cfg.slip_sigma, cfg.speed_sigma / v)
+
+
+def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma=None) -> np.ndarray:
     a = np.abs(slip)
-    return informative & (a >= cfg.slip_min) & (a <= cfg.slip_max)
+    ok = informative & (a >= cfg.slip_min) & (a <= cfg.slip_max)
+    if slip_sigma is not None:
+        ok &= a >= cfg.slip_snr * slip_sigma
+    return ok
 
 
 class _HoldLogic:
@@ -169,13 +183,15 @@ class BayesSoilEstimator:
         h = min(cfg.change_rate * dt, 1.0)
         self.p = (1 - h) * p + h / p.size
 
-    def update(self, stamp: float, slip, observed, variance, informative) -> SoilState:
-        """Fuse one sample: slip (4,), observed coefficient (4,) and its variance (4,)."""
+    def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None) -> SoilState:
+        """Fuse one sample: slip (4,), observed coefficient (4,), its variance (4,), which wheels
+        may be used (4,) and optionally each slip's 1-sigma (4,; default ``cfg.slip_sigma``)."""
         cfg = self.cfg
         slip = as_float_array("slip", slip, shape=(4,))
         obs = as_float_array("observed", observed, shape=(4,))
         var = as_float_array("variance", variance, shape=(4,))
-        use = _gate(slip, np.asarray(informative, dtype=bool), cfg)
+        s_sig = np.full(4, cfg.slip_sigma) if slip_sigma is None else as_float_array("slip_sigma", slip_sigma, shape=(4,))
+        use = _gate(slip, np.asarray(informative, dtype=bool), cfg, s_sig)
         if self._last_stamp is not None:
             self._predict(stamp - self._last_stamp)
         self._last_stamp = stamp
@@ -183,7 +199,7 @@ class BayesSoilEstimator:
         if use.any():
             s = slip[use][:, None]
             h, dh_ds, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
-            sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * cfg.slip_sigma) ** 2
+            sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[use][:, None]) ** 2
             r2 = (obs[use][:, None] - h) ** 2 / sig2
             like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
             # Where the curve is insensitive to K (saturation, small slip) the likelihood is flat
@@ -222,11 +238,12 @@ class PaperSoilEstimator:
         self.k = float(self.cfg.k_initial)
         self._hold = _HoldLogic(self.cfg)
 
-    def update(self, stamp: float, slip, observed, variance=None, informative=(True,) * 4) -> SoilState:
+    def update(self, stamp: float, slip, observed, variance=None, informative=(True,) * 4, slip_sigma=None) -> SoilState:
         cfg = self.cfg
         slip = as_float_array("slip", slip, shape=(4,))
         obs = as_float_array("observed", observed, shape=(4,))
-        use = _gate(slip, np.asarray(informative, dtype=bool), cfg)
+        use = _gate(slip, np.asarray(informative, dtype=bool), cfg,
+                    None if slip_sigma is None else as_float_array("slip_sigma", slip_sigma, shape=(4,)))
         model = gross_traction_with_derivatives if cfg.measurement == "gross" else net_traction_with_derivatives
         used = np.zeros(4, dtype=bool)
         for i in np.flatnonzero(use):

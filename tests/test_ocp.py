@@ -127,23 +127,11 @@ def test_scalar_ocp_agrees_with_vectorised_functions(k, c):
     assert o.S_E == pytest.approx(float(optimal_slip_efficiency(k, c)), rel=1e-12, abs=1e-15)
 
 
-@pytest.mark.xfail(
-    raises=TypeError,
-    strict=False,
-    reason="lead's bug: ocp.ocp_from_soil_strength does float(positive(...)) on a list -> TypeError; "
-    "fix: k = positive_scalar('soil_strength', soil_strength)",
-)
 def test_ocp_from_soil_strength_rejects_arrays():
     with pytest.raises(ValueError, match="soil_strength"):
         ocp_from_soil_strength([50.0, 80.0])
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="lead's bug: ocp.ocp_from_soil_strength(1e-320) -> amp underflows to 0 -> math.log(0) raises a bare "
-    "'math domain error' (and C5/K overflows); fix: reject K below a documented floor with "
-    "ValueError('soil_strength ...'), or use S_T = 0 when the log argument is <= 0 as the vectorised path does",
-)
 def test_tiny_k_gives_named_error_or_finite_ocps():
     try:
         o = ocp_from_soil_strength(1e-320)

@@ -112,3 +112,50 @@ def plot(truth, estimates, labels, out):
 
 
 COMMANDS = [estimate, evaluate, plot]
+
+
+@click.command()
+@click.option("--scenario", "scenarios", multiple=True, help="Scenario(s); default: sand gravel grass firm sandy-slope mixed")
+@click.option("--mode", "modes", multiple=True, type=click.Choice(["excitation", "cruise"]), help="Default: both")
+@click.option("--compensation/--no-compensation", "compensation", default=None,
+              help="Only with / without motion-resistance compensation (default: both)")
+@click.option("--duration", type=float, help="Override every scenario's duration, s")
+@click.option("--seed", default=0, show_default=True)
+@click.option("--jobs", default=2, show_default=True, help="Parallel processes")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the full results as JSON")
+def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out):
+    """Accuracy against simulator truth: every scenario x mode x compensation, worst segment per run.
+
+    Excitation mode is judged against the targets; cruise mode shows what is identifiable without
+    a traction test (on flat ground at cruise slip is ~0: the right answer is no estimate).
+    """
+    from ..accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
+    from ..evaluation import TARGETS
+
+    comp = (True, False) if compensation is None else (compensation,)
+    t0 = time.perf_counter()
+    results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs)
+    table = Table(title=f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})")
+    for col in ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
+                "conv. change", "OCP med err", "class acc", "statuses", "targets"):
+        table.add_column(col, justify="right")
+    for r in results:
+        w = r.worst()
+        verdict = ("met" if r.passes() else "missed") if r.mode == "excitation" else "n/a (cruise)"
+        st = ", ".join(f"{k} {v / r.samples:.0%}" for k, v in sorted(r.statuses.items(), key=lambda kv: -kv[1]))
+        table.add_row(r.scenario, r.mode, "yes" if r.compensation else "no", f"{w['coverage']:.0%}",
+                      _fmt(w["k_median_rel"], ".1%"), _fmt(w["k_p90_rel"], ".1%"), _fmt(w["initial_convergence_s"], ".2f"),
+                      _fmt(w["change_convergence_s"], ".2f"), _fmt(w["ocp_median_abs"], ".4f"),
+                      _fmt(w["class_accuracy"], ".0%"), st, verdict)
+    Console(width=200).print(table)
+    rates = [r.estimate_rate for r in results]
+    click.echo(f"estimate rate {min(rates):.0f}..{max(rates):.0f} samples/s; {len(results)} runs in {time.perf_counter() - t0:.0f} s")
+    if json_out:
+        Path(json_out).write_text(results_json(results))
+    failed = [r for r in results if r.mode == "excitation" and r.compensation and not r.passes()]
+    if failed:
+        click.echo("targets missed (excitation, with compensation): " + ", ".join(r.scenario for r in failed), err=True)
+        sys.exit(1)
+
+
+COMMANDS.append(accuracy)

@@ -19,7 +19,7 @@ def _print_scenarios() -> None:
     for sc in list_scenarios():
         click.echo(
             f"{sc.name}: {sc.description}\n  default mode {sc.mode}, {sc.duration:g} s at {sc.speed:g} m/s; "
-            f"sweep {sc.sweep.axle} axle {sc.sweep.s_min:g}..{sc.sweep.s_max:g} / {sc.sweep.period:g} s"
+            f"front-axle sweep {sc.sweep.s_min:g}..{sc.sweep.s_max:g}..{sc.sweep.s_min:g} in {sc.sweep.period:g} s + {sc.sweep.dwell:g} s dwell"
         )
         start = 0.0
         for i, seg in enumerate(sc.segments):
@@ -43,14 +43,14 @@ def _print_scenarios() -> None:
 @click.option("--sweep-min", type=float, default=None, help="Excitation: lowest slip of the sweep.")
 @click.option("--sweep-max", type=float, default=None, help="Excitation: highest slip of the sweep.")
 @click.option("--sweep-period", type=float, default=None, help="Excitation: sweep period, s.")
-@click.option("--sweep-axle", type=click.Choice(["front", "rear"]), default=None, help="Excitation: axle that sweeps slip (the other brakes).")
+@click.option("--sweep-dwell", type=float, default=None, help="Excitation: seconds held at the lowest slip after each sweep.")
 @click.option("--vehicle-id", default="rover1", show_default=True, help="vehicle_id written in every record.")
 @click.option("--noiseless", is_flag=True, help="Exact truth through the sensors (no noise, bias or quantisation).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None, help="Sensor log to write (JSON Lines, SensorSample).")
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, help="Truth log to write (JSON Lines, TruthRecord).")
 def simulate(
     scenario_name, list_only, duration, rate, seed, vehicle_path, constants_path, mode,
-    sweep_min, sweep_max, sweep_period, sweep_axle, vehicle_id, noiseless, out_path, truth_path,
+    sweep_min, sweep_max, sweep_period, sweep_dwell, vehicle_id, noiseless, out_path, truth_path,
 ):  # fmt: skip
     """Drive the simulated rover over a scenario; write the sensor log (and the ground truth)."""
     from ..simulator import simulate as run_simulation
@@ -65,12 +65,12 @@ def simulate(
     try:
         sc = get_scenario(scenario_name)
         sw = sc.sweep
-        if any(v is not None for v in (sweep_min, sweep_max, sweep_period, sweep_axle)):
+        if any(v is not None for v in (sweep_min, sweep_max, sweep_period, sweep_dwell)):
             sw = SweepParams(
                 s_min=sw.s_min if sweep_min is None else sweep_min,
                 s_max=sw.s_max if sweep_max is None else sweep_max,
                 period=sw.period if sweep_period is None else sweep_period,
-                axle=sw.axle if sweep_axle is None else sweep_axle,
+                dwell=sw.dwell if sweep_dwell is None else sweep_dwell,
             )
         gen = run_simulation(
             sc,
