@@ -226,7 +226,7 @@ def _fmt(x: Optional[float], spec: str = ".3f") -> str:
     return "-" if x is None else format(x, spec)
 
 
-def _row(snap: dict[str, Any]) -> dict[str, str]:
+def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
     est: Optional[OcpEstimate] = snap["est"]
     k = "-"
     cls = "-"
@@ -238,6 +238,8 @@ def _row(snap: dict[str, Any]) -> dict[str, str]:
             cls = est.soil_class + (f" ({est.soil_class_confidence:.2f})" if est.soil_class_confidence is not None else "")
         status = est.status
     fresh = "STALE" if snap["stale"] and est is not None else ("fresh" if est is not None else "-")
+    if source_ended and fresh == "STALE":
+        fresh = "source ended"  # silence after the end of the drive is expected, not a fault
     alive = snap["alive"]
     want = keys.PIPELINE_SERVICES
     n_alive = sum(1 for s in want if s in alive)
@@ -255,14 +257,25 @@ def _row(snap: dict[str, Any]) -> dict[str, str]:
     }
 
 
-def live_table(vid: str, snap: dict[str, Any], elapsed: float, title_extra: str = ""):
+def live_table(vid: str, snap: dict[str, Any], elapsed: float, title_extra: str = "", *, width: int = 200,
+               source_ended: bool = False):
+    """One row per vehicle on a wide terminal; a field/value column pair on a narrow one."""
     from rich.table import Table
 
-    row = _row(snap)
-    t = Table(title=f"soilocp run — {vid} — t={elapsed:.1f} s{title_extra}", title_justify="left")
+    row = _row(snap, source_ended)
+    title = f"soilocp run — {vid} — t={elapsed:.1f} s{title_extra}"
+    if width < 130:
+        t = Table(title=title, title_justify="left", show_header=False)
+        t.add_column("field", style="bold")
+        t.add_column("value", no_wrap=True)
+        for name, value in row.items():
+            t.add_row(name, value)
+        return t
+    t = Table(title=title, title_justify="left")
     t.add_column("vehicle")
     for name in row:
-        t.add_column(name, justify="right" if name not in ("soil class", "status", "services alive") else "left")
+        t.add_column(name, no_wrap=True,
+                     justify="right" if name not in ("soil class", "status", "services alive") else "left")
     t.add_row(vid, *row.values())
     return t
 
@@ -272,13 +285,16 @@ def plain_line(vid: str, snap: dict[str, Any], elapsed: float) -> str:
     return f"t={elapsed:6.1f}s {vid} " + " ".join(f"{k.replace(' ', '_')}={v.replace(' ', '')}" for k, v in row.items())
 
 
-def summary_tables(vid: str, snap: dict[str, Any], group: ProcessGroup, elapsed: float):
+def summary_tables(vid: str, snap: dict[str, Any], group: ProcessGroup, elapsed: float, width: int = 200):
     from rich.table import Table
 
-    top = live_table(vid, snap, elapsed, " — summary")
+    ended = any(c.name == "vehicle" and c.outcome == "done" for c in group.children)
+    top = live_table(vid, snap, elapsed, " — summary", width=width, source_ended=ended)
     t = Table(title="processes", title_justify="left")
-    for col in ("process", "pid", "outcome", "exit", "received", "published", "rejected", "dropped", "errors"):
-        t.add_column(col, justify="left" if col in ("process", "outcome") else "right")
+    # short headers: the table must fit an 80-column terminal
+    for col in ("process", "pid", "outcome", "rc", "recv", "pub", "rej", "drop", "err"):
+        t.add_column(col, no_wrap=True, justify="left" if col in ("process", "outcome") else "right",
+                     min_width={"process": 13, "pid": 7, "outcome": 7, "recv": 5, "pub": 5}.get(col))
     for child in group.children:
         h = snap["health"].get(child.name)
         rc = child.proc.returncode if child.proc else None
@@ -382,7 +398,7 @@ def run_system(opts: RunOptions) -> int:
         for s, h in old.items():
             signal.signal(s, h)
     elapsed = time.monotonic() - (t_drive or t_start)
-    for table in summary_tables(opts.vehicle_id, snap, group, elapsed):
+    for table in summary_tables(opts.vehicle_id, snap, group, elapsed, width=console.width):
         console.print(table)
     if snap["codes"]:
         console.print("rejections by code: " + ", ".join(f"{k}={v}" for k, v in sorted(snap["codes"].items())))
@@ -449,7 +465,7 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
                     failures.append(f"{child.name} died (exit {rc}); see {child.log_path}")
             snap = monitor.snapshot()
             if live:
-                live.update(live_table(opts.vehicle_id, snap, elapsed))
+                live.update(live_table(opts.vehicle_id, snap, elapsed, width=console.width))
             elif now >= next_plain:
                 next_plain = now + 2.0
                 print(plain_line(opts.vehicle_id, snap, elapsed), flush=True)

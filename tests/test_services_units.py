@@ -225,3 +225,18 @@ def test_schema_export_writes_one_versioned_schema_per_message(tmp_path):
             assert s["properties"]["schema_version"]["const"] == 1 and s["$id"].endswith("/1")
     rej = json.loads((tmp_path / "Rejection.schema.json").read_text())
     assert "bad_key" in rej["properties"]["code"]["enum"] and "malformed_json" in rej["properties"]["code"]["enum"]
+
+
+def test_schemas_export_command_and_service_help(tmp_path):
+    from click.testing import CliRunner
+
+    from soilocp.cli import main
+
+    r = CliRunner().invoke(main, ["schemas", "export", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    assert len(r.output.splitlines()) == len(MESSAGE_MODELS)
+    assert json.loads((tmp_path / "out" / "OcpEstimate.schema.json").read_text())["$id"] == "soilocp.ocp_estimate/1"
+    r = CliRunner().invoke(main, ["service", "--help"])
+    assert r.exit_code == 0 and "SOILOCP_CONFIG" in r.output
+    r = CliRunner().invoke(main, ["run", "--synthetic", "sand", "--replay", __file__])
+    assert r.exit_code == 2 and "exactly one" in r.output
