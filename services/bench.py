@@ -1,0 +1,283 @@
+"""``soilocp bench [--quick] [--json OUT]``: latency, throughput and scale of the live pipeline.
+
+1. stages: µs per sample of each stage, in process, on a real simulated drive, and the offline
+   replay rate of ``soilocp.estimate.estimate_lines`` (:mod:`services.bench_stages`);
+2. latency: sample -> OCP over Zenoh through the deployed processes (router in between) at
+   100 Hz and 1 kHz for one vehicle, with drops and rejections (:mod:`services.bench_live`);
+3. scale: the most vehicles x 100 Hz with p99 < 10 ms and no drop, stepping the count until the
+   first failure, with CPU and memory per process;
+4. every live figure next to a baseline measured in the same run, on the same router, at the same
+   rate: a bare Zenoh ping-pong (put -> router -> echo -> router), the physical floor.  A sample
+   crosses six client -> router -> client hops (raw, clean, normal_forces, observer, soil, ocp),
+   i.e. three ping-pong round trips: ``floor`` = 3 x the ping-pong figure.
+
+Nothing here changes the services; the ``batched`` pipeline replaces observer + soil-strength +
+OCP by :mod:`services.batch_services` (one process stepping every vehicle with numpy).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import click
+
+TARGETS = {"p50_ms_100hz": 2.0, "p99_ms_100hz": 5.0, "scale_p99_ms": 10.0, "vehicles_100hz": 50, "replay_x": 20.0}
+LADDER = (1, 2, 5, 10, 20, 50, 100, 200)
+
+
+def machine_info() -> dict[str, Any]:
+    model = "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        import zenoh
+
+        from importlib.metadata import version
+
+        zv = version("eclipse-zenoh")
+    except ImportError:  # pragma: no cover
+        zv = None
+    return {"nproc": os.cpu_count(), "cpu_model": model, "load_start": list(os.getloadavg()),
+            "python": platform.python_version(), "zenoh": zv, "platform": platform.platform()}
+
+
+def _clone(payloads: list[tuple[int, bytes]], base_vid: str, vid: str) -> list[tuple[int, bytes]]:
+    old, new = f'"vehicle_id":"{base_vid}"'.encode(), f'"vehicle_id":"{vid}"'.encode()
+    return [(seq, p.replace(old, new, 1)) for seq, p in payloads]
+
+
+def _payloads(samples) -> list[tuple[int, bytes]]:
+    return [(s.seq, s.model_dump_json().encode()) for s in samples]
+
+
+def batch_available() -> bool:
+    try:
+        import services.batch_services  # noqa: F401
+        import soilocp.batch  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
+              log=print) -> dict[str, Any]:
+    """Run every part and return the report (a JSON-able dict)."""
+    from .bench_live import CpuWindow, Rig, drive, open_client, ping_pong
+    from .bench_stages import batch_costs, replay_rate, simulate_drive, stage_costs
+
+    t_start = time.monotonic()
+    if pipelines is None:
+        pipelines = ["standard", "batched"] if batch_available() else ["standard"]
+    ladder = list(ladder or ((1, 2) if quick else LADDER))
+    d_stage = 6.0 if quick else 30.0
+    d_100, d_1k = (3.0, 1.5) if quick else (20.0, 10.0)
+    d_scale = 2.0 if quick else 8.0
+    report: dict[str, Any] = {"quick": quick, "machine": machine_info(), "targets": TARGETS,
+                              "command": "soilocp bench" + (" --quick" if quick else "")}
+
+    # 1. stages in process
+    log(f"bench: simulating a {d_stage:.0f} s drive (mixed) for the stage costs")
+    drive_samples = simulate_drive("bench", d_stage)
+    report["stages"] = stage_costs(drive_samples)
+    report["replay"] = replay_rate(drive_samples)
+    if batch_available():
+        counts = (1, 10) if quick else (1, 10, 50, 200)
+        report["batch_stages"] = batch_costs(drive_samples, counts, steps=200 if quick else 1000)
+
+    # drives for the live parts
+    n_live = max(d_100, d_scale) + 1.0
+    s100 = simulate_drive("bench", n_live)
+    log(f"bench: simulating {d_1k + 1:.1f} s at 1 kHz")
+    s1k = simulate_drive("bench", d_1k + 1.0, rate=1000.0)
+    p100, p1k = _payloads(s100), _payloads(s1k)
+
+    # 2 + 4. latency of one vehicle, with the ping-pong baseline, per pipeline
+    report["latency"] = []
+    for pipe in pipelines:
+        rig = (Rig.batched if pipe == "batched" else Rig.standard)(["lat100", "lat1k"])
+        log(f"bench: latency, {pipe} pipeline")
+        try:
+            rig.start()
+            with open_client(rig.endpoint) as session:
+                rig.wait_ready(session, 90.0)
+                for rate, dur, vid, pl in ((100.0, d_100, "lat100", p100), (1000.0, d_1k, "lat1k", p1k)):
+                    base = ping_pong(session, rate, min(dur, 5.0))
+                    win = CpuWindow(rig.pids())
+                    res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
+                    report["latency"].append({"pipeline": pipe, "rate_hz": rate, "vehicles": 1, "result": res,
+                                              "baseline": base, "processes": win.finish()})
+        finally:
+            rig.stop()
+
+    # 3 + 4. scale: vehicles x 100 Hz until the first failure
+    report["scale"] = {}
+    for pipe in pipelines:
+        steps = []
+        best = 0
+        for n in ladder:
+            vids = [f"v{i:03d}" for i in range(n)]
+            rig = (Rig.batched if pipe == "batched" else Rig.standard)(vids)
+            log(f"bench: scale, {pipe} pipeline, {n} vehicle(s) x 100 Hz")
+            try:
+                rig.start()
+                with open_client(rig.endpoint) as session:
+                    rig.wait_ready(session, 120.0)
+                    base = ping_pong(session, 100.0 * n, min(d_scale, 3.0))
+                    win = CpuWindow(rig.pids())
+                    res = drive(session, {v: _clone(p100, "bench", v) for v in vids}, 100.0, d_scale)
+                    procs = win.finish()
+            except RuntimeError as exc:
+                steps.append({"vehicles": n, "ok": False, "error": str(exc)})
+                break
+            finally:
+                rig.stop()
+            ok = (res["drops"] == 0 and res["rejections"] == 0 and res["p99"] < TARGETS["scale_p99_ms"]
+                  and res["offered_per_s"] >= 0.95 * res["target_per_s"])
+            steps.append({"vehicles": n, "ok": ok, "result": res, "baseline": base, "processes": procs})
+            if not ok:
+                break
+            best = n
+        report["scale"][pipe] = {"steps": steps, "max_vehicles": best}
+    report["machine"]["load_end"] = list(os.getloadavg())
+    report["elapsed_s"] = time.monotonic() - t_start
+    report["verdict"] = verdict(report)
+    return report
+
+
+def verdict(report: dict[str, Any]) -> dict[str, Any]:
+    """Which targets were met, per pipeline."""
+    out: dict[str, Any] = {"replay_x_real_time": report["replay"]["x_real_time"] >= TARGETS["replay_x"]}
+    for row in report["latency"]:
+        r = row["result"]
+        p = row["pipeline"]
+        if row["rate_hz"] == 100.0:
+            out[f"{p}_p50_100hz"] = r["p50"] < TARGETS["p50_ms_100hz"]
+            out[f"{p}_p99_100hz"] = r["p99"] < TARGETS["p99_ms_100hz"]
+        else:
+            out[f"{p}_1khz_no_drops"] = r["drops"] == 0 and r["rejections"] == 0
+    for p, sc in report["scale"].items():
+        out[f"{p}_vehicles_100hz"] = sc["max_vehicles"] >= TARGETS["vehicles_100hz"]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# output
+# ----------------------------------------------------------------------------------------------
+def _f(x: Any, spec: str = ".2f") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def render(report: dict[str, Any], console) -> None:
+    from rich.table import Table
+
+    m = report["machine"]
+    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} "
+                  f"-> {_f(m.get('load_end', [float('nan')])[0])}, python {m['python']}, zenoh {m['zenoh']}")
+
+    t = Table(title="1. stage cost in process, µs per sample (real simulated drive)", title_justify="left")
+    for c in ("stage", "median", "p99", "n"):
+        t.add_column(c, justify="left" if c == "stage" else "right")
+    for name, st in report["stages"].items():
+        t.add_row(name, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), str(st["n"]))
+    console.print(t)
+    rp = report["replay"]
+    console.print(f"offline replay (estimate_lines): {rp['samples']} samples in {_f(rp['seconds'])} s = "
+                  f"{_f(rp['samples_per_s'], '.0f')} samples/s = {_f(rp['x_real_time'], '.1f')}x real time at 100 Hz")
+    if "batch_stages" in report:
+        t = Table(title="batched observer + soil + OCP (soilocp.batch), µs per vehicle-sample", title_justify="left")
+        for c in ("vehicles stepped together", "median", "p99"):
+            t.add_column(c, justify="right")
+        for n, st in report["batch_stages"].items():
+            t.add_row(n, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"))
+        console.print(t)
+
+    t = Table(title="2. sample -> OCP latency over Zenoh, ms (baseline: ping-pong through the same router)",
+              title_justify="left")
+    for c in ("pipeline", "rate", "p50", "p90", "p99", "max", "sent", "drops", "rej", "ping p50", "ping p99",
+              "floor p50 (3 RTT)"):
+        t.add_column(c, justify="left" if c == "pipeline" else "right", no_wrap=True)
+    for row in report["latency"]:
+        r, b = row["result"], row["baseline"]
+        t.add_row(row["pipeline"], f"{row['rate_hz']:.0f} Hz", _f(r["p50"]), _f(r["p90"]), _f(r["p99"]), _f(r["max"]),
+                  str(r["sent"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]), _f(3 * b["p50"]))
+    console.print(t)
+
+    for pipe, sc in report["scale"].items():
+        t = Table(title=f"3. scale, {pipe} pipeline: vehicles x 100 Hz (pass: p99 < {TARGETS['scale_p99_ms']:.0f} ms, "
+                        f"no drop) — max {sc['max_vehicles']}", title_justify="left")
+        for c in ("vehicles", "ok", "msg/s", "p50", "p99", "max", "drops", "rej", "ping p50", "ping p99", "CPU % per process",
+                  "RSS MiB total"):
+            t.add_column(c, justify="right", no_wrap=c != "CPU % per process")
+        for st in sc["steps"]:
+            if "result" not in st:
+                t.add_row(str(st["vehicles"]), "no", *["-"] * 8, st.get("error", "")[:60], "-")
+                continue
+            r, b, pr = st["result"], st["baseline"], st["processes"]
+            cpu = " ".join(f"{n}={_f(v['cpu_percent'], '.0f')}" for n, v in pr.items() if n != "echo")
+            rss = sum(v["rss_mib"] or 0.0 for n, v in pr.items() if n != "echo")
+            t.add_row(str(st["vehicles"]), "yes" if st["ok"] else "NO", _f(r["offered_per_s"], ".0f"), _f(r["p50"]),
+                      _f(r["p99"]), _f(r["max"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]), cpu,
+                      _f(rss, ".0f"))
+        console.print(t)
+    v = report["verdict"]
+    console.print("targets: " + ", ".join(f"{k}={'met' if ok else 'NOT met'}" for k, ok in v.items()))
+    console.print(f"bench took {_f(report['elapsed_s'], '.0f')} s")
+
+
+@click.command("bench")
+@click.option("--quick", is_flag=True, help="Short runs, scale ladder 1-2 vehicles (under 2 minutes).")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the report as JSON here.")
+@click.option("--pipeline", "pipelines", multiple=True, type=click.Choice(["standard", "batched"]),
+              help="Which live pipeline(s) to measure (default: both when the batched one is installed).")
+@click.option("--max-vehicles", type=int, help="Stop the scale ladder at this many vehicles.")
+def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int]) -> None:
+    """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
+    from rich.console import Console
+
+    console = Console(width=200) if not sys.stdout.isatty() else Console()
+    ladder = None
+    if max_vehicles is not None:
+        if max_vehicles < 1:
+            raise click.BadParameter(f"{max_vehicles!r}: must be >= 1", param_hint="--max-vehicles")
+        ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
+    report = run_bench(quick, list(pipelines) or None, ladder, log=lambda m: console.print(m, style="dim"))
+    render(report, console)
+    if json_out:
+        Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
+        console.print(f"report written to {json_out}")
+
+
+def json_safe(obj: Any) -> Any:
+    """The report with NaN / inf (an empty statistic) as null: strict JSON for other tools."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
+COMMANDS = [bench]
+
+
+def main() -> None:  # ``python -m services.bench``: the same command without the soilocp entry point
+    bench(prog_name="python -m services.bench")
+
+
+if __name__ == "__main__":
+    main()
