@@ -40,13 +40,15 @@ class SweepParams:
     * The heavier front axle's mean traction over a bare 0.05-0.6 triangle exceeds what the
       lighter rear can brake even at its peak, on every soil (sand: 107 N vs 104 N; firm: 304 N
       vs 298 N), so without the dwell the rover would run away; the dwell at ``s_min`` lets the
-      rear pull the speed back every cycle.  A governor still cuts the sweep if the rover
-      overspeeds (the truth records the actual set-point).
+      rear pull the speed back every cycle.  The default cycle is 0.8 s of triangle + 0.4 s of
+      dwell = 1.2 s; the shorter the triangle, the smaller the speed excursion while the front
+      is near its peak (measured: sand 0.96..1.14 m/s, firm 0.94..1.23 m/s).  A governor still
+      cuts the sweep if the cycle-mean speed runs away (the truth records the actual set-point).
     """
 
     s_min: float = 0.05
     s_max: float = 0.6
-    period: float = 1.2
+    period: float = 0.8
     dwell: float = 0.4
 
     def __post_init__(self) -> None:

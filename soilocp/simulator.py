@@ -122,6 +122,9 @@ class ControllerParams:
     torque_limit: float = 40.0  #: |T| max per wheel, N m
     speed_kp: float = 0.5  #: rear-axle speed loop (excitation), m/s per m/s
     speed_ki: float = 2.0  #: 1/s
+    #: excitation: the rear's braking slip set-point is -brake_feedforward x the front's driving
+    #: slip set-point (then trimmed by the speed PI), so that the rear brakes in step with the sweep
+    brake_feedforward: float = 1.0
     yaw_kp: float = 1.0  #: heading correction, rad/s per rad/s of yaw rate
     yaw_ki: float = 2.0  #: 1/s
     ramp_time: float = 2.0  #: smooth start: speed (and sweep amplitude) ramp from 0, s
@@ -394,7 +397,8 @@ class _Run:
             s_cmd *= max(0.0, 1.0 - ctl.governor_gain * over)
         self.slip_cmd = s_cmd
         err = v_ref - self.V
-        v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
+        # rear: braking slip fed forward from the front's set-point (mirror), trimmed by a speed PI
+        v_hold = v_ref * (1.0 - ctl.brake_feedforward * s_cmd) + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
         # the braking axle stays on the stable side of the traction peak: slip >= -brake_slip_limit
         v_min = self.V * (1.0 - ctl.brake_slip_limit)
         if v_hold < v_min:
