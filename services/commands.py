@@ -18,6 +18,19 @@ def _fatal(prefix: str, message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
+def _exit_now(code: int) -> None:
+    """Leave right after an orderly shutdown (sessions closed, logs flushed), skipping interpreter
+    finalisation: with Zenoh's native runtime it can hang past the 2 s a supervisor allows."""
+    import os
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
 def _service_class(name: str):
     if name == "gateway":
         from .gateway import GatewayService as cls
@@ -81,7 +94,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                           wait_for=keys.PIPELINE_SERVICES if wait_timeout > 0 else (), wait_timeout_s=wait_timeout)
         elif scenario or replay:
             raise ConfigError("--scenario/--replay are options of the vehicle service only")
-        sys.exit(run_service(_service_class(name), cfg, **kwargs))
+        _exit_now(run_service(_service_class(name), cfg, **kwargs))
     except ConfigError as exc:
         _fatal(prefix, str(exc))
     except ValueError as exc:
@@ -98,7 +111,7 @@ def router_cmd(config_path, listen, connect) -> None:
     from .runtime import ConfigError
 
     try:
-        sys.exit(run_router(router_settings(config_path, listen, connect)))
+        _exit_now(run_router(router_settings(config_path, listen, connect)))
     except ConfigError as exc:
         _fatal("soilocp router", str(exc))
 

@@ -11,7 +11,7 @@ import threading
 from typing import Any, Optional
 
 from .runtime import (DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, ConfigError, JsonLog,
-                      _read_config_file, _split_list, check_endpoint, install_stop_handlers, zenoh_config)
+                      _read_config_file, _split_list, check_endpoint, install_stop_handlers, watch_parent, zenoh_config)
 
 #: The router's uplink (e.g. to a fleet router).  Not SOILOCP_CONNECT: in a shared environment that
 #: names the router itself, for the services.
@@ -67,6 +67,7 @@ def run_router(settings: dict[str, Any]) -> int:
     log = JsonLog("router", settings["log_level"])
     stop = threading.Event()
     install_stop_handlers(stop, log)
+    watch_parent(stop, log)
     conf = zenoh_config("router", settings["connect"], settings["listen"], multicast=settings["multicast"])
     try:
         session = zenoh.open(conf)

@@ -27,7 +27,7 @@ from schemas import keys
 from schemas.messages import Rejection, ServiceHealth
 from schemas.pipeline import OcpEstimate
 
-from .runtime import DEFAULT_ENDPOINT, JsonLog, open_session
+from .runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
 
 STOP_TIMEOUT_S = 3.0
 
@@ -91,6 +91,8 @@ class ProcessGroup:
         self.env = dict(os.environ)
         self.env.pop("SOILOCP_CONFIG", None)  # the run passes every setting explicitly
         self.env["PYTHONUNBUFFERED"] = "1"
+        # if this process is SIGKILLed, the children notice their new parent and stop themselves
+        self.env[ENV_EXIT_WITH_PARENT] = "1"
 
     def start(self, name: str, args: list[str]) -> Child:
         child = Child(name, [sys.executable, "-m", "soilocp.cli", *args], self.log_dir / f"{name}.log")
@@ -113,7 +115,9 @@ class ProcessGroup:
             try:
                 child.proc.wait(max(0.05, deadline - time.monotonic()))
                 if child.outcome == "running":
-                    child.outcome = "stopped" if child.proc.returncode == 0 else "died"
+                    # -SIGTERM: stopped while still starting, before its handlers were installed
+                    ok = child.proc.returncode in (0, -signal.SIGTERM)
+                    child.outcome = "stopped" if ok else "died"
             except subprocess.TimeoutExpired:
                 child.proc.kill()
                 child.proc.wait()
@@ -349,37 +353,39 @@ def run_system(opts: RunOptions) -> int:
             if opts.pipeline_config and name != "gateway":
                 args += ["--pipeline-config", opts.pipeline_config]
             group.start(name, args)
-        session = open_session("client", connect, [], multicast=False, stop=stop, log=JsonLog("run", "error"))
-        if session is None:
-            return 130
-        monitor.attach(session)
-        # wait until every pipeline service holds its token (or one dies)
-        deadline = time.monotonic() + opts.startup_timeout_s
-        while not stop.is_set():
-            dead = [c.name for c in group.children if c.poll() is not None]
-            if dead:
-                failures += [f"{n} exited during startup" for n in dead]
-                break
-            if set(keys.PIPELINE_SERVICES) <= monitor.snapshot()["alive"]:
-                break
-            if time.monotonic() > deadline:
-                failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
-                                + ",".join(sorted(set(keys.PIPELINE_SERVICES) - monitor.snapshot()["alive"])))
-                break
-            stop.wait(0.1)
-        if not failures and not stop.is_set():
-            vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
-            if opts.scenario:
-                vargs += ["--scenario", opts.scenario, "--seed", str(opts.seed)]
-            else:
-                vargs += ["--replay", str(opts.replay)]
-            if opts.duration is not None:
-                vargs += ["--duration", str(opts.duration)]
-            vehicle = group.start("vehicle", vargs)
-            t_drive = time.monotonic()
-            console.print(f"soilocp run: all services alive after {t_drive - t_start:.1f} s; driving "
-                          + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"))
-            failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
+        session = _open_monitor_session(connect, group, stop, failures)
+        if session is not None:  # None: interrupted, or a process died while connecting
+            monitor.attach(session)
+            # wait until every pipeline service holds its token (or one dies)
+            deadline = time.monotonic() + opts.startup_timeout_s
+            while not stop.is_set():
+                dead = [c.name for c in group.children if c.poll() is not None]
+                if dead:
+                    for c in group.children:
+                        if c.name in dead:
+                            c.outcome = "died"
+                            failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
+                    break
+                if set(keys.PIPELINE_SERVICES) <= monitor.snapshot()["alive"]:
+                    break
+                if time.monotonic() > deadline:
+                    failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
+                                    + ",".join(sorted(set(keys.PIPELINE_SERVICES) - monitor.snapshot()["alive"])))
+                    break
+                stop.wait(0.1)
+            if not failures and not stop.is_set():
+                vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
+                if opts.scenario:
+                    vargs += ["--scenario", opts.scenario, "--seed", str(opts.seed)]
+                else:
+                    vargs += ["--replay", str(opts.replay)]
+                if opts.duration is not None:
+                    vargs += ["--duration", str(opts.duration)]
+                vehicle = group.start("vehicle", vargs)
+                t_drive = time.monotonic()
+                console.print(f"soilocp run: all services alive after {t_drive - t_start:.1f} s; driving "
+                              + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"))
+                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
     finally:
         snap_running = monitor.snapshot()  # what the table showed last, before anything stops
         if session is not None and not failures:
@@ -387,9 +393,8 @@ def run_system(opts: RunOptions) -> int:
         group.stop_all()
         for child in group.children:
             if child.outcome in ("died", "killed"):
-                msg = f"{child.name} {child.outcome} (exit {child.proc.returncode if child.proc else '-'})"
-                if msg not in failures:
-                    failures.append(msg)
+                if not any(f.startswith(child.name + " ") for f in failures):
+                    failures.append(f"{child.name} {child.outcome} (exit {child.proc.returncode if child.proc else '-'})")
         snap = monitor.snapshot()  # final counters: the services' "stopping" health reports
         snap.update({k: snap_running[k] for k in ("est", "age", "stale", "rate", "alive")})
         monitor.detach()
@@ -406,11 +411,50 @@ def run_system(opts: RunOptions) -> int:
     if failures:
         for f in failures:
             console.print(f"[red]FAILED[/red]: {f}")
+        for child in group.children:  # the last words of what died, so nobody has to dig for the log
+            if child.outcome in ("died", "killed") or (child.proc and child.proc.returncode not in (0, None)):
+                for line in _tail(child.log_path, 3):
+                    console.print(f"  {child.name}: {line}", markup=False, highlight=False)
         return 1
     if interrupted["sig"] is not None:
         console.print("interrupted: everything stopped")
         return 130 if interrupted["sig"] == signal.SIGINT else 143
     return 0
+
+
+def _open_monitor_session(connect: list[str], group: ProcessGroup, stop: threading.Event, failures: list[str]):
+    """The run's own client session, opened on a thread so that a router that dies at startup
+    (port taken) or a Ctrl-C is noticed while the connection is still being attempted."""
+    box: dict[str, Any] = {}
+    give_up = threading.Event()
+
+    def _open() -> None:
+        box["session"] = open_session("client", connect, [], multicast=False, stop=give_up, log=JsonLog("run", "error"))
+        if give_up.is_set() and box["session"] is not None:
+            box["session"].close()
+            box["session"] = None
+
+    th = threading.Thread(target=_open, name="monitor-open", daemon=True)
+    th.start()
+    while th.is_alive():
+        dead = [c for c in group.children if c.poll() is not None]
+        if dead or stop.is_set():
+            for c in dead:
+                c.outcome = "died"
+                failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
+            give_up.set()
+            th.join(3.0)  # let a connection attempt in progress end (it is bounded) before we go on
+            return None
+        th.join(0.1)
+    return box.get("session")
+
+
+def _tail(path: Path, n: int) -> list[str]:
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return []
+    return [x[:300] for x in lines[-n:]]
 
 
 def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monitor: Monitor, vid: str) -> None:

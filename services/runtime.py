@@ -37,6 +37,8 @@ ENV_LISTEN = "SOILOCP_LISTEN"
 ENV_MODE = "SOILOCP_MODE"
 ENV_LOG_LEVEL = "SOILOCP_LOG_LEVEL"
 ENV_STALE_TIMEOUT = "SOILOCP_STALE_TIMEOUT"
+#: Set to 1 by ``soilocp run`` for its children: stop when the parent process goes away.
+ENV_EXIT_WITH_PARENT = "SOILOCP_EXIT_WITH_PARENT"
 
 
 class ConfigError(Exception):
@@ -257,6 +259,25 @@ def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, 
 
     signal.signal(signal.SIGINT, _handler)
     signal.signal(signal.SIGTERM, _handler)
+
+
+def watch_parent(stop: threading.Event, log: Optional[JsonLog] = None, *, period_s: float = 0.5) -> None:
+    """If ``$SOILOCP_EXIT_WITH_PARENT`` is 1, set ``stop`` once the parent process is gone
+    (the process is re-parented), so that children of a killed ``soilocp run`` never linger."""
+    if os.environ.get(ENV_EXIT_WITH_PARENT) != "1":
+        return
+    parent = os.getppid()
+
+    def _watch() -> None:
+        while not stop.wait(period_s):
+            if os.getppid() != parent:
+                if log:
+                    log.warning("parent_gone", parent_pid=parent)
+                stop.set()
+                time.sleep(1.8)  # same grace as a signal, then go
+                os._exit(0)
+
+    threading.Thread(target=_watch, name="parent-watch", daemon=True).start()
 
 
 def open_session(
@@ -487,6 +508,7 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
     log = JsonLog(service_cls.name, cfg.log_level)
     stop = threading.Event()
     install_stop_handlers(stop, log)
+    watch_parent(stop, log)
     log.info("starting", vehicle_ids=cfg.vehicle_ids, mode=cfg.mode, connect=cfg.connect, listen=cfg.listen, pid=os.getpid())
     try:
         svc = service_cls(cfg, log, **kwargs)

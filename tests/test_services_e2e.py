@@ -515,11 +515,15 @@ class _RunProc:
                 os.kill(pid, signal.SIGKILL)
 
 
-def test_soilocp_run_ctrl_c_stops_every_process_and_a_dead_service_fails_the_run(tmp_path):
+def test_soilocp_run_ctrl_c_stops_every_process(tmp_path):
     ep = endpoint(free_port())
     run = _RunProc(["--synthetic", "sand", "--duration", "60", "--listen", ep], tmp_path / "a")
     try:
-        assert wait_for(lambda: "K_±_std=" in run.text() and "services_alive=5/5" in run.text(), 60), run.text()
+        def flowing():
+            last = [x for x in run.text().splitlines() if x.startswith("t=")][-1:]
+            return last and "samples/s=0.0" not in last[0] and "services_alive=5/5" in last[0]
+
+        assert wait_for(flowing, 90), run.text()
         assert wait_for(lambda: len(_pids_from_logs(run.log_dir)) == 7, 10), _pids_from_logs(run.log_dir)
         pids = _pids_from_logs(run.log_dir)
         os.killpg(run.p.pid, signal.SIGINT)  # what Ctrl-C on the terminal does
@@ -530,10 +534,12 @@ def test_soilocp_run_ctrl_c_stops_every_process_and_a_dead_service_fails_the_run
     finally:
         run.close()
 
+
+def test_soilocp_run_fails_when_a_service_dies(tmp_path):
     ep = endpoint(free_port())
     run = _RunProc(["--synthetic", "sand", "--duration", "60", "--listen", ep], tmp_path / "b")
     try:
-        assert wait_for(lambda: "services_alive=5/5" in run.text(), 60), run.text()
+        assert wait_for(lambda: "services_alive=5/5" in run.text(), 90), run.text()
         assert wait_for(lambda: len(_pids_from_logs(run.log_dir)) == 7, 10)
         pids = _pids_from_logs(run.log_dir)
         os.kill(pids["soil-strength"], signal.SIGKILL)
@@ -541,5 +547,21 @@ def test_soilocp_run_ctrl_c_stops_every_process_and_a_dead_service_fails_the_run
         run.t.join(5)
         assert "FAILED" in run.text() and "soil-strength died" in run.text()
         assert not [n for n, pid in pids.items() if _pid_alive(pid)]
+    finally:
+        run.close()
+
+
+def test_children_of_a_killed_soilocp_run_stop_themselves(tmp_path):
+    ep = endpoint(free_port())
+    run = _RunProc(["--synthetic", "sand", "--duration", "60", "--listen", ep], tmp_path)
+    try:
+        assert wait_for(lambda: "services_alive=5/5" in run.text(), 90), run.text()
+        assert wait_for(lambda: len(_pids_from_logs(run.log_dir)) == 7, 10)
+        pids = _pids_from_logs(run.log_dir)
+        os.kill(run.p.pid, signal.SIGKILL)  # no chance to clean up: the children must notice
+        run.p.wait(5)
+        assert wait_for(lambda: not [n for n, pid in pids.items() if _pid_alive(pid)], 10), \
+            [n for n, pid in pids.items() if _pid_alive(pid)]
+        assert '"event": "parent_gone"' in (run.log_dir / "ocp.log").read_text()
     finally:
         run.close()

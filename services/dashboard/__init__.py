@@ -1,0 +1,1 @@
+"""The fleet dashboard (``soilocp dashboard``): Starlette app + static page, fed over Zenoh."""
