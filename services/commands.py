@@ -171,3 +171,23 @@ def schemas_export(directory: str) -> None:
 
 
 COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
+
+#: Other command modules of the services area (fleet + dashboard, bench), each with its own
+#: ``COMMANDS`` list; registered here because ``soilocp.cli`` lists only this module.
+EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench")
+
+
+def _register_extra() -> None:
+    import importlib
+
+    for modname in EXTRA_COMMAND_MODULES:
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name == modname:  # not built (yet); any other missing module is a real error
+                continue
+            raise
+        COMMANDS.extend(getattr(mod, "COMMANDS", ()))
+
+
+_register_extra()
