@@ -163,6 +163,28 @@ class BayesSoilEstimator:
         self._hold = _HoldLogic(cfg)
         self._last_stamp: Optional[float] = None
         self._kind = cfg.measurement
+        # Slip-independent factors of eqs. 3 / 6 on the grid, so an update costs one exp per wheel.
+        c = constants
+        self._amp = c.C1 * -np.expm1(-c.C2 * self.k_grid)  # C1 (1 - e^{-C2 K})
+        self._offset = np.full_like(self.k_grid, c.C4) if cfg.measurement == "gross" else -c.C5 / self.k_grid
+        self._slope = np.zeros_like(self.k_grid) if cfg.measurement == "gross" else -c.C6 / np.sqrt(self.k_grid)
+        self._mean_k = float(self.p @ self.k_grid)
+
+    def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """h(S, K_grid) and d h/dS for slips s (n, 1): eq. 3 (gross) or eq. 6 (net), odd in S.
+
+        Equal to :func:`soilocp.traction.curve_unchecked` (tested); outside the zero-slip bridge
+        the printed curve factorises into grid constants and one exp per wheel.
+        """
+        a = np.abs(s)
+        if np.any(a < self.c.bridge_slip):
+            h, d, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
+            return h, d
+        e = np.exp(-self.c.C3 * a)
+        sign = np.where(s < 0, -1.0, 1.0)
+        h = sign * (self._amp * (1.0 - e) + self._offset + self._slope * a)
+        d = self._amp * self.c.C3 * e + self._slope
+        return h, d
 
     def _predict(self, dt: float) -> None:
         cfg = self.cfg
@@ -198,7 +220,7 @@ class BayesSoilEstimator:
         any_info = False
         if use.any():
             s = slip[use][:, None]
-            h, dh_ds, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
+            h, dh_ds = self._curve(s)
             sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[use][:, None]) ** 2
             r2 = (obs[use][:, None] - h) ** 2 / sig2
             like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob

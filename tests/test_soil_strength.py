@@ -158,3 +158,15 @@ def test_classify_by_log_k_with_confidence():
     name, conf = classify(np.sqrt(50 * 80), 0.05)  # on the sand/gravel boundary
     assert 0.4 < conf < 0.6
     assert classify(200, 0.01)[1] > 0.99
+
+
+@pytest.mark.parametrize("measurement", ["gross", "net"])
+def test_factorised_grid_curve_equals_the_traction_model(measurement):
+    from soilocp.traction import curve_unchecked
+
+    est = BayesSoilEstimator(DEFAULT_CONSTANTS, SoilConfig(measurement=measurement))
+    s = np.array([[0.05], [-0.3], [0.9], [0.002]])
+    h, d = est._curve(s)
+    h_ref, d_ref, _ = curve_unchecked(measurement, s, est.k_grid[None, :], DEFAULT_CONSTANTS)
+    assert np.allclose(h, h_ref, rtol=1e-12, atol=1e-12)
+    assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
