@@ -192,7 +192,7 @@ class FleetState:
             next_t = -math.inf
             for e in history:
                 t = latest_produced - (last_stamp - e.stamp)
-                if t >= first_wall - self.history_period_s / 2 or t < next_t:
+                if t >= first_wall - self.history_period_s / 2 or t < next_t - 1e-6:
                     continue
                 next_t = t + self.history_period_s
                 pts.append(self._point(v, t, e))
@@ -209,7 +209,7 @@ class FleetState:
                 "mu_T": e.mu_T, "S_T": e.S_T, "S_E": e.S_E, "status": e.status}
 
     def _add_point(self, v: _Vehicle, wall: float, e: OcpEstimate) -> None:
-        if v.history and wall < v.history[-1]["t"] + self.history_period_s:
+        if v.history and wall < v.history[-1]["t"] + self.history_period_s - 1e-3:
             return
         v.history.append(self._point(v, wall, e))
 
