@@ -58,6 +58,10 @@ class RawSampleChecker:
             return self._rejection(rej.code, rej.message, rej.seq, payload, key, received_at)
         except RecursionError:  # absurdly nested JSON
             return self._rejection("malformed_json", "payload: JSON nested too deeply", None, payload, key, received_at)
+        except (ValueError, TypeError, OverflowError) as exc:
+            # what the parser itself refuses beyond JSON syntax, e.g. an integer of 5000 digits
+            return self._rejection("malformed_json", f"payload: cannot be parsed: {exc}"[:300], None, payload, key,
+                                   received_at)
 
     def _rejection(self, code: str, message: str, seq, payload: bytes, key: str, received_at: float) -> Rejection:
         if seq is None and len(payload) <= self.max_payload_bytes:

@@ -41,6 +41,8 @@ from zenoh_helpers import Procs, client, endpoint, free_port, get_payloads, wait
 VEHICLES = {"alpha": "mixed", "beta": "sandy-slope"}
 SOILS = set(DEFAULT_CONSTANTS.soils)
 
+pytestmark = pytest.mark.timeout(240)
+
 
 # ------------------------------------------------------------------------------------------------
 # unit tests: FleetState (no Zenoh)
@@ -147,10 +149,11 @@ def _cli_module() -> str:
 
 
 class Fleet:
-    def __init__(self, procs: Procs, router_ep: str, dash_url: str):
+    def __init__(self, procs: Procs, router_ep: str, dash_url: str, browser: Optional["Chromium"]):
         self.procs = procs
         self.router = router_ep
         self.url = dash_url
+        self.browser = browser  # started with the fleet: its start-up overlaps the vehicles'
 
 
 def _fresh_vehicles(ep: str) -> set[str]:
@@ -179,7 +182,10 @@ def fleet(tmp_path_factory):
     procs = Procs(base / "logs")
     fleet_ep = endpoint(free_port())
     dash_port = free_port()
+    browser = None
     try:
+        if _chromium() is not None:
+            browser = Chromium(_chromium())
         procs.spawn("router", ["router", "--listen", fleet_ep])
         for vid, scenario in VEHICLES.items():
             procs.spawn(vid, ["run", "--synthetic", scenario, "--vehicle-id", vid, "--duration", "600", "--plain",
@@ -200,18 +206,33 @@ def fleet(tmp_path_factory):
         ok = wait_for(lambda: set(VEHICLES) <= _fresh_vehicles(fleet_ep), timeout=120, interval=1.0)
         assert ok, "vehicles never produced fresh OCPs:\n" + "\n".join(
             procs.log_text(v)[-2000:] for v in VEHICLES)
-        yield Fleet(procs, fleet_ep, f"http://127.0.0.1:{dash_port}")
+        yield Fleet(procs, fleet_ep, f"http://127.0.0.1:{dash_port}", browser)
     finally:
+        if browser is not None:
+            browser.close()
         codes = procs.close(timeout=20.0)
     dash_log = "\n".join(p.read_text(errors="replace") for p in (base / "logs").glob("dashboard*.log"))
     assert codes.get("dashboard") == 0, dash_log
     assert '"event": "stopped"' in dash_log  # lifespan closed the Zenoh session
 
 
-def _fleet_cmd(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+def _fleet_start(*args: str) -> subprocess.Popen:
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.run([sys.executable, "-m", _cli_module(), "fleet", "status", *args], capture_output=True,
-                          text=True, timeout=timeout, env=e, stdin=subprocess.DEVNULL)
+    return subprocess.Popen([sys.executable, "-m", _cli_module(), "fleet", "status", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=e, stdin=subprocess.DEVNULL)
+
+
+def _finish(p: subprocess.Popen, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        out, err = p.communicate()
+    return subprocess.CompletedProcess(p.args, p.returncode, out, err)
+
+
+def _fleet_cmd(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    return _finish(_fleet_start(*args), timeout)
 
 
 def _check_row(r: dict[str, Any]) -> None:
@@ -225,7 +246,23 @@ def _check_row(r: dict[str, Any]) -> None:
 
 
 def test_fleet_status_json_table_and_no_answer(fleet, tmp_path):
-    r = _fleet_cmd("--connect", fleet.router, "--json", "--timeout", "3")
+    # a router with no vehicle behind it, and no router at all: exit status 1 within the timeout
+    empty = endpoint(free_port())
+    procs = Procs(tmp_path / "logs")
+    try:
+        procs.spawn("empty-router", ["router", "--listen", empty])
+        # the commands run in parallel: each is a Python start-up on a small machine
+        runs = {"json": _fleet_start("--connect", fleet.router, "--json", "--timeout", "3"),
+                "table": _fleet_start("--connect", fleet.router, "--timeout", "3"),
+                "no-router": _fleet_start("--connect", endpoint(free_port()), "--timeout", "1")}
+        with client(empty):
+            pass
+        runs["empty"] = _fleet_start("--connect", empty, "--timeout", "1", "--json")
+        res = {name: _finish(p) for name, p in runs.items()}
+    finally:
+        procs.close()
+
+    r = res["json"]
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     rows = {row["vehicle_id"]: row for row in doc["vehicles"]}
@@ -234,25 +271,16 @@ def test_fleet_status_json_table_and_no_answer(fleet, tmp_path):
         _check_row(row)
     assert rows["beta"]["soil_class"] == "sand" and 25 < rows["beta"]["K"] < 100  # sandy-slope: K = 50
 
-    r = _fleet_cmd("--connect", fleet.router, "--timeout", "3")
+    r = res["table"]
     assert r.returncode == 0, r.stderr
     for vid in VEHICLES:
         line = next(x for x in r.stdout.splitlines() if f" {vid} " in x)
         assert "5/5" in line and "fresh" in line and re.search(r"\d+\.\d ± \d+\.\d", line), line
 
-    # a router with no vehicle behind it, and no router at all: exit status 1 within the timeout
-    empty = endpoint(free_port())
-    procs = Procs(tmp_path / "logs")
-    try:
-        procs.spawn("empty-router", ["router", "--listen", empty])
-        with client(empty):
-            pass
-        r = _fleet_cmd("--connect", empty, "--timeout", "1", "--json")
-        assert r.returncode == 1 and json.loads(r.stdout)["vehicles"] == []
-        assert "no vehicle answered" in r.stderr
-    finally:
-        procs.close()
-    r = _fleet_cmd("--connect", endpoint(free_port()), "--timeout", "1")
+    r = res["empty"]
+    assert r.returncode == 1 and json.loads(r.stdout)["vehicles"] == [], (r.stdout, r.stderr)
+    assert "no vehicle answered" in r.stderr
+    r = res["no-router"]
     assert r.returncode == 1 and "no router answered" in r.stderr, r.stderr
 
 
@@ -434,60 +462,57 @@ def _rows(browser: Chromium) -> dict[str, dict]:
 
 @pytest.mark.skipif(_chromium() is None, reason="chromium not installed (Debian: apt-get install -y chromium)")
 def test_dashboard_in_headless_chromium_live_then_stopped_vehicle_marked(fleet, tmp_path):
-    browser = Chromium(_chromium())
-    try:
-        browser.open(fleet.url + "/")
+    browser = fleet.browser
+    browser.open(fleet.url + "/")
 
-        def both_with_numbers():
-            rows = _rows(browser)
-            return rows if set(VEHICLES) <= set(rows) and all(K_RE.search(rows[v]["text"]) for v in VEHICLES) else None
+    def both_with_numbers():
+        rows = _rows(browser)
+        return rows if set(VEHICLES) <= set(rows) and all(K_RE.search(rows[v]["text"]) for v in VEHICLES) else None
 
-        rows = wait_for(both_with_numbers, timeout=60, interval=0.5)
-        assert rows, f"page never showed both vehicles with K: {_rows(browser)}"
-        for vid in VEHICLES:
-            r = rows[vid]
-            assert r["state"] == "online" and r["status"] == "fresh", r
-            assert "5/5" in r["text"] and "online" in r["text"] and "fresh" in r["text"]
-            assert any(s in r["text"] for s in SOILS)
-        # plots: wait until the history has a few points, then check every card's three SVGs
-        def cards_ready():
-            cards = {c["id"][5:]: c for c in json.loads(browser.eval(CARDS_JS))}
-            return cards if set(VEHICLES) <= set(cards) and all(cards[v]["kpath"] > 20 for v in VEHICLES) else None
-
-        cards = wait_for(cards_ready, timeout=20, interval=0.5)
-        assert cards, browser.eval(CARDS_JS)
-        for vid in VEHICLES:
-            c = cards[vid]
-            assert c["svgs"] == 3 and c["wheels"] == 4 and c["curve"] > 100, c
-            assert c["soils"] == [f"{n} {k:g}" for n, k in DEFAULT_CONSTANTS.soils.items()], c
-        browser.eval("window.scrollTo(0, 0)")
-        png = browser.screenshot(tmp_path / "dashboard-live.png")
-        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
-
-        # stop beta (Ctrl-C to its soilocp run): its services go away with their liveliness
-        beta = fleet.procs.procs["beta"]
-        beta.send_signal(signal.SIGINT)
-        beta.wait(30)
-
-        def beta_marked():
-            rows = _rows(browser)
-            b, a = rows.get("beta"), rows.get("alpha")
-            return rows if b and a and b["state"] == "offline" and b["status"] == "stale" else None
-
-        rows = wait_for(beta_marked, timeout=30, interval=0.5)
-        assert rows, _rows(browser)
-        assert "offline since" in rows["beta"]["text"] and "stale" in rows["beta"]["text"]
-        assert rows["alpha"]["state"] == "online" and rows["alpha"]["status"] == "fresh"
+    rows = wait_for(both_with_numbers, timeout=60, interval=0.5)
+    assert rows, f"page never showed both vehicles with K: {_rows(browser)}"
+    for vid in VEHICLES:
+        r = rows[vid]
+        assert r["state"] == "online" and r["status"] == "fresh", r
+        assert "5/5" in r["text"] and "online" in r["text"] and "fresh" in r["text"]
+        assert any(s in r["text"] for s in SOILS)
+    # plots: wait until the history has a few points, then check every card's three SVGs
+    def cards_ready():
         cards = {c["id"][5:]: c for c in json.loads(browser.eval(CARDS_JS))}
-        assert "offline since" in cards["beta"]["badges"] and "stale" in cards["beta"]["badges"]
-        time.sleep(1.0)
-        png = browser.screenshot(tmp_path / "dashboard-one-stopped.png")
-        assert png[:8] == b"\x89PNG\r\n\x1a\n"
-        for name in ("dashboard-live.png", "dashboard-one-stopped.png"):
-            if os.environ.get("SOILOCP_DASHBOARD_SHOTS"):  # to refresh docs/dashboard.png by hand
-                shutil.copy(tmp_path / name, Path(os.environ["SOILOCP_DASHBOARD_SHOTS"]) / name)
-    finally:
-        browser.close()
+        return cards if set(VEHICLES) <= set(cards) and all(cards[v]["kpath"] > 20 for v in VEHICLES) else None
+
+    cards = wait_for(cards_ready, timeout=20, interval=0.5)
+    assert cards, browser.eval(CARDS_JS)
+    for vid in VEHICLES:
+        c = cards[vid]
+        assert c["svgs"] == 3 and c["wheels"] == 4 and c["curve"] > 100, c
+        assert c["soils"] == [f"{n} {k:g}" for n, k in DEFAULT_CONSTANTS.soils.items()], c
+    browser.eval("window.scrollTo(0, 0)")
+    png = browser.screenshot(tmp_path / "dashboard-live.png")
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+    # stop beta (Ctrl-C to its soilocp run): its services go away with their liveliness
+    beta = fleet.procs.procs["beta"]
+    beta.send_signal(signal.SIGINT)
+    beta.wait(30)
+
+    def beta_marked():
+        rows = _rows(browser)
+        b, a = rows.get("beta"), rows.get("alpha")
+        return rows if b and a and b["state"] == "offline" and b["status"] == "stale" else None
+
+    rows = wait_for(beta_marked, timeout=30, interval=0.5)
+    assert rows, _rows(browser)
+    assert "offline since" in rows["beta"]["text"] and "stale" in rows["beta"]["text"]
+    assert rows["alpha"]["state"] == "online" and rows["alpha"]["status"] == "fresh"
+    cards = {c["id"][5:]: c for c in json.loads(browser.eval(CARDS_JS))}
+    assert "offline since" in cards["beta"]["badges"] and "stale" in cards["beta"]["badges"]
+    time.sleep(1.0)
+    png = browser.screenshot(tmp_path / "dashboard-one-stopped.png")
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    for name in ("dashboard-live.png", "dashboard-one-stopped.png"):
+        if os.environ.get("SOILOCP_DASHBOARD_SHOTS"):  # to refresh docs/dashboard.png by hand
+            shutil.copy(tmp_path / name, Path(os.environ["SOILOCP_DASHBOARD_SHOTS"]) / name)
 
     # the one-shot fleet view agrees: beta no longer answers, alpha still does
     r = _fleet_cmd("--connect", fleet.router, "--json", "--timeout", "3")

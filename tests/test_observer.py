@@ -22,6 +22,12 @@ def test_paper_state_is_not_observable_but_ours_is():
     assert StateLayout.of("per_wheel").n == 18
     assert observability_rank("per_wheel", V) < 18
     assert observability_rank("shared", V) == StateLayout.of("shared").n
+    # eq. 4's form (mu_xR = r0 sgn(S) + r1 S): observable while the slips vary and the driving
+    # and braking wheels carry different loads, as in a traction test ...
+    fz = [160.0, 130.0, 130.0, 160.0]
+    assert observability_rank("slip", V, fz=fz) == StateLayout.of("slip").n
+    # ... but not at one constant slip pattern, where r0 and r1 merge
+    assert observability_rank("slip", V, fz=fz, slips=[(0.2, -0.1, -0.1, 0.2)]) < StateLayout.of("slip").n
     assert observability_rank("none", V) == StateLayout.of("none").n
 
 
@@ -72,7 +78,7 @@ def _drive(mu_true, r_true, steps=600, dt=0.01, pitch=-0.1, noise=True, seed=0):
 @pytest.mark.parametrize("mu_true", [[0.2, 0.25, 0.3, 0.22], [-0.1, 0.3, 0.3, -0.1]])
 def test_shared_structure_recovers_each_wheel_and_resistance(mu_true):
     r_true = 0.06
-    obs = TractionObserver(V)
+    obs = TractionObserver(V, ObserverConfig(structure="shared"))
     for m in _drive(mu_true, r_true):
         est = obs.step(m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
     assert np.allclose(est.mu, mu_true, atol=0.02), est.mu
@@ -83,7 +89,7 @@ def test_shared_structure_recovers_each_wheel_and_resistance(mu_true):
 
 def test_without_compensation_mu_absorbs_resistance():
     mu_true, r_true = [0.2, 0.25, 0.3, 0.22], 0.08
-    with_c = TractionObserver(V)
+    with_c = TractionObserver(V, ObserverConfig(structure="shared"))
     without = TractionObserver(V, ObserverConfig(structure="none"))
     for m in _drive(mu_true, r_true):
         args = (m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
@@ -96,7 +102,7 @@ def test_without_compensation_mu_absorbs_resistance():
 
 
 def test_outlier_measurement_is_gated_not_absorbed():
-    obs = TractionObserver(V)
+    obs = TractionObserver(V, ObserverConfig(structure="shared"))
     data = _drive([0.2] * 4, 0.05, steps=300)
     for i, m in enumerate(data):
         fx = m["fx"] + (50.0 if i == 250 else 0.0)  # accelerometer spike
@@ -125,3 +131,24 @@ def test_covariance_stays_symmetric_positive_definite_over_long_runs():
     assert worst["min_eigenvalue"] > 0
     assert worst["max_asymmetry"] == 0.0
     assert worst["max_variance"] < 1e4  # never pinned at the ceiling: no state silently lost
+
+
+def test_slip_structure_tracks_per_wheel_traction_on_a_traction_test():
+    """On the simulator's traction test (rear wheels sweep slip, front wheels brake) the wheels'
+    motion resistance differs a lot (eq. 4 grows with slip): the 'slip' structure follows each
+    wheel's net traction better than one shared coefficient."""
+    from soilocp.pipeline import PipelineConfig, VehiclePipeline
+    from soilocp.simulator import simulate
+
+    errs = {}
+    for structure in ("slip", "shared"):
+        cfg = PipelineConfig(observer=ObserverConfig(structure=structure))
+        pipe = VehiclePipeline(cfg)
+        e = []
+        for sample, truth in simulate("sand", duration=8.0, seed=3):
+            rec = pipe.process(sample)
+            if sample.stamp > 3.0:
+                e.append(np.abs(np.asarray(rec.mu) - np.asarray(truth.mu)))
+        errs[structure] = float(np.median(np.concatenate(e)))
+    assert errs["slip"] < 0.8 * errs["shared"], errs
+    assert errs["slip"] < 0.05, errs

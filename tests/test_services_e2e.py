@@ -240,6 +240,7 @@ def _hostile_payloads(good: list[dict], vid: str, at: int) -> list[tuple[str, by
         ("", b"", "malformed_json"),
         ("", b"[1, 2, 3]", "malformed_json"),
         ("", b"[" * 30000 + b"]" * 30000, "malformed_json"),
+        ("", js(mod(seq=0)).replace(b'"seq": 0', b'"seq": ' + b"9" * 5000), "malformed_json"),
         ("", js(mod()).replace(b'"ground_speed": ', b'"ground_speed": NaN, "x": '), "non_finite"),
         ("", js(mod(roll=0.0)).replace(b'"roll": 0.0', b'"roll": 1e999'), "non_finite"),
         ("", js(mod(wheel_torque=[1e9, 0.0, 0.0, 0.0])), "out_of_range"),

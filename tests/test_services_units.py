@@ -103,7 +103,7 @@ def test_deploy_single_machine_config_is_valid():
 
 # --- gateway checks ------------------------------------------------------------------------------
 def test_gateway_checker_accepts_good_and_rejects_each_bad_kind():
-    chk = RawSampleChecker("rover1", max_payload_bytes=4096)
+    chk = RawSampleChecker("rover1", max_payload_bytes=6000)
     ok = chk.check(json.dumps(_sample(0, 0.0)).encode())
     assert isinstance(ok, SensorSample) and ok.seq == 0
     good1 = json.dumps(_sample(1, 0.01))
@@ -115,7 +115,9 @@ def test_gateway_checker_accepts_good_and_rejects_each_bad_kind():
         (json.dumps(_sample(1, 0.01, roll="flat")).encode(), "schema", "roll"),
         (json.dumps(_sample(1, 0.01, vehicle_id="rover2")).encode(), "vehicle_mismatch", "vehicle_id"),
         (json.dumps(_sample(0, 0.01)).encode(), "duplicate_seq", "seq"),
-        (b"x" * 5000, "too_large", "payload"),
+        (b"x" * 7000, "too_large", "payload"),
+        (b'{"seq": ' + b"9" * 4400 + b"}", "malformed_json", "payload"),  # beyond Python's int parsing limit
+        (b"[" * 2000 + b"]" * 2000, "malformed_json", "payload"),  # nested past the recursion limit
     ]
     for payload, code, field in cases:
         res = chk.check(payload)

@@ -176,12 +176,14 @@ def test_excitation_on_firm_soil_is_smooth_and_holds_the_speed():
     late = [t for t in truth if t.stamp >= 3.0]
     f = np.array([t.specific_force for t in late])
     fz = np.array([t.normal_force for t in late])
-    assert np.abs(np.diff(f[:, 0])).max() < 0.2  # m/s^2 per 10 ms
-    assert fz.min() > 100.0 and np.abs(np.diff(fz, axis=0)).max() < 5.0
+    # a lagged load transfer oscillates sample to sample (+-5 m/s^2): second differences catch it
+    assert np.abs(np.diff(f[:, 0])).max() < 0.4  # m/s^2 per 10 ms
+    assert np.abs(np.diff(f[:, 0], 2)).max() < 0.15
+    assert fz.min() > 100.0 and np.abs(np.diff(fz, 2, axis=0)).max() < 3.0
     s = np.array([t.slip for t in late])
     assert s[:, 1].max() > late[0].S_T  # past the traction peak (S_T = 0.51)
     speed = arr(late, "ground_speed")
-    assert 0.9 < speed.min() and speed.max() < 1.3 and abs(speed.mean() - 1.0) < 0.1
+    assert 0.7 < speed.min() and speed.max() < 1.3 and abs(speed.mean() - 1.0) < 0.03
 
 
 def test_sweep_options():
