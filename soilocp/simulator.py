@@ -120,11 +120,9 @@ class ControllerParams:
     wheel_kp: float = 10.0  #: N m per rad/s
     wheel_ki: float = 200.0  #: N m per rad
     torque_limit: float = 40.0  #: |T| max per wheel, N m
-    speed_kp: float = 0.5  #: rear-axle speed loop (excitation), m/s per m/s
-    speed_ki: float = 2.0  #: 1/s
-    #: excitation: the rear's braking slip set-point is -brake_feedforward x the front's driving
-    #: slip set-point (then trimmed by the speed PI), so that the rear brakes in step with the sweep
-    brake_feedforward: float = 1.0
+    speed_kp: float = 1.0  #: rear-axle speed loop (excitation), m/s per m/s
+    speed_ki: float = 3.0  #: 1/s
+    speed_i_limit: float = 0.25  #: bound on the speed PI's integral, m (anti-windup)
     yaw_kp: float = 1.0  #: heading correction, rad/s per rad/s of yaw rate
     yaw_ki: float = 2.0  #: 1/s
     ramp_time: float = 2.0  #: smooth start: speed (and sweep amplitude) ramp from 0, s
@@ -397,17 +395,12 @@ class _Run:
             s_cmd *= max(0.0, 1.0 - ctl.governor_gain * over)
         self.slip_cmd = s_cmd
         err = v_ref - self.V
-        # rear: braking slip fed forward from the front's set-point (mirror), trimmed by a speed PI
-        v_hold = v_ref * (1.0 - ctl.brake_feedforward * s_cmd) + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
+        # rear: speed PI.  Its integrator keeps integrating while the braking slip is clamped, so
+        # that the dwell makes up for the overspeed near the sweep's peak (mean speed = V_ref).
+        self.i_speed = min(max(self.i_speed + h * err, -ctl.speed_i_limit), ctl.speed_i_limit)
+        v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
         # the braking axle stays on the stable side of the traction peak: slip >= -brake_slip_limit
-        v_min = self.V * (1.0 - ctl.brake_slip_limit)
-        if v_hold < v_min:
-            v_hold = v_min
-            if err > 0:
-                self.i_speed += h * err
-        else:
-            self.i_speed += h * err
-        self.i_speed = min(max(self.i_speed, -2.0), 2.0)
+        v_hold = max(v_hold, self.V * (1.0 - ctl.brake_slip_limit))
         out = []
         for front, yi in zip(self.front, self.ys):
             if front:
