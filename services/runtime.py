@@ -407,7 +407,7 @@ class Service:
         raise NotImplementedError
 
     def handle(self, item: Any) -> None:
-        """Process one queued item on the worker thread.  Items are ``(vehicle_id, kind, bytes, wall)``."""
+        """Process one queued item on the worker thread: ``(vehicle_id, kind, payload, wall_time, key)``."""
         raise NotImplementedError
 
     def tick(self, now: float) -> None:
