@@ -54,7 +54,7 @@ def _check_index(idx, n: int) -> np.ndarray:
         raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
     if ix.min() < 0 or ix.max() >= n:
         raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
-    if np.unique(ix).size != ix.size:
+    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
         raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
     return ix
 
@@ -213,7 +213,7 @@ class BatchObserver:
             z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
                                  inputs.ground_speed[run]])
             innov = z - np.einsum("kij,kj->ki", Hr, xr)
-            s = np.einsum("kij,kjl,kil->ki", Hr, Pr, Hr) + self._r
+            s = np.einsum("kij,kij->ki", Hr @ Pr, Hr) + self._r  # diag(H P H^T) + diag(R)
             keep = innov**2 <= (cfg.gate_sigma**2) * s
             counts = self.rejections[ix[run]]
             keep |= counts >= cfg.gate_patience  # re-acquire a row rejected again and again
@@ -233,7 +233,8 @@ class BatchObserver:
                 K = PHT @ np.linalg.inv(S)
                 xr[upd] = xr[upd] + np.einsum("kij,kj->ki", K, y)
                 IKH = self._I - K @ Hm
-                Pr[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + K @ Rm @ K.transpose(0, 2, 1)  # Joseph form
+                KR = K * Rm[:, diag, diag][:, None, :]  # K @ R with R diagonal
+                Pr[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + KR @ K.transpose(0, 2, 1)  # Joseph form
             # keep P symmetric positive definite over long runs (TractionObserver._condition)
             Pr = (Pr + Pr.transpose(0, 2, 1)) / 2.0
             nx = L.n
@@ -250,7 +251,7 @@ class BatchObserver:
             mu_var=P[:, dg, dg][:, L.mu],
             resistance=res,
             gross=mu + res,
-            gross_var=np.einsum("ij,kjl,il->ki", self._J, P, self._J),
+            gross_var=np.einsum("kil,il->ki", self._J @ P, self._J),
             wheel_speed=x[:, L.omega].copy(),
             ground_speed=x[:, L.v].copy(),
             yaw_rate=x[:, L.psi].copy(),
@@ -287,13 +288,14 @@ class BatchSoil:
         self._slope = np.zeros_like(self.k_grid) if cfg.measurement == "gross" else -c.C6 / np.sqrt(self.k_grid)
 
     def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """h(S, K_grid) and d h/dS for slips s (k, 4): eq. 3 (gross) or eq. 6 (net), odd in S."""
-        a = np.abs(s)[:, :, None]
+        """h(S, K_grid) and d h/dS for slips s (m, 1): eq. 3 (gross) or eq. 6 (net), odd in S
+        (``BayesSoilEstimator._curve``: outside the zero-slip bridge, one exp per wheel)."""
+        a = np.abs(s)
         if np.any(a < self.c.bridge_slip):
-            h, d, _ = curve_unchecked(self._kind, s[:, :, None], self.k_grid[None, None, :], self.c)
+            h, d, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
-        sign = np.where(s < 0, -1.0, 1.0)[:, :, None]
+        sign = np.where(s < 0, -1.0, 1.0)
         return sign * (self._amp * (1.0 - e) + self._offset + self._slope * a), self._amp * self.c.C3 * e + self._slope
 
     def _predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -334,12 +336,14 @@ class BatchSoil:
         info = np.zeros(k, dtype=bool)
         upd = use.any(axis=1)
         if upd.any():
-            su, u = slip[upd], use[upd]
-            h, dh_ds = self._curve(su)
-            sig2 = var[upd][:, :, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][:, :, None]) ** 2
-            r2 = (obs[upd][:, :, None] - h) ** 2 / sig2
-            like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            like = np.where(u[:, :, None], like, 1.0)  # unused wheels: a factor of exactly 1
+            u = use[upd]
+            # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
+            h, dh_ds = self._curve(slip[upd][u][:, None])
+            sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
+            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
+            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
+            like = np.ones(u.shape + (self.theta.size,))
+            like[u] = like_used
             loglike = np.log(np.prod(like, axis=1)) * cfg.temper
             post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
@@ -353,24 +357,26 @@ class BatchSoil:
         mk = p @ self.k_grid
         k_var = np.einsum("kg,kg->k", p, (self.k_grid[None, :] - mk[:, None]) ** 2)
         masses = p @ self._onehot
+        best = masses.argmax(axis=1)
+        best_mass = masses[np.arange(k), best].tolist()
+        best = best.tolist()
+        # per vehicle, plain Python floats from here on (the hold logic is the estimator's own)
         out = []
-        for j in range(k):
-            hold = self._holds[ix[j]]
-            st = float(stamp[j])
-            if info[j]:
+        for j, (ixj, st, inf, lv, kv, m, used) in enumerate(zip(ix.tolist(), stamp.tolist(), info.tolist(),
+                                                                   log_var.tolist(), k_var.tolist(), mean.tolist(),
+                                                                   use.tolist())):
+            hold = self._holds[ixj]
+            if inf:
                 hold.last_update = st
-            log_std = math.sqrt(max(float(log_var[j]), 0.0))
-            k_std = math.sqrt(max(float(k_var[j]), 0.0))
-            status, reason, (rk, rs, rl) = hold.status(st, math.exp(float(mean[j])), k_std, log_std)
+            log_std = math.sqrt(max(lv, 0.0))
+            status, reason, (rk, rs, rl) = hold.status(st, math.exp(m), math.sqrt(max(kv, 0.0)), log_std)
             cls = conf = None
             if rk is not None:
-                if not info[j]:
+                if not inf:
                     cls, conf = classify(rk, rl, self.c)
                 else:
-                    i = int(np.argmax(masses[j]))
-                    cls, conf = self._names[i], float(masses[j, i])
-            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
-                                 tuple(bool(x) for x in use[j])))
+                    cls, conf = self._names[best[j]], best_mass[j]
+            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update, tuple(used)))
         return out
 
 

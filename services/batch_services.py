@@ -1,0 +1,134 @@
+"""Batched observer + soil strength + OCP publisher for many vehicles in one process.
+
+A drop-in for the three services ``observer``, ``soil-strength`` and ``ocp`` of one deployment
+(the gateway and the normal-force service stay as they are): it subscribes to every vehicle's
+``sensors/clean`` and ``normal_forces``, joins them by seq (the observer service's
+:class:`~services.observer.SeqJoiner`), steps all vehicles that have a joined sample together
+with :class:`soilocp.batch.BatchPipeline` (numpy over stacked arrays instead of one filterpy
+filter per vehicle), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same
+numbers as the per-vehicle services (``tests/test_batch.py``).  It *is* the OCP publisher
+(subclass of :class:`~services.ocp.OcpService`: same queryable, history, stale reports, health
+on ``soilocp/<vid>/status/ocp``) and also holds the ``observer`` and ``soil-strength``
+liveliness tokens, so sources and ``soilocp run`` see a complete pipeline.  The internal
+``observer`` and ``soil`` keys are not published (nothing downstream needs them).
+
+Batching is opportunistic: joined samples wait only while more input is already queued, so a
+lone vehicle is stepped at once (no added latency) and under load one numpy step serves every
+vehicle with a pending sample.
+
+``python -m services.batch_services --vehicle-id v1 --vehicle-id v2 --connect tcp/127.0.0.1:7447``
+(or ``SOILOCP_VEHICLE_ID=v1,v2``; the settings of any service, section ``services.ocp``).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from schemas import keys
+from schemas.pipeline import NormalForces, OcpEstimate
+from schemas.sensor import SensorSample
+from soilocp.batch import BatchPipeline
+
+from .observer import SeqJoiner
+from .ocp import OcpService
+from .stages import pipeline_config
+
+#: Flush the joined samples once this many are waiting per served vehicle, even if input is queued.
+MAX_PENDING_PER_VEHICLE = 4
+
+
+class BatchOcpService(OcpService):
+    name = "ocp"
+
+    def __init__(self, cfg, log):
+        super().__init__(cfg, log)
+        pc = pipeline_config(cfg)
+        self.vids = list(cfg.vehicle_ids)
+        self.index = {vid: i for i, vid in enumerate(self.vids)}
+        self.batch = BatchPipeline(pc, len(self.vids))
+        self.pending: dict[str, deque] = {vid: deque() for vid in self.vids}
+        self.n_pending = 0
+        self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)
+        self.joiners = {
+            vid: SeqJoiner(lambda s, f, _vid=vid: self._joined(_vid, s, f), self.counters[vid],
+                           capacity=cfg.join_buffer, timeout_s=cfg.join_timeout_s)
+            for vid in self.vids
+        }
+        self.steps = 0
+
+    def declare(self, session, vehicle_id: str) -> None:
+        super().declare(session, vehicle_id)  # OCP publisher, status publisher, queryable (+ an idle soil subscriber)
+        self.subscribe(session, keys.clean(vehicle_id), vehicle_id, "sample")
+        self.subscribe(session, keys.normal_forces(vehicle_id), vehicle_id, "forces")
+        for stage in ("observer", "soil-strength"):  # after the subscriptions: the inputs are ready
+            self.keep(session.liveliness().declare_token(keys.alive(vehicle_id, stage)))
+
+    def _joined(self, vid: str, sample: SensorSample, forces: NormalForces) -> None:
+        self.pending[vid].append((sample, forces))
+        self.n_pending += 1
+
+    def handle(self, item) -> None:
+        vid, kind, payload, wall, _key = item
+        self.counters[vid].last_input_wall = wall
+        if kind == "sample":
+            self.joiners[vid].add_sample(SensorSample.model_validate_json(payload))
+        elif kind == "forces":
+            self.joiners[vid].add_forces(NormalForces.model_validate_json(payload))
+        if self.n_pending and (self.worker.depth() == 0 or self.n_pending >= self.max_pending):
+            self.flush()
+
+    def flush(self) -> None:
+        """Step every vehicle with a pending joined sample, oldest first, until none is left."""
+        while self.n_pending:
+            vids = [vid for vid, q in self.pending.items() if q]
+            pairs = [self.pending[vid].popleft() for vid in vids]
+            self.n_pending -= len(pairs)
+            idx = np.array([self.index[v] for v in vids])
+            inputs = BatchPipeline.inputs_from_samples([s for s, _f in pairs], [f.normal_force for _s, f in pairs])
+            out = self.batch.step(idx, inputs)
+            self.steps += 1
+            for j, (vid, (sample, _f)) in enumerate(zip(vids, pairs)):
+                est = OcpEstimate(vehicle_id=vid, seq=sample.seq, **out.ocp_fields(j))
+                self.stores[vid].add(est)
+                self.pubs[vid].put(est.model_dump_json())
+                c = self.counters[vid]
+                c.published += 1
+                c.last_seq, c.last_stamp = est.seq, est.stamp
+
+    def health_extra(self, vehicle_id: str) -> dict[str, Any]:
+        out = super().health_extra(vehicle_id)
+        out["detail"] = {**out["detail"], "batched": True, "batch_steps": self.steps,
+                         "join_pending": self.joiners[vehicle_id].pending()}
+        return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    from .runtime import ConfigError, load_service_config, run_service
+
+    ap = argparse.ArgumentParser(prog="python -m services.batch_services",
+                                 description="Batched observer + soil strength + OCP publisher for many vehicles.")
+    ap.add_argument("--config", dest="config_path", help="service config file (JSON); env SOILOCP_CONFIG")
+    ap.add_argument("--vehicle-id", dest="vehicle_ids", action="append", help="vehicle id (repeatable)")
+    ap.add_argument("--connect", action="append", help="router endpoint (repeatable)")
+    ap.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    ap.add_argument("--stale-timeout", type=float, dest="stale_timeout_s")
+    ap.add_argument("--pipeline-config", help="physics PipelineConfig file (JSON)")
+    a = ap.parse_args(argv)
+    overrides = dict(vehicle_ids=a.vehicle_ids, connect=a.connect, log_level=a.log_level,
+                     stale_timeout_s=a.stale_timeout_s, pipeline_config=a.pipeline_config)
+    try:
+        cfg = load_service_config("ocp", config_path=a.config_path, overrides=overrides)
+        return run_service(BatchOcpService, cfg)
+    except (ConfigError, ValueError) as exc:
+        print(f"python -m services.batch_services: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
