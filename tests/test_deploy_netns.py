@@ -294,3 +294,66 @@ def test_netns_script_rejects_bad_run_ids():
         assert res.returncode == 2 and "RUN_ID" in res.stderr, (bad, res.stderr)
     res = subprocess.run([str(NETNS), "names", "ab12"], capture_output=True, text=True)
     assert res.stdout.split() == ["soilocp-ab12-fleet", "soilocp-ab12-sense", "soilocp-ab12-est"]
+
+
+SYSTEMD = ROOT / "deploy" / "systemd"
+#: where the example env files point (/etc/soilocp/NAME) -> the file of the repository
+ETC_FILES = {"sensing.json": SENSING, "estimation.json": ESTIMATION, "fleet-router.json": FLEET}
+
+
+def _env_file(path: Path) -> dict[str, str]:
+    """KEY=VALUE lines as systemd's EnvironmentFile= reads them (comments, blanks skipped)."""
+    out = {}
+    for line in path.read_text().splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            key, sep, value = line.partition("=")
+            assert sep and key.isidentifier(), f"{path}: bad line {line!r}"
+            out[key] = value
+    return out
+
+
+def test_systemd_example_environments_resolve_through_the_loaders():
+    import shlex
+
+    from services.commands import service_cmd
+    from services.router import router_settings
+    from services.runtime import load_service_config
+
+    units = sorted(p for p in (SYSTEMD / "env").iterdir() if p.is_dir())
+    assert [u.name for u in units] == ["estimation", "fleet", "sensing"]
+    for unit in units:
+        common = _env_file(unit / "soilocp.env")
+        assert "SOILOCP_LISTEN" not in common, f"{unit.name}: SOILOCP_LISTEN in soilocp.env would reach the services"
+        config = ETC_FILES[Path(common["SOILOCP_CONFIG"]).name]
+        router_env = {**common, **_env_file(unit / "router.env"), "SOILOCP_CONFIG": str(config)}
+        router = router_settings(None, (), (), env=router_env)
+        assert router["listen"] == [router_env["SOILOCP_LISTEN"]]
+        if unit.name != "fleet":
+            assert router["connect"] == [router_env["SOILOCP_ROUTER_CONNECT"]]
+        for name in json.loads(config.read_text()).get("services", {}):
+            extra = unit / f"{name}.env"
+            env = {**common, **(_env_file(extra) if extra.exists() else {}), "SOILOCP_CONFIG": str(config)}
+            cfg = load_service_config(name, env=env)
+            assert cfg.vehicle_ids == [common["SOILOCP_VEHICLE_ID"]] and cfg.connect == [common["SOILOCP_CONNECT"]]
+            # $SOILOCP_ARGS must be options `soilocp service NAME` accepts
+            ctx = service_cmd.make_context("service", [name, *shlex.split(env.get("SOILOCP_ARGS", ""))])
+            assert ctx.params["name"] == name
+    assert _env_file(SYSTEMD / "env" / "estimation" / "ocp.env")["SOILOCP_STALE_TIMEOUT"] == str(STALE_TIMEOUT_S)
+
+
+def test_systemd_units_pass_systemd_analyze(tmp_path):
+    if shutil.which("systemd-analyze") is None:
+        pytest.skip("systemd-analyze is not installed")
+    exe = Path(sys.executable).parent / "soilocp"
+    if not exe.exists():
+        pytest.skip(f"no soilocp console script next to {sys.executable}")
+    for unit in ("soilocp@.service", "soilocp-router.service", "soilocp.target"):
+        text = (SYSTEMD / unit).read_text()
+        assert unit.endswith(".target") or "/opt/soilocp/bin/soilocp " in text
+        (tmp_path / unit).write_text(text.replace("/opt/soilocp/bin/soilocp", str(exe)))
+    (tmp_path / "soilocp@ocp.service").symlink_to(tmp_path / "soilocp@.service")
+    res = subprocess.run(["systemd-analyze", "verify", "--man=no", "soilocp@ocp.service", "soilocp-router.service",
+                          "soilocp.target"], cwd=tmp_path, capture_output=True, text=True)
+    problems = [line for line in (res.stdout + res.stderr).splitlines() if line.strip()]
+    assert res.returncode == 0 and not problems, problems
