@@ -46,7 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from .normal_force import STANDARD_GRAVITY
 from .vehicle import VehicleParams
 
-Structure = Literal["shared", "per_wheel", "none"]
+Structure = Literal["slip", "shared", "per_wheel", "none"]
 
 
 class ObserverConfig(BaseModel):
@@ -54,11 +54,15 @@ class ObserverConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    structure: Structure = Field("shared", description="shared | per_wheel (paper eq. 26) | none (no MR compensation)")
+    structure: Structure = Field(
+        "slip", description="slip (eq. 4's form, default) | shared | per_wheel (paper eq. 26) | none (no MR compensation)"
+    )
     discretization: Literal["series", "expm"] = Field("series", description="exact ZOH by series (A nilpotent) or expm")
     # process noise: random-walk intensities (per sqrt(s)) of the coefficient states
     q_mu: float = Field(1.0, gt=0, description="Random-walk intensity of mu_i, 1/sqrt(s): slip sweeps move mu by ~1/s")
-    q_resistance: float = Field(0.1, gt=0, description="Random-walk intensity of mu_xR, 1/sqrt(s)")
+    q_resistance: float = Field(0.1, gt=0, description="Random-walk intensity of mu_xR (or its constant part), 1/sqrt(s)")
+    q_resistance_slope: float = Field(0.1, gt=0, description="Random-walk intensity of d mu_xR/dS ('slip' structure), 1/sqrt(s)")
+    p0_resistance_slope: float = Field(0.5, gt=0, description="Initial 1-sigma of d mu_xR/dS ('slip' structure)")
     q_lateral: float = Field(0.3, gt=0, description="Random-walk intensity of mu_yR, 1/sqrt(s)")
     q_wheel_speed: float = Field(0.3, gt=0, description="Unmodelled wheel acceleration, rad/s^2/sqrt(Hz) (torque ripple)")
     q_ground_speed: float = Field(0.1, gt=0, description="Unmodelled CoM acceleration, m/s^2/sqrt(Hz)")
@@ -89,7 +93,7 @@ class StateLayout:
     """Index map of the observer state for a given structure."""
 
     structure: Structure
-    n_res: int  # longitudinal resistance states: 1 (shared), 4 (per wheel) or 0
+    n_res: int  # longitudinal resistance states: 2 (slip), 1 (shared), 4 (per wheel) or 0
     n_lat: int  # lateral resistance states: 1 or 4
 
     @property
@@ -123,16 +127,27 @@ class StateLayout:
 
     @staticmethod
     def of(structure: Structure) -> "StateLayout":
+        if structure == "slip":
+            return StateLayout(structure, 2, 1)
         if structure == "shared":
             return StateLayout(structure, 1, 1)
         if structure == "per_wheel":
             return StateLayout(structure, 4, 4)
         if structure == "none":
             return StateLayout(structure, 0, 1)
-        raise ValueError(f"observer structure must be shared, per_wheel or none, got {structure!r}")
+        raise ValueError(f"observer structure must be slip, shared, per_wheel or none, got {structure!r}")
 
-    def resistance_matrix(self) -> np.ndarray:
-        """(4, n_res) map from resistance states to each wheel's mu_xR."""
+    def resistance_matrix(self, slip=None, bridge: float = 0.005) -> np.ndarray:
+        """(4, n_res) map from resistance states to each wheel's mu_xR.
+
+        ``slip`` structure: mu_xR_i = r0 * sgn(S_i) + r1 * S_i, eq. 4's form C4 + C5/K + C6 |S|/sqrt(K)
+        mirrored for braking (soilocp.traction's odd convention), with sgn smoothed over the
+        zero-slip bridge.  r0, r1 are shared by the wheels (same soil), and the wheels' different
+        slips make them identifiable over time.
+        """
+        if self.n_res == 2:
+            s = np.zeros(4) if slip is None else np.asarray(slip, dtype=float)
+            return np.stack([np.clip(s / bridge, -1.0, 1.0), s], axis=1)
         if self.n_res == 1:
             return np.ones((4, 1))
         if self.n_res == 4:
@@ -145,7 +160,7 @@ N_MEAS = 7
 
 
 def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
-                     pitch: float, g: float = STANDARD_GRAVITY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     pitch: float, g: float = STANDARD_GRAVITY, slip=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A(t), b(t), H(t) of eq. 33, built from eqs. 11-15 and 29 at the current Fz and torques.
 
     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w          (eqs. 13-15)
@@ -163,7 +178,7 @@ def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray
     wheel_gain = -R * fz / Iw
     A[om, layout.mu] = np.diag(wheel_gain)
     if layout.n_res:
-        A[om, layout.res] = wheel_gain[:, None] * layout.resistance_matrix()
+        A[om, layout.res] = wheel_gain[:, None] * layout.resistance_matrix(slip)
     b[om] = torque / Iw
     A[layout.v, layout.mu] = fz / m
     b[layout.v] = g * np.sin(pitch)
@@ -185,6 +200,8 @@ def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.nda
     q = np.zeros(layout.n)
     q[layout.mu] = cfg.q_mu**2
     q[layout.res] = cfg.q_resistance**2
+    if layout.n_res == 2:
+        q[layout.res.start + 1] = cfg.q_resistance_slope**2
     q[layout.lat] = cfg.q_lateral**2
     q[layout.omega] = cfg.q_wheel_speed**2
     q[layout.v] = cfg.q_ground_speed**2
@@ -222,20 +239,27 @@ def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: 
     raise ValueError(f"discretization must be 'series' or 'expm', got {method!r}")
 
 
-def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, tol: float = 1e-9) -> int:
-    """Rank of the observability matrix [H; H F; ...; H F^(n-1)] of the discretised model.
+def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, slips=None, tol: float = 1e-9) -> int:
+    """Rank of the observability matrix [H_0; H_1 F_0; H_2 F_1 F_0; ...] of the discretised model.
 
-    With the paper's full state (``per_wheel``) it is below the state dimension (method-notes §7);
-    with ``shared`` or ``none`` it is full.
+    ``slips`` is a sequence of per-wheel slip vectors, one per step (cycled), for the ``slip``
+    structure whose model varies with slip; by default a traction test's pattern.  With the
+    paper's full state (``per_wheel``) the rank is below the state dimension (method-notes §7);
+    ``slip``, ``shared`` and ``none`` are fully observable (``slip`` only while the wheels' slips
+    vary, as in a traction test: at one constant slip pattern its two resistance coefficients
+    merge into one).
     """
     layout = StateLayout.of(structure)
     fz = np.full(4, vehicle.mass * STANDARD_GRAVITY / 4) if fz is None else np.asarray(fz, float)
-    A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0)
-    F, _, _ = discretize(A, b, np.zeros_like(A), 0.01)
-    blocks, M = [], H
-    for _ in range(layout.n):
-        blocks.append(M)
-        M = M @ F
+    if slips is None:
+        # a traction test: rear wheels (1, 4) sweep driving slip, front wheels (2, 3) brake
+        slips = [(0.3, -0.1, -0.1, 0.3), (0.1, -0.05, -0.05, 0.1), (0.5, -0.2, -0.2, 0.5)]
+    blocks, Phi = [], np.eye(layout.n)
+    for k in range(layout.n):
+        A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0, slip=slips[k % len(slips)])
+        F, _, _ = discretize(A, b, np.zeros_like(A), 0.01)
+        blocks.append(H @ Phi)
+        Phi = F @ Phi
     O = np.vstack(blocks)
     # scale rows so that the tolerance is relative
     O = O / np.maximum(np.linalg.norm(O, axis=1, keepdims=True), 1e-300)
@@ -277,6 +301,7 @@ class TractionObserver:
         self._last_stamp: float | None = None
         self._one = np.ones(1)
         self._rejections = np.zeros(N_MEAS, dtype=int)
+        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -288,6 +313,8 @@ class TractionObserver:
         p = np.zeros(L.n)
         p[L.mu] = c.p0_mu**2
         p[L.res] = c.p0_resistance**2
+        if L.n_res == 2:
+            p[L.res.start + 1] = c.p0_resistance_slope**2
         p[L.lat] = c.p0_lateral**2
         p[L.omega] = c.r_wheel_speed**2
         p[L.v] = c.p0_speed**2
@@ -305,7 +332,8 @@ class TractionObserver:
         dt = None if self._last_stamp is None else stamp - self._last_stamp
         # ZOH over [k-1, k] with the inputs (Fz, T, pitch) of sample k held: the same matrices
         # serve the prediction to k and the measurement model at k.
-        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity)
+        slip = self._state_slip() if self.layout.n_res == 2 and self._last_stamp is not None else None
+        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity, slip)
         if dt is None or dt <= 0 or dt > self.cfg.max_gap:
             self._initialise(omega, ground_speed, yaw_rate)
             reset = True
@@ -332,6 +360,14 @@ class TractionObserver:
         self.steps += 1
         return self.estimate(rejected, reset)
 
+    def _state_slip(self) -> np.ndarray:
+        """Per-wheel slip (eq. 1, floored) of the current estimate: the regressor of the 'slip'
+        structure, taken from the prior so that the model stays linear within a step."""
+        x, L, v = self.kf.x, self.layout, self.vehicle
+        rim = x[L.omega] * v.wheel_radius
+        ground = x[L.v] - x[L.psi] * self._wheel_y
+        return (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
+
     def _condition(self) -> None:
         """Keep P symmetric positive definite (symmetrise, clamp variances) over long runs."""
         P = (self.kf.P + self.kf.P.T) / 2.0
@@ -343,7 +379,7 @@ class TractionObserver:
         L = self.layout
         x, P = self.kf.x, self.kf.P
         mu = x[L.mu].copy()
-        M = L.resistance_matrix()
+        M = L.resistance_matrix(self._state_slip() if L.n_res == 2 else None)
         res = M @ x[L.res] if L.n_res else np.zeros(4)
         # gross_i = mu_i + (M x_res)_i : its variance from the joint covariance
         J = np.zeros((4, L.n))
