@@ -532,9 +532,9 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
             status_pubs[vid] = session.declare_publisher(keys.status(vid, svc.name),
                                                          congestion_control=zenoh.CongestionControl.DROP)
 
-            def _status_query(query, _vid=vid) -> None:
-                try:
-                    query.reply(query.key_expr, svc.health(_vid).model_dump_json())
+            def _status_query(query, _vid=vid, _key=keys.status(vid, svc.name)) -> None:
+                try:  # reply on the concrete key: the query may be a wildcard (soilocp/*/status/*)
+                    query.reply(_key, svc.health(_vid).model_dump_json())
                 except Exception as exc:  # a failed reply must not disturb the service
                     log.warning("status_reply_failed", error=str(exc)[:200])
 

@@ -193,6 +193,9 @@ def test_live_ocp_stream_equals_offline_estimate_and_plain_client_gets_valid_jso
             [payload] = get_payloads(s, f"soilocp/{vid}/status/{name}")
             h = ServiceHealth.model_validate_json(payload)
             assert (h.published, h.dropped, h.errors, h.last_seq) == (1200, 0, 0, 1199), (name, h)
+        # a wildcard get reaches every service of the vehicle (replies on their concrete keys)
+        services = {ServiceHealth.model_validate_json(p).service for p in get_payloads(s, f"soilocp/{vid}/status/*")}
+        assert services == set(PIPELINE)
 
     # a plain eclipse-zenoh client, no project imports, in its own process
     schema_dir = tmp_path / "schemas"
