@@ -69,7 +69,8 @@ class SoilConfig(BaseModel):
 
 @dataclass(frozen=True)
 class SoilState:
-    """What an estimator reports after each step."""
+    """What an estimator reports after each step: K is the belief's median, soil_strength_std
+    and log_k_std half its 16-84 % interval (in K and in ln K)."""
 
     soil_strength: Optional[float]
     soil_strength_std: Optional[float]
@@ -235,10 +236,13 @@ class BayesSoilEstimator:
         used = use
         if any_info:
             self._hold.last_update = stamp
-        mean = float(self.p @ self.theta)
-        log_std = float(np.sqrt(max(self.p @ (self.theta - mean) ** 2, 0.0)))
-        k = math.exp(mean)
-        k_std = float(np.sqrt(max(self.p @ (self.k_grid - self.p @ self.k_grid) ** 2, 0.0)))
+        # Robust summaries: the median and the 16-84 % interval of the belief.  Moments would be
+        # dominated by the small uniform "terrain may change" mass spread over K = 5..5000.
+        cdf = np.cumsum(self.p) - 0.5 * self.p
+        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf, self.theta)
+        log_std = float((t84 - t16) / 2.0)
+        k = math.exp(t50)
+        k_std = float((math.exp(t84) - math.exp(t16)) / 2.0)
         status, reason, (rk, rs, rl) = self._hold.status(stamp, k, k_std, log_std)
         cls = conf = None
         if rk is not None:
