@@ -35,7 +35,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .constants import ModelConstants
-from .observer import N_MEAS, ObserverConfig, StateLayout, continuous_process_noise
+from .observer import N_MEAS, ObserverConfig, StateLayout, TractionObserver, continuous_process_noise
 from .pipeline import LIFT_OFF_FORCE, PipelineConfig
 from .soil_strength import SoilConfig, SoilState, _gate, _HoldLogic, class_bounds, classify
 from .traction import curve_unchecked
@@ -123,20 +123,11 @@ class BatchObserver:
         self.P = np.zeros((n, nx, nx))
         self.last_stamp = np.full(n, np.nan)
         self.rejections = np.zeros((n, N_MEAS), dtype=int)
-        p0 = np.zeros(nx)
-        p0[L.mu] = cfg.p0_mu**2
-        p0[L.res] = cfg.p0_resistance**2
-        p0[L.lat] = cfg.p0_lateral**2
-        p0[L.omega] = cfg.r_wheel_speed**2
-        p0[L.v] = cfg.p0_speed**2
-        p0[L.psi] = cfg.r_yaw_rate**2
-        self._P0 = np.diag(p0)
-        self._M = L.resistance_matrix()
-        J = np.zeros((4, nx))
-        J[:, L.mu] = np.eye(4)
-        if L.n_res:
-            J[:, L.res] = self._M
-        self._J = J
+        # the initial covariance of the single-vehicle observer, taken from it (one definition)
+        one = TractionObserver(vehicle, cfg)
+        one._initialise(np.zeros(4), 0.0, 0.0)
+        self._P0 = np.array(one.kf.P, dtype=float)
+        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         om = np.arange(nx)[L.omega]
         self._om = om
         self._mu = np.arange(nx)[L.mu]
@@ -149,8 +140,26 @@ class BatchObserver:
         H0[6, L.v] = 1.0
         self._H0 = H0
 
-    def model(self, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray):
-        """A (k,n,n), b (k,n), H (k,7,n) of eq. 33 for k vehicles (``observer.continuous_model``)."""
+    def state_slip(self, x: np.ndarray) -> np.ndarray:
+        """Per-wheel slip (eq. 1, floor 0.05 m/s) of states x (k, n): the regressor of the
+        observer's ``slip`` structure (``TractionObserver._state_slip``)."""
+        L = self.layout
+        rim = x[:, L.omega] * self.vehicle.wheel_radius
+        ground = x[:, L.v][:, None] - x[:, L.psi][:, None] * self._wheel_y
+        return (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
+
+    def resistance_matrices(self, slip: Optional[np.ndarray], k: int) -> np.ndarray:
+        """(k, 4, n_res) maps from resistance states to each wheel's mu_xR (``StateLayout.resistance_matrix``,
+        called on the stacked slips so that the definition stays the observer's)."""
+        L = self.layout
+        if L.n_res == 2:
+            s = np.zeros((k, 4)) if slip is None else slip
+            return L.resistance_matrix(s.reshape(-1)).reshape(k, 4, 2)
+        return np.broadcast_to(L.resistance_matrix(), (k, 4, L.n_res))
+
+    def model(self, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray, M: np.ndarray):
+        """A (k,n,n), b (k,n), H (k,7,n) of eq. 33 for k vehicles (``observer.continuous_model``);
+        M (k, 4, n_res) are the resistance maps."""
         L, v, g = self.layout, self.vehicle, self.cfg.gravity
         k = fz.shape[0]
         nx = L.n
@@ -159,7 +168,7 @@ class BatchObserver:
         wheel_gain = -v.wheel_radius * fz / v.wheel_inertia  # eqs. 13-15
         A[:, self._om, self._mu] = wheel_gain
         if L.n_res:
-            A[:, L.omega, L.res] = wheel_gain[:, :, None] * self._M
+            A[:, L.omega, L.res] = wheel_gain[:, :, None] * M
         b[:, L.omega] = torque / v.wheel_inertia
         A[:, L.v, L.mu] = fz / v.mass
         b[:, L.v] = g * np.sin(pitch)
@@ -182,8 +191,12 @@ class BatchObserver:
         cfg, L = self.cfg, self.layout
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
         stamp = inputs.stamp
-        A, b, H = self.model(fz, inputs.wheel_torque, inputs.pitch)
         last = self.last_stamp[ix]
+        slip = None
+        if L.n_res == 2:  # the 'slip' structure: the model's regressor from the prior state
+            slip = self.state_slip(self.x[ix])
+            slip[np.isnan(last)] = 0.0
+        A, b, H = self.model(fz, inputs.wheel_torque, inputs.pitch, self.resistance_matrices(slip, k))
         with np.errstate(invalid="ignore"):
             dt = stamp - last
             reset = np.isnan(last) | ~(dt > 0) | (dt > cfg.max_gap)
@@ -244,14 +257,20 @@ class BatchObserver:
         self.x[ix], self.P[ix] = x, P
         self.last_stamp[ix] = stamp
         mu = x[:, L.mu]
-        res = x[:, L.res] @ self._M.T if L.n_res else np.zeros((k, 4))
+        M = self.resistance_matrices(self.state_slip(x) if L.n_res == 2 else None, k)
+        res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
+        # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance
+        J = np.zeros((k, 4, L.n))
+        J[:, :, L.mu] = np.eye(4)
+        if L.n_res:
+            J[:, :, L.res] = M
         dg = np.arange(L.n)
         return ObserverBatchOutput(
             mu=mu.copy(),
             mu_var=P[:, dg, dg][:, L.mu],
             resistance=res,
             gross=mu + res,
-            gross_var=np.einsum("kil,il->ki", self._J @ P, self._J),
+            gross_var=np.einsum("kil,kil->ki", J @ P, J),
             wheel_speed=x[:, L.omega].copy(),
             ground_speed=x[:, L.v].copy(),
             yaw_rate=x[:, L.psi].copy(),
@@ -352,24 +371,22 @@ class BatchSoil:
             p[rows] = post[ok] / total[ok][:, None]
             info[rows] = True
         self.p[ix] = p
-        mean = p @ self.theta
-        log_var = np.einsum("kg,kg->k", p, (self.theta[None, :] - mean[:, None]) ** 2)
-        mk = p @ self.k_grid
-        k_var = np.einsum("kg,kg->k", p, (self.k_grid[None, :] - mk[:, None]) ** 2)
+        # robust summaries of each belief: median and half the 16-84 % interval (in ln K and K)
+        cdf = np.cumsum(p, axis=1) - 0.5 * p
         masses = p @ self._onehot
         best = masses.argmax(axis=1)
         best_mass = masses[np.arange(k), best].tolist()
         best = best.tolist()
         # per vehicle, plain Python floats from here on (the hold logic is the estimator's own)
         out = []
-        for j, (ixj, st, inf, lv, kv, m, used) in enumerate(zip(ix.tolist(), stamp.tolist(), info.tolist(),
-                                                                   log_var.tolist(), k_var.tolist(), mean.tolist(),
-                                                                   use.tolist())):
+        for j, (ixj, st, inf, used) in enumerate(zip(ix.tolist(), stamp.tolist(), info.tolist(), use.tolist())):
             hold = self._holds[ixj]
             if inf:
                 hold.last_update = st
-            log_std = math.sqrt(max(lv, 0.0))
-            status, reason, (rk, rs, rl) = hold.status(st, math.exp(m), math.sqrt(max(kv, 0.0)), log_std)
+            t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf[j], self.theta)
+            log_std = float((t84 - t16) / 2.0)
+            k_std = float((math.exp(t84) - math.exp(t16)) / 2.0)
+            status, reason, (rk, rs, rl) = hold.status(st, math.exp(t50), k_std, log_std)
             cls = conf = None
             if rk is not None:
                 if not inf:
