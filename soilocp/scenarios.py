@@ -26,7 +26,7 @@ MODES: tuple[str, ...] = ("cruise", "excitation")
 
 @dataclass(frozen=True)
 class SweepParams:
-    """Slip sweep of one axle in ``excitation`` mode (a traction test): that axle's wheels track a
+    """Slip sweep of ``excitation`` mode (a traction test): the front wheels track a
     triangle wave of driving slip (eq. 1) from ``s_min`` up to ``s_max`` and back in ``period``
     seconds, then hold ``s_min`` for ``dwell`` seconds; the FRONT axle sweeps, the rear axle brakes
     to hold the speed.
@@ -42,7 +42,7 @@ class SweepParams:
       vs 298 N), so without the dwell the rover would run away; the dwell at ``s_min`` lets the
       rear pull the speed back every cycle.  The default cycle is 0.8 s of triangle + 0.4 s of
       dwell = 1.2 s; the shorter the triangle, the smaller the speed excursion while the front
-      is near its peak (measured: sand 0.96..1.14 m/s, firm 0.94..1.23 m/s).  A governor still
+      is near its peak (measured, mean 1.00 m/s: sand 0.94..1.08, firm 0.77..1.26).  A governor still
       cuts the sweep if the cycle-mean speed runs away (the truth records the actual set-point).
     """
 
