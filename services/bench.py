@@ -79,9 +79,9 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     if pipelines is None:
         pipelines = ["standard", "batched"] if batch_available() else ["standard"]
     ladder = list(ladder or ((1, 2) if quick else LADDER))
-    d_stage = 6.0 if quick else 30.0
-    d_100, d_1k = (3.0, 1.5) if quick else (20.0, 10.0)
-    d_scale = 2.0 if quick else 8.0
+    d_stage = 3.0 if quick else 30.0
+    d_100, d_1k = (2.0, 1.0) if quick else (20.0, 10.0)
+    d_scale = 1.5 if quick else 8.0
     report: dict[str, Any] = {"quick": quick, "machine": machine_info(), "targets": TARGETS,
                               "command": "soilocp bench" + (" --quick" if quick else "")}
 
@@ -92,7 +92,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report["replay"] = replay_rate(drive_samples)
     if batch_available():
         counts = (1, 10) if quick else (1, 10, 50, 200)
-        report["batch_stages"] = batch_costs(drive_samples, counts, steps=200 if quick else 1000)
+        report["batch_stages"] = batch_costs(drive_samples, counts, steps=100 if quick else 1000)
 
     # drives for the live parts
     n_live = max(d_100, d_scale) + 1.0
@@ -111,7 +111,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
             with open_client(rig.endpoint) as session:
                 rig.wait_ready(session, 90.0)
                 for rate, dur, vid, pl in ((100.0, d_100, "lat100", p100), (1000.0, d_1k, "lat1k", p1k)):
-                    base = ping_pong(session, rate, min(dur, 5.0))
+                    base = ping_pong(session, rate, min(dur, 1.0 if quick else 5.0))
                     win = CpuWindow(rig.pids())
                     res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
                     report["latency"].append({"pipeline": pipe, "rate_hz": rate, "vehicles": 1, "result": res,
@@ -132,7 +132,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
                 rig.start()
                 with open_client(rig.endpoint) as session:
                     rig.wait_ready(session, 120.0)
-                    base = ping_pong(session, 100.0 * n, min(d_scale, 3.0))
+                    base = ping_pong(session, 100.0 * n, 1.0 if quick else 3.0)
                     win = CpuWindow(rig.pids())
                     res = drive(session, {v: _clone(p100, "bench", v) for v in vids}, 100.0, d_scale)
                     procs = win.finish()
