@@ -19,12 +19,12 @@ from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEsti
 from schemas.sensor import SensorSample
 
 from .constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
-from .normal_force import normal_forces
+from .normal_force import NormalForceSolver
 from .observer import ObserverConfig, TractionObserver
 from .ocp import ocp_from_soil_strength
 from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
 from .soil_strength import SoilConfig, make_soil_estimator, slip_uncertainty
-from .traction import curve_unchecked
+from .traction import tractive_efficiency_scalar
 from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -84,9 +84,10 @@ class NormalForceStage:
 
     def __init__(self, config: PipelineConfig):
         self.vehicle = config.vehicle
+        self._solve = NormalForceSolver(config.vehicle)
 
     def step(self, sample: SensorSample) -> NormalForces:
-        fz = normal_forces(self.vehicle, sample.specific_force)
+        fz = self._solve(sample.specific_force)
         return NormalForces(
             vehicle_id=sample.vehicle_id,
             seq=sample.seq,
@@ -200,10 +201,8 @@ class OcpStage:
             return OcpEstimate(mu_T=None, S_T=None, S_E=None, te_at_S_E=None, **common)
         o = ocp_from_soil_strength(soil.soil_strength, self.constants)
         te: Optional[float] = None
-        if 0 < o.S_E < 1:
-            te = float(curve_unchecked("net", np.asarray(o.S_E), np.asarray(o.soil_strength), self.constants)[0]
-                       / curve_unchecked("gross", np.asarray(o.S_E), np.asarray(o.soil_strength), self.constants)[0]
-                       * (1.0 - o.S_E))  # eq. 9 = tractive_efficiency(), without the per-call checks
+        if self.constants.bridge_slip <= o.S_E < 1:
+            te = tractive_efficiency_scalar(o.S_E, o.soil_strength, self.constants)
         return OcpEstimate(mu_T=o.mu_T, S_T=o.S_T, S_E=o.S_E, te_at_S_E=te, **common)
 
 

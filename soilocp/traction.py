@@ -24,6 +24,8 @@ With the paper's C5 = -5 the motion resistance is negative at low slip for K bel
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .checks import as_float_array, positive
@@ -148,3 +150,16 @@ def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, cons
     arrays that already broadcast: the estimators' hot loop, which checks its inputs once."""
     one_sided = _gross_pos if kind == "gross" else _net_pos
     return _odd_bridged_unchecked(one_sided, slip, soil_strength, constants)
+
+
+def tractive_efficiency_scalar(slip: float, soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> float:
+    """Eq. 9 for one driving slip outside the zero-slip bridge (bridge_slip <= S < 1), with ``math``:
+    the OCP stage's per-sample path.  Equal to :func:`tractive_efficiency` there (tested)."""
+    c = constants
+    if not (c.bridge_slip <= slip < 1 and slip > 0) or not soil_strength > 0:
+        raise ValueError(f"slip must be in [bridge_slip, 1) and soil_strength > 0, got {slip!r}, {soil_strength!r}")
+    amp = c.C1 * -math.expm1(-c.C2 * soil_strength)
+    rise = amp * (1.0 - math.exp(-c.C3 * slip))
+    gross = rise + c.C4  # eq. 3
+    net = rise - (c.C5 / soil_strength + c.C6 * slip / math.sqrt(soil_strength))  # eq. 6
+    return net / gross * (1.0 - slip)
