@@ -98,7 +98,7 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
             session = zenoh.open(conf)
         except zenoh.ZError as exc:
             click.echo(f"soilocp fleet status: no router answered on {', '.join(connect)} within {timeout:g} s "
-                       f"({str(exc).splitlines()[0][:160]})", err=True)
+                       f"({str(exc).splitlines()[0].split(' at /')[0][:160]})", err=True)
             return 1
         with session:
             state = FleetState()

@@ -161,7 +161,10 @@ def create_app(hub: DashboardHub):
                     break
                 payload = _dumps(hub.update(cursors))
                 yield f"event: fleet\ndata: {payload}\n\n"
-                await asyncio.sleep(PUSH_PERIOD_S)
+                for _ in range(5):  # wake up often enough to end promptly at shutdown
+                    if hub.stop_event.is_set():
+                        break
+                    await asyncio.sleep(PUSH_PERIOD_S / 5)
 
         return StreamingResponse(stream(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
@@ -183,6 +186,11 @@ def serve(hub: DashboardHub, host: str, port: int) -> int:
     import uvicorn
 
     class _Server(uvicorn.Server):
+        def handle_exit(self, sig, frame) -> None:
+            # end the event streams now, so the graceful shutdown need not cancel them
+            hub.stop_event.set()
+            super().handle_exit(sig, frame)
+
         # uvicorn re-raises a captured signal after its graceful shutdown (a KeyboardInterrupt
         # traceback here); we only want the graceful shutdown.
         @contextlib.contextmanager
@@ -200,7 +208,7 @@ def serve(hub: DashboardHub, host: str, port: int) -> int:
                     signal.signal(s, h)
 
     config = uvicorn.Config(create_app(hub), host=host, port=port, log_level="warning", access_log=False,
-                            lifespan="on", timeout_graceful_shutdown=1, ws="none")
+                            lifespan="on", timeout_graceful_shutdown=2, ws="none")
     server = _Server(config)
     hub.log.info("serving", url=f"http://{host}:{port}/", connect=hub.connect)
     server.run()

@@ -99,8 +99,11 @@ function kPlot(v) {
   const hist = v.history, ta = timeAxis(hist);
   const ks = hist.map((p) => p.K).filter((k) => k !== null);
   const soilKs = Object.values(soils);
-  let lo = Math.min(20, ...ks.map((k) => k / 1.5), ...soilKs.map((k) => k / 1.5));
-  let hi = Math.max(1000, ...ks.map((k) => k * 1.5));
+  // decades around the reference soils and the current K; a transient spike is clipped to the
+  // axis rather than squeezing the whole plot
+  const now = v.row.K;
+  let lo = Math.min(20, ...soilKs.map((k) => k / 1.5), now ? now / 1.5 : 20);
+  let hi = Math.max(1000, ...soilKs.map((k) => k * 1.5), now ? now * 1.5 : 1000);
   lo = Math.pow(10, Math.floor(Math.log10(lo))); hi = Math.pow(10, Math.ceil(Math.log10(hi)));
   const y = logs(lo, hi, H - M.b, M.t);
   const yt = []; for (let d = lo; d <= hi; d *= 10) yt.push(d);
@@ -152,11 +155,15 @@ function curvePlot(v) {
   s += band(xs, c.mu_lo.map(y), c.mu_hi.map(y)) + path(xs, c.mu.map(y), "k");
   if (r.S_T !== null) s += `<line class="vST" x1="${x(r.S_T)}" x2="${x(r.S_T)}" y1="${M.t}" y2="${H - M.b}"/><text x="${x(r.S_T) + 3}" y="${H - M.b - 4}">S_T</text>`;
   if (r.S_E !== null && r.S_E >= s0 && r.S_E <= s1) s += `<line class="vSE" x1="${x(r.S_E)}" x2="${x(r.S_E)}" y1="${M.t}" y2="${H - M.b}"/><text x="${x(r.S_E) + 3}" y="${M.t + 10}">S_E</text>`;
-  for (const w of v.wheels || []) {
-    if (w.slip === null || w.mu === null) continue;
+  (v.wheels || []).forEach((w, i) => {
+    if (w.slip === null || w.mu === null) return;
     const px = x(Math.min(s1, Math.max(s0, w.slip))), py = y(w.mu);
-    s += `<circle class="wheel" cx="${px.toFixed(1)}" cy="${py.toFixed(1)}" r="4"/><text class="wheel-label" x="${(px + 5).toFixed(1)}" y="${(py - 4).toFixed(1)}">${w.wheel}</text>`;
-  }
+    // each label in its wheel's corner (LR below-left, LF above-left, RF above-right, RR below-right),
+    // so that wheels at nearly the same operating point stay readable
+    const [dx, dy, anchor] = [[-6, 13, "end"], [-6, -5, "end"], [6, -5, "start"], [6, 13, "start"]][i];
+    s += `<circle class="wheel" cx="${px.toFixed(1)}" cy="${py.toFixed(1)}" r="4"/>` +
+      `<text class="wheel-label" x="${(px + dx).toFixed(1)}" y="${(py + dy).toFixed(1)}" text-anchor="${anchor}">${w.wheel}</text>`;
+  });
   s += `<text x="${W - M.r + 4}" y="${M.t + 10}">K=${c.K.toFixed(0)}</text>`;
   return svg(s);
 }
