@@ -167,31 +167,13 @@ DEFAULT_CONTROLLER = ControllerParams()
 DEFAULT_SIM = SimParams()
 
 
-def slip_and_partials(omega, v_wheel, wheel_radius: float, floor: float = DEFAULT_FLOOR):
-    """Eq. 1 exactly as :func:`soilocp.slip.slip_ratio` (denominator floored, method-notes §6/§10),
-    plus its partial derivatives dS/d omega and dS/dV for the Newton Jacobian.
-
-    Returns (S, dS/d omega, dS/dV).  Branches: rim faster (D = |rho|): S = 1 - V/rho;
-    ground faster (D = |V|): S = rho/V - 1; both below the floor: S = (rho - V)/floor.
-    """
-    rho = omega * wheel_radius
-    arho, av = np.abs(rho), np.abs(v_wheel)
-    d = np.maximum(np.maximum(arho, av), floor)
-    s = (rho - v_wheel) / d
-    rim = (arho >= av) & (arho >= floor)
-    gnd = ~rim & (av >= floor)
-    inv_d2 = 1.0 / (d * d)
-    ds_drho = np.where(rim, v_wheel * np.sign(rho) * inv_d2, 1.0 / d)
-    ds_dv = np.where(gnd, -rho * np.sign(v_wheel) * inv_d2, -1.0 / d)
-    return s, ds_drho * wheel_radius, ds_dv
-
-
 class _TractionTable:
     """Gross (eq. 3) and net (eq. 6) traction and their slip derivatives, sampled from
     :mod:`soilocp.traction` on a uniform slip grid per soil strength and linearly interpolated.
 
     The integrator's inner loop is scalar Python (four wheels: numpy's per-call overhead would
-    dominate), so the tables are Python lists indexed in O(1).
+    dominate), so the tables are Python lists on a uniform grid, indexed in O(1) by
+    ``_Run._substep``: j = int((S + SPAN) / STEP), then linear interpolation.
     """
 
     STEP = 1e-4
@@ -211,23 +193,6 @@ class _TractionTable:
             mu, dmu, _ = net_traction_with_derivatives(self.grid, k, self.constants)
             self._tabs[k] = (g.tolist(), dg.tolist(), mu.tolist(), dmu.tolist())
         return self._tabs[k]
-
-    def lookup(self, s: float, tabs) -> tuple[float, float, float, float]:
-        u = (s + self.SPAN) / self.STEP
-        if u <= 0.0:
-            i, fr = 0, 0.0
-        elif u >= self.n - 1:
-            i, fr = self.n - 2, 1.0
-        else:
-            i = int(u)
-            fr = u - i
-        g, dg, mu, dmu = tabs
-        return (
-            g[i] + fr * (g[i + 1] - g[i]),
-            dg[i] + fr * (dg[i + 1] - dg[i]),
-            mu[i] + fr * (mu[i + 1] - mu[i]),
-            dmu[i] + fr * (dmu[i + 1] - dmu[i]),
-        )
 
 
 def _smoothstep(x: float) -> float:
@@ -461,7 +426,8 @@ class _Run:
                 lzV += ax[i] * zV
                 lzr += ax[i] * zr
                 vi = V - r * yi
-                # eq. 1 (slip_ratio's floored denominator) and its partials
+                # eq. 1 exactly as soilocp.slip.slip_ratio (floored denominator; the truth test
+                # checks the reported slip against slip_ratio) and its partials for the Jacobian
                 rho = wi * R
                 arho, av = abs(rho), abs(vi)
                 d = max(arho, av, floor)
@@ -475,7 +441,7 @@ class _Run:
                 else:
                     sw = R / d
                     sv = -1.0 / d
-                # table lookup (inlined _TractionTable.lookup: this loop is the hot path)
+                # _TractionTable lookup, inline (this loop is the hot path)
                 u = (s + span) * inv_step
                 if u <= 0.0:
                     j, fr = 0, 0.0
