@@ -6,7 +6,8 @@
 # 1. the base image: BASE_IMAGE (default soilocp-base:local) is built by build-base-image.sh
 #    unless it exists already (a BASE_IMAGE of another name, e.g. python:3.11-slim, must be
 #    present locally or pullable);
-# 2. deploy/wheelhouse/: every dependency wheel (+ the build backend) by `pip wheel` on the host,
+# 2. deploy/wheelhouse/: every dependency wheel (+ the build backend) by `pip wheel` on the host
+#    (requirements read from pyproject.toml),
 #    reusing the wheels already there when they still satisfy the requirements (no index query);
 # 3. `docker build` of the Dockerfile as SOILOCP_IMAGE (default soilocp:local).
 # Environment: BASE_IMAGE, SOILOCP_IMAGE, PYTHON (interpreter whose pip builds the wheels; must be
@@ -52,16 +53,28 @@ fi
 wheelhouse="$root/deploy/wheelhouse"
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
-reqs=("$root" "setuptools>=68" "wheel")   # the build backend too: the image builds soilocp offline
+# The requirements: soilocp's own dependencies (read from pyproject.toml, so the project itself
+# is not built here: the image installs it from source) plus its build backend.
+mapfile -t reqs < <("$PYTHON" - "$root/pyproject.toml" <<'PY'
+import sys, tomllib
+with open(sys.argv[1], "rb") as fh:
+    data = tomllib.load(fh)
+for req in data["project"]["dependencies"] + data["build-system"]["requires"]:
+    print(req)
+PY
+)
 if "$PYTHON" -m pip wheel -q --no-index --find-links "$wheelhouse" -w "$tmp" "${reqs[@]}" >/dev/null 2>&1; then
     echo "build-images: wheelhouse up to date (no index query)"
 else
     rm -f "$tmp"/*.whl
     "$PYTHON" -m pip wheel -q --find-links "$wheelhouse" -w "$tmp" "${reqs[@]}"
 fi
-rm -f "$tmp"/soilocp-*.whl     # the image installs soilocp itself from the source tree
-rm -f "$wheelhouse"/*.whl
-mv "$tmp"/*.whl "$wheelhouse"/
+# replace the wheelhouse only if its set of wheels changed (untouched files keep the image's
+# dependency layer cached)
+if [[ "$(cd "$tmp" && ls *.whl)" != "$(cd "$wheelhouse" && ls *.whl 2>/dev/null)" ]]; then
+    rm -f "$wheelhouse"/*.whl
+    mv "$tmp"/*.whl "$wheelhouse"/
+fi
 echo "build-images: $(ls "$wheelhouse"/*.whl | wc -l) wheels, $(du -sh "$wheelhouse" | cut -f1) in deploy/wheelhouse"
 t2=$(date +%s)
 

@@ -121,7 +121,9 @@ class Fleet:
         self.project = f"soilocpt{secrets.token_hex(3)}"
         self.port = _free_port()
         self.env = dict(os.environ, BASE_IMAGE=BASE, SOILOCP_IMAGE=IMAGE, SOILOCP_FLEET_PORT=str(self.port),
-                        SOILOCP_DASHBOARD_PORT=str(_free_port()), SOILOCP_RATE="50")
+                        SOILOCP_DASHBOARD_PORT=str(_free_port()),
+                        SOILOCP_RATE="25")  # 16 containers on a 2-core machine: a light sensor rate
+        self.dashboard_port = int(self.env["SOILOCP_DASHBOARD_PORT"])
         self.out = tmp / "probe-fleet.jsonl"
         self.probe: Optional[subprocess.Popen] = None
 
@@ -174,6 +176,26 @@ class Fleet:
         self.run("down", "-v", "--remove-orphans", "-t", "5", timeout=300, check=False)
 
 
+def _wait_dashboard(port: int, timeout: float) -> float:
+    """Seconds until the dashboard's GET /api/vehicles lists every vehicle (fails on timeout)."""
+    import urllib.error
+    import urllib.request
+
+    t0, last = time.time(), "no answer"
+    while time.time() - t0 < timeout:
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/vehicles", timeout=5) as resp:
+                body = json.loads(resp.read())
+            seen = {row.get("vehicle_id") for row in body.get("vehicles", [])}
+            if set(VEHICLES) <= seen:
+                return time.time() - t0
+            last = f"vehicles {sorted(map(str, seen))}"
+        except (OSError, urllib.error.URLError, ValueError) as exc:
+            last = f"{type(exc).__name__}: {exc}"
+        time.sleep(1.0)
+    pytest.fail(f"the dashboard did not list {VEHICLES} within {timeout:.0f} s ({last})")
+
+
 def fresh(vid: str, after: float = 0.0) -> Callable[[list[dict]], bool]:
     return lambda recs: any(r["kind"] == "query" and r["vid"] == vid and r["t"] > after and r["stale"] is False
                             for r in recs)
@@ -212,6 +234,13 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
         times["both vehicles fresh at the fleet"] = fleet.wait(
             "fresh OCPs of both vehicles at the fleet", lambda r: fresh("rover1")(r) and fresh("rover2")(r), 300
         ) + times["compose up"]
+
+        # the dashboard on the fleet network, if the image has the command (see docs/deploy.md)
+        has_dashboard = subprocess.run(["docker", "exec", fleet.container("fleet-router"), "soilocp", "dashboard",
+                                        "--help"], capture_output=True, timeout=120).returncode == 0
+        if has_dashboard:
+            times["dashboard lists both vehicles"] = _wait_dashboard(fleet.dashboard_port, 120) + \
+                times["both vehicles fresh at the fleet"]
 
         # 2. health checks, as docker runs them, in a service and in a router container
         for service in ("rover1-ocp", "fleet-router"):
@@ -263,7 +292,6 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
         times["rover1 OCPs at the fleet after reconnect"] = time.time() - t_join
         time.sleep(1.0)
         assert fleet.stop_probe() == 0
-        ps = fleet.run("ps").stdout
     finally:
         fleet.down()
 
@@ -282,8 +310,8 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
     print(f"  image build {image_build_seconds:.1f} s")
     for name, value in times.items():
         print(f"  {name}: {value:.2f} s")
-    print("  (dashboard: " + ("running" if " dashboard" in ps and "Up" in ps.split("dashboard", 1)[1][:200]
-                             else "not running: see the report") + ")")
+    if not has_dashboard:
+        print("  dashboard: the image's soilocp has no 'dashboard' command: not checked")
 
 
 # ---------------------------------------------------------------------------------------------
