@@ -21,9 +21,9 @@ from schemas.messages import OcpReply, Rejection, ServiceHealth
 from schemas.pipeline import OcpEstimate
 
 from zenoh_helpers import (PIPELINE, Procs, alive_services, client, endpoint, free_port, get_payloads,
-                            start_pipeline, wait_alive, wait_for, write_log)
+                            start_pipeline, wait_alive, wait_count, wait_for, write_log)
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = pytest.mark.timeout(240)  # generous: other suites may load the machine
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +65,11 @@ class Collector:
     def models(self, cls):
         with self.lock:
             return [cls.model_validate_json(b) for b in self.items]
+
+
+def _healths(session, vid: str) -> list[str]:
+    """Every service's health of a vehicle, for failure messages."""
+    return [p.decode()[:400] for p in get_payloads(session, f"soilocp/{vid}/status/*")]
 
 
 def _offline_estimates(log: Path, out: Path) -> list[dict]:
@@ -182,7 +187,7 @@ def test_live_ocp_stream_equals_offline_estimate_and_plain_client_gets_valid_jso
         v = procs.spawn("vehicle", ["service", "vehicle", "--vehicle-id", vid, "--connect", router,
                                     "--replay", str(log), "--speed", "4"])
         assert v.wait(60) == 0, procs.log_text("vehicle")
-        assert wait_for(lambda: len(got) >= len(offline), 30), (len(got), len(offline))
+        assert wait_count(lambda: len(got), len(offline)), (len(got), len(offline), _healths(s, vid))
         time.sleep(0.3)  # nothing more may arrive
         sub.undeclare()
         live = got.models(OcpEstimate)
@@ -297,8 +302,8 @@ def test_hostile_samples_rejected_with_reasons_and_good_ocps_unchanged(router, p
                 pub.put(payload)
             if n % 4 == 0:
                 time.sleep(0.004)  # ~1000 samples/s: faster than real time, within the queues
-        assert wait_for(lambda: len(ocps) >= len(offline) and len(rejs) >= len(expected_codes), 30), \
-            (len(ocps), len(rejs))
+        assert wait_count(lambda: len(ocps), len(offline)), (len(ocps), _healths(s, vid))
+        assert wait_for(lambda: len(rejs) >= len(expected_codes), 10), (len(rejs), len(expected_codes))
         time.sleep(0.3)
         s1.undeclare()
         s2.undeclare()
@@ -327,7 +332,7 @@ def test_hostile_samples_rejected_with_reasons_and_good_ocps_unchanged(router, p
 def test_kill9_of_a_service_and_restart_resumes_ocps_and_flags_stale(router, procs, tmp_path):
     vid = "restart1"
     log = tmp_path / "drive.jsonl"
-    write_log(log, vid, duration=20.0, scenario="mixed")
+    write_log(log, vid, duration=40.0, scenario="mixed")  # long enough for a slow restart under load
     start_pipeline(procs, router, vid, extra=["--stale-timeout", "0.5"])
     ocps, status = Collector(), Collector()
     with client(router) as s:
@@ -353,7 +358,7 @@ def test_kill9_of_a_service_and_restart_resumes_ocps_and_flags_stale(router, pro
 
         procs.spawn("observer", ["service", "observer", "--vehicle-id", vid, "--connect", router])
         n_before = len(ocps)
-        assert wait_for(lambda: len(ocps) >= n_before + 100, 40), "OCPs did not resume after the restart"
+        assert wait_for(lambda: len(ocps) >= n_before + 100, 90), "OCPs did not resume after the restart"
 
         def fresh():
             [p] = get_payloads(s, f"soilocp/{vid}/ocp")
@@ -446,7 +451,7 @@ def test_router_restart_services_rejoin_and_ocps_resume(procs, tmp_path):
     vid = "rejoin1"
     ep = endpoint(free_port())
     log = tmp_path / "drive.jsonl"
-    write_log(log, vid, duration=20.0, scenario="sand")
+    write_log(log, vid, duration=40.0, scenario="sand")
     procs.spawn("router", ["router", "--listen", ep])
     start_pipeline(procs, ep, vid)
     ocps = Collector()
@@ -466,7 +471,7 @@ def test_router_restart_services_rejoin_and_ocps_resume(procs, tmp_path):
     after = Collector()
     with client(ep) as s:
         s.declare_subscriber(f"soilocp/{vid}/ocp", after)
-        assert wait_for(lambda: len(after) >= 100, 40), "OCPs did not resume after the router restart"
+        assert wait_for(lambda: len(after) >= 100, 90), "OCPs did not resume after the router restart"
         assert wait_alive(s, vid, timeout=10)
     seqs = [e.seq for e in after.models(OcpEstimate)]
     assert seqs[0] > seq_at_kill and seqs == sorted(seqs)

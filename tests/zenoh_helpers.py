@@ -130,7 +130,7 @@ def alive_services(session, vid: str) -> set[str]:
     return out
 
 
-def wait_alive(session, vid: str, services: Iterable[str] = PIPELINE, timeout: float = 60.0) -> bool:
+def wait_alive(session, vid: str, services: Iterable[str] = PIPELINE, timeout: float = 120.0) -> bool:
     want = set(services)
     return bool(wait_for(lambda: want <= alive_services(session, vid), timeout, interval=0.2))
 
@@ -151,3 +151,19 @@ def write_log(path: Path, vid: str, duration: float, scenario: str = "sandy-slop
     lines = [s.model_dump_json() for s, _t in simulate(scenario, duration=duration, seed=seed, vehicle_id=vid)]
     path.write_text("\n".join(lines) + "\n")
     return lines
+
+
+def wait_count(count: Callable[[], int], target: int, *, stall_s: float = 20.0, overall_s: float = 100.0) -> bool:
+    """Wait until ``count() >= target``, failing only if it stops growing for ``stall_s`` (a loaded
+    machine is slow, not broken) or after ``overall_s``."""
+    start = last_change = time.monotonic()
+    last = count()
+    while last < target:
+        time.sleep(0.1)
+        now = time.monotonic()
+        n = count()
+        if n != last:
+            last, last_change = n, now
+        elif now - last_change > stall_s or now - start > overall_s:
+            return False
+    return True
