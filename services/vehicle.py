@@ -22,10 +22,19 @@ from .runtime import Service
 
 
 def replay_source(path: str, duration: Optional[float] = None) -> Iterator[tuple[bytes, Optional[float]]]:
-    """Lines of a sensor log as ``(payload, stamp or None)``; blank lines are skipped."""
+    """Lines of a sensor log as ``(payload, stamp or None)``; blank lines are skipped.
+
+    Not a generator itself: a missing file or a bad duration raises ValueError here, at startup.
+    """
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"replay file {path!r} does not exist or is not a file")
+    if duration is not None and not duration > 0:
+        raise ValueError(f"duration {duration!r}: must be > 0 s")
+    return _replay_lines(p, duration)
+
+
+def _replay_lines(p: Path, duration: Optional[float]) -> Iterator[tuple[bytes, Optional[float]]]:
     first: Optional[float] = None
     with p.open("rb") as fh:
         for line in fh:
