@@ -29,7 +29,7 @@ from schemas.pipeline import OcpEstimate
 
 from .runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
 
-STOP_TIMEOUT_S = 3.0
+STOP_TIMEOUT_S = 5.0  # services stop in < 2 s; the margin is for a heavily loaded machine
 
 
 @dataclass
