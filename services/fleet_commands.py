@@ -114,9 +114,13 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
                                err=True)
                     return 1
                 return 0
+            import contextlib
+
             from rich.live import Live
 
-            with Live(console=console, refresh_per_second=4, transient=False) as live:
+            # JSON lines go straight to stdout; the table is redrawn in place
+            live_view = contextlib.nullcontext() if as_json else Live(console=console, refresh_per_second=4)
+            with live_view as live:
                 while not stop.is_set():
                     query_fleet(session, state, min(timeout, interval), misses=2)
                     rows = state.rows()

@@ -256,7 +256,24 @@ def test_fleet_status_json_table_and_no_answer(fleet):
             "table": _fleet_start("--connect", fleet.router, "--timeout", "3"),
             "empty": _fleet_start("--connect", fleet.empty_router, "--timeout", "1", "--json"),
             "no-router": _fleet_start("--connect", endpoint(free_port()), "--timeout", "1")}
+    watch = _fleet_start("--connect", fleet.router, "--watch", "--json", "--timeout", "2")
     res = {name: _finish(p) for name, p in runs.items()}
+    # --watch: one JSON object per refresh until SIGINT, then a clean exit 0
+    lines = []
+    try:
+        for line in watch.stdout:
+            lines.append(json.loads(line))
+            if len(lines) == 3:
+                break
+        watch.send_signal(signal.SIGINT)
+        out, err = watch.communicate(timeout=30)
+    finally:
+        if watch.poll() is None:
+            watch.kill()
+            watch.wait()
+    assert len(lines) == 3 and watch.returncode == 0, (lines, err)
+    assert lines[0]["time"] < lines[1]["time"] < lines[2]["time"]
+    assert all({v["vehicle_id"] for v in doc["vehicles"]} == set(VEHICLES) for doc in lines)
 
     r = res["json"]
     assert r.returncode == 0, r.stderr
