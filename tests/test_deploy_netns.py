@@ -162,7 +162,7 @@ def vehicle_netns():
 
 @pytest.mark.netns
 @pytest.mark.slow
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(600)
 def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, tmp_path):
     run_id = vehicle_netns
     procs = Processes(run_id, tmp_path)
@@ -187,7 +187,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
 
         startup = _wait("fresh OCPs on the estimation unit and at the fleet",
                         lambda: any(r["kind"] == "query" and r["stale"] is False for r in _records(unit_probe))
-                        and any(r["kind"] == "sample" for r in _records(fleet_probe)), 150, procs)
+                        and any(r["kind"] == "sample" for r in _records(fleet_probe)), 360, procs)
         print(f"\nnetns run {run_id}: pipeline up across 3 namespaces in {startup:.1f} s")
         time.sleep(2.0)
 
@@ -203,7 +203,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
             fleet_ok = any(r["kind"] == "sample" and r["t"] > t_restore for r in _records(fleet_probe))
             return unit_ok and fleet_ok
 
-        _wait("fresh OCPs again after the link came back", recovered, 30, procs)
+        _wait("fresh OCPs again after the link came back", recovered, 60, procs)
         time.sleep(2.0)  # a tail of normal operation: catch a late reorder or crash
         dead = procs.dead()
         assert not dead, f"processes died: {dead}\n" + "\n".join(procs.tail(n) for n in dead)
