@@ -29,6 +29,8 @@ from schemas.pipeline import OcpEstimate
 
 from .runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
 
+DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
+DRAIN_MAX_S = 30.0
 STOP_TIMEOUT_S = 5.0  # services stop in < 2 s; the margin is for a heavily loaded machine
 
 
@@ -519,7 +521,11 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
             if opts.duration is not None and elapsed >= opts.duration + 15.0:
                 break
             if source_done_at is not None and now - source_done_at > 1.0:
-                break  # the last samples have had time to run through the pipeline
+                # drained: the OCP stream has gone quiet (a loaded machine may lag the source by
+                # seconds), or a bound in case nothing comes out at all
+                quiet = snap["age"] is None or snap["age"] > DRAIN_QUIET_S
+                if quiet or now - source_done_at > DRAIN_MAX_S:
+                    break
     finally:
         if live:
             live.stop()
