@@ -73,7 +73,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
               log=print) -> dict[str, Any]:
     """Run every part and return the report (a JSON-able dict)."""
     from .bench_live import CpuWindow, Rig, drive, open_client, ping_pong
-    from .bench_stages import batch_costs, replay_rate, simulate_drive, stage_costs
+    from .bench_stages import batch_costs, cpu_share, replay_rate, simulate_drive, stage_costs
 
     t_start = time.monotonic()
     if pipelines is None:
@@ -85,6 +85,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report: dict[str, Any] = {"quick": quick, "machine": machine_info(), "targets": TARGETS,
                               "command": "soilocp bench" + (" --quick" if quick else "")}
 
+    report["machine"]["cpu_share_start"] = cpu_share()["share"]
     # 1. stages in process
     log(f"bench: simulating a {d_stage:.0f} s drive (mixed) for the stage costs")
     drive_samples = simulate_drive("bench", d_stage)
@@ -92,7 +93,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report["replay"] = replay_rate(drive_samples)
     if batch_available():
         counts = (1, 10) if quick else (1, 10, 50, 200)
-        report["batch_stages"] = batch_costs(drive_samples, counts, steps=100 if quick else 1000)
+        report["batch_stages"] = batch_costs(drive_samples, counts, steps=100 if quick else 300)
 
     # drives for the live parts
     n_live = max(d_100, d_scale) + 1.0
@@ -149,6 +150,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
             best = n
         report["scale"][pipe] = {"steps": steps, "max_vehicles": best}
     report["machine"]["load_end"] = list(os.getloadavg())
+    report["machine"]["cpu_share_end"] = cpu_share()["share"]
     report["elapsed_s"] = time.monotonic() - t_start
     report["verdict"] = verdict(report)
     return report
@@ -185,22 +187,30 @@ def render(report: dict[str, Any], console) -> None:
     m = report["machine"]
     console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} "
                   f"-> {_f(m.get('load_end', [float('nan')])[0])}, python {m['python']}, zenoh {m['zenoh']}")
+    console.print(f"share of a core a busy thread of the bench got: {_f(m.get('cpu_share_start'))} at the start, "
+                  f"{_f(m.get('cpu_share_end'))} at the end (1.00 = idle machine; wall-clock figures scale with it, "
+                  "CPU figures do not)")
 
-    t = Table(title="1. stage cost in process, µs per sample (real simulated drive)", title_justify="left")
-    for c in ("stage", "median", "p99", "n"):
+    t = Table(title="1. stage cost in process, µs per sample (real simulated drive): wall clock and thread CPU time",
+              title_justify="left")
+    for c in ("stage", "wall median", "wall p99", "CPU median", "CPU p99", "n"):
         t.add_column(c, justify="left" if c == "stage" else "right")
     for name, st in report["stages"].items():
-        t.add_row(name, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), str(st["n"]))
+        t.add_row(name, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), _f(st.get("cpu_p50"), ".0f"),
+                  _f(st.get("cpu_p99"), ".0f"), str(st["n"]))
     console.print(t)
     rp = report["replay"]
     console.print(f"offline replay (estimate_lines): {rp['samples']} samples in {_f(rp['seconds'])} s = "
-                  f"{_f(rp['samples_per_s'], '.0f')} samples/s = {_f(rp['x_real_time'], '.1f')}x real time at 100 Hz")
+                  f"{_f(rp['samples_per_s'], '.0f')} samples/s = {_f(rp['x_real_time'], '.1f')}x real time at 100 Hz "
+                  f"(per CPU second: {_f(rp.get('samples_per_cpu_s'), '.0f')} samples = "
+                  f"{_f(rp.get('x_real_time_cpu'), '.1f')}x real time)")
     if "batch_stages" in report:
         t = Table(title="batched observer + soil + OCP (soilocp.batch), µs per vehicle-sample", title_justify="left")
-        for c in ("vehicles stepped together", "median", "p99"):
+        for c in ("vehicles stepped together", "wall median", "wall p99", "CPU median", "CPU p99"):
             t.add_column(c, justify="right")
         for n, st in report["batch_stages"].items():
-            t.add_row(n, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"))
+            t.add_row(n, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), _f(st.get("cpu_p50"), ".0f"),
+                      _f(st.get("cpu_p99"), ".0f"))
         console.print(t)
 
     t = Table(title="2. sample -> OCP latency over Zenoh, ms (baseline: ping-pong through the same router)",

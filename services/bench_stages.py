@@ -59,20 +59,21 @@ def stage_costs(samples: Sequence[SensorSample], config=None) -> dict[str, dict[
     validator = SampleValidator()
     lines = [s.model_dump_json().encode() for s in samples]
     times: dict[str, list[float]] = {k: [] for k in STAGES}
-    clock = time.perf_counter_ns
+    cpu: dict[str, list[float]] = {k: [] for k in STAGES}
+    wall, tcpu = time.perf_counter_ns, time.thread_time_ns
     for line in lines:
-        t0 = clock()
+        stamps = [(wall(), tcpu())]
         sample = parse_sample(line)
         validator.check(sample)
-        t1 = clock()
+        stamps.append((wall(), tcpu()))
         nf = pipe.normal.step(sample)
-        t2 = clock()
+        stamps.append((wall(), tcpu()))
         ob = pipe.observer.step(sample, nf)
-        t3 = clock()
+        stamps.append((wall(), tcpu()))
         so = pipe.soil.step(ob)
-        t4 = clock()
+        stamps.append((wall(), tcpu()))
         oc = pipe.ocp.step(so)
-        t5 = clock()
+        stamps.append((wall(), tcpu()))
         # one encode + decode per internal hop, as the services do (clean sample, forces,
         # observer output, soil estimate, OCP)
         SensorSample.model_validate_json(sample.model_dump_json())
@@ -80,13 +81,31 @@ def stage_costs(samples: Sequence[SensorSample], config=None) -> dict[str, dict[
         ObserverOutput.model_validate_json(ob.model_dump_json())
         SoilEstimate.model_validate_json(so.model_dump_json())
         oc.model_dump_json()
-        t6 = clock()
-        for name, a, b in zip(STAGES, (t0, t1, t2, t3, t4, t5), (t1, t2, t3, t4, t5, t6)):
-            times[name].append((b - a) / 1000.0)
+        stamps.append((wall(), tcpu()))
+        for i, name in enumerate(STAGES):
+            times[name].append((stamps[i + 1][0] - stamps[i][0]) / 1000.0)
+            cpu[name].append((stamps[i + 1][1] - stamps[i][1]) / 1000.0)
     out = {name: summarize(v) for name, v in times.items()}
-    total = [sum(times[k][i] for k in STAGES) for i in range(len(lines))]
-    out["total"] = summarize(total)
+    # CPU time of the thread: what the stage costs, whatever else the machine is running
+    for name, v in cpu.items():
+        c = summarize(v)
+        out[name].update(cpu_p50=c["p50"], cpu_p99=c["p99"], cpu_mean=c["mean"])
+    n = len(lines)
+    out["total"] = summarize([sum(times[k][i] for k in STAGES) for i in range(n)])
+    c = summarize([sum(cpu[k][i] for k in STAGES) for i in range(n)])
+    out["total"].update(cpu_p50=c["p50"], cpu_p99=c["p99"], cpu_mean=c["mean"])
     return out
+
+
+def cpu_share(seconds: float = 0.3) -> dict[str, float]:
+    """How much of a core this process gets right now: CPU time / wall time of a busy loop
+    (1.0 on an idle machine; 0.1 when ten runnable threads share the core)."""
+    w0, c0 = time.perf_counter(), time.thread_time()
+    x = 0
+    while time.perf_counter() - w0 < seconds:
+        x += 1
+    wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+    return {"wall_s": wall, "cpu_s": cpu, "share": cpu / wall if wall > 0 else float("nan")}
 
 
 def replay_rate(samples: Sequence[SensorSample], config=None, rate_hz: float = 100.0) -> dict[str, Any]:
@@ -95,11 +114,13 @@ def replay_rate(samples: Sequence[SensorSample], config=None, rate_hz: float = 1
     from soilocp.pipeline import PipelineConfig
 
     lines = [s.model_dump_json() for s in samples]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     n = sum(1 for _ in estimate_lines(lines, config or PipelineConfig()))
-    dt = time.perf_counter() - t0
+    dt, dc = time.perf_counter() - t0, time.thread_time() - c0
     sps = n / dt if dt > 0 else float("inf")
-    return {"samples": n, "seconds": dt, "samples_per_s": sps, "x_real_time": sps / rate_hz, "rate_hz": rate_hz}
+    cps = n / dc if dc > 0 else float("inf")  # per CPU second: the rate on an idle core
+    return {"samples": n, "seconds": dt, "cpu_seconds": dc, "samples_per_s": sps, "x_real_time": sps / rate_hz,
+            "samples_per_cpu_s": cps, "x_real_time_cpu": cps / rate_hz, "rate_hz": rate_hz}
 
 
 def batch_costs(samples: Sequence[SensorSample], counts: Sequence[int], config=None,
@@ -118,10 +139,14 @@ def batch_costs(samples: Sequence[SensorSample], counts: Sequence[int], config=N
         bp = BatchPipeline(cfg, n)
         idx = np.arange(n)
         per: list[float] = []
+        per_cpu: list[float] = []
         for s, fz in zip(samples, forces):
             block = BatchPipeline.inputs_from_samples([s] * n, [fz] * n)
-            t0 = time.perf_counter_ns()
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
             bp.step(idx, block)
             per.append((time.perf_counter_ns() - t0) / 1000.0 / n)
+            per_cpu.append((time.thread_time_ns() - c0) / 1000.0 / n)
         out[str(n)] = summarize(per)
+        c = summarize(per_cpu)
+        out[str(n)].update(cpu_p50=c["p50"], cpu_p99=c["p99"], cpu_mean=c["mean"])
     return out

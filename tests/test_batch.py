@@ -108,3 +108,62 @@ def test_bad_arguments_are_named():
         bp.step(np.array([0, 1]), bad)
     with pytest.raises(ValueError, match="soil_strength"):
         ocp_batch(np.array([10.0, -1.0]), PipelineConfig().constants)
+
+
+@pytest.mark.timeout(300)
+def test_batch_service_stream_equals_offline_estimate():
+    """gateway + normal-force + the batched OCP service (services.batch_services) as real processes
+    behind a real router: two vehicles' live OCP streams equal ``estimate_lines`` offline."""
+    import json
+    import threading
+    import time
+
+    import zenoh
+
+    from schemas import keys
+    from services.bench_live import Rig, open_client
+    from soilocp.estimate import estimate_lines
+
+    vids = ["bx1", "bx2"]
+    logs = {v: [s.model_dump_json() for s, _t in simulate(sc, duration=3.0, seed=i, vehicle_id=v)]
+            for i, (v, sc) in enumerate(zip(vids, ("sandy-slope", "mixed")))}
+    offline = {v: list(estimate_lines(lines, PipelineConfig())) for v, lines in logs.items()}
+    got: dict[str, list[dict]] = {v: [] for v in vids}
+    lock = threading.Lock()
+
+    def on_ocp(sample):
+        vid = str(sample.key_expr).split("/")[1]
+        with lock:
+            got[vid].append(json.loads(sample.payload.to_bytes()))
+
+    rig = Rig.batched(vids)
+    try:
+        rig.start()
+        with open_client(rig.endpoint) as session:
+            rig.wait_ready(session, 120.0)
+            sub = session.declare_subscriber(keys.any_vehicle_ocp(), on_ocp)
+            pubs = {v: session.declare_publisher(keys.raw(v), congestion_control=zenoh.CongestionControl.BLOCK)
+                    for v in vids}
+            time.sleep(0.3)
+            for k in range(max(len(x) for x in logs.values())):
+                for v in vids:
+                    if k < len(logs[v]):
+                        pubs[v].put(logs[v][k])
+                time.sleep(0.002)  # ~5x real time: the batch service steps both vehicles together
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and any(len(got[v]) < len(offline[v]) for v in vids):
+                time.sleep(0.1)
+            sub.undeclare()
+        assert not rig.dead(), rig.dead()
+    finally:
+        rig.stop()
+    for v in vids:
+        live = sorted(got[v], key=lambda r: r["seq"])
+        assert [r["seq"] for r in live] == [r["seq"] for r in offline[v]], v
+        for a, b in zip(live, offline[v]):
+            assert a["status"] == b["status"] and a["soil_class"] == b["soil_class"], (v, a["seq"])
+            for name in ("soil_strength", "soil_strength_std", "mu_T", "S_T", "S_E", "te_at_S_E",
+                         "soil_class_confidence"):
+                _close(a[name], b[name], (v, a["seq"], name))
+            _quad(a["mu"], b["mu"], (v, a["seq"], "mu"))
+            _quad(a["slip"], b["slip"], (v, a["seq"], "slip"))
