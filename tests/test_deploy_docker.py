@@ -239,8 +239,12 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
         has_dashboard = subprocess.run(["docker", "exec", fleet.container("fleet-router"), "soilocp", "dashboard",
                                         "--help"], capture_output=True, timeout=120).returncode == 0
         if has_dashboard:
-            times["dashboard lists both vehicles"] = _wait_dashboard(fleet.dashboard_port, 120) + \
-                times["both vehicles fresh at the fleet"]
+            try:
+                times["dashboard lists both vehicles"] = _wait_dashboard(fleet.dashboard_port, 120) + \
+                    times["both vehicles fresh at the fleet"]
+            except BaseException:
+                print(fleet.run("logs", "--tail", "20", "dashboard", timeout=120, check=False).stdout[-4000:])
+                raise
 
         # 2. health checks, as docker runs them, in a service and in a router container
         for service in ("rover1-ocp", "fleet-router"):
