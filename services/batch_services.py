@@ -1,19 +1,21 @@
-"""Batched observer + soil strength + OCP publisher for many vehicles in one process.
+"""Batched normal forces + observer + soil strength + OCP publisher for many vehicles in one process.
 
-A drop-in for the three services ``observer``, ``soil-strength`` and ``ocp`` of one deployment
-(the gateway and the normal-force service stay as they are): it subscribes to every vehicle's
-``sensors/clean`` and ``normal_forces``, joins them by seq (the observer service's
-:class:`~services.observer.SeqJoiner`), steps all vehicles that have a joined sample together
-with :class:`soilocp.batch.BatchPipeline` (numpy over stacked arrays instead of one filterpy
-filter per vehicle), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same
-numbers as the per-vehicle services (``tests/test_batch.py``).  It *is* the OCP publisher
-(subclass of :class:`~services.ocp.OcpService`: same queryable, history, stale reports, health
-on ``soilocp/<vid>/status/ocp``) and also holds the ``observer`` and ``soil-strength``
-liveliness tokens, so sources and ``soilocp run`` see a complete pipeline.  The internal
-``observer`` and ``soil`` keys are not published (nothing downstream needs them).
+A drop-in for the four services ``normal-force``, ``observer``, ``soil-strength`` and ``ocp`` of
+one deployment (the gateway stays as it is): it subscribes to every vehicle's ``sensors/clean``,
+computes the normal forces of all pending samples in one call (:func:`soilocp.normal_force`'s
+solver, eqs. 21-25), steps all vehicles that have a sample together with
+:class:`soilocp.batch.BatchPipeline` (numpy over stacked arrays instead of one filterpy filter
+per vehicle), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same numbers as
+the per-vehicle services and ``soilocp estimate`` (``tests/test_batch.py``).  It *is* the OCP
+publisher (subclass of :class:`~services.ocp.OcpService`: same queryable, history, stale
+reports, health on ``soilocp/<vid>/status/ocp``) and also holds the ``normal-force``,
+``observer`` and ``soil-strength`` liveliness tokens, so sources and ``soilocp run`` see a
+complete pipeline.  The internal ``normal_forces``, ``observer`` and ``soil`` keys are not
+published (nothing downstream needs them): two Zenoh hops and three JSON round trips less per
+sample than the five-service chain.
 
-Batching is opportunistic: joined samples wait only while more input is already queued, so a
-lone vehicle is stepped at once (no added latency) and under load one numpy step serves every
+Batching is opportunistic: samples wait only while more input is already queued, so a lone
+vehicle is stepped at once (no added latency) and under load one numpy step serves every
 vehicle with a pending sample.
 
 ``python -m services.batch_services --vehicle-id v1 --vehicle-id v2 --connect tcp/127.0.0.1:7447``
@@ -29,11 +31,11 @@ from typing import Any
 import numpy as np
 
 from schemas import keys
-from schemas.pipeline import NormalForces, OcpEstimate
+from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 from soilocp.batch import BatchPipeline
+from soilocp.normal_force import normal_forces
 
-from .observer import SeqJoiner
 from .ocp import OcpService
 from .stages import pipeline_config
 
@@ -53,31 +55,31 @@ class BatchOcpService(OcpService):
         self.pending: dict[str, deque] = {vid: deque() for vid in self.vids}
         self.n_pending = 0
         self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)
-        self.joiners = {
-            vid: SeqJoiner(lambda s, f, _vid=vid: self._joined(_vid, s, f), self.counters[vid],
-                           capacity=cfg.join_buffer, timeout_s=cfg.join_timeout_s)
-            for vid in self.vids
-        }
+        self.last_seq: dict[str, int] = {}
+        self.vehicle = pc.vehicle
         self.steps = 0
 
     def declare(self, session, vehicle_id: str) -> None:
         super().declare(session, vehicle_id)  # OCP publisher, status publisher, queryable (+ an idle soil subscriber)
         self.subscribe(session, keys.clean(vehicle_id), vehicle_id, "sample")
-        self.subscribe(session, keys.normal_forces(vehicle_id), vehicle_id, "forces")
-        for stage in ("observer", "soil-strength"):  # after the subscriptions: the inputs are ready
+        for stage in ("normal-force", "observer", "soil-strength"):  # after the subscription: inputs are ready
             self.keep(session.liveliness().declare_token(keys.alive(vehicle_id, stage)))
-
-    def _joined(self, vid: str, sample: SensorSample, forces: NormalForces) -> None:
-        self.pending[vid].append((sample, forces))
-        self.n_pending += 1
 
     def handle(self, item) -> None:
         vid, kind, payload, wall, _key = item
-        self.counters[vid].last_input_wall = wall
+        c = self.counters[vid]
+        c.last_input_wall = wall
         if kind == "sample":
-            self.joiners[vid].add_sample(SensorSample.model_validate_json(payload))
-        elif kind == "forces":
-            self.joiners[vid].add_forces(NormalForces.model_validate_json(payload))
+            sample = SensorSample.model_validate_json(payload)
+            last = self.last_seq.get(vid)
+            if last is not None and sample.seq <= last:
+                # only after a gateway restart: the observer must not see time run backwards
+                c.dropped += 1
+                c.bump("out_of_order")
+            else:
+                self.last_seq[vid] = sample.seq
+                self.pending[vid].append(sample)
+                self.n_pending += 1
         if self.n_pending and (self.worker.depth() == 0 or self.n_pending >= self.max_pending):
             self.flush()
 
@@ -85,13 +87,14 @@ class BatchOcpService(OcpService):
         """Step every vehicle with a pending joined sample, oldest first, until none is left."""
         while self.n_pending:
             vids = [vid for vid, q in self.pending.items() if q]
-            pairs = [self.pending[vid].popleft() for vid in vids]
-            self.n_pending -= len(pairs)
+            samples = [self.pending[vid].popleft() for vid in vids]
+            self.n_pending -= len(samples)
             idx = np.array([self.index[v] for v in vids])
-            inputs = BatchPipeline.inputs_from_samples([s for s, _f in pairs], [f.normal_force for _s, f in pairs])
-            out = self.batch.step(idx, inputs)
+            # normal forces of every stepped vehicle in one call (zero-warp solution, eqs. 21-25)
+            fz = normal_forces(self.vehicle, np.array([s.specific_force for s in samples], dtype=float))
+            out = self.batch.step(idx, BatchPipeline.inputs_from_samples(samples, fz))
             self.steps += 1
-            for j, (vid, (sample, _f)) in enumerate(zip(vids, pairs)):
+            for j, (vid, sample) in enumerate(zip(vids, samples)):
                 est = OcpEstimate(vehicle_id=vid, seq=sample.seq, **out.ocp_fields(j))
                 self.stores[vid].add(est)
                 self.pubs[vid].put(est.model_dump_json())
@@ -102,7 +105,7 @@ class BatchOcpService(OcpService):
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
         out = super().health_extra(vehicle_id)
         out["detail"] = {**out["detail"], "batched": True, "batch_steps": self.steps,
-                         "join_pending": self.joiners[vehicle_id].pending()}
+                         "pending": len(self.pending[vehicle_id])}
         return out
 
 

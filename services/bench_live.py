@@ -105,9 +105,8 @@ class Rig:
 
     @staticmethod
     def batched(vehicle_ids: list[str]) -> "Rig":
-        """Gateway and normal-force as deployed, observer + soil + OCP in one batched process."""
-        svc = [(name, ["-m", "soilocp.cli", "service", name]) for name in ("gateway", "normal-force")]
-        svc.append(("batch", ["-m", "services.batch_services"]))
+        """The gateway as deployed; normal forces + observer + soil + OCP in one batched process."""
+        svc = [("gateway", ["-m", "soilocp.cli", "service", "gateway"]), ("batch", ["-m", "services.batch_services"])]
         return Rig(list(vehicle_ids), svc)
 
     def _spawn(self, name: str, argv: list[str], env: dict[str, str]) -> None:
@@ -166,7 +165,7 @@ class Rig:
     def _token_names(self) -> list[str]:
         names = []
         for name, _argv in self.services:
-            names += ["observer", "soil-strength", "ocp"] if name == "batch" else [name]
+            names += ["normal-force", "observer", "soil-strength", "ocp"] if name == "batch" else [name]
         return names
 
     def stop(self, timeout: float = 5.0) -> None:

@@ -174,7 +174,7 @@ class FleetState:
             self._backfill(reply.vehicle_id, reply.history, produced, now)
         with self._lock:
             v = self._v[reply.vehicle_id]
-            take = v.latest is None or latest.seq >= v.latest.seq or latest.stamp < v.latest.stamp - 1.0
+            take = v.latest is None or latest.seq > v.latest.seq or latest.stamp < v.latest.stamp - 1.0
         if take:
             self.add_estimate(latest, now, produced_at=produced)
         else:

@@ -122,7 +122,7 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
             live_view = contextlib.nullcontext() if as_json else Live(console=console, refresh_per_second=4)
             with live_view as live:
                 while not stop.is_set():
-                    query_fleet(session, state, min(timeout, interval), misses=2)
+                    query_fleet(session, state, timeout, misses=2)
                     rows = state.rows()
                     if as_json:
                         click.echo(json.dumps({"time": time.time(), "connect": connect, "vehicles": rows}))

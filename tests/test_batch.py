@@ -112,7 +112,7 @@ def test_bad_arguments_are_named():
 
 @pytest.mark.timeout(300)
 def test_batch_service_stream_equals_offline_estimate():
-    """gateway + normal-force + the batched OCP service (services.batch_services) as real processes
+    """gateway + the batched normal-force/observer/soil/OCP service (services.batch_services), real processes
     behind a real router: two vehicles' live OCP streams equal ``estimate_lines`` offline."""
     import json
     import threading

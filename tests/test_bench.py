@@ -18,7 +18,7 @@ from services.bench_live import proc_cpu_seconds, proc_rss_mib
 from services.bench_stages import STAGES, summarize
 
 PIPELINE_PROCS = {"standard": {"router", "gateway", "normal-force", "observer", "soil-strength", "ocp"},
-                  "batched": {"router", "gateway", "normal-force", "batch"}}
+                  "batched": {"router", "gateway", "batch"}}
 
 
 def _finite(x, what):
