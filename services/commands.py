@@ -6,7 +6,6 @@ Zenoh and the physics are imported inside the command bodies, so ``soilocp --hel
 from __future__ import annotations
 
 import sys
-from typing import Optional
 
 import click
 

@@ -19,7 +19,7 @@ import threading
 import time
 from collections import Counter as Tally
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
