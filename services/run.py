@@ -312,7 +312,6 @@ def summary_tables(vid: str, snap: dict[str, Any], group: ProcessGroup, elapsed:
 def run_system(opts: RunOptions) -> int:
     """Run everything until the duration, the end of the source, a death or a signal; 0 if all went well."""
     from rich.console import Console
-    from rich.live import Live
 
     import shutil
 
