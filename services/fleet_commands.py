@@ -1,7 +1,7 @@
 """Console commands of the fleet view: ``soilocp fleet status`` and ``soilocp dashboard``.
 
 Zenoh, Starlette and uvicorn are imported inside the command bodies, so ``soilocp --help`` stays
-fast.  Registered by ``services.commands`` (``COMMANDS += fleet_commands.COMMANDS``).
+fast.  Registered by ``services.commands`` (its ``EXTRA_COMMAND_MODULES``).
 """
 
 from __future__ import annotations
@@ -188,12 +188,3 @@ def dashboard_cmd(port, host, connect, constants_path, poll) -> None:
 
 
 COMMANDS = [fleet_group, dashboard_cmd]
-
-if __name__ == "__main__":  # for testing before services/commands.py registers COMMANDS
-    @click.group()
-    def _main() -> None:
-        """soilocp fleet commands."""
-
-    for _c in COMMANDS:
-        _main.add_command(_c)
-    _main()

@@ -140,14 +140,6 @@ def test_traction_curve_is_the_library_eq6_at_k_and_k_pm_std():
 # ------------------------------------------------------------------------------------------------
 # the real fleet
 # ------------------------------------------------------------------------------------------------
-def _cli_module() -> str:
-    """``soilocp.cli`` once ``services/commands.py`` registers the fleet commands; until then the
-    commands module itself (same click commands)."""
-    from soilocp.cli import main
-
-    return "soilocp.cli" if "fleet" in main.commands else "services.fleet_commands"
-
-
 class Fleet:
     def __init__(self, procs: Procs, router_ep: str, empty_ep: str, dash_url: str, browser: Optional["Chromium"]):
         self.procs = procs
@@ -197,15 +189,7 @@ def fleet(tmp_path_factory):
                               "--stale-timeout", "3",
                               "--listen", endpoint(free_port()), "--log-dir", str(base / vid)],
                         env={"SOILOCP_ROUTER_CONNECT": fleet_ep, "PYTHONUNBUFFERED": "1"})
-        dash_args = ["dashboard", "--port", str(dash_port), "--connect", fleet_ep]
-        if _cli_module() == "soilocp.cli":
-            procs.spawn("dashboard", dash_args)
-        else:  # not registered in services/commands.py yet: the command module itself
-            with open(base / "logs" / "dashboard.direct.log", "wb") as log:
-                env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-                procs.procs["dashboard"] = subprocess.Popen(
-                    [sys.executable, "-m", "services.fleet_commands", *dash_args], stdin=subprocess.DEVNULL,
-                    stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        procs.spawn("dashboard", ["dashboard", "--port", str(dash_port), "--connect", fleet_ep])
         ok = wait_for(lambda: set(VEHICLES) <= _fresh_vehicles(fleet_ep), timeout=120, interval=1.0)
         assert ok, "vehicles never produced fresh OCPs:\n" + "\n".join(
             procs.log_text(v)[-2000:] for v in VEHICLES)
@@ -214,7 +198,7 @@ def fleet(tmp_path_factory):
         if browser is not None:
             browser.close()
         codes = procs.close(timeout=20.0)
-    dash_log = "\n".join(p.read_text(errors="replace") for p in (base / "logs").glob("dashboard*.log"))
+    dash_log = procs.log_text("dashboard")
     assert codes.get("dashboard") == 0, (codes, dash_log)
     assert "Traceback" not in dash_log, dash_log
     assert '"event": "stopped"' in dash_log  # lifespan closed the Zenoh session
@@ -222,7 +206,7 @@ def fleet(tmp_path_factory):
 
 def _fleet_start(*args: str) -> subprocess.Popen:
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.Popen([sys.executable, "-m", _cli_module(), "fleet", "status", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "soilocp.cli", "fleet", "status", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=e, stdin=subprocess.DEVNULL)
 
 
