@@ -79,7 +79,13 @@ echo "build-images: $(ls "$wheelhouse"/*.whl | wc -l) wheels, $(du -sh "$wheelho
 t2=$(date +%s)
 
 # --- 3. image -------------------------------------------------------------------------------
-docker build -q "${build_opts[@]}" --build-arg BASE_IMAGE="$base" -t "$image" "$root" >/dev/null
+old_id="$(docker image inspect --format '{{.Id}}' "$image" 2>/dev/null || true)"
+docker build -q --force-rm "${build_opts[@]}" --build-arg BASE_IMAGE="$base" -t "$image" "$root" >/dev/null
+new_id="$(docker image inspect --format '{{.Id}}' "$image")"
+if [[ -n "$old_id" && "$old_id" != "$new_id" ]]; then
+    # the previous build of this tag is now untagged: drop it unless a container still uses it
+    docker rmi "$old_id" >/dev/null 2>&1 || true
+fi
 t3=$(date +%s)
 echo "build-images: $image from $base: base $((t1 - t0)) s, wheels $((t2 - t1)) s, image $((t3 - t2)) s, total $((t3 - t0)) s"
 docker image ls "$image"
