@@ -129,7 +129,8 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report["scale"] = {}
     for pipe in pipelines:
         steps = []
-        best = 0
+        best = 0  # most vehicles with p99 < 10 ms and no drop (the target's criterion)
+        sustained = 0  # most vehicles carried without a drop, whatever the latency (throughput)
         for n in ladder:
             vids = [f"v{i:03d}" for i in range(n)]
             rig = (Rig.batched if pipe == "batched" else Rig.standard)(vids)
@@ -147,13 +148,17 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
                 break
             finally:
                 rig.stop()
-            ok = (res["drops"] == 0 and res["rejections"] == 0 and res["p99"] < TARGETS["scale_p99_ms"]
-                  and res["offered_per_s"] >= 0.95 * res["target_per_s"])
-            steps.append({"vehicles": n, "ok": ok, "result": res, "baseline": base, "processes": procs})
-            if not ok:
-                break
-            best = n
-        report["scale"][pipe] = {"steps": steps, "max_vehicles": best}
+            carried = (res["drops"] == 0 and res["rejections"] == 0
+                       and res["offered_per_s"] >= 0.95 * res["target_per_s"])
+            ok = carried and res["p99"] < TARGETS["scale_p99_ms"]
+            steps.append({"vehicles": n, "ok": ok, "carried": carried, "result": res, "baseline": base,
+                          "processes": procs})
+            if ok and best == sustained:
+                best = n
+            if not carried:
+                break  # on a shared machine the p99 can fail at any count: step on while nothing is lost
+            sustained = n
+        report["scale"][pipe] = {"steps": steps, "max_vehicles": best, "max_vehicles_no_drop": sustained}
     report["machine"]["load_end"] = list(os.getloadavg())
     report["machine"]["cpu_share_end"] = cpu_share()["share"]
     report["elapsed_s"] = time.monotonic() - t_start
@@ -232,7 +237,8 @@ def render(report: dict[str, Any], console) -> None:
 
     for pipe, sc in report["scale"].items():
         t = Table(title=f"3. scale, {pipe} pipeline: vehicles x 100 Hz (pass: p99 < {TARGETS['scale_p99_ms']:.0f} ms, "
-                        f"no drop) — max {sc['max_vehicles']}", title_justify="left")
+                        f"no drop) — max {sc['max_vehicles']} passing, {sc.get('max_vehicles_no_drop', '-')} without a drop",
+                  title_justify="left")
         for c in ("vehicles", "ok", "msg/s", "p50", "p99", "max", "drops", "rej", "ping p50", "ping p99", "CPU % per process",
                   "RSS MiB total"):
             t.add_column(c, justify="right", no_wrap=c != "CPU % per process")

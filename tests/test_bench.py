@@ -78,6 +78,7 @@ def test_quick_bench_report_is_well_formed(tmp_path):
     for pipe, sc in rep["scale"].items():
         assert sc["steps"] and sc["steps"][0]["vehicles"] == 1
         assert 0 <= sc["max_vehicles"] <= max(s["vehicles"] for s in sc["steps"])
+        assert 0 <= sc["max_vehicles"] <= sc["max_vehicles_no_drop"]
         for step in sc["steps"]:
             if "result" not in step:
                 continue
