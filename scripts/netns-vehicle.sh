@@ -5,6 +5,7 @@
 #   scripts/netns-vehicle.sh down RUN_ID      stop what still runs in them and delete them (idempotent)
 #   scripts/netns-vehicle.sh cut RUN_ID       take the sensing<->estimation link down (both ends)
 #   scripts/netns-vehicle.sh restore RUN_ID   bring it back up
+#   scripts/netns-vehicle.sh cut-fleet RUN_ID / restore-fleet RUN_ID   the same for sensing<->fleet
 #   scripts/netns-vehicle.sh exec RUN_ID UNIT CMD...   run CMD in UNIT (sense | est | fleet)
 #   scripts/netns-vehicle.sh names RUN_ID     print the three namespace names
 #
@@ -84,6 +85,8 @@ case "$cmd" in
     down) down ;;
     cut) ip -n "$ns_sense" link set "$if_se" down; ip -n "$ns_est" link set "$if_es" down ;;
     restore) ip -n "$ns_sense" link set "$if_se" up; ip -n "$ns_est" link set "$if_es" up ;;
+    cut-fleet) ip -n "$ns_sense" link set "$if_sf" down; ip -n "$ns_fleet" link set "$if_fs" down ;;
+    restore-fleet) ip -n "$ns_sense" link set "$if_sf" up; ip -n "$ns_fleet" link set "$if_fs" up ;;
     exec) [[ $# -ge 2 ]] || die "exec needs UNIT CMD..."; ns="$(ns_of "$1")"; shift; exec ip netns exec "$ns" "$@" ;;
     names) echo "$ns_fleet $ns_sense $ns_est" ;;
     *) die "unknown command '$cmd'" ;;
