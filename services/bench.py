@@ -248,7 +248,7 @@ def render(report: dict[str, Any], console) -> None:
                 continue
             r, b, pr = st["result"], st["baseline"], st["processes"]
             cpu = " ".join(f"{n}={_f(v['cpu_percent'], '.0f')}" for n, v in pr.items() if n != "echo")
-            rss = sum(v["rss_mib"] or 0.0 for n, v in pr.items() if n != "echo")
+            rss = sum(v["rss_mib"] or 0.0 for n, v in pr.items() if n not in ("echo", "bench"))
             t.add_row(str(st["vehicles"]), "yes" if st["ok"] else "NO", _f(r["offered_per_s"], ".0f"), _f(r["p50"]),
                       _f(r["p99"]), _f(r["max"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]), cpu,
                       _f(rss, ".0f"))

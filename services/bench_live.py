@@ -134,7 +134,8 @@ class Rig:
         return self
 
     def pids(self) -> dict[str, int]:
-        return {n: p.pid for n, p in self.procs.items()}
+        """Every child's pid, and the bench process itself (its publisher and subscriber)."""
+        return {**{n: p.pid for n, p in self.procs.items()}, "bench": os.getpid()}
 
     def dead(self) -> list[str]:
         return [n for n, p in self.procs.items() if p.poll() is not None]
@@ -204,11 +205,11 @@ def _paced(n_streams: int, n_steps: int, rate: float, t0: float):
 
 
 def _sleep_until(t: float) -> None:
+    # sleep only, never spin: a spinning sender holds the GIL that the OCP subscriber's callback
+    # needs, which would add up to the interpreter's switch interval (5 ms) to measured latencies
     d = t - time.perf_counter()
-    if d > 0.0005:
-        time.sleep(d - 0.0002)  # sleep most of the way, then spin briefly: ~50 us pacing error
-    while time.perf_counter() < t:
-        pass
+    if d > 0:
+        time.sleep(d)
 
 
 # ----------------------------------------------------------------------------------------------
