@@ -302,6 +302,9 @@ class TractionObserver:
         self._one = np.ones(1)
         self._rejections = np.zeros(N_MEAS, dtype=int)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
+        self._J = np.zeros((4, self.layout.n))  # d gross / d x, filled per step
+        self._J[:, self.layout.mu] = np.eye(4)
+        self._R_diag = np.diag(self._R).copy()
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -346,19 +349,27 @@ class TractionObserver:
         rejected = 0
         if not reset:
             innov = z - H @ self.kf.x
-            s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + np.diag(self._R)
+            s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + self._R_diag
             keep = innov**2 <= (self.cfg.gate_sigma**2) * s
             # a row rejected again and again means the state has lost the sensor: re-acquire it
             # rather than coast on a diverging prediction
             keep |= self._rejections >= self.cfg.gate_patience
             self._rejections = np.where(keep, 0, self._rejections + 1)
             rejected = int(np.count_nonzero(~keep))
-            if keep.any():
+            if keep.all():
+                self.kf.update(z, R=self._R, H=H)
+            elif keep.any():
                 idx = np.flatnonzero(keep)
                 self.kf.update(z[idx], R=self._R[np.ix_(idx, idx)], H=H[idx])
             self._condition()
         self.steps += 1
         return self.estimate(rejected, reset)
+
+    def _gross_jacobian(self, M: np.ndarray) -> np.ndarray:
+        J = self._J
+        if self.layout.n_res:
+            J[:, self.layout.res] = M
+        return J
 
     def _state_slip(self) -> np.ndarray:
         """Per-wheel slip (eq. 1, floored) of the current estimate: the regressor of the 'slip'
@@ -382,10 +393,7 @@ class TractionObserver:
         M = L.resistance_matrix(self._state_slip() if L.n_res == 2 else None)
         res = M @ x[L.res] if L.n_res else np.zeros(4)
         # gross_i = mu_i + (M x_res)_i : its variance from the joint covariance
-        J = np.zeros((4, L.n))
-        J[:, L.mu] = np.eye(4)
-        if L.n_res:
-            J[:, L.res] = M
+        J = self._gross_jacobian(M)
         gross_var = np.einsum("ij,jk,ik->i", J, P, J)
         return ObserverEstimate(
             mu=mu,

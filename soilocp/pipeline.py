@@ -22,7 +22,7 @@ from .constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
 from .normal_force import NormalForceSolver
 from .observer import ObserverConfig, TractionObserver
 from .ocp import ocp_from_soil_strength
-from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
+from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
 from .soil_strength import SoilConfig, make_soil_estimator, slip_uncertainty
 from .traction import tractive_efficiency_scalar
 from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
@@ -150,8 +150,8 @@ class SoilStage:
         cfg = self.cfg
         # ground speed at each wheel of a differentially steered body: V - psi_dot * y_i
         v_wheel = obs.ground_speed - obs.yaw_rate * self._wheel_y
-        s = slip_ratio(obs.wheel_speed, v_wheel, cfg.vehicle.wheel_radius,
-                       deadband=cfg.slip_deadband, floor=cfg.slip_floor)
+        s = slip_ratio_unchecked(np.asarray(obs.wheel_speed), v_wheel, cfg.vehicle.wheel_radius,
+                                 cfg.slip_deadband, cfg.slip_floor)
         informative = s.informative & (np.asarray(obs.normal_force) > LIFT_OFF_FORCE) & (not obs.reset)
         if cfg.soil.measurement == "gross":
             observed, var = obs.gross, obs.gross_var

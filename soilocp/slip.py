@@ -48,11 +48,18 @@ def slip_ratio(
     if deadband < 0 or floor <= 0:
         raise ValueError(f"deadband must be >= 0 and floor > 0, got deadband={deadband}, floor={floor}")
     try:
-        rim, v = np.broadcast_arrays(w * r, v)
+        np.broadcast_shapes(w.shape, v.shape)
     except ValueError as exc:
         raise ValueError(
             f"wheel_speed (shape {w.shape}) and ground_speed (shape {v.shape}) do not broadcast"
         ) from exc
-    scale = np.maximum(np.abs(rim), np.abs(v))
-    s = (rim - v) / np.maximum(scale, floor)
+    return slip_ratio_unchecked(w, v, r, deadband, floor)
+
+
+def slip_ratio_unchecked(wheel_speed: np.ndarray, ground_speed, wheel_radius: float, deadband: float,
+                         floor: float) -> Slip:
+    """:func:`slip_ratio` (eq. 1 as corrected there) for arrays already checked: the per-sample path."""
+    rim = wheel_speed * wheel_radius
+    scale = np.maximum(np.abs(rim), np.abs(ground_speed))
+    s = (rim - ground_speed) / np.maximum(scale, floor)
     return Slip(slip=s, informative=scale >= deadband)

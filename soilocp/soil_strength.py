@@ -103,6 +103,14 @@ def classify(soil_strength: float, log_k_std: float, constants: ModelConstants =
     return names[i], float(probs[i])
 
 
+def _checked_quads(**arrays) -> list[np.ndarray]:
+    """Per-wheel float arrays of shape (4,), finite; one vectorised check on the happy path."""
+    out = [np.asarray(v, dtype=float) for v in arrays.values()]
+    if all(a.shape == (4,) for a in out) and np.isfinite(np.concatenate(out)).all():
+        return out
+    return [as_float_array(name, v, shape=(4,)) for name, v in arrays.items()]  # raises, naming the argument
+
+
 def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
     """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
     dS ~ dV / V, which dominates at low speed (method-notes §6, §9)."""
@@ -210,10 +218,8 @@ class BayesSoilEstimator:
         """Fuse one sample: slip (4,), observed coefficient (4,), its variance (4,), which wheels
         may be used (4,) and optionally each slip's 1-sigma (4,; default ``cfg.slip_sigma``)."""
         cfg = self.cfg
-        slip = as_float_array("slip", slip, shape=(4,))
-        obs = as_float_array("observed", observed, shape=(4,))
-        var = as_float_array("variance", variance, shape=(4,))
-        s_sig = np.full(4, cfg.slip_sigma) if slip_sigma is None else as_float_array("slip_sigma", slip_sigma, shape=(4,))
+        slip, obs, var, s_sig = _checked_quads(slip=slip, observed=observed, variance=variance,
+                                               slip_sigma=np.full(4, cfg.slip_sigma) if slip_sigma is None else slip_sigma)
         use = _gate(slip, np.asarray(informative, dtype=bool), cfg, s_sig)
         if self._last_stamp is not None:
             self._predict(stamp - self._last_stamp)
