@@ -220,8 +220,12 @@ def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: 
     if method == "series":
         F = np.eye(n) + A * dt
         G = b * dt + A @ b * (dt * dt / 2.0)
-        AQ = A @ Qc
-        Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + A @ Qc @ A.T * (dt**3 / 3.0)
+        q = np.diagonal(Qc)
+        if np.count_nonzero(Qc) == np.count_nonzero(q):  # diagonal Qc (ours): A Qc = A * q
+            AQ = A * q
+        else:
+            AQ = A @ Qc
+        Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + AQ @ A.T * (dt**3 / 3.0)
         return F, G, Qd
     if method == "expm":
         aug = np.zeros((n + 1, n + 1))
@@ -305,6 +309,18 @@ class TractionObserver:
         self._J = np.zeros((4, self.layout.n))  # d gross / d x, filled per step
         self._J[:, self.layout.mu] = np.eye(4)
         self._R_diag = np.diag(self._R).copy()
+        L, v = self.layout, vehicle
+        H0 = np.zeros((N_MEAS, L.n))
+        H0[1, L.psi] = 1.0
+        H0[2:6, L.omega] = np.eye(4)
+        H0[6, L.v] = 1.0
+        self._tpl = {
+            "A": np.zeros((L.n, L.n)), "b": np.zeros(L.n), "H": H0,
+            "om_idx": np.arange(L.omega.start, L.omega.stop), "mu_idx": np.arange(4),
+            "wheel_gain": -v.wheel_radius / v.wheel_inertia, "inv_iw": 1.0 / v.wheel_inertia, "inv_m": 1.0 / v.mass,
+            "yaw_arm": np.array([-v.c, -v.c, v.d, v.d]) / v.yaw_inertia,
+            "lat_arm": np.array([v.a, v.b, v.b, v.a]) / v.yaw_inertia,
+        }
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -336,7 +352,7 @@ class TractionObserver:
         # ZOH over [k-1, k] with the inputs (Fz, T, pitch) of sample k held: the same matrices
         # serve the prediction to k and the measurement model at k.
         slip = self._state_slip() if self.layout.n_res == 2 and self._last_stamp is not None else None
-        A, b, H = continuous_model(self.layout, self.vehicle, fz, torque, pitch, self.cfg.gravity, slip)
+        A, b, H = self._model(fz, torque, pitch, slip)
         if dt is None or dt <= 0 or dt > self.cfg.max_gap:
             self._initialise(omega, ground_speed, yaw_rate)
             reset = True
@@ -364,6 +380,24 @@ class TractionObserver:
             self._condition()
         self.steps += 1
         return self.estimate(rejected, reset)
+
+    def _model(self, fz: np.ndarray, torque: np.ndarray, pitch: float, slip):
+        """:func:`continuous_model` filled into preallocated templates (same matrices, tested)."""
+        L, t = self.layout, self._tpl
+        A, b, H = t["A"].copy(), t["b"].copy(), t["H"].copy()
+        gain = fz * t["wheel_gain"]
+        A[t["om_idx"], t["mu_idx"]] = gain
+        if L.n_res:
+            A[L.omega, L.res] = gain[:, None] * L.resistance_matrix(slip)
+        b[L.omega] = torque * t["inv_iw"]
+        fz_m = fz * t["inv_m"]
+        A[L.v, L.mu] = fz_m
+        b[L.v] = self.cfg.gravity * np.sin(pitch)
+        A[L.psi, L.mu] = fz * t["yaw_arm"]
+        lat = fz * t["lat_arm"]
+        A[L.psi, L.lat] = -lat.sum() if L.n_lat == 1 else -lat
+        H[0, L.mu] = fz_m
+        return A, b, H
 
     def _gross_jacobian(self, M: np.ndarray) -> np.ndarray:
         J = self._J

@@ -152,3 +152,15 @@ def test_slip_structure_tracks_per_wheel_traction_on_a_traction_test():
         errs[structure] = float(np.median(np.concatenate(e)))
     assert errs["slip"] < 0.8 * errs["shared"], errs
     assert errs["slip"] < 0.05, errs
+
+
+@pytest.mark.parametrize("structure", ["slip", "shared", "per_wheel", "none"])
+def test_template_model_equals_reference_model(structure):
+    rng = np.random.default_rng(5)
+    obs = TractionObserver(V, ObserverConfig(structure=structure))
+    for _ in range(3):
+        fz, torque, pitch, slip = rng.uniform(50, 250, 4), rng.uniform(-9, 9, 4), rng.uniform(-0.3, 0.3), rng.uniform(-0.5, 0.5, 4)
+        got = obs._model(fz, torque, pitch, slip)
+        ref = continuous_model(obs.layout, V, fz, torque, pitch, obs.cfg.gravity, slip)
+        for x, y in zip(got, ref):
+            assert np.allclose(x, y, rtol=1e-13, atol=1e-13)
