@@ -13,7 +13,9 @@ coefficient mu_xR shared by the four wheels (the wheels run on the same soil at 
 one lateral coefficient mu_yR.  Then the wheel equations give mu_i + mu_xR, the accelerometer gives
 sum(mu_i Fz_i), hence mu_xR and every mu_i: full rank.  We also add the CoM speed V as a state,
 driven by the same net traction (V_dot = sum(mu_i Fz_i)/m + g sin(pitch)) and measured by
-ground_speed: that smooths the slip of eq. 1 with the physics instead of a low-pass filter.
+ground_speed: that smooths the slip of eq. 1 with the physics instead of a low-pass filter; and a
+slowly varying bias of that speed equation (accelerometer bias, g x pitch bias), which the ground
+speed makes observable and which would otherwise turn into a slip bias.
 
 ``structure="none"`` drops motion-resistance compensation (mu_i absorbs mu_xR: the paper's
 Figs. 11 and 13), ``structure="per_wheel"`` keeps the paper's full state (made well-posed only by
@@ -66,6 +68,8 @@ class ObserverConfig(BaseModel):
     q_lateral: float = Field(0.3, gt=0, description="Random-walk intensity of mu_yR, 1/sqrt(s)")
     q_wheel_speed: float = Field(0.3, gt=0, description="Unmodelled wheel acceleration, rad/s^2/sqrt(Hz) (torque ripple)")
     q_ground_speed: float = Field(0.1, gt=0, description="Unmodelled CoM acceleration, m/s^2/sqrt(Hz)")
+    q_speed_bias: float = Field(0.005, gt=0, description="Random walk of the speed-equation bias, m/s^2/sqrt(s)")
+    p0_speed_bias: float = Field(0.05, gt=0, description="Initial 1-sigma of the speed-equation bias, m/s^2")
     q_yaw_rate: float = Field(0.2, gt=0, description="Unmodelled yaw acceleration, rad/s^2/sqrt(Hz)")
     # measurement noise (1-sigma)
     r_specific_force: float = Field(0.08, gt=0, description="Accelerometer f_x noise incl. vibration, m/s^2")
@@ -122,8 +126,13 @@ class StateLayout:
         return self.v + 1
 
     @property
-    def n(self) -> int:
+    def bias(self) -> int:
+        """Bias of the speed equation (accelerometer bias + g x pitch bias), m/s^2."""
         return self.psi + 1
+
+    @property
+    def n(self) -> int:
+        return self.bias + 1
 
     @staticmethod
     def of(structure: Structure) -> "StateLayout":
@@ -181,6 +190,8 @@ def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray
         A[om, layout.res] = wheel_gain[:, None] * layout.resistance_matrix(slip)
     b[om] = torque / Iw
     A[layout.v, layout.mu] = fz / m
+    # an accelerometer bias or a pitch bias would otherwise integrate into V and bias every slip
+    A[layout.v, layout.bias] = -1.0
     b[layout.v] = g * np.sin(pitch)
     yaw_arm = np.array([-vehicle.c, -vehicle.c, vehicle.d, vehicle.d])
     A[layout.psi, layout.mu] = yaw_arm * fz / Iz
@@ -206,6 +217,7 @@ def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.nda
     q[layout.omega] = cfg.q_wheel_speed**2
     q[layout.v] = cfg.q_ground_speed**2
     q[layout.psi] = cfg.q_yaw_rate**2
+    q[layout.bias] = cfg.q_speed_bias**2
     return np.diag(q)
 
 
@@ -285,6 +297,12 @@ class ObserverEstimate:
     extra: dict = field(default_factory=dict)
 
 
+def _speed_bias_template(layout: StateLayout) -> np.ndarray:
+    A = np.zeros((layout.n, layout.n))
+    A[layout.v, layout.bias] = -1.0
+    return A
+
+
 class TractionObserver:
     """One vehicle's traction observer: filterpy KalmanFilter with matrices rebuilt every step."""
 
@@ -315,7 +333,7 @@ class TractionObserver:
         H0[2:6, L.omega] = np.eye(4)
         H0[6, L.v] = 1.0
         self._tpl = {
-            "A": np.zeros((L.n, L.n)), "b": np.zeros(L.n), "H": H0,
+            "A": _speed_bias_template(L), "b": np.zeros(L.n), "H": H0,
             "om_idx": np.arange(L.omega.start, L.omega.stop), "mu_idx": np.arange(4),
             "wheel_gain": -v.wheel_radius / v.wheel_inertia, "inv_iw": 1.0 / v.wheel_inertia, "inv_m": 1.0 / v.mass,
             "yaw_arm": np.array([-v.c, -v.c, v.d, v.d]) / v.yaw_inertia,
@@ -338,6 +356,7 @@ class TractionObserver:
         p[L.omega] = c.r_wheel_speed**2
         p[L.v] = c.p0_speed**2
         p[L.psi] = c.r_yaw_rate**2
+        p[L.bias] = c.p0_speed_bias**2
         self.kf.x = x
         self.kf.P = np.diag(p)
 

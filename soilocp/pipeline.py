@@ -145,6 +145,8 @@ class SoilStage:
         self.estimator = make_soil_estimator(config.constants, config.soil)
         v = config.vehicle
         self._wheel_y = np.asarray(v.wheel_y)
+        self._slip_lp: Optional[np.ndarray] = None  # low-pass slip for the gate (SoilConfig.gate_smoothing)
+        self._last_stamp: Optional[float] = None
 
     def step(self, obs: ObserverOutput) -> SoilEstimate:
         cfg = self.cfg
@@ -158,7 +160,19 @@ class SoilStage:
         else:
             observed, var = obs.mu, obs.mu_var
         speed = np.maximum(np.abs(v_wheel), np.abs(np.asarray(obs.wheel_speed)) * cfg.vehicle.wheel_radius)
-        st = self.estimator.update(obs.stamp, s.slip, observed, var, informative, slip_uncertainty(speed, cfg.soil))
+        sigma = slip_uncertainty(speed, cfg.soil)
+        # the gate looks at a low-pass slip: deciding on the raw slip would keep the samples whose
+        # noise pushed |S| over the threshold and bias K (method-notes §9)
+        tau = cfg.soil.gate_smoothing
+        dt = 0.0 if self._last_stamp is None else obs.stamp - self._last_stamp
+        if self._slip_lp is None or obs.reset or tau <= 0 or dt <= 0 or dt > 1.0:
+            self._slip_lp, alpha = s.slip.copy(), 1.0
+        else:
+            alpha = -np.expm1(-dt / tau)
+            self._slip_lp = self._slip_lp + alpha * (s.slip - self._slip_lp)
+        self._last_stamp = obs.stamp
+        gate_sigma = sigma * np.sqrt(alpha / (2.0 - alpha))  # stationary std of the low-passed white noise
+        st = self.estimator.update(obs.stamp, s.slip, observed, var, informative, sigma, self._slip_lp, gate_sigma)
         return SoilEstimate(
             vehicle_id=obs.vehicle_id,
             seq=obs.seq,

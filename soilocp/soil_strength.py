@@ -58,6 +58,10 @@ class SoilConfig(BaseModel):
         0.008, ge=0, description="Error of the filtered speeds, m/s: slip error grows as speed_sigma / speed at low speed"
     )
     slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
+    gate_smoothing: float = Field(
+        0.15, ge=0, description="Time constant (s) of the low-pass slip the gate looks at: gating on the raw, noisy "
+        "slip keeps the samples whose noise pushed |S| up and biases K low (method-notes §9)"
+    )
     outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
     temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
     uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
@@ -214,13 +218,18 @@ class BayesSoilEstimator:
         h = min(cfg.change_rate * dt, 1.0)
         self.p = (1 - h) * p + h / p.size
 
-    def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None) -> SoilState:
+    def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
+               gate_slip=None, gate_sigma=None) -> SoilState:
         """Fuse one sample: slip (4,), observed coefficient (4,), its variance (4,), which wheels
-        may be used (4,) and optionally each slip's 1-sigma (4,; default ``cfg.slip_sigma``)."""
+        may be used (4,) and optionally each slip's 1-sigma (4,; default ``cfg.slip_sigma``).
+        ``gate_slip`` / ``gate_sigma``: the (smoothed) slip and its 1-sigma the gate decides on
+        (default: ``slip`` / ``slip_sigma``)."""
         cfg = self.cfg
         slip, obs, var, s_sig = _checked_quads(slip=slip, observed=observed, variance=variance,
                                                slip_sigma=np.full(4, cfg.slip_sigma) if slip_sigma is None else slip_sigma)
-        use = _gate(slip, np.asarray(informative, dtype=bool), cfg, s_sig)
+        g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
+        g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
+        use = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
         if self._last_stamp is not None:
             self._predict(stamp - self._last_stamp)
         self._last_stamp = stamp

@@ -18,9 +18,9 @@ from soilocp.vehicle import DEFAULT_VEHICLE as V
 
 
 def test_paper_state_is_not_observable_but_ours_is():
-    # method-notes §7: the paper's 17-state observer (+ our speed state) is rank deficient
-    assert StateLayout.of("per_wheel").n == 18
-    assert observability_rank("per_wheel", V) < 18
+    # method-notes §7: the paper's 17-state observer (+ our speed and speed-bias states) is rank deficient
+    assert StateLayout.of("per_wheel").n == 19
+    assert observability_rank("per_wheel", V) < 19
     assert observability_rank("shared", V) == StateLayout.of("shared").n
     # eq. 4's form (mu_xR = r0 sgn(S) + r1 S): observable while the slips vary and the driving
     # and braking wheels carry different loads, as in a traction test ...
