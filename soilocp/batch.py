@@ -17,7 +17,8 @@ vehicles as (N, n, n) arrays, one numpy call per operation for the whole fleet:
   :class:`soilocp.soil_strength.BayesSoilEstimator` (eqs. 3 / 6 likelihood in place of the
   paper's eqs. 36-37, method-notes §4 and §9), its diffusion + change-hazard prediction, and its
   hold / expiry logic (the very same ``_HoldLogic`` object per vehicle);
-* slip (eq. 1 with the floor and deadband of method-notes §6, §10) and the OCPs: eq. 7 (sign
+* slip (eq. 1 with the floor and deadband of method-notes §6, §10), the low-pass slip the soil
+  gate decides on (``SoilConfig.gate_smoothing``, method-notes §9), and the OCPs: eq. 7 (sign
   corrected, method-notes §1), eq. 8, eq. 10 and eq. 9 at S_E, as :class:`soilocp.pipeline.OcpStage`.
 
 Every step takes the indices of the vehicles that have a sample now (any subset, each at most
@@ -171,6 +172,8 @@ class BatchObserver:
             A[:, L.omega, L.res] = wheel_gain[:, :, None] * M
         b[:, L.omega] = torque / v.wheel_inertia
         A[:, L.v, L.mu] = fz / v.mass
+        if hasattr(L, "bias"):  # the speed equation's bias state (accelerometer / pitch bias)
+            A[:, L.v, L.bias] = -1.0
         b[:, L.v] = g * np.sin(pitch)
         A[:, L.psi, L.mu] = self._yaw_arm * fz / v.yaw_inertia  # eqs. 11-12
         lat = self._lat_arm * fz
@@ -333,8 +336,10 @@ class BatchSoil:
         h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
         return (1 - h) * p + h / p.shape[1]
 
-    def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma) -> list[SoilState]:
-        """Fuse one sample per vehicle in ``idx``: arrays (k,) / (k, 4) as BayesSoilEstimator.update."""
+    def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
+               gate_sigma=None) -> list[SoilState]:
+        """Fuse one sample per vehicle in ``idx``: arrays (k,) / (k, 4) as BayesSoilEstimator.update
+        (``gate_slip`` / ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on)."""
         cfg = self.cfg
         ix = _check_index(idx, self.n_vehicles)
         k = ix.size
@@ -343,7 +348,9 @@ class BatchSoil:
         for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
             if a.shape != (k, 4):
                 raise ValueError(f"{name} must have shape ({k}, 4), got {a.shape}")
-        use = _gate(slip, np.asarray(informative, dtype=bool), cfg, s_sig)
+        g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
+        g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
+        use = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
         p = self.p[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
@@ -463,6 +470,9 @@ class BatchPipeline:
         self.observer = BatchObserver(cfg.vehicle, cfg.observer, self.n_vehicles)
         self.soil = BatchSoil(cfg.constants, cfg.soil, self.n_vehicles)
         self._wheel_y = np.asarray(cfg.vehicle.wheel_y, dtype=float)
+        # SoilStage's low-pass slip for the gate (SoilConfig.gate_smoothing), per vehicle
+        self._slip_lp = np.zeros((self.n_vehicles, 4))
+        self._lp_stamp = np.full(self.n_vehicles, np.nan)
 
     @staticmethod
     def inputs_from_samples(samples: Sequence, normal_forces: Sequence) -> BatchInputs:
@@ -497,7 +507,22 @@ class BatchPipeline:
             observed, var = ob.mu, ob.mu_var
         speed = np.maximum(np.abs(v_wheel), np.abs(ob.wheel_speed) * r)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(speed, 1e-3))  # slip_uncertainty
-        soil = self.soil.update(ix, inputs.stamp, slip, observed, var, informative, s_sig)
+        # the gate looks at a low-pass slip (SoilStage, method-notes §9): restart it on a reset,
+        # a first sample, a gap > 1 s or a non-increasing stamp
+        tau = cfg.soil.gate_smoothing
+        last = self._lp_stamp[ix]
+        with np.errstate(invalid="ignore"):
+            dt = np.where(np.isnan(last), 0.0, inputs.stamp - last)
+        restart = np.isnan(last) | ob.reset | (tau <= 0) | (dt <= 0) | (dt > 1.0)
+        alpha = np.ones(ix.size)
+        if tau > 0:
+            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
+        lp = np.where(restart[:, None], slip, self._slip_lp[ix] + alpha[:, None] * (slip - self._slip_lp[ix]))
+        self._slip_lp[ix] = lp
+        self._lp_stamp[ix] = inputs.stamp
+        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
+        # (with tau = 0 every step restarts: lp = slip, g_sig = s_sig, the gate on the raw slip)
+        soil = self.soil.update(ix, inputs.stamp, slip, observed, var, informative, s_sig, lp, g_sig)
         ks = np.array([s.soil_strength if s.soil_strength is not None else np.nan for s in soil])
         have = ~np.isnan(ks)
         n = ix.size
