@@ -91,26 +91,62 @@ def obj_get(obj, path: str):
 
 
 class SampleValidator:
-    """Per-vehicle ordering checks: stamps must not go backwards, seq must strictly increase."""
+    """Per-vehicle ordering checks: stamps must not go backwards, seq must strictly increase.
 
-    def __init__(self) -> None:
+    A sensor source that restarts begins again at a low seq and an earlier stamp.  Those samples
+    are rejected (old_seq / stamp_backwards) — a replayed or reordered sample must never be
+    accepted — but when ``restart_after`` consecutive rejected samples are themselves in order
+    (seq and stamp increasing), they are a new session of the source, not stragglers: the
+    validator adopts it, accepts the sample and counts a restart (``restarts``).  Downstream
+    stages see the stamp go backwards and re-initialise.
+    """
+
+    def __init__(self, restart_after: int = 50) -> None:
+        if restart_after < 2:
+            raise ValueError(f"restart_after must be >= 2, got {restart_after!r}")
+        self.restart_after = restart_after
         self.last_seq: Optional[int] = None
         self.last_stamp: Optional[float] = None
+        self.restarts = 0
+        self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples
 
     def check(self, sample: SensorSample) -> None:
         """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it."""
-        if self.last_seq is not None:
-            if sample.seq == self.last_seq:
-                raise SampleRejected("duplicate_seq", f"seq: {sample.seq} was already accepted", sample.seq)
-            if sample.seq < self.last_seq:
-                raise SampleRejected(
-                    "old_seq", f"seq: {sample.seq} is older than the last accepted {self.last_seq}", sample.seq
-                )
-            if sample.stamp < self.last_stamp:
-                raise SampleRejected(
-                    "stamp_backwards",
-                    f"stamp: {sample.stamp!r} is before the last accepted {self.last_stamp!r}",
-                    sample.seq,
-                )
+        try:
+            self._check_order(sample)
+        except SampleRejected as rej:
+            if rej.code in ("old_seq", "stamp_backwards") and self._extends_run(sample):
+                self._run.append((sample.seq, sample.stamp))
+                if len(self._run) >= self.restart_after:
+                    self.restarts += 1
+                    self._run.clear()
+                    self.last_seq, self.last_stamp = sample.seq, sample.stamp
+                    return  # a restarted source: accepted as the start of its new session
+            elif rej.code in ("old_seq", "stamp_backwards"):
+                self._run = [(sample.seq, sample.stamp)]
+            raise
+        self._run.clear()
         self.last_seq = sample.seq
         self.last_stamp = sample.stamp
+
+    def _extends_run(self, sample: SensorSample) -> bool:
+        if not self._run:
+            return True
+        seq, stamp = self._run[-1]
+        return sample.seq > seq and sample.stamp >= stamp
+
+    def _check_order(self, sample: SensorSample) -> None:
+        if self.last_seq is None:
+            return
+        if sample.seq == self.last_seq:
+            raise SampleRejected("duplicate_seq", f"seq: {sample.seq} was already accepted", sample.seq)
+        if sample.seq < self.last_seq:
+            raise SampleRejected(
+                "old_seq", f"seq: {sample.seq} is older than the last accepted {self.last_seq}", sample.seq
+            )
+        if sample.stamp < self.last_stamp:
+            raise SampleRejected(
+                "stamp_backwards",
+                f"stamp: {sample.stamp!r} is before the last accepted {self.last_stamp!r}",
+                sample.seq,
+            )
