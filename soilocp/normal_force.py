@@ -111,12 +111,13 @@ class NormalForceSolver:
     def __call__(self, specific_force) -> np.ndarray:
         f = np.asarray(specific_force, dtype=float)
         if f.shape[-1:] != (3,) or not np.all(np.isfinite(f)):
-            return normal_forces_checked_error(f)
+            _reject_specific_force(f)
         return f @ self._map
 
 
-def normal_forces_checked_error(f):
-    as_float_array("specific_force", f)  # raises with the argument named
+def _reject_specific_force(f) -> None:
+    """Raise the ValueError naming ``specific_force`` (non-finite values first, then the shape)."""
+    as_float_array("specific_force", f)
     raise ValueError(f"specific_force must have shape (..., 3), got shape {np.shape(f)}")
 
 
