@@ -202,7 +202,8 @@ class BatchObserver:
         A, b, H = self.model(fz, inputs.wheel_torque, inputs.pitch, self.resistance_matrices(slip, k))
         with np.errstate(invalid="ignore"):
             dt = stamp - last
-            reset = np.isnan(last) | ~(dt > 0) | (dt > cfg.max_gap)
+            # dt == 0 (a repeated stamp) is no reset: F = I, G = 0, Qd = 0 and only the update runs
+            reset = np.isnan(last) | ~(dt >= 0) | (dt > cfg.max_gap)
         x = self.x[ix]
         P = self.P[ix]
         rejected = np.zeros(k, dtype=int)
@@ -213,6 +214,7 @@ class BatchObserver:
             x0[:, L.psi] = inputs.yaw_rate[reset]
             x[reset] = x0
             P[reset] = self._P0
+            self.rejections[ix[reset]] = 0
         run = ~reset
         if run.any():
             xr, Pr, Ar, br, Hr = x[run], P[run], A[run], b[run], H[run]
@@ -323,7 +325,13 @@ class BatchSoil:
     def _predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """Diffusion of ln K (random walk) and mixing with the uniform change prior, per vehicle."""
         cfg = self.cfg
-        eps = cfg.q_log_k**2 * dt / (2 * self.dtheta**2)
+        span = self.theta[-1] - self.theta[0]
+        # after a long gap nothing of the belief survives (as BayesSoilEstimator._predict)
+        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= span**2)
+        if lost.any():
+            p = p.copy()
+            p[lost] = 1.0 / p.shape[1]
+        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
         while np.any(eps > 0):
             e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
             q = (1 - 2 * e) * p

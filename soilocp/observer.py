@@ -359,6 +359,7 @@ class TractionObserver:
         p[L.bias] = c.p0_speed_bias**2
         self.kf.x = x
         self.kf.P = np.diag(p)
+        self._rejections[:] = 0
 
     def step(self, stamp: float, specific_force_x: float, yaw_rate: float, pitch: float,
              wheel_speed, wheel_torque, ground_speed: float, normal_force) -> ObserverEstimate:
@@ -372,10 +373,10 @@ class TractionObserver:
         # serve the prediction to k and the measurement model at k.
         slip = self._state_slip() if self.layout.n_res == 2 and self._last_stamp is not None else None
         A, b, H = self._model(fz, torque, pitch, slip)
-        if dt is None or dt <= 0 or dt > self.cfg.max_gap:
+        if dt is None or dt < 0 or dt > self.cfg.max_gap:
             self._initialise(omega, ground_speed, yaw_rate)
             reset = True
-        else:
+        elif dt > 0:  # a repeated stamp (dt == 0) is a second measurement of the same instant
             F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
             # filterpy: x = F x + B u with B = G (column) and u = 1
             self.kf.predict(u=self._one, B=G[:, None], F=F, Q=Qd)

@@ -215,7 +215,7 @@ class OcpStage:
             return OcpEstimate(mu_T=None, S_T=None, S_E=None, te_at_S_E=None, **common)
         o = ocp_from_soil_strength(soil.soil_strength, self.constants)
         te: Optional[float] = None
-        if self.constants.bridge_slip <= o.S_E < 1:
+        if 0 < o.S_E < 1 and o.S_E >= self.constants.bridge_slip:
             te = tractive_efficiency_scalar(o.S_E, o.soil_strength, self.constants)
         return OcpEstimate(mu_T=o.mu_T, S_T=o.S_T, S_E=o.S_E, te_at_S_E=te, **common)
 

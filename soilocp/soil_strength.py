@@ -143,6 +143,9 @@ class _HoldLogic:
         if self.last_update is None:
             return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, (None, None, None)
         age = stamp - self.last_update
+        if age < 0:  # stamps went backwards (a restarted source): the old update time means nothing
+            self.last_update = self.held = None
+            return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", (None, None, None)
         if age > cfg.hold_after + cfg.expire_after:
             return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", (None, None, None)
         if age == 0.0 or self.held is None:
@@ -202,6 +205,11 @@ class BayesSoilEstimator:
     def _predict(self, dt: float) -> None:
         cfg = self.cfg
         if dt <= 0:
+            return
+        span = self.theta[-1] - self.theta[0]
+        if cfg.change_rate * dt >= 1.0 or cfg.q_log_k**2 * dt >= span**2:
+            # after a long gap nothing of the belief survives: skip the O(dt) diffusion loop
+            self.p = np.full_like(self.p, 1.0 / self.p.size)
             return
         var = cfg.q_log_k**2 * dt
         eps = var / (2 * self.dtheta**2)
@@ -289,7 +297,9 @@ class PaperSoilEstimator:
         used = np.zeros(4, dtype=bool)
         for i in np.flatnonzero(use):
             ref, _, dk = model(slip[i], self.k, self.c)
-            if float(dk) <= 0:  # eq. 37 assumes mu grows with K: not so at small slip (method-notes §4)
+            # eq. 37 assumes |mu| grows with K: not so at small slip (method-notes §4); the curve is
+            # odd in S, so for a braking wheel d mu/dK < 0 is the normal, monotone case
+            if float(dk) * np.sign(slip[i]) <= 0:
                 continue
             # eq. 37 without |.|: E / S_a keeps the sign of the error (eq. 6 is odd in S, so a
             # braking wheel's E and S_a are both negated and the ratio is unchanged)

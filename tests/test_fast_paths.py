@@ -30,3 +30,17 @@ def test_normal_force_solver_rejects_bad_input_by_name():
 @given(st.floats(0.005, 0.99), st.floats(5, 3000))
 def test_scalar_tractive_efficiency_equals_eq9(s, k):
     assert tractive_efficiency_scalar(s, k) == pytest.approx(float(tractive_efficiency(s, k)), rel=1e-12, abs=1e-12)
+
+
+def test_ocp_stage_with_the_printed_model_on_very_firm_soil():
+    """bridge_slip = 0 (eq. 6 as printed) and K above alpha (S_E clamped to 0): no TE, no error."""
+    from schemas.pipeline import SoilEstimate
+    from soilocp.constants import ModelConstants
+    from soilocp.pipeline import OcpStage, PipelineConfig
+
+    stage = OcpStage(PipelineConfig(constants=ModelConstants(bridge_slip=0.0)))
+    soil = SoilEstimate(vehicle_id="r1", seq=1, stamp=0.0, slip=(0.1,) * 4, informative=(True,) * 4,
+                        soil_strength=1000.0, soil_strength_std=50.0, log_k_std=0.05, soil_class="firm",
+                        soil_class_confidence=1.0, status="ok", last_update_stamp=0.0, mu=(0.5,) * 4)
+    rec = stage.step(soil)
+    assert rec.S_E == 0.0 and rec.te_at_S_E is None and rec.mu_T > 1.0

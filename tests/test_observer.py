@@ -164,3 +164,17 @@ def test_template_model_equals_reference_model(structure):
         ref = continuous_model(obs.layout, V, fz, torque, pitch, obs.cfg.gravity, slip)
         for x, y in zip(got, ref):
             assert np.allclose(x, y, rtol=1e-13, atol=1e-13)
+
+
+def test_repeated_stamp_is_an_update_not_a_reset_and_a_reset_clears_gate_counters():
+    obs = TractionObserver(V)
+    data = _drive([0.2] * 4, 0.05, steps=120)
+    for m in data:
+        est = obs.step(m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
+    mu_before = est.mu.copy()
+    m = data[-1]
+    again = obs.step(m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
+    assert not again.reset and np.allclose(again.mu, mu_before, atol=0.02)
+    obs._rejections[:] = 7
+    gap = obs.step(m["stamp"] + 5.0, m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
+    assert gap.reset and not obs._rejections.any()

@@ -170,3 +170,31 @@ def test_factorised_grid_curve_equals_the_traction_model(measurement):
     h_ref, d_ref, _ = curve_unchecked(measurement, s, est.k_grid[None, :], DEFAULT_CONSTANTS)
     assert np.allclose(h, h_ref, rtol=1e-12, atol=1e-12)
     assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
+
+
+def test_stamps_going_backwards_withdraw_the_estimate_instead_of_holding_it_as_fresh():
+    est = BayesSoilEstimator()
+    sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
+    assert _feed(est, 80, sweep, 50, t0=1000.0).status == "ok"
+    state = est.update(10.0, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO)  # the source restarted
+    assert state.status == "no_estimate" and state.soil_strength is None and "backwards" in state.reason
+    assert _feed(est, 80, sweep, 50, t0=11.0).status == "ok"
+
+
+def test_a_long_time_gap_resets_the_belief_at_once():
+    import time
+
+    est = BayesSoilEstimator()
+    sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
+    _feed(est, 80, sweep, 50)
+    t = time.perf_counter()
+    est.update(86_400.0, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO)
+    assert time.perf_counter() - t < 0.5  # not a loop over the gap's length
+    assert np.allclose(est.p, 1.0 / est.p.size)
+
+
+def test_paper_rule_learns_from_braking_wheels_too():
+    est = PaperSoilEstimator()  # K0 = 120
+    sweep = [[-s] * 4 for s in np.linspace(0.15, 0.6, 30)]
+    state = _feed(est, 50, sweep, 3000, measurement="net")
+    assert all(state.used) and state.soil_strength == pytest.approx(50, rel=0.05)
