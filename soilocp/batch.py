@@ -38,7 +38,7 @@ import numpy as np
 from .constants import ModelConstants
 from .observer import N_MEAS, ObserverConfig, StateLayout, TractionObserver, continuous_process_noise
 from .pipeline import LIFT_OFF_FORCE, PipelineConfig
-from .soil_strength import SoilConfig, SoilState, _gate, _HoldLogic, class_bounds, classify
+from .soil_strength import LogKGrid, SoilConfig, SoilState, _gate, _HoldLogic, classify
 from .traction import curve_unchecked
 from .vehicle import VehicleParams
 
@@ -293,56 +293,15 @@ class BatchSoil:
         self.cfg = cfg = config or SoilConfig()
         if cfg.method != "bayes":
             raise ValueError(f"soil method {cfg.method!r}: the batched estimator implements 'bayes' only")
-        if cfg.k_max <= cfg.k_min:
-            raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
         self.n_vehicles = n = _check_count(n_vehicles)
-        self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
-        self.k_grid = np.exp(self.theta)
-        self.dtheta = self.theta[1] - self.theta[0]
+        # the same grid, curve, prediction and summaries as the single-vehicle estimator
+        self.grid = LogKGrid(constants, cfg)
+        self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
-        self._names, edges = class_bounds(constants)
-        cls = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self._names) - 1)
-        self._onehot = (cls[:, None] == np.arange(len(self._names))[None, :]).astype(float)
+        self._names = self.grid.names
+        self._onehot = (self.grid.class_idx[:, None] == np.arange(len(self._names))[None, :]).astype(float)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
         self.last_stamp = np.full(n, np.nan)
-        self._kind = cfg.measurement
-        c = constants
-        self._amp = c.C1 * -np.expm1(-c.C2 * self.k_grid)  # C1 (1 - e^{-C2 K}) of eqs. 3 / 6
-        self._offset = np.full_like(self.k_grid, c.C4) if cfg.measurement == "gross" else -c.C5 / self.k_grid
-        self._slope = np.zeros_like(self.k_grid) if cfg.measurement == "gross" else -c.C6 / np.sqrt(self.k_grid)
-
-    def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """h(S, K_grid) and d h/dS for slips s (m, 1): eq. 3 (gross) or eq. 6 (net), odd in S
-        (``BayesSoilEstimator._curve``: outside the zero-slip bridge, one exp per wheel)."""
-        a = np.abs(s)
-        if np.any(a < self.c.bridge_slip):
-            h, d, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
-            return h, d
-        e = np.exp(-self.c.C3 * a)
-        sign = np.where(s < 0, -1.0, 1.0)
-        return sign * (self._amp * (1.0 - e) + self._offset + self._slope * a), self._amp * self.c.C3 * e + self._slope
-
-    def _predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """Diffusion of ln K (random walk) and mixing with the uniform change prior, per vehicle."""
-        cfg = self.cfg
-        span = self.theta[-1] - self.theta[0]
-        # after a long gap nothing of the belief survives (as BayesSoilEstimator._predict)
-        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= span**2)
-        if lost.any():
-            p = p.copy()
-            p[lost] = 1.0 / p.shape[1]
-        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
-        while np.any(eps > 0):
-            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
-            q = (1 - 2 * e) * p
-            q[:, 1:] += e * p[:, :-1]
-            q[:, :-1] += e * p[:, 1:]
-            q[:, :1] += e * p[:, :1]  # reflecting ends keep the mass
-            q[:, -1:] += e * p[:, -1:]
-            p = q
-            eps = eps - e[:, 0]
-        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
-        return (1 - h) * p + h / p.shape[1]
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None) -> list[SoilState]:
@@ -365,14 +324,14 @@ class BatchSoil:
             dt = stamp - last
             pred = ~np.isnan(last) & (dt > 0)
         if pred.any():
-            p[pred] = self._predict(p[pred], dt[pred])
+            p[pred] = self.grid.predict(p[pred], dt[pred])
         self.last_stamp[ix] = stamp
         info = np.zeros(k, dtype=bool)
         upd = use.any(axis=1)
         if upd.any():
             u = use[upd]
             # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
-            h, dh_ds = self._curve(slip[upd][u][:, None])
+            h, dh_ds = self.grid.curve(slip[upd][u][:, None])
             sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
@@ -398,10 +357,8 @@ class BatchSoil:
             hold = self._holds[ixj]
             if inf:
                 hold.last_update = st
-            t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf[j], self.theta)
-            log_std = float((t84 - t16) / 2.0)
-            k_std = float((math.exp(t84) - math.exp(t16)) / 2.0)
-            status, reason, (rk, rs, rl) = hold.status(st, math.exp(t50), k_std, log_std)
+            k_med, k_std, log_std = self.grid.summary(cdf[j])
+            status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             cls = conf = None
             if rk is not None:
                 if not inf:

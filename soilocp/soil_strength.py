@@ -162,31 +162,28 @@ class _HoldLogic:
         return "ok", "", (k, k_std, log_std)
 
 
-class BayesSoilEstimator:
-    """Grid Bayes filter over ln K fusing the four wheels (default estimator; see module doc)."""
+class LogKGrid:
+    """The ln K grid of the Bayes estimator and what is computed on it: the observation curve
+    (eq. 3 or 6, factorised), the belief's prediction (random walk + change prior) and its robust
+    summaries.  One object serves :class:`BayesSoilEstimator` and the batched ``soilocp.batch``."""
 
-    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
-        self.c = constants
-        self.cfg = cfg = config or SoilConfig()
+    def __init__(self, constants: ModelConstants, cfg: SoilConfig):
         if cfg.k_max <= cfg.k_min:
             raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
+        self.c, self.cfg, self.kind = constants, cfg, cfg.measurement
         self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
         self.k_grid = np.exp(self.theta)
         self.dtheta = self.theta[1] - self.theta[0]
-        self.p = np.full(cfg.grid_points, 1.0 / cfg.grid_points)
-        self._names, edges = class_bounds(constants)
-        self._class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self._names) - 1)
-        self._hold = _HoldLogic(cfg)
-        self._last_stamp: Optional[float] = None
-        self._kind = cfg.measurement
+        self.span = self.theta[-1] - self.theta[0]
+        self.names, edges = class_bounds(constants)
+        self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
         # Slip-independent factors of eqs. 3 / 6 on the grid, so an update costs one exp per wheel.
         c = constants
         self._amp = c.C1 * -np.expm1(-c.C2 * self.k_grid)  # C1 (1 - e^{-C2 K})
-        self._offset = np.full_like(self.k_grid, c.C4) if cfg.measurement == "gross" else -c.C5 / self.k_grid
-        self._slope = np.zeros_like(self.k_grid) if cfg.measurement == "gross" else -c.C6 / np.sqrt(self.k_grid)
-        self._mean_k = float(self.p @ self.k_grid)
+        self._offset = np.full_like(self.k_grid, c.C4) if self.kind == "gross" else -c.C5 / self.k_grid
+        self._slope = np.zeros_like(self.k_grid) if self.kind == "gross" else -c.C6 / np.sqrt(self.k_grid)
 
-    def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """h(S, K_grid) and d h/dS for slips s (n, 1): eq. 3 (gross) or eq. 6 (net), odd in S.
 
         Equal to :func:`soilocp.traction.curve_unchecked` (tested); outside the zero-slip bridge
@@ -194,7 +191,7 @@ class BayesSoilEstimator:
         """
         a = np.abs(s)
         if np.any(a < self.c.bridge_slip):
-            h, d, _ = curve_unchecked(self._kind, s, self.k_grid[None, :], self.c)
+            h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
         sign = np.where(s < 0, -1.0, 1.0)
@@ -202,29 +199,54 @@ class BayesSoilEstimator:
         d = self._amp * self.c.C3 * e + self._slope
         return h, d
 
-    def _predict(self, dt: float) -> None:
+    def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Beliefs p (k, G) after dt (k,) > 0 seconds: diffusion of ln K (random walk) and mixing
+        with the uniform change prior.  After a long gap nothing survives: uniform at once."""
         cfg = self.cfg
-        if dt <= 0:
-            return
-        span = self.theta[-1] - self.theta[0]
-        if cfg.change_rate * dt >= 1.0 or cfg.q_log_k**2 * dt >= span**2:
-            # after a long gap nothing of the belief survives: skip the O(dt) diffusion loop
-            self.p = np.full_like(self.p, 1.0 / self.p.size)
-            return
-        var = cfg.q_log_k**2 * dt
-        eps = var / (2 * self.dtheta**2)
-        p = self.p
-        while eps > 0:
-            e = min(eps, 0.25)  # the 3-tap kernel is a valid diffusion step for eps <= 0.25
+        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
+        if lost.any():
+            p = p.copy()
+            p[lost] = 1.0 / p.shape[1]
+        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
+        while np.any(eps > 0):
+            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
             q = (1 - 2 * e) * p
-            q[1:] += e * p[:-1]
-            q[:-1] += e * p[1:]
-            q[0] += e * p[0]  # reflecting ends keep the mass
-            q[-1] += e * p[-1]
+            q[:, 1:] += e * p[:, :-1]
+            q[:, :-1] += e * p[:, 1:]
+            q[:, :1] += e * p[:, :1]  # reflecting ends keep the mass
+            q[:, -1:] += e * p[:, -1:]
             p = q
-            eps -= e
-        h = min(cfg.change_rate * dt, 1.0)
-        self.p = (1 - h) * p + h / p.size
+            eps = eps - e[:, 0]
+        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
+        return (1 - h) * p + h / p.shape[1]
+
+    def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:
+        """(K, K 1-sigma, ln K 1-sigma) from a belief's mid-point CDF: the median and half the
+        16-84 % interval.  Moments would be dominated by the small uniform "terrain may change"
+        mass spread over K = 5..5000."""
+        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf_row, self.theta)
+        return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
+
+
+class BayesSoilEstimator:
+    """Grid Bayes filter over ln K fusing the four wheels (default estimator; see module doc)."""
+
+    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
+        self.c = constants
+        self.cfg = cfg = config or SoilConfig()
+        self.grid = LogKGrid(constants, cfg)
+        self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
+        self.p = np.full(cfg.grid_points, 1.0 / cfg.grid_points)
+        self._names, self._class_idx = self.grid.names, self.grid.class_idx
+        self._hold = _HoldLogic(cfg)
+        self._last_stamp: Optional[float] = None
+
+    def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.grid.curve(s)
+
+    def _predict(self, dt: float) -> None:
+        if dt > 0:
+            self.p = self.grid.predict(self.p[None, :], np.array([dt]))[0]
 
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
                gate_slip=None, gate_sigma=None) -> SoilState:
@@ -259,13 +281,7 @@ class BayesSoilEstimator:
         used = use
         if any_info:
             self._hold.last_update = stamp
-        # Robust summaries: the median and the 16-84 % interval of the belief.  Moments would be
-        # dominated by the small uniform "terrain may change" mass spread over K = 5..5000.
-        cdf = np.cumsum(self.p) - 0.5 * self.p
-        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf, self.theta)
-        log_std = float((t84 - t16) / 2.0)
-        k = math.exp(t50)
-        k_std = float((math.exp(t84) - math.exp(t16)) / 2.0)
+        k, k_std, log_std = self.grid.summary(np.cumsum(self.p) - 0.5 * self.p)
         status, reason, (rk, rs, rl) = self._hold.status(stamp, k, k_std, log_std)
         cls = conf = None
         if rk is not None:

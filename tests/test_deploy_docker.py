@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 import pytest
+from zenoh_helpers import json_lines_so_far
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"
@@ -90,18 +91,6 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _records(path: Path) -> list[dict]:
-    out = []
-    try:
-        text = path.read_text()
-    except OSError:
-        return out
-    for line in text.splitlines():
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            pass
-    return out
 
 
 def _present_tokens(recs: list[dict], vid: str) -> set[str]:
@@ -147,7 +136,7 @@ class Fleet:
         self.probe = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=open(self.out.with_suffix(".err"), "wb"))
 
     def records(self) -> list[dict]:
-        return _records(self.out)
+        return json_lines_so_far(self.out)
 
     def wait(self, what: str, cond: Callable[[list[dict]], bool], timeout: float) -> float:
         t0 = time.time()

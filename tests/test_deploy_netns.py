@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 import pytest
+from zenoh_helpers import json_lines_so_far
 
 ROOT = Path(__file__).resolve().parents[1]
 NETNS = ROOT / "scripts" / "netns-vehicle.sh"
@@ -116,19 +117,6 @@ class Processes:
         return "\n".join(lines[-n:])
 
 
-def _records(path: Path) -> list[dict]:
-    """JSON lines written so far (a partly written last line is ignored)."""
-    out = []
-    try:
-        text = path.read_text()
-    except OSError:
-        return out
-    for line in text.splitlines():
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            pass
-    return out
 
 
 def _wait(what: str, cond: Callable[[], bool], timeout: float, procs: Processes) -> float:
@@ -186,8 +174,8 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
         procs.start("probe-fleet", "fleet", [*probe_args, "--connect", FLEET_EP, "--out", str(fleet_probe)], {})
 
         startup = _wait("fresh OCPs on the estimation unit and at the fleet",
-                        lambda: any(r["kind"] == "query" and r["stale"] is False for r in _records(unit_probe))
-                        and any(r["kind"] == "sample" for r in _records(fleet_probe)), 360, procs)
+                        lambda: any(r["kind"] == "query" and r["stale"] is False for r in json_lines_so_far(unit_probe))
+                        and any(r["kind"] == "sample" for r in json_lines_so_far(fleet_probe)), 360, procs)
         print(f"\nnetns run {run_id}: pipeline up across 3 namespaces in {startup:.1f} s")
         time.sleep(2.0)
 
@@ -199,8 +187,8 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
 
         def recovered() -> bool:
             unit_ok = any(r["kind"] == "query" and r["t"] > t_restore and r["stale"] is False
-                          for r in _records(unit_probe))
-            fleet_ok = any(r["kind"] == "sample" and r["t"] > t_restore for r in _records(fleet_probe))
+                          for r in json_lines_so_far(unit_probe))
+            fleet_ok = any(r["kind"] == "sample" and r["t"] > t_restore for r in json_lines_so_far(fleet_probe))
             return unit_ok and fleet_ok
 
         _wait("fresh OCPs again after the link came back", recovered, 60, procs)
@@ -213,7 +201,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
     assert all(c == 0 for c in codes.values()), f"unclean exits after SIGTERM: {codes}"
     assert probe_codes == {"probe-est": 0, "probe-fleet": 0}
 
-    unit, fleet = _records(unit_probe), _records(fleet_probe)
+    unit, fleet = json_lines_so_far(unit_probe), json_lines_so_far(fleet_probe)
     report = {}
     for where, recs in (("estimation unit", unit), ("fleet", fleet)):
         corrupt = [r for r in recs if r["kind"] == "corrupt"]

@@ -167,3 +167,18 @@ def wait_count(count: Callable[[], int], target: int, *, stall_s: float = 20.0, 
         elif now - last_change > stall_s or now - start > overall_s:
             return False
     return True
+
+
+def json_lines_so_far(path: Path) -> list[dict]:
+    """JSON lines a child process has written so far (a partly written last line is ignored)."""
+    out = []
+    try:
+        text = path.read_text()
+    except OSError:
+        return out
+    for line in text.splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            pass
+    return out
