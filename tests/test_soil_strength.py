@@ -182,14 +182,12 @@ def test_stamps_going_backwards_withdraw_the_estimate_instead_of_holding_it_as_f
 
 
 def test_a_long_time_gap_resets_the_belief_at_once():
-    import time
-
+    # 30 years: a diffusion loop over the gap's length would never return (the suite's timeout
+    # would fail this test); the reset is immediate
     est = BayesSoilEstimator()
     sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
     _feed(est, 80, sweep, 50)
-    t = time.perf_counter()
-    est.update(86_400.0, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO)
-    assert time.perf_counter() - t < 0.5  # not a loop over the gap's length
+    est.update(1e9, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO)
     assert np.allclose(est.p, 1.0 / est.p.size)
 
 
