@@ -6,12 +6,15 @@ All coefficients are per unit normal load W (a force divided by W):
 * motion resistance r(S, K) = F_MR / W                     (eq. 4)
 * net (drawbar) traction mu(S, K) = F_DP / W = g - r       (eqs. 2, 5, 6)
 
-Sign convention (method-notes, Conventions): S > 0 driving, S < 0 braking.  Eq. 6 as printed is
-odd in S (mu(-S) = -mu(S)): braking is the mirror image of driving.  We keep that and make the
-split consistent with it: g and r are odd as well, and for S > 0 they are exactly eqs. 3 and 4.
-(The printed braking branches of eqs. 3 and 4 are not consistent with eq. 6 and eq. 2 at the same
-time; the mirror keeps eq. 6 and eq. 2 exact, which is what the wheel torque balance, eq. 13,
-needs: the wheel sees g = mu + r.)
+Sign convention (method-notes, Conventions and §11): S > 0 driving, S < 0 braking, for a wheel
+travelling forward.  Eq. 6 is odd in S (mu(-S) = -mu(S)): braking is the mirror image of driving.
+Motion resistance (eq. 4 with |S|) is EVEN in S: it opposes travel whatever the sign of the slip,
+and does not flip when the wheel brakes.  The wheel's torque balance (eq. 13) sees gross traction
+g = mu + r (eq. 2), so for S > 0 g is exactly eq. 3 and for S < 0 it is -mu(|S|) + r(|S|), with
+|g| < |mu|: the resistance itself slows the vehicle, so less brake torque is needed.
+Correction (§11): the printed lower branch of eq. 3 (which flips C4 with the torque) cannot hold
+together with eqs. 2, 4 and 6; we keep eq. 6 (net, odd) and eq. 4 (resistance, even) and derive g.
+A wheel travelling backwards is the mirror image of all of this (S -> -S, every force negated).
 
 Correction (method-notes §8): eq. 6 jumps from -C5/K to +C5/K at S = 0, so zero slip would not
 give zero force.  Inside |S| < ``constants.bridge_slip`` every coefficient is the straight line
@@ -96,6 +99,31 @@ def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelCons
     return sign * val, d_s, sign * d_k
 
 
+def _even_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants):
+    """Even extension of a one-sided curve (method-notes §11), with the same linear bridge as
+    :func:`_odd_bridged_unchecked` inside |S| < bridge_slip, so that it vanishes at zero slip
+    (a wheel at rest feels no resistance torque).  Returns (value, d/dS, d/dK)."""
+    sign = np.where(s < 0, -1.0, 1.0)
+    val, d_s, d_k = _odd_bridged_unchecked(one_sided, np.abs(s), k, c)
+    return val, sign * d_s, d_k
+
+
+def _gross_unchecked(s: np.ndarray, k: np.ndarray, c: ModelConstants):
+    """g = mu + r (eq. 2 with method-notes §11): net traction odd (eq. 6), resistance even (eq. 4).
+
+    Written as eq. 3's odd extension plus 2 r(|S|) on the braking side, which is the same sum
+    (-mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)) but keeps eq. 3 and its d/dK exact for S > 0, where
+    d g/dK is a tiny difference of large terms at high K."""
+    g, g_s, g_k = _odd_bridged_unchecked(_gross_pos, s, k, c)
+    braking = s < 0
+    if np.any(braking):
+        r, r_s, r_k = _even_bridged_unchecked(_resist_pos, s, k, c)
+        g = np.where(braking, g + 2.0 * r, g)
+        g_s = np.where(braking, g_s + 2.0 * r_s, g_s)
+        g_k = np.where(braking, g_k + 2.0 * r_k, g_k)
+    return g, g_s, g_k
+
+
 def net_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """Net (drawbar) traction coefficient mu(S, K) = F_DP / W, eq. 6 (both slip signs).
 
@@ -106,16 +134,16 @@ def net_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTA
 
 
 def gross_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """Gross traction coefficient F_GT / W, eq. 3; odd in S (see module docstring) and bridged."""
-    return _odd_bridged(_gross_pos, slip, soil_strength, constants)[0]
+    """Gross traction coefficient F_GT / W = mu + r (eq. 2): eq. 3 for S > 0; for a braking wheel
+    -mu(|S|) + r(|S|) (method-notes §11, not eq. 3's printed lower branch); bridged near S = 0."""
+    return _gross_unchecked(*_inputs(slip, soil_strength), constants)[0]
 
 
 def motion_resistance(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """Motion-resistance coefficient F_MR / W, eq. 4 for S > 0, so that g = mu + r (eq. 2).
-
-    For S < 0 it is the mirror image -r(|S|) (eq. 6's odd symmetry); bridged near S = 0.
-    """
-    return _odd_bridged(_resist_pos, slip, soil_strength, constants)[0]
+    """Motion-resistance coefficient F_MR / W, eq. 4 with |S| (method-notes §11): even in S, it
+    opposes travel for both slip signs, so that g = mu + r (eq. 2); bridged near S = 0."""
+    s, k = _inputs(slip, soil_strength)
+    return _even_bridged_unchecked(_resist_pos, s, k, constants)[0]
 
 
 def net_traction_with_derivatives(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -124,8 +152,9 @@ def net_traction_with_derivatives(slip, soil_strength, constants: ModelConstants
 
 
 def gross_traction_with_derivatives(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """eq. 3 and its partial derivatives: (g, d g/dS, d g/dK).  d g/dK > 0 for S != 0 (monotone in K)."""
-    return _odd_bridged(_gross_pos, slip, soil_strength, constants)
+    """g = mu + r (eq. 2, §11) and its partial derivatives: (g, d g/dS, d g/dK).  For S > 0 this is
+    eq. 3 and d g/dK > 0 (monotone in K); for a braking wheel d g/dK can take either sign."""
+    return _gross_unchecked(*_inputs(slip, soil_strength), constants)
 
 
 def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -148,8 +177,9 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
 def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants):
     """(value, d/dS, d/dK) of the ``gross`` (eq. 3) or ``net`` (eq. 6) curve, for validated float
     arrays that already broadcast: the estimators' hot loop, which checks its inputs once."""
-    one_sided = _gross_pos if kind == "gross" else _net_pos
-    return _odd_bridged_unchecked(one_sided, slip, soil_strength, constants)
+    if kind == "gross":
+        return _gross_unchecked(slip, soil_strength, constants)
+    return _odd_bridged_unchecked(_net_pos, slip, soil_strength, constants)
 
 
 def tractive_efficiency_scalar(slip: float, soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> float:

@@ -6,6 +6,8 @@ import json
 import math
 from pathlib import Path
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 
@@ -26,11 +28,19 @@ class VehicleParams(BaseModel):
     c: float = Field(0.25, gt=0, description="CoM to left wheels, m")
     d: float = Field(0.25, gt=0, description="CoM to right wheels, m")
     h: float = Field(0.30, gt=0, description="CoM height above ground, m")
+    drive: Literal["per_wheel", "per_side"] = Field(
+        "per_wheel",
+        description=(
+            "per_wheel: each wheel has its own motor, speed and torque. per_side: skid-steer with one "
+            "motor per side; the two wheels of a side share one measured speed and one torque, logged "
+            "as the side's speed on both wheels and half the side's torque on each"
+        ),
+    )
 
     @model_validator(mode="after")
     def _finite(self):
         for name, v in self.model_dump().items():
-            if not math.isfinite(v):
+            if isinstance(v, float) and not math.isfinite(v):
                 raise ValueError(f"{name} must be finite, got {v!r}")
         return self
 

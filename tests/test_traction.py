@@ -48,9 +48,23 @@ def test_net_traction_known_value_sand():
 
 @FAST
 @given(slips, strengths)
-def test_mu_is_odd_in_slip(s, k):
+def test_mu_is_odd_and_resistance_even_in_slip(s, k):
+    # method-notes §11: net traction (eq. 6) is odd, motion resistance (eq. 4 with |S|) is even
     assert net_traction(-s, k) == pytest.approx(-net_traction(s, k), abs=1e-12)
-    assert gross_traction(-s, k) == pytest.approx(-gross_traction(s, k), abs=1e-12)
+    assert motion_resistance(-s, k) == pytest.approx(motion_resistance(s, k), abs=1e-12)
+
+
+def test_braking_wheel_gross_is_net_plus_even_resistance_not_eq3_lower_branch():
+    # §11 test vector: K = 80, S = -0.3.  gross = mu + r = -mu(0.3) + r(0.3), |gross| < |mu|;
+    # eq. 3's printed lower branch -(amp (1 - e^{-C3 |S|}) + C4) would be larger in magnitude.
+    k, s = 80.0, 0.3
+    r = C.C5 / k + C.C4 + C.C6 * s / np.sqrt(k)
+    amp = C.C1 * (1 - np.exp(-C.C2 * k))
+    mu = amp * (1 - np.exp(-C.C3 * s)) - (C.C5 / k + C.C6 * s / np.sqrt(k))
+    assert gross_traction(-s, k) == pytest.approx(-mu + r, rel=1e-12)
+    assert abs(gross_traction(-s, k)) < abs(net_traction(-s, k))
+    assert abs(gross_traction(-s, k) - (-(amp * (1 - np.exp(-C.C3 * s)) + C.C4))) > 0.1
+    assert gross_traction(s, k) == pytest.approx(amp * (1 - np.exp(-C.C3 * s)) + C.C4, rel=1e-12)  # eq. 3
 
 
 @FAST
