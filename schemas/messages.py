@@ -62,8 +62,9 @@ class ServiceHealth(_ServiceMessage):
     vehicle_id: VehicleId
     pid: int
     host: str
-    state: Literal["starting", "running", "stale", "stopping"] = Field(
-        description="running, or stale (OCP publisher: no input for longer than stale_timeout_s)"
+    state: Literal["starting", "running", "failing", "stale", "stopping"] = Field(
+        description="running; failing (most recent inputs fail: see failure_rate and the log); or stale (OCP "
+        "publisher: no input for longer than stale_timeout_s)"
     )
     uptime_s: float = Field(ge=0)
     received: int = Field(ge=0, description="Messages received on the service's input keys")
@@ -71,6 +72,7 @@ class ServiceHealth(_ServiceMessage):
     rejected: int = Field(ge=0, description="Inputs refused (gateway: rejections published)")
     dropped: int = Field(ge=0, description="Inputs dropped: worker queue full, or never joined (observer)")
     errors: int = Field(ge=0, description="Inputs whose processing raised (logged)")
+    failure_rate: float = Field(default=0.0, ge=0, le=1, description="Share of the last ~20 inputs whose processing failed")
     queue_depth: int = Field(ge=0, description="Items waiting in the worker queue")
     last_seq: Optional[int] = Field(default=None, description="seq of the last processed input")
     last_stamp: Optional[float] = Field(default=None, description="stamp of the last processed input")

@@ -324,7 +324,9 @@ class ObserverBank:
             mu_determined=mu_var <= self.cfg.mu_std_determined**2,
             resistance=res,
             gross=mu + res,
-            gross_var=np.einsum("kil,kil->ki", J @ P, J),
+            # a quadratic form of the conditioned P: floored, since clamping correlations keeps P only
+            # nearly positive semi-definite
+            gross_var=np.maximum(np.einsum("kil,kil->ki", J @ P, J), self.cfg.variance_floor),
             wheel_speed=x[:, L.omega].copy(),
             ground_speed=x[:, L.v].copy(),
             yaw_rate=x[:, L.psi].copy(),

@@ -128,7 +128,7 @@ class TractionObserver:
             mu_var=np.diag(P)[L.mu].copy(),
             resistance=res,
             gross=x[L.mu] + res,
-            gross_var=np.einsum("ij,jk,ik->i", J, P, J),
+            gross_var=np.maximum(np.einsum("ij,jk,ik->i", J, P, J), self.cfg.variance_floor),
             wheel_speed=x[L.omega].copy(),
             ground_speed=float(x[L.v]),
             yaw_rate=float(x[L.psi]),
