@@ -148,7 +148,8 @@ class VehicleService(Service):
                 self.pub.put(payload)
                 c.published += 1
                 c.last_stamp = stamp
-            self.log.info("source_done", vehicle_id=vid, published=c.published)
+            self.log.info("source_done", vehicle_id=vid, published=c.published,
+                          **(self.inbox.latency_summary() if self.inbox is not None else {}))
         except Exception as exc:  # a broken source (bad scenario, unreadable file) ends the process non-zero
             self.exit_code = 1
             self.log.error("source_failed", vehicle_id=vid, error=f"{type(exc).__name__}: {exc}"[:500])
