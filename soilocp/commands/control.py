@@ -59,7 +59,8 @@ def compare_cmd(scenarios, controllers, list_only, json_out, plots_dir, duration
     for entry in doc["scenarios"]:
         g = gains_over_fixed(entry)
         if g:
-            click.echo(f"{entry['name']}: vs best fixed slip: "
+            what = {"drawbar": "pull", "climb": "max grade", "drive": "energy saved per metre"}[entry["kind"]]
+            click.echo(f"{entry['name']}: {what} vs the best fixed slip: "
                        + ", ".join(f"{c} {100 * v:+.1f} %" for c, v in g.items()))
     if json_out:
         Path(json_out).write_text(json.dumps(doc, indent=2) + "\n")

@@ -70,17 +70,19 @@ def gains_over_fixed(entry: dict) -> dict[str, Optional[float]]:
 
 
 def table_rows(doc: dict) -> list[list[str]]:
-    """Rows: scenario, controller, pull N, energy J/m, max grade deg, distance m, estimate share."""
+    """Rows: scenario, controller, pull N, energy J/m, max grade deg, distance m, estimate share, K error."""
     rows = []
     for entry in doc["scenarios"]:
         for c, m in entry["controllers"].items():
             f = lambda k, spec: "-" if m.get(k) is None else format(m[k], spec)  # noqa: E731
             rows.append([entry["name"], c, f("drawbar_pull_n", ".1f"), f("energy_per_m_j", ".1f"),
-                         f("max_grade_deg", ".1f"), f("distance_m", ".1f"), f("estimate_share", ".2f")])
+                         f("max_grade_deg", ".1f"), f("distance_m", ".1f"), f("estimate_share", ".2f"),
+                         "-" if m.get("k_error_median") is None else f"{100 * m['k_error_median']:.1f} %"])
     return rows
 
 
-TABLE_HEADER = ["scenario", "controller", "pull N", "energy J/m", "max grade deg", "distance m", "on estimate"]
+TABLE_HEADER = ["scenario", "controller", "pull N", "energy J/m", "max grade deg", "distance m", "on estimate",
+                "K med err"]
 
 
 def markdown_table(doc: dict) -> str:
