@@ -93,9 +93,13 @@ class VehicleService(Service):
             return  # one source feeds one vehicle
         self.pub = self.publisher(session, keys.raw(vehicle_id))
         if self.inbox is not None:  # the callback only stores: the torque loop reads the latest
-            offer = self.inbox.offer
-            self.keep(session.declare_subscriber(keys.control_slip(vehicle_id),
-                                                 lambda sample: offer(sample.payload.to_bytes())))
+            offer, counters = self.inbox.offer, self.counters[vehicle_id]
+
+            def _setpoint(sample) -> None:
+                counters.received += 1
+                offer(sample.payload.to_bytes())
+
+            self.keep(session.declare_subscriber(keys.control_slip(vehicle_id), _setpoint))
         self._thread = threading.Thread(target=self._publish_all, name="vehicle-source", daemon=True)
         self._thread.start()
 
