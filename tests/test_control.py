@@ -186,3 +186,30 @@ def test_control_compare_json_shape_on_a_short_run(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "soilocp.cli", "control", "compare", "--scenario", "nowhere"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "scenario must be one of" in bad.stderr
+
+
+# --- the closed-loop vehicle's set-point inbox (no Zenoh needed) ------------------------------------
+def test_vehicle_inbox_follows_set_points_falls_back_when_silent_and_times_the_loop():
+    from schemas.messages import SlipSetpoint
+    from services.vehicle_control import SetpointInbox
+
+    inbox = SetpointInbox("rover1", "ocp_traction", stale_timeout_s=0.5)
+    fb = fallback_slip("S_T")
+    assert inbox.current(now=0.0).value == fb and inbox.current(now=0.0).source == "fallback"
+    inbox.sent(1.25, 100.0)  # sample stamp 1.25 published at t = 100.0 s
+    sp = SlipSetpoint(vehicle_id="rover1", controller="ocp_traction", slip=(0.5,) * 4, source="estimate",
+                      fallback=fb, seq=125, stamp=1.25, soil_strength=300.0, stale_timeout_s=0.5, issued_at=0.0)
+    inbox.offer(sp.model_dump_json().encode(), wall=100.004)
+    cur = inbox.current(now=100.2)
+    assert cur.value == 0.5 and cur.source == "estimate"
+    assert inbox.latency_summary()["loop_latency_n"] == 1
+    assert inbox.latency_summary()["loop_latency_p50_ms"] == pytest.approx(4.0)
+    # the controller went silent: after the stale timeout the vehicle applies the fallback itself
+    late = inbox.current(now=100.6)
+    assert late.value == fb and late.source == "fallback" and "no set-point for" in late.reason
+    # garbage and other vehicles' set-points are counted and ignored
+    inbox.offer(b"{not json", wall=100.7)
+    inbox.offer(sp.model_copy(update={"vehicle_id": "other"}).model_dump_json().encode(), wall=100.7)
+    assert inbox.bad == 2 and inbox.current(now=100.71).value == fb
+    with pytest.raises(ValueError, match="controller must be one of"):
+        SetpointInbox("rover1", "nope", 0.5)
