@@ -5,15 +5,19 @@ Input ``soilocp/<vid>/ocp`` (OcpEstimate); output ``soilocp/<vid>/control/slip``
 (:func:`soilocp.control.make_policy`): ``ocp_traction`` -> S_T, ``ocp_efficiency`` -> S_E of the
 estimate, with the safe fallback of :mod:`soilocp.control.setpoints` while K is unknown.
 
-Stale or missing OCPs: when no estimate arrived for longer than ``stale_timeout_s`` (or none
-yet), the tick (every 50 ms) publishes the fallback set-point, and repeats it every half stale
-timeout while the silence lasts, so the vehicle is on the safe set-point at most one tick after
-the stale timeout.  The vehicle's torque loops track the set-points; this service never sends
-torques (a set-point over the network, the fast loop on the vehicle).
+Stale or missing OCPs: a watchdog thread looks every ``WATCH_PERIOD_S`` (10 ms); once the
+last estimate is so old that it would pass ``stale_timeout_s`` before the next look (or there is
+none yet), it publishes the fallback set-point and repeats it every half stale timeout while the
+silence lasts.  So the fallback is out no later than ``stale_timeout_s`` after the last OCP
+(the runner's 50 ms tick would be too coarse for that promise).
+
+The vehicle's torque loops track the set-points; this service never sends torques (a set-point
+over the network, the fast loop on the vehicle).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any, Optional
 
@@ -23,6 +27,8 @@ from schemas.pipeline import OcpEstimate
 from soilocp.control import OcpSetPoint, SetPoint, make_policy
 
 from .runtime import Service
+
+WATCH_PERIOD_S = 0.01
 
 
 class ControllerService(Service):
@@ -37,10 +43,21 @@ class ControllerService(Service):
         self._last_ocp_wall: dict[str, Optional[float]] = {vid: None for vid in cfg.vehicle_ids}
         self._next_fallback: dict[str, float] = {vid: 0.0 for vid in cfg.vehicle_ids}
         self._stale: dict[str, bool] = {vid: True for vid in cfg.vehicle_ids}
+        self._watchdog: Optional[threading.Thread] = None
 
     def declare(self, session, vehicle_id: str) -> None:
         self.pubs[vehicle_id] = self.publisher(session, keys.control_slip(vehicle_id))
         self.subscribe(session, keys.ocp(vehicle_id), vehicle_id, "ocp")
+        if self._watchdog is None:  # the runner sets stop_event before declaring
+            self._watchdog = threading.Thread(target=self._watch, name="controller-watchdog", daemon=True)
+            self._watchdog.start()
+
+    def _watch(self) -> None:
+        while not self.stop_event.wait(WATCH_PERIOD_S):
+            try:
+                self.check_stale(time.time())
+            except Exception as exc:  # never let the watchdog die silently
+                self.log.error("watchdog_error", error=f"{type(exc).__name__}: {exc}"[:300])
 
     def _publish(self, vid: str, sp: SetPoint, est: Optional[OcpEstimate], now: float) -> None:
         last = self._last_ocp_wall[vid]
@@ -63,22 +80,25 @@ class ControllerService(Service):
         self._last_ocp_wall[vid] = wall
         if self._stale[vid]:
             self._stale[vid] = False
+            self._next_fallback[vid] = 0.0  # the next silence gets its fallback at once
             self.log.info("ocp_fresh", vehicle_id=vid)
         sp = self.policy(est.stamp, est)
         self._publish(vid, sp, est, wall)
         c.last_seq, c.last_stamp = est.seq, est.stamp
 
-    def tick(self, now: float) -> None:
+    def check_stale(self, now: float) -> None:
+        """Publish the fallback for every vehicle whose OCPs are (about to be) stale."""
         timeout = self.cfg.stale_timeout_s
-        for vid in self.pubs:
+        for vid in list(self.pubs):
             last = self._last_ocp_wall[vid]
-            if last is not None and now - last <= timeout:
+            if last is not None and now - last + WATCH_PERIOD_S <= timeout:
                 continue
             if now < self._next_fallback[vid]:
                 continue
             self._next_fallback[vid] = now + timeout / 2.0
             if self.fallback is not None:
-                reason = "no OCP yet" if last is None else f"OCPs stale: none for {now - last:.3f} s (> {timeout} s)"
+                reason = ("no OCP yet" if last is None else
+                          f"OCPs stale: none for {now - last:.3f} s (stale_timeout_s {timeout} s)")
                 sp = SetPoint(self.fallback, "fallback", reason)
             else:  # speed / fixed: the policy does not depend on the estimate
                 sp = self.policy(0.0, None)
