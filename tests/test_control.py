@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from schemas.pipeline import OcpEstimate
-from soilocp.control import (DEFAULT_GAINS, LoopGains, OcpSetPoint, WheelTorqueLoop, fallback_slip, make_controller,
-                             make_policy)
+from soilocp.control import DEFAULT_GAINS, LoopGains, OcpSetPoint, WheelTorqueLoop, fallback_slip, make_policy
 from soilocp.control.compare import METRICS
 from soilocp.control.rig import get_rig_scenario, run_closed_loop
 from soilocp.ocp import ocp_from_soil_strength
