@@ -98,3 +98,29 @@ class OcpReply(_ServiceMessage):
         default=None, description="Estimates selected by ?last=N or ?since=STAMP, oldest first (null without them)"
     )
     history_capacity: int = Field(ge=1, description="How many estimates the publisher keeps")
+
+
+SlipSetpointSource = Literal["estimate", "fallback", "fixed", "none"]
+
+
+class SlipSetpoint(_ServiceMessage):
+    """Wheel slip set-points of the controller service (``soilocp/<vid>/control/slip``).
+
+    Published on every OCP estimate, and while the OCPs are stale or missing, every half stale
+    timeout with the safe fallback (``source: "fallback"``).  The vehicle's own torque loops track
+    them (slip limiters under its speed command); a vehicle that hears no set-point for longer than
+    ``stale_timeout_s`` applies ``fallback`` itself."""
+
+    vehicle_id: VehicleId
+    controller: str = Field(description="Controller name: speed, fixed_<slip>, ocp_traction, ocp_efficiency")
+    slip: Optional[tuple[float, float, float, float]] = Field(
+        description="Slip set-point per wheel (1 LR, 2 LF, 3 RF, 4 RR), eq. 1; null: no slip control (speed)")
+    source: SlipSetpointSource = Field(description="estimate (from the live OCP), fallback (safe), fixed, none")
+    reason: str = Field(default="", description="Why the fallback is in use")
+    fallback: Optional[float] = Field(description="The safe slip set-point of this controller (null: none)")
+    seq: Optional[int] = Field(default=None, description="seq of the sensor sample whose estimate gave the set-point")
+    stamp: Optional[float] = Field(default=None, description="stamp of that sample, s")
+    soil_strength: Optional[float] = Field(default=None, description="K the set-point came from")
+    ocp_age_s: Optional[float] = Field(default=None, description="Wall-clock s since the last OCP (null: none yet)")
+    stale_timeout_s: float = Field(gt=0)
+    issued_at: float = Field(description="Wall-clock time of publication, s since the Unix epoch")
