@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -26,11 +27,17 @@ class VehicleParams(BaseModel):
     c: float = Field(0.25, gt=0, description="CoM to left wheels, m")
     d: float = Field(0.25, gt=0, description="CoM to right wheels, m")
     h: float = Field(0.30, gt=0, description="CoM height above ground, m")
+    drive: Literal["per_wheel", "per_side"] = Field(
+        "per_wheel",
+        description="per_wheel: a motor (speed and torque) per wheel; per_side: skid steer, one motor per side "
+        "driving both wheels of that side (the sensor log then holds the side's speed for both wheels and half "
+        "the side's torque each)",
+    )
 
     @model_validator(mode="after")
     def _finite(self):
         for name, v in self.model_dump().items():
-            if not math.isfinite(v):
+            if isinstance(v, float) and not math.isfinite(v):
                 raise ValueError(f"{name} must be finite, got {v!r}")
         return self
 

@@ -187,3 +187,19 @@ def write_samples(samples, out: str | Path) -> int:
             f.write(s.model_dump_json() + "\n")
             n += 1
     return n
+
+
+WITHHELD_FIELDS = ("soil_strength", "soil_strength_std", "soil_class", "soil_class_confidence", "mu_T", "S_T", "S_E",
+                   "te_at_S_E")
+
+
+def withhold(rec: dict, reason: str) -> dict:
+    """An OCP record with K, class and OCPs withheld (status no_estimate) because the log cannot
+    identify them; slip and traction stay (they are what the log says, not an estimate of K)."""
+    out = dict(rec)
+    for k in WITHHELD_FIELDS:
+        if k in out:
+            out[k] = None
+    out["status"] = "no_estimate"
+    out["reason"] = reason
+    return out

@@ -86,9 +86,19 @@ class CsvWheelsMap(_Strict):
     max_age: float = Field(DEFAULT_MAX_AGE["wheels"], gt=0)
 
 
+class CsvGroundSpeedMap(_Strict):
+    time: str = "time"
+    column: str = Field(min_length=1, description="longitudinal CoM speed, m/s (GNSS / visual odometry)")
+    max_age: float = Field(DEFAULT_MAX_AGE["ground_speed"], gt=0)
+
+
 class CsvMap(_Strict):
+    """Columns per role; each role is one CSV file given on the command line as ``--csv ROLE=FILE``."""
+
     imu: CsvImuMap = CsvImuMap()
     wheels: CsvWheelsMap
+    #: None: the log has no independent ground speed; wheel odometry stands in and K is withheld.
+    ground_speed: Optional[CsvGroundSpeedMap] = None
 
 
 class TopicMap(_Strict):
