@@ -72,13 +72,15 @@ def write_bag(
 
         for i, s in enumerate(samples):
             ns = unix_base * 1_000_000_000 + int(round(s.stamp * 1e9))
-            hdr = Header(stamp=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id="base_link")
+            def hdr():  # one header per message, so that a mutation touches only its own message
+                return Header(stamp=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id="base_link")
+
             if last_stamp is not None:
                 yaw += s.yaw_rate * (s.stamp - last_stamp)
             last_stamp = s.stamp
             qx, qy, qz, qw = _quat(s.roll, s.pitch, yaw)
             imu = T["sensor_msgs/msg/Imu"](
-                header=hdr, orientation=Quat(x=qx, y=qy, z=qz, w=qw), orientation_covariance=zeros9,
+                header=hdr(), orientation=Quat(x=qx, y=qy, z=qz, w=qw), orientation_covariance=zeros9,
                 angular_velocity=Vec(x=0.0, y=0.0, z=s.yaw_rate), angular_velocity_covariance=zeros9,
                 linear_acceleration=Vec(x=s.specific_force[0], y=s.specific_force[1], z=s.specific_force[2]),
                 linear_acceleration_covariance=zeros9)
@@ -86,14 +88,14 @@ def write_bag(
             if i % joint_every == 0:
                 order = rng.permutation(4) if rng is not None else np.arange(4)
                 js = T["sensor_msgs/msg/JointState"](
-                    header=hdr, name=[joint_names[j] for j in order], position=np.zeros(4),
+                    header=hdr(), name=[joint_names[j] for j in order], position=np.zeros(4),
                     velocity=np.array([s.wheel_speed[j] for j in order]), effort=np.array([s.wheel_torque[j] for j in order]))
                 put("/joint_states", i, ns, js, types["/joint_states"])
             if i % odom_every == 0:
                 lin = Vec(x=s.ground_speed, y=0.0, z=0.0)
                 if types["/odom"] == "nav_msgs/msg/Odometry":
                     od = T["nav_msgs/msg/Odometry"](
-                        header=hdr, child_frame_id="base_link",
+                        header=hdr(), child_frame_id="base_link",
                         pose=T["geometry_msgs/msg/PoseWithCovariance"](
                             pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
                                                              orientation=Quat(x=qx, y=qy, z=qz, w=qw)), covariance=zeros36),
@@ -102,7 +104,7 @@ def write_bag(
                             covariance=zeros36))
                 else:
                     od = T["geometry_msgs/msg/TwistStamped"](
-                        header=hdr, twist=T["geometry_msgs/msg/Twist"](linear=lin, angular=Vec(x=0.0, y=0.0, z=s.yaw_rate)))
+                        header=hdr(), twist=T["geometry_msgs/msg/Twist"](linear=lin, angular=Vec(x=0.0, y=0.0, z=s.yaw_rate)))
                 put("/odom", i, ns, od, types["/odom"])
     return Path(path)
 

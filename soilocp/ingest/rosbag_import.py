@@ -51,16 +51,18 @@ class BagIssues:
     counts: Counter = field(default_factory=Counter)
     first: dict = field(default_factory=dict)
 
-    def add(self, topic: str, fieldname: str, reason: str, stamp_ns: int) -> None:
+    def add(self, topic: str, fieldname: str, reason: str, stamp_ns: int, detail: str = "") -> None:
         key = (topic, fieldname, reason)
         self.counts[key] += 1
-        self.first.setdefault(key, stamp_ns)
+        self.first.setdefault(key, (stamp_ns, detail))
 
     def lines(self) -> list[str]:
-        return [
-            f"{t}: {f}: {r} ({n} message{'s' if n != 1 else ''} dropped, first at stamp {self.first[(t, f, r)] / NS:.3f})"
-            for (t, f, r), n in sorted(self.counts.items())
-        ]
+        out = []
+        for (t, f, r), n in sorted(self.counts.items()):
+            st, detail = self.first[(t, f, r)]
+            out.append(f"{t}: {f}: {r} ({n} message{'s' if n != 1 else ''} dropped, first at stamp {st / NS:.3f}"
+                       + (f", {detail}" if detail else "") + ")")
+        return out
 
 
 def _stamp_ns(header) -> int:
@@ -83,17 +85,19 @@ class _TopicReader:
         self.rows: list[tuple] = []
         self.last: Optional[int] = None
 
-    def drop(self, fieldname: str, reason: str, stamp: int) -> None:
+    def drop(self, fieldname: str, reason: str, stamp: int, detail: str = "") -> None:
         if self.strict:
-            raise BagImportError(f"{self.topic}: {fieldname}: {reason} (at stamp {stamp / NS:.3f}; --strict)")
-        self.issues.add(self.topic, fieldname, reason, stamp)
+            raise BagImportError(f"{self.topic}: {fieldname}: {reason} (at stamp {stamp / NS:.3f}"
+                                 + (f", {detail}" if detail else "") + "; --strict)")
+        self.issues.add(self.topic, fieldname, reason, stamp, detail)
 
     def accept_stamp(self, stamp: int) -> bool:
         if stamp <= 0:
             self.drop("header.stamp", "zero or negative: the driver does not stamp its messages", stamp)
             return False
         if self.last is not None and stamp < self.last:
-            self.drop("header.stamp", f"goes backwards (before the previous message by {(self.last - stamp) / NS:.3f} s)", stamp)
+            self.drop("header.stamp", "goes backwards (earlier than the previous message)", stamp,
+                      f"by {(self.last - stamp) / NS:.3f} s")
             return False
         return True
 
