@@ -84,10 +84,14 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
         subs = [session.declare_subscriber(k, on_sample) for k in selectors]
         log.info("recording", keys=selectors, out=out, max_bytes=max_bytes, max_files=max_files)
         t_end = None if duration is None else time.monotonic() + duration
+        last = dict(counts)
         while not stop.is_set():
             if t_end is not None and time.monotonic() >= t_end:
                 break
-            stop.wait(0.2)
+            stop.wait(0.5)
+            if counts != last:  # progress for operators (and tests): what is on disk so far
+                last = dict(counts)
+                log.info("progress", files=len(writer.files), **last)
     finally:
         for s in subs:
             s.undeclare()
