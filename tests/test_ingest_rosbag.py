@@ -197,3 +197,29 @@ def test_bad_map_file_names_the_key(tmp_path):
     m.write_text(MAP.replace("rate_hz: 100", "rate_hz: -5"))
     with pytest.raises(ValueError, match=r"rate_hz: Input should be greater than 0"):
         load_map(m)
+
+
+def test_imu_without_orientation_uses_gyro_and_accelerometer(tmp_path, map_file):
+    samples = [s for s, _ in simulate("sandy-slope", duration=8.0, seed=1)]
+
+    def no_orientation(t, i, m):
+        if t == "/imu/data":
+            m.orientation_covariance[0] = -1.0  # REP-145: this IMU gives no orientation
+        return m
+
+    bag = write_bag(samples, tmp_path / "bag", mutate=no_orientation)
+    prov, _ = import_bag(bag, load_map(map_file), tmp_path / "s.jsonl")
+    assert prov.attitude.startswith("gyro+accelerometer")
+    got = _read(tmp_path / "s.jsonl")
+    true_pitch = np.array([s.pitch for s in samples[400:800]])
+    est_pitch = np.array([r["pitch"] for r in got[400:800]])
+    assert abs(np.median(est_pitch - true_pitch)) < 0.02  # rad: the slope's pitch, not zero
+
+
+def test_readme_map_is_the_shipped_ros2_map():
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    section = readme.split("## Your robot's data", 1)[1].split("\n## ", 1)[0]
+    block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
+    assert block == (root / "docs" / "maps" / "ros2-robot.yaml").read_text()
+    assert load_map(root / "docs" / "maps" / "ros2-robot.yaml").joint_states.wheels[0] == "rear_left_wheel"
