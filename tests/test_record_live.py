@@ -45,13 +45,17 @@ def test_record_fleet_and_one_vehicle_with_rotation(tmp_path):
         for name in ("rec_fleet", "rec_one"):
             assert wait_for(lambda n=name: '"event": "recording"' in procs.log_text(n), 60), procs.log_text(name)
         with client(ep) as s:
-            pubs = {v: s.declare_publisher(keys.ocp(v)) for v in ("rover1", "rover2")}
+            import zenoh
+
+            # BLOCK: a burst of puts on a loaded machine must not be dropped by congestion control
+            pubs = {v: s.declare_publisher(keys.ocp(v), congestion_control=zenoh.CongestionControl.BLOCK)
+                    for v in ("rover1", "rover2")}
             for v, p in pubs.items():  # both recorders' subscriptions have reached this session
                 assert wait_for(lambda p=p: p.matching_status.matching, 30), v
             for seq in range(300):
                 for v, p in pubs.items():
                     p.put(_ocp(v, seq))
-            s.put(keys.ocp("rover1"), b'{"not": "an ocp record"}')
+            s.put(keys.ocp("rover1"), b'{"not": "an ocp record"}', congestion_control=zenoh.CongestionControl.BLOCK)
             for p in pubs.values():
                 p.undeclare()
         # stop once every record has reached the recorder (puts are asynchronous)
@@ -75,3 +79,31 @@ def test_record_fleet_and_one_vehicle_with_rotation(tmp_path):
     assert {t for t, _ in got} == {"/soilocp/rover2/soil_strength"}
     assert [m["seq"] for _, m in got] == list(range(300))
     assert got[-1][1]["K"] == pytest.approx(52.99) and got[-1][1]["K_minus_std"] == pytest.approx(50.99)
+
+
+def test_soilocp_run_replays_a_bag_with_its_map(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from soilocp.ingest.bag_writer import write_bag
+    from soilocp.simulator import simulate
+
+    bag = write_bag([s for s, _ in simulate("sand", duration=4.0, seed=2, vehicle_id="bagrover")], tmp_path / "bag")
+    m = tmp_path / "map.yaml"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    m.write_text(open(os.path.join(root, "docs", "maps", "ros2-robot.yaml")).read().replace("rover1", "bagrover"))
+    ep = endpoint(free_port())
+    p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--replay", str(bag), "--map", str(m), "--speed", "2",
+                          "--listen", ep, "--log-dir", str(tmp_path / "logs")],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        out, _ = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    assert p.returncode == 0, out
+    n = sum(1 for _ in open(tmp_path / "logs" / "imported-sensors.jsonl"))
+    assert n >= 400 and "vehicle bagrover" in out  # the map's vehicle_id is the run's
+    assert f"OCP records received: {n}" in out, out

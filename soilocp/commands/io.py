@@ -81,8 +81,8 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
     from ..ingest import read_provenance
 
     if map_path is None:
-        if Path(sensors).is_dir():
-            raise click.UsageError(f"{sensors} is a directory: a ROS 2 bag needs --map MAP.yaml")
+        if Path(sensors).is_dir() or Path(sensors).suffix in (".mcap", ".db3"):
+            raise click.UsageError(f"{sensors} looks like a ROS 2 bag: give its topics with --map MAP.yaml")
         try:
             prov = read_provenance(sensors)
         except ValueError as exc:
