@@ -223,3 +223,13 @@ def test_readme_map_is_the_shipped_ros2_map():
     block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
     assert block == (root / "docs" / "maps" / "ros2-robot.yaml").read_text()
     assert load_map(root / "docs" / "maps" / "ros2-robot.yaml").joint_states.wheels[0] == "rear_left_wheel"
+
+
+def test_not_a_bag_and_an_all_bad_topic(tmp_path, drive, map_file):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagImportError, match=r"not a readable ROS 2 bag"):
+        import_bag(tmp_path / "empty", load_map(map_file), tmp_path / "s.jsonl")
+    bag = write_bag(drive[0][:50], tmp_path / "bag", mutate=lambda t, i, m: (
+        setattr(m.twist.twist.linear, "x", math.nan) or m) if t == "/odom" else m)
+    with pytest.raises(BagImportError, match=r"/odom: no usable message \(map key ground_speed.topic\)"):
+        import_bag(bag, load_map(map_file), tmp_path / "s.jsonl")
