@@ -233,3 +233,20 @@ def test_not_a_bag_and_an_all_bad_topic(tmp_path, drive, map_file):
         setattr(m.twist.twist.linear, "x", math.nan) or m) if t == "/odom" else m)
     with pytest.raises(BagImportError, match=r"/odom: no usable message \(map key ground_speed.topic\)"):
         import_bag(bag, load_map(map_file), tmp_path / "s.jsonl")
+
+
+def test_unstamped_driver_error_suggests_receive_clock(tmp_path, drive, map_file):
+    def unstamped(t, i, m):
+        if t == "/joint_states":
+            m.header.stamp.sec, m.header.stamp.nanosec = 0, 0
+        return m
+
+    bag = write_bag(drive[0][:100], tmp_path / "bag", mutate=unstamped)
+    with pytest.raises(BagImportError, match=r"/joint_states: no usable message.*/joint_states: header.stamp: zero or "
+                                             r"negative: the driver does not stamp.*clock: receive"):
+        import_bag(bag, load_map(map_file), tmp_path / "s.jsonl")
+    m = tmp_path / "m.yaml"
+    m.write_text(map_file.read_text() + "clock: receive\n")
+    prov, issues = import_bag(bag, load_map(m), tmp_path / "s.jsonl")
+    assert not issues and prov.samples >= 100
+    assert _read(tmp_path / "s.jsonl")[0]["stamp"] == pytest.approx(UNIX_BASE + 0.002)  # log time = stamp + 2 ms

@@ -104,6 +104,9 @@ class CsvMap(_Strict):
 class TopicMap(_Strict):
     vehicle_id: str = Field("rover1", pattern=VEHICLE_ID_PATTERN)
     rate_hz: float = Field(100.0, gt=0, le=2000)
+    #: header: the messages' header stamps (the sensor's time, Unix); receive: the bag's log time
+    #: (when the recorder got the message), for drivers that leave header.stamp at zero.
+    clock: Literal["header", "receive"] = "header"
     wheel_radius: Optional[float] = Field(None, gt=0, description="m; needed for speeds in m/s and wheel odometry")
     imu: Optional[ImuMap] = None
     joint_states: Optional[JointStatesMap] = None

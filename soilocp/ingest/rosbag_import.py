@@ -93,7 +93,8 @@ class _TopicReader:
 
     def accept_stamp(self, stamp: int) -> bool:
         if stamp <= 0:
-            self.drop("header.stamp", "zero or negative: the driver does not stamp its messages", stamp)
+            self.drop("header.stamp", "zero or negative: the driver does not stamp its messages "
+                      "(map key clock: receive uses the bag's receive time instead)", stamp)
             return False
         if self.last is not None and stamp < self.last:
             self.drop("header.stamp", "goes backwards (earlier than the previous message)", stamp,
@@ -114,8 +115,7 @@ class _TopicReader:
         self.last = stamp
 
 
-def _imu(r: _TopicReader, msg) -> None:
-    st = _stamp_ns(msg.header)
+def _imu(r: _TopicReader, msg, st: int) -> None:
     if not r.accept_stamp(st):
         return
     la, av, q = msg.linear_acceleration, msg.angular_velocity, msg.orientation
@@ -132,8 +132,7 @@ def _imu(r: _TopicReader, msg) -> None:
     r.keep(st, (la.x, la.y, la.z, av.x, av.y, av.z, roll, pitch, has_q))
 
 
-def _joints(r: _TopicReader, msg, wheels: tuple[str, ...], scale: float, seen: set) -> None:
-    st = _stamp_ns(msg.header)
+def _joints(r: _TopicReader, msg, st: int, wheels: tuple[str, ...], scale: float, seen: set) -> None:
     names = list(msg.name)
     seen.update(names)
     if not r.accept_stamp(st):
@@ -160,8 +159,7 @@ def _joints(r: _TopicReader, msg, wheels: tuple[str, ...], scale: float, seen: s
     r.keep(st, (*speeds, *torques))
 
 
-def _ground_speed(r: _TopicReader, msg, msgtype: str) -> None:
-    st = _stamp_ns(msg.header)
+def _ground_speed(r: _TopicReader, msg, st: int, msgtype: str) -> None:
     if not r.accept_stamp(st):
         return
     if msgtype == "nav_msgs/msg/Odometry":
@@ -226,15 +224,17 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
         if bar:
             bar.start()
         try:
-            for n, (conn, _t, raw) in enumerate(reader.messages(connections=conns), 1):
+            header_clock = tmap.clock == "header"
+            for n, (conn, log_time, raw) in enumerate(reader.messages(connections=conns), 1):
                 key, r = readers[conn.topic]
                 msg = reader.deserialize(raw, conn.msgtype)
+                st = _stamp_ns(msg.header) if header_clock else int(log_time)
                 if key == "imu":
-                    _imu(r, msg)
+                    _imu(r, msg, st)
                 elif key == "joint_states":
-                    _joints(r, msg, js.wheels, js.effort_scale, seen_joints)
+                    _joints(r, msg, st, js.wheels, js.effort_scale, seen_joints)
                 else:
-                    _ground_speed(r, msg, conn.msgtype)
+                    _ground_speed(r, msg, st, conn.msgtype)
                 if bar and n % 2000 == 0:
                     bar.update(task, completed=n)
         finally:
@@ -292,7 +292,10 @@ def import_bag(path: str | Path, tmap: TopicMap, out: str | Path, *, strict: boo
                progress: bool = True) -> tuple[Provenance, list[str]]:
     """Import a bag to the sensor log ``out`` (+ ``out.provenance.json``); returns (provenance, issue lines)."""
     readers, types, issues = read_bag(path, tmap, strict=strict, progress=progress)
-    streams, prov = _streams(readers, tmap, types)
+    try:
+        streams, prov = _streams(readers, tmap, types)
+    except BagImportError as exc:  # e.g. every message of a topic dropped: say why
+        raise BagImportError("; ".join([str(exc), *issues.lines()])) from None
     try:
         al = align(streams, tmap.rate_hz)
     except ValueError as exc:
