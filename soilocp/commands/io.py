@@ -87,16 +87,18 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
             prov = read_provenance(sensors)
         except ValueError as exc:
             raise click.UsageError(str(exc)) from None
-        return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov))
+        withheld: dict[str, int] = {}
+        return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld), withheld)
     with tempfile.TemporaryDirectory(prefix="soilocp-import-") as tmp:
         log = str(Path(tmp) / "sensors.jsonl")
         prov = run_import(sensors, (), map_path, log, progress=sys.stderr.isatty())
-        return _said(estimate_to(log, out, cfg, full=full, provenance=prov, label=f"{sensors} (imported)"))
+        withheld = {}
+        return _said(estimate_to(log, out, cfg, full=full, provenance=prov, label=f"{sensors} (imported)",
+                                 withheld=withheld), withheld)
 
 
-def _said(summary):
-    withheld = getattr(summary, "withheld_from", None)
-    if withheld is not None:
+def _said(summary, withheld: dict):
+    if withheld:
         click.echo(f"K withheld on every record (the log cannot identify it); the chain's own statuses were {withheld}",
                    err=True)
     return summary

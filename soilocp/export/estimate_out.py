@@ -14,9 +14,12 @@ from ..pipeline import PipelineConfig
 
 
 def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
-                provenance: Optional[Provenance] = None, err: IO[str] = sys.stderr, label: str | None = None
-                ) -> EstimateSummary:
-    """Run the chain on the sensor log ``sensors``; write ``out`` (``.mcap``: MCAP channels, else JSONL)."""
+                provenance: Optional[Provenance] = None, err: IO[str] = sys.stderr, label: str | None = None,
+                withheld: Optional[dict[str, int]] = None) -> EstimateSummary:
+    """Run the chain on the sensor log ``sensors``; write ``out`` (``.mcap``: MCAP channels, else JSONL).
+
+    When the provenance says K is not identifiable, every record is written withheld and
+    ``withheld`` (if given) counts the statuses the chain itself had given."""
     summary = EstimateSummary()
     label = label or str(sensors)
     reason = provenance.withhold_reason() if provenance is not None else None
@@ -33,7 +36,7 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
     else:
         sink = open(out, "w", encoding="utf-8")
         put = lambda rec: sink.write(json.dumps(rec) + "\n")  # noqa: E731
-    withheld: dict[str, int] = {}
+    withheld = withheld if withheld is not None else {}
     try:
         with open(sensors, encoding="utf-8", errors="replace") as fin:
             for rec in estimate_lines(fin, config, on_reject=report, full=full, summary=summary):
@@ -45,5 +48,4 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
         sink.close()
     if reason is not None:  # the statuses reported are the ones written
         summary.statuses = {"no_estimate": summary.estimates}
-        summary.withheld_from = withheld  # type: ignore[attr-defined]
     return summary

@@ -251,7 +251,7 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
     return readers, types, issues
 
 
-def _streams(readers: dict, tmap: TopicMap, types: dict) -> tuple[list[Stream], Provenance]:
+def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
     prov = Provenance(source="rosbag2")
     streams = []
     for topic, (key, r) in readers.items():
@@ -291,9 +291,9 @@ def _streams(readers: dict, tmap: TopicMap, types: dict) -> tuple[list[Stream], 
 def import_bag(path: str | Path, tmap: TopicMap, out: str | Path, *, strict: bool = False,
                progress: bool = True) -> tuple[Provenance, list[str]]:
     """Import a bag to the sensor log ``out`` (+ ``out.provenance.json``); returns (provenance, issue lines)."""
-    readers, types, issues = read_bag(path, tmap, strict=strict, progress=progress)
+    readers, _types, issues = read_bag(path, tmap, strict=strict, progress=progress)
     try:
-        streams, prov = _streams(readers, tmap, types)
+        streams, prov = _streams(readers, tmap)
     except BagImportError as exc:  # e.g. every message of a topic dropped: say why
         raise BagImportError("; ".join([str(exc), *issues.lines()])) from None
     try:
