@@ -250,3 +250,16 @@ def test_unstamped_driver_error_suggests_receive_clock(tmp_path, drive, map_file
     prov, issues = import_bag(bag, load_map(m), tmp_path / "s.jsonl")
     assert not issues and prov.samples >= 100
     assert _read(tmp_path / "s.jsonl")[0]["stamp"] == pytest.approx(UNIX_BASE + 0.002)  # log time = stamp + 2 ms
+
+
+def test_one_stamp_far_ahead_loses_only_itself(tmp_path, drive, map_file):
+    def ahead(t, i, m):
+        if t == "/odom" and i == 100:
+            m.header.stamp.sec += 86_400  # a clock glitch: one message a day in the future
+        return m
+
+    bag = write_bag(drive[0][:400], tmp_path / "bag", mutate=ahead)
+    prov, issues = import_bag(bag, load_map(map_file), tmp_path / "s.jsonl")
+    assert issues == ["/odom: header.stamp: jumps ahead (later than the messages after it) "
+                      "(1 message dropped, first at stamp 1700086401.000, by 86399.950 s)"]
+    assert prov.skipped == {} and prov.samples >= 400  # the held value bridges the one lost message

@@ -156,6 +156,48 @@ def samples_from_aligned(al: Aligned, vehicle_id: str, skipped: Counter) -> Iter
             skipped[f"out of the sensor contract: {'.'.join(str(p) for p in first['loc'])}: {first['msg']}"] += 1
 
 
+def in_time_order(stamps) -> np.ndarray:
+    """Mask of the messages to keep so that the stamps never go backwards: the longest
+    non-decreasing subsequence (O(n log n)).  A stretch stamped in the past loses its own messages,
+    and a single stamp far in the future loses only itself, not everything after it."""
+    import bisect
+
+    a = np.asarray(stamps)
+    n = a.size
+    keep = np.zeros(n, dtype=bool)
+    if n == 0 or bool(np.all(np.diff(a) >= 0)):
+        keep[:] = True
+        return keep
+    tails: list = []
+    tail_idx: list[int] = []
+    prev = [-1] * n
+    for i, x in enumerate(a.tolist()):
+        j = bisect.bisect_right(tails, x)
+        if j:
+            prev[i] = tail_idx[j - 1]
+        if j == len(tails):
+            tails.append(x)
+            tail_idx.append(i)
+        else:
+            tails[j] = x
+            tail_idx[j] = i
+    k = tail_idx[-1]
+    while k >= 0:
+        keep[k] = True
+        k = prev[k]
+    return keep
+
+
+def order_reason(stamps, keep: np.ndarray, i: int) -> tuple[str, str]:
+    """Why message i was not kept by :func:`in_time_order`: (reason, detail)."""
+    kept_before = np.flatnonzero(keep[:i])
+    if kept_before.size and stamps[i] < stamps[kept_before[-1]]:
+        return "goes backwards (earlier than the previous message)", f"by {(stamps[kept_before[-1]] - stamps[i]) / NS:.3f} s"
+    kept_after = np.flatnonzero(keep[i + 1:])
+    nxt = stamps[i + 1 + kept_after[0]] if kept_after.size else stamps[i]
+    return "jumps ahead (later than the messages after it)", f"by {(stamps[i] - nxt) / NS:.3f} s"
+
+
 def complementary_tilt(t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarray, tau: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Roll and pitch (REP-103: pitch > 0 nose down) for an IMU without orientation output.
 

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .align import NS, Provenance, Stream, align, complementary_tilt, samples_from_aligned, write_samples
+from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
+                    write_samples)
 from .mapfile import TopicMap
 
 
@@ -51,7 +52,7 @@ def _read_columns(path: Path, time_col: str, cols: list[str], dropped: Counter) 
             if c not in header:
                 raise CsvImportError(f"{path}: column {c!r} (from the map) not in the header {header}")
             idx[c] = header.index(c)
-        stamps, rows, last = [], [], None
+        stamps, rows = [], []
         for lineno, row in enumerate(rd, start=2):
             if not row:
                 continue
@@ -65,16 +66,16 @@ def _read_columns(path: Path, time_col: str, cols: list[str], dropped: Counter) 
             if bad is not None:
                 dropped[f"{path.name}: {bad}: NaN or infinite value"] += 1
                 continue
-            ns = int(round(t * NS))
-            if last is not None and ns < last:
-                dropped[f"{path.name}: {time_col}: goes backwards"] += 1
-                continue
-            last = ns
-            stamps.append(ns)
+            stamps.append(int(round(t * NS)))
             rows.append(vals)
-    if not rows:
+    st = np.asarray(stamps, dtype=np.int64)
+    keep = in_time_order(st)
+    for i in np.flatnonzero(~keep):
+        reason = order_reason(st, keep, int(i))[0].split(" (")[0]
+        dropped[f"{path.name}: {time_col}: {reason}"] += 1
+    if not keep.any():
         raise CsvImportError(f"{path}: no usable row")
-    return np.asarray(stamps, dtype=np.int64), np.asarray(rows, dtype=float)
+    return st[keep], np.asarray(rows, dtype=float)[keep]
 
 
 def import_csv(files: dict[str, str | Path], tmap: TopicMap, out: str | Path) -> tuple[Provenance, list[str]]:

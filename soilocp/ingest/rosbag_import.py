@@ -25,11 +25,11 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
-from .align import NS, Provenance, Stream, align, complementary_tilt, samples_from_aligned, write_samples
+from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
+                    write_samples)
 from .mapfile import TopicMap
 
 EXPECTED_TYPES = {
@@ -83,7 +83,6 @@ class _TopicReader:
         self.key, self.topic, self.issues, self.strict = key, topic, issues, strict
         self.stamps: list[int] = []
         self.rows: list[tuple] = []
-        self.last: Optional[int] = None
 
     def drop(self, fieldname: str, reason: str, stamp: int, detail: str = "") -> None:
         if self.strict:
@@ -96,11 +95,16 @@ class _TopicReader:
             self.drop("header.stamp", "zero or negative: the driver does not stamp its messages "
                       "(map key clock: receive uses the bag's receive time instead)", stamp)
             return False
-        if self.last is not None and stamp < self.last:
-            self.drop("header.stamp", "goes backwards (earlier than the previous message)", stamp,
-                      f"by {(self.last - stamp) / NS:.3f} s")
-            return False
         return True
+
+    def in_order(self) -> tuple[np.ndarray, list]:
+        """Stamps and rows with the out-of-order messages dropped (each with its reason)."""
+        st = np.asarray(self.stamps, dtype=np.int64)
+        keep = in_time_order(st)
+        for i in np.flatnonzero(~keep):
+            reason, detail = order_reason(st, keep, int(i))
+            self.drop("header.stamp", reason, int(st[i]), detail)
+        return st[keep], [row for row, k in zip(self.rows, keep) if k]
 
     def check_finite(self, stamp: int, named: dict[str, float]) -> bool:
         for name, v in named.items():
@@ -112,7 +116,6 @@ class _TopicReader:
     def keep(self, stamp: int, row: tuple) -> None:
         self.stamps.append(stamp)
         self.rows.append(row)
-        self.last = stamp
 
 
 def _imu(r: _TopicReader, msg, st: int) -> None:
@@ -255,12 +258,12 @@ def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
     prov = Provenance(source="rosbag2")
     streams = []
     for topic, (key, r) in readers.items():
-        if not r.rows:
+        st, rows = r.in_order()
+        if not rows:
             raise BagImportError(f"{topic}: no usable message (map key {key}.topic): all were dropped, see the reasons")
-        st = np.asarray(r.stamps, dtype=np.int64)
         if key == "imu":
-            a = np.asarray([row[:8] for row in r.rows], dtype=float)
-            has_q = np.asarray([row[8] for row in r.rows], dtype=bool)
+            a = np.asarray([row[:8] for row in rows], dtype=float)
+            has_q = np.asarray([row[8] for row in rows], dtype=bool)
             roll, pitch = a[:, 6], a[:, 7]
             if tmap.imu.attitude == "estimate" or not has_q.all():
                 roll, pitch = complementary_tilt(st, a[:, 3:6], a[:, 0:3])
@@ -268,13 +271,13 @@ def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
             vals = {"specific_force": a[:, 0:3], "yaw_rate": a[:, 5], "roll": roll, "pitch": pitch}
             streams.append(Stream(f"imu ({topic})", st, vals, tmap.imu.max_age))
         elif key == "joint_states":
-            a = np.asarray(r.rows, dtype=float)
+            a = np.asarray(rows, dtype=float)
             streams.append(Stream(f"joint_states ({topic})", st, {"wheel_speed": a[:, :4], "wheel_torque": a[:, 4:]},
                                   tmap.joint_states.max_age))
             if len(set(tmap.joint_states.wheels)) < 4:
                 prov.drive = "per_side"
         else:
-            a = np.asarray(r.rows, dtype=float)
+            a = np.asarray(rows, dtype=float)
             streams.append(Stream(f"ground_speed ({topic})", st, {"ground_speed": a[:, 0]}, tmap.ground_speed.max_age))
     if tmap.ground_speed is None:
         if tmap.wheel_radius is None:
