@@ -13,8 +13,8 @@ Read with ``rosbags`` (pure Python, no ROS installation).  Standard messages onl
 
 Header stamps (Unix time) are the clock.  Structural problems (a missing topic, a wrong message
 type, a wheel joint that is not in the bag) stop the import with :class:`BagImportError`.  Bad
-messages (NaN in a used field, a stamp going backwards or zero, a wheel joint missing from one
-message) are dropped with a counted, specific reason, so that the good data around a bad stretch
+messages (NaN in a used field, a zero stamp, a stamp out of time order: the longest in-order run
+of each topic is kept, a wheel joint missing from one message) are dropped with a counted, specific reason, so that the good data around a bad stretch
 is kept; the ticks that then have no fresh value are skipped (``align``).  ``strict`` makes the
 first bad message an error instead.
 """
