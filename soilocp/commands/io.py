@@ -87,14 +87,22 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
             prov = read_provenance(sensors)
         except ValueError as exc:
             raise click.UsageError(str(exc)) from None
+        _check_drive(prov, cfg)
         withheld: dict[str, int] = {}
         return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld), withheld)
     with tempfile.TemporaryDirectory(prefix="soilocp-import-") as tmp:
         log = str(Path(tmp) / "sensors.jsonl")
         prov = run_import(sensors, (), map_path, log, progress=sys.stderr.isatty())
+        _check_drive(prov, cfg)
         withheld = {}
         return _said(estimate_to(log, out, cfg, full=full, provenance=prov, label=f"{sensors} (imported)",
                                  withheld=withheld), withheld)
+
+
+def _check_drive(prov, cfg) -> None:
+    if prov is not None and prov.drive != cfg.vehicle.drive:
+        click.echo(f"WARNING: the log's wheels are {prov.drive} (one speed and torque per side) but the vehicle's "
+                   f"drive is {cfg.vehicle.drive}: give --vehicle with \"drive\": \"{prov.drive}\"", err=True)
 
 
 def _said(summary, withheld: dict):
