@@ -5,6 +5,7 @@ Zenoh and the physics are imported inside the command bodies, so ``soilocp --hel
 
 from __future__ import annotations
 
+import os
 import sys
 
 import click
@@ -139,7 +140,9 @@ def router_cmd(config_path, listen, connect) -> None:
 
 @click.command("run")
 @click.option("--synthetic", "scenario", metavar="SCENARIO", help="Drive a simulator scenario in real time.")
-@click.option("--replay", type=click.Path(exists=True, dir_okay=False), help="Replay a sensor log instead.")
+@click.option("--replay", type=click.Path(exists=True), help="Replay a sensor log (or, with --map, a ROS 2 bag) instead.")
+@click.option("--map", "map_path", type=click.Path(exists=True, dir_okay=False),
+              help="--replay is a ROS 2 bag: its map file (soilocp import); the map's vehicle_id is used.")
 @click.option("--speed", type=float, default=1.0, show_default=True, help="Replay speed factor (0 = as fast as possible).")
 @click.option("--vehicle-id", default="rover1", show_default=True)
 @click.option("--duration", type=float, help="Stop after this many seconds of driving (default: when the source ends).")
@@ -152,7 +155,7 @@ def router_cmd(config_path, listen, connect) -> None:
 @click.option("--control", metavar="CONTROLLER",
               help="Close the loop: run the controller service with this policy (ocp_traction, ocp_efficiency, "
                    "fixed_<slip>, speed); the synthetic vehicle follows its slip set-points.")
-def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
+def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
             plain, control) -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
@@ -180,10 +183,34 @@ def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_conf
             raise ValueError(f"--speed {speed!r}: must be >= 0")
     except ValueError as exc:
         _fatal("soilocp run", str(exc))
+    if map_path is not None:
+        replay, vehicle_id = _import_for_replay(replay, map_path, log_dir)
+    elif replay is not None and os.path.isdir(replay):
+        _fatal("soilocp run", f"--replay {replay}: a directory (ROS 2 bag?) needs --map MAP.yaml")
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
                       seed=seed, log_dir=log_dir, plain=plain, control=control)
     sys.exit(run_system(opts))
+
+
+def _import_for_replay(bag: str, map_path: str, log_dir):
+    """A bag -> a sensor log in the run's log dir (or a temp dir), replayed like any other log."""
+    import tempfile
+
+    from soilocp.commands.io import run_import
+    from soilocp.ingest import load_map
+
+    out_dir = log_dir or tempfile.mkdtemp(prefix="soilocp-import-")
+    os.makedirs(out_dir, exist_ok=True)
+    out = os.path.join(out_dir, "imported-sensors.jsonl")
+    try:
+        prov = run_import(bag, (), map_path, out, progress=sys.stderr.isatty())
+    except click.ClickException as exc:
+        _fatal("soilocp run", exc.message)
+    if not prov.identifiable:
+        click.echo("soilocp run: WARNING: the live chain does not read provenance files; K from this log is not "
+                   "identifiable (" + "; ".join(prov.reasons) + ")", err=True)
+    return out, load_map(map_path).vehicle_id
 
 
 @click.group("schemas")
@@ -205,7 +232,7 @@ COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
 
 #: Other command modules of the services area (fleet + dashboard, bench), each with its own
 #: ``COMMANDS`` list; registered here because ``soilocp.cli`` lists only this module.
-EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench")
+EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench", "services.record")
 
 
 def _register_extra() -> None:

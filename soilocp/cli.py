@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "soilocp.commands.sim",  # simulate
     "soilocp.commands.offline",  # estimate, evaluate, plot
     "soilocp.commands.control",  # control compare
+    "soilocp.commands.io",  # import (ROS 2 bags, CSV logs)
     "services.commands",  # service, router, run, schemas, fleet, dashboard, bench
 )
 

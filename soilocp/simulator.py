@@ -280,6 +280,24 @@ def simulate(
     return run.samples()
 
 
+def _side_references(ref: list[float]) -> list[float]:
+    """Skid steer (vehicle drive per_side): one motor per side turns both of its wheels (chained),
+    so both follow one speed reference, the mean of what the side's two wheels would get; in
+    excitation mode the front sweep and the rear's speed hold then act on the whole side.  The two
+    wheels keep their own stiff speed loops: a chain is rigid, the loops nearly so."""
+    left, right = 0.5 * (ref[0] + ref[1]), 0.5 * (ref[2] + ref[3])
+    return [left, left, right, right]
+
+
+def _side_readings(read: dict) -> dict:
+    """What a per-side drive measures: one encoder and one motor current per side.  Both wheels of
+    a side read the side's speed (mean of the two) and half the side's total torque."""
+    w, t = read["wheel_speed"], read["wheel_torque"]
+    ws = (0.5 * (w[0] + w[1]), 0.5 * (w[2] + w[3]))
+    ts = (0.5 * (t[0] + t[1]), 0.5 * (t[2] + t[3]))
+    return {**read, "wheel_speed": (ws[0], ws[0], ws[1], ws[1]), "wheel_torque": (ts[0], ts[0], ts[1], ts[1])}
+
+
 class _Run:
     """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
 
@@ -395,7 +413,7 @@ class _Run:
                 out.append(max(self.V - r_c * yi, 0.0) / (R * (1.0 - s_cmd)))
             else:
                 out.append(max(v_hold - r_c * yi, 0.0) / R)
-        return out
+        return _side_references(out) if self.v.drive == "per_side" else out
 
     # --- one backward-Euler sub-step -----------------------------------------------------
     def _substep(self, final: bool) -> None:
@@ -635,6 +653,8 @@ class _Run:
             wheel_torque=self.torque,
             ground_speed=self.V,
         )
+        if v.drive == "per_side":
+            read = _side_readings(read)
         sample = SensorSample(vehicle_id=self.vehicle_id, seq=seq, stamp=stamp, **read)
         return sample, truth
 

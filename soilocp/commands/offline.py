@@ -17,22 +17,25 @@ def _fmt(v, spec=".3f"):
 
 
 @click.command()
-@click.argument("sensors", type=click.Path(exists=True, dir_okay=False))
-@click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="ESTIMATES.jsonl to write")
+@click.argument("sensors", type=click.Path(exists=True))
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="ESTIMATES.jsonl to write, or E.mcap (MCAP channels for Foxglove)")
+@click.option("--map", "map_path", type=click.Path(exists=True, dir_okay=False),
+              help="SENSORS is a ROS 2 bag: the map file of its topics (see soilocp import)")
 @click.option("--vehicle", type=click.Path(exists=True, dir_okay=False), help="Vehicle parameters JSON")
 @click.option("--constants", type=click.Path(exists=True, dir_okay=False), help="Model constants JSON (soilocp calibrate)")
 @click.option("--config", type=click.Path(exists=True, dir_okay=False), help="Pipeline config JSON (observer, soil)")
 @click.option("--no-compensation", is_flag=True, help="Observer without motion-resistance compensation (paper Figs. 11, 13)")
 @click.option("--method", type=click.Choice(["bayes", "paper"]), default=None, help="Soil-strength estimator")
 @click.option("--full", is_flag=True, help="Also write normal forces, gross traction and resistance per record")
-def estimate(sensors, out, vehicle, constants, config, no_compensation, method, full):
+def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation, method, full):
     """Run the whole chain on a sensor log: validate -> normal forces -> observer -> slip + K -> OCPs.
 
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
     their line number and skipped.
     """
-    from ..estimate import estimate_file
     from ..pipeline import load_pipeline_config
+    from .io import estimate_source
 
     try:
         cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants)
@@ -44,7 +47,7 @@ def estimate(sensors, out, vehicle, constants, config, no_compensation, method, 
         soil = cfg.soil.model_copy(update={"method": method, **({"measurement": "net"} if method == "paper" else {})})
         cfg = cfg.model_copy(update={"soil": soil})
     t0 = time.perf_counter()
-    summary = estimate_file(sensors, out, cfg, full=full)
+    summary = estimate_source(sensors, map_path, out, cfg, full=full)
     dt = time.perf_counter() - t0
     rate = summary.estimates / dt if dt > 0 else float("inf")
     click.echo(

@@ -1,0 +1,1 @@
+"""Writers of estimates in formats other tools open (MCAP for Foxglove)."""

@@ -1,0 +1,51 @@
+"""``soilocp estimate`` output: JSON Lines or MCAP (by the file's suffix), with K withheld where the
+log's provenance says it cannot be identified."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import IO, Optional
+
+from ..estimate import EstimateSummary, estimate_lines
+from ..ingest.align import Provenance, withhold
+from ..pipeline import PipelineConfig
+
+
+def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
+                provenance: Optional[Provenance] = None, err: IO[str] = sys.stderr, label: str | None = None,
+                withheld: Optional[dict[str, int]] = None) -> EstimateSummary:
+    """Run the chain on the sensor log ``sensors``; write ``out`` (``.mcap``: MCAP channels, else JSONL).
+
+    When the provenance says K is not identifiable, every record is written withheld and
+    ``withheld`` (if given) counts the statuses the chain itself had given."""
+    summary = EstimateSummary()
+    label = label or str(sensors)
+    reason = provenance.withhold_reason() if provenance is not None else None
+
+    def report(lineno, exc) -> None:
+        err.write(f"{label}:{lineno}: rejected ({exc.code}): {exc.message}\n")
+
+    mcap = str(out).endswith(".mcap")
+    if mcap:
+        from .mcap_out import EstimateMcapWriter
+
+        sink = EstimateMcapWriter(out)
+        put = sink.write
+    else:
+        sink = open(out, "w", encoding="utf-8")
+        put = lambda rec: sink.write(json.dumps(rec) + "\n")  # noqa: E731
+    withheld = withheld if withheld is not None else {}
+    try:
+        with open(sensors, encoding="utf-8", errors="replace") as fin:
+            for rec in estimate_lines(fin, config, on_reject=report, full=full, summary=summary):
+                if reason is not None:
+                    withheld[rec["status"]] = withheld.get(rec["status"], 0) + 1
+                    rec = withhold(rec, reason)
+                put(rec)
+    finally:
+        sink.close()
+    if reason is not None:  # the statuses reported are the ones written
+        summary.statuses = {"no_estimate": summary.estimates}
+    return summary

@@ -1,0 +1,313 @@
+"""ROS 2 bags (rosbag2 directory with sqlite3 or MCAP storage, or a bare ``.mcap``) -> sensor log.
+
+Read with ``rosbags`` (pure Python, no ROS installation).  Standard messages only:
+
+* ``sensor_msgs/msg/Imu``: ``linear_acceleration`` is the specific force (REP-145: +9.81 on z at
+  rest), ``angular_velocity.z`` the yaw rate, ``orientation`` gives roll and pitch (REP-103,
+  pitch > 0 nose down); an IMU without orientation (covariance[0] = -1) gets them from gyro +
+  accelerometer (:func:`soilocp.ingest.align.complementary_tilt`);
+* ``sensor_msgs/msg/JointState``: ``velocity`` (rad/s) and ``effort`` x ``effort_scale`` (N m) of the
+  mapped wheel joints, matched by name in every message (drivers do not keep the order);
+* ``nav_msgs/msg/Odometry`` (``twist.twist.linear.x``) or ``geometry_msgs/msg/TwistStamped``
+  (``twist.linear.x``): the ground speed.
+
+Header stamps (Unix time) are the clock.  Structural problems (a missing topic, a wrong message
+type, a wheel joint that is not in the bag) stop the import with :class:`BagImportError`.  Bad
+messages (NaN in a used field, a zero stamp, a stamp out of time order: the longest in-order run
+of each topic is kept, a wheel joint missing from one message) are dropped with a counted, specific reason, so that the good data around a bad stretch
+is kept; the ticks that then have no fresh value are skipped (``align``).  ``strict`` makes the
+first bad message an error instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
+                    write_samples)
+from .mapfile import TopicMap
+
+EXPECTED_TYPES = {
+    "imu": ("sensor_msgs/msg/Imu",),
+    "joint_states": ("sensor_msgs/msg/JointState",),
+    "ground_speed": ("nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistStamped"),
+}
+PROGRESS_MIN_MESSAGES = 20_000  # a bar below this would only flicker
+
+
+class BagImportError(ValueError):
+    """A bag that cannot be imported with this map: names the topic, the field and the reason."""
+
+
+@dataclass
+class BagIssues:
+    """Dropped messages by (topic, field, reason), with the first stamp seen."""
+
+    counts: Counter = field(default_factory=Counter)
+    first: dict = field(default_factory=dict)
+
+    def add(self, topic: str, fieldname: str, reason: str, stamp_ns: int, detail: str = "") -> None:
+        key = (topic, fieldname, reason)
+        self.counts[key] += 1
+        self.first.setdefault(key, (stamp_ns, detail))
+
+    def lines(self) -> list[str]:
+        out = []
+        for (t, f, r), n in sorted(self.counts.items()):
+            st, detail = self.first[(t, f, r)]
+            out.append(f"{t}: {f}: {r} ({n} message{'s' if n != 1 else ''} dropped, first at stamp {st / NS:.3f}"
+                       + (f", {detail}" if detail else "") + ")")
+        return out
+
+
+def _stamp_ns(header) -> int:
+    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
+
+
+def _quat_roll_pitch(x: float, y: float, z: float, w: float) -> tuple[float, float]:
+    """Roll and pitch of a body-to-world quaternion, ZYX (REP-103): pitch > 0 = nose down."""
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    return roll, pitch
+
+
+class _TopicReader:
+    """Collects one topic's values, dropping bad messages with a reason."""
+
+    def __init__(self, key: str, topic: str, issues: BagIssues, strict: bool):
+        self.key, self.topic, self.issues, self.strict = key, topic, issues, strict
+        self.stamps: list[int] = []
+        self.rows: list[tuple] = []
+
+    def drop(self, fieldname: str, reason: str, stamp: int, detail: str = "") -> None:
+        if self.strict:
+            raise BagImportError(f"{self.topic}: {fieldname}: {reason} (at stamp {stamp / NS:.3f}"
+                                 + (f", {detail}" if detail else "") + "; --strict)")
+        self.issues.add(self.topic, fieldname, reason, stamp, detail)
+
+    def accept_stamp(self, stamp: int) -> bool:
+        if stamp <= 0:
+            self.drop("header.stamp", "zero or negative: the driver does not stamp its messages "
+                      "(map key clock: receive uses the bag's receive time instead)", stamp)
+            return False
+        return True
+
+    def in_order(self) -> tuple[np.ndarray, list]:
+        """Stamps and rows with the out-of-order messages dropped (each with its reason)."""
+        st = np.asarray(self.stamps, dtype=np.int64)
+        keep = in_time_order(st)
+        for i in np.flatnonzero(~keep):
+            reason, detail = order_reason(st, keep, int(i))
+            self.drop("header.stamp", reason, int(st[i]), detail)
+        return st[keep], [row for row, k in zip(self.rows, keep) if k]
+
+    def check_finite(self, stamp: int, named: dict[str, float]) -> bool:
+        for name, v in named.items():
+            if not math.isfinite(v):
+                self.drop(name, f"{'NaN' if v != v else 'infinite'} value", stamp)
+                return False
+        return True
+
+    def keep(self, stamp: int, row: tuple) -> None:
+        self.stamps.append(stamp)
+        self.rows.append(row)
+
+
+def _imu(r: _TopicReader, msg, st: int) -> None:
+    if not r.accept_stamp(st):
+        return
+    la, av, q = msg.linear_acceleration, msg.angular_velocity, msg.orientation
+    has_q = not (len(msg.orientation_covariance) and msg.orientation_covariance[0] == -1.0)
+    named = {
+        "linear_acceleration.x": la.x, "linear_acceleration.y": la.y, "linear_acceleration.z": la.z,
+        "angular_velocity.x": av.x, "angular_velocity.y": av.y, "angular_velocity.z": av.z,
+    }
+    if has_q:
+        named.update({"orientation.x": q.x, "orientation.y": q.y, "orientation.z": q.z, "orientation.w": q.w})
+    if not r.check_finite(st, named):
+        return
+    roll, pitch = _quat_roll_pitch(q.x, q.y, q.z, q.w) if has_q else (math.nan, math.nan)
+    r.keep(st, (la.x, la.y, la.z, av.x, av.y, av.z, roll, pitch, has_q))
+
+
+def _joints(r: _TopicReader, msg, st: int, wheels: tuple[str, ...], scale: float, seen: set) -> None:
+    names = list(msg.name)
+    seen.update(names)
+    if not r.accept_stamp(st):
+        return
+    index = {n: i for i, n in enumerate(names)}
+    vel, eff = np.asarray(msg.velocity, dtype=float), np.asarray(msg.effort, dtype=float)
+    speeds, torques = [], []
+    share = Counter(wheels)
+    for w in wheels:
+        i = index.get(w)
+        if i is None:
+            r.drop("name", f"wheel joint {w!r} missing from this message", st)
+            return
+        if i >= vel.size:
+            r.drop(f"velocity[{w}]", f"absent (velocity has {vel.size} entries for {len(names)} names)", st)
+            return
+        if i >= eff.size:
+            r.drop(f"effort[{w}]", f"absent (effort has {eff.size} entries for {len(names)} names)", st)
+            return
+        if not r.check_finite(st, {f"velocity[{w}]": float(vel[i]), f"effort[{w}]": float(eff[i])}):
+            return
+        speeds.append(float(vel[i]))
+        torques.append(float(eff[i]) * scale / share[w])  # a side joint drives share[w] wheels
+    r.keep(st, (*speeds, *torques))
+
+
+def _ground_speed(r: _TopicReader, msg, st: int, msgtype: str) -> None:
+    if not r.accept_stamp(st):
+        return
+    if msgtype == "nav_msgs/msg/Odometry":
+        name, v = "twist.twist.linear.x", msg.twist.twist.linear.x
+    else:
+        name, v = "twist.linear.x", msg.twist.linear.x
+    if r.check_finite(st, {name: v}):
+        r.keep(st, (v,))
+
+
+def _progress(total: int, label: str):
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if total < PROGRESS_MIN_MESSAGES:
+        return None
+    return Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                    console=Console(stderr=True), transient=False)
+
+
+def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress: bool = True):
+    """Streams of one bag per the map, and the dropped-message issues; BagImportError on structure."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    p = Path(path)
+    if not p.exists():
+        raise BagImportError(f"{str(p)!r}: no such bag (a rosbag2 directory or a .mcap file)")
+    wanted = {"imu": tmap.imu, "joint_states": tmap.joint_states}
+    if tmap.ground_speed is not None:
+        wanted["ground_speed"] = tmap.ground_speed
+    issues = BagIssues()
+    try:
+        reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # rosbags raises its own errors for unreadable bags
+        raise BagImportError(f"{str(p)!r}: not a readable ROS 2 bag: {exc}") from None
+    try:
+        by_topic: dict[str, list] = {}
+        for c in reader.connections:
+            by_topic.setdefault(c.topic, []).append(c)
+        conns, readers, types = [], {}, {}
+        for key, m in wanted.items():
+            cs = by_topic.get(m.topic)
+            if not cs:
+                raise BagImportError(
+                    f"{m.topic}: topic not in the bag (map key {key}.topic); topics in the bag: "
+                    + ", ".join(f"{t} ({v[0].msgtype})" for t, v in sorted(by_topic.items())))
+            for c in cs:
+                if c.msgtype not in EXPECTED_TYPES[key]:
+                    raise BagImportError(
+                        f"{m.topic}: message type {c.msgtype} cannot feed {key} (map key {key}.topic): "
+                        f"needs {' or '.join(EXPECTED_TYPES[key])}")
+            conns += cs
+            types[m.topic] = cs[0].msgtype
+            readers[m.topic] = (key, _TopicReader(key, m.topic, issues, strict))
+        total = sum(c.msgcount for c in conns)
+        js = tmap.joint_states
+        seen_joints: set = set()
+        bar = _progress(total, f"importing {p.name}") if progress else None
+        task = bar.add_task("read", total=total) if bar else None
+        if bar:
+            bar.start()
+        try:
+            header_clock = tmap.clock == "header"
+            for n, (conn, log_time, raw) in enumerate(reader.messages(connections=conns), 1):
+                key, r = readers[conn.topic]
+                msg = reader.deserialize(raw, conn.msgtype)
+                st = _stamp_ns(msg.header) if header_clock else int(log_time)
+                if key == "imu":
+                    _imu(r, msg, st)
+                elif key == "joint_states":
+                    _joints(r, msg, st, js.wheels, js.effort_scale, seen_joints)
+                else:
+                    _ground_speed(r, msg, st, conn.msgtype)
+                if bar and n % 2000 == 0:
+                    bar.update(task, completed=n)
+        finally:
+            if bar:
+                bar.update(task, completed=total)
+                bar.stop()
+    finally:
+        reader.close()
+    for i, w in enumerate(js.wheels):
+        if seen_joints and w not in seen_joints:
+            raise BagImportError(
+                f"{js.topic}: name: joint {w!r} (map key joint_states.wheels[{i}]) is not in the bag; "
+                f"joint names there: {sorted(seen_joints)}")
+    return readers, types, issues
+
+
+def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
+    prov = Provenance(source="rosbag2")
+    streams = []
+    for topic, (key, r) in readers.items():
+        st, rows = r.in_order()
+        if not rows:
+            raise BagImportError(f"{topic}: no usable message (map key {key}.topic): all were dropped, see the reasons")
+        if key == "imu":
+            a = np.asarray([row[:8] for row in rows], dtype=float)
+            has_q = np.asarray([row[8] for row in rows], dtype=bool)
+            roll, pitch = a[:, 6], a[:, 7]
+            if tmap.imu.attitude == "estimate" or not has_q.all():
+                roll, pitch = complementary_tilt(st, a[:, 3:6], a[:, 0:3])
+                prov.attitude = "gyro+accelerometer (complementary filter)"
+            vals = {"specific_force": a[:, 0:3], "yaw_rate": a[:, 5], "roll": roll, "pitch": pitch}
+            streams.append(Stream(f"imu ({topic})", st, vals, tmap.imu.max_age))
+        elif key == "joint_states":
+            a = np.asarray(rows, dtype=float)
+            streams.append(Stream(f"joint_states ({topic})", st, {"wheel_speed": a[:, :4], "wheel_torque": a[:, 4:]},
+                                  tmap.joint_states.max_age))
+            if len(set(tmap.joint_states.wheels)) < 4:
+                prov.drive = "per_side"
+        else:
+            a = np.asarray(rows, dtype=float)
+            streams.append(Stream(f"ground_speed ({topic})", st, {"ground_speed": a[:, 0]}, tmap.ground_speed.max_age))
+    if tmap.ground_speed is None:
+        if tmap.wheel_radius is None:
+            raise BagImportError("ground_speed: no topic in the map and no wheel_radius for wheel odometry: "
+                                 "give ground_speed.topic (or wheel_radius to run with K withheld)")
+        js = next(s for s in streams if s.name.startswith("joint_states"))
+        js.values["ground_speed"] = js.values["wheel_speed"].mean(axis=1) * tmap.wheel_radius
+        prov.ground_speed = "wheel_odometry"
+        prov.identifiable = False
+        prov.reasons.append("no independent ground speed in the source (slip, eq. 1, needs it)")
+    return streams, prov
+
+
+def import_bag(path: str | Path, tmap: TopicMap, out: str | Path, *, strict: bool = False,
+               progress: bool = True) -> tuple[Provenance, list[str]]:
+    """Import a bag to the sensor log ``out`` (+ ``out.provenance.json``); returns (provenance, issue lines)."""
+    readers, _types, issues = read_bag(path, tmap, strict=strict, progress=progress)
+    try:
+        streams, prov = _streams(readers, tmap)
+    except BagImportError as exc:  # e.g. every message of a topic dropped: say why
+        raise BagImportError("; ".join([str(exc), *issues.lines()])) from None
+    try:
+        al = align(streams, tmap.rate_hz)
+    except ValueError as exc:
+        raise BagImportError(str(exc)) from None
+    skipped = Counter(al.skipped)
+    prov.samples = write_samples(samples_from_aligned(al, tmap.vehicle_id, skipped), out)
+    prov.source = f"rosbag2 {Path(path).name}"
+    prov.ticks = al.ticks
+    prov.skipped = dict(skipped)
+    prov.dropped_messages = {f"{t}: {f}: {r}": n for (t, f, r), n in issues.counts.items()}
+    prov.write(out)
+    return prov, issues.lines()
