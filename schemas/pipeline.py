@@ -56,6 +56,9 @@ class ObserverOutput(_Message):
     gross_var: Quad = Field(description="Variance of the gross coefficient per wheel")
     wheel_speed: Quad = Field(description="Filtered wheel angular speed, rad/s")
     ground_speed: float = Field(description="Filtered longitudinal CoM speed, m/s")
+    ground_speed_measured: bool = Field(
+        default=True, description="False: the sample had no independent ground speed (then slip and K are not identifiable)"
+    )
     yaw_rate: float = Field(description="Filtered yaw rate, rad/s")
     normal_force: Quad = Field(description="F_z used in this step, N")
     mu_determined: BoolQuad = Field(

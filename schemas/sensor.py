@@ -8,7 +8,7 @@ field: the contract is versioned by :data:`SENSOR_SCHEMA_ID`).
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
 
@@ -72,10 +72,12 @@ class SensorSample(BaseModel):
     wheel_torque: tuple[_WT, _WT, _WT, _WT] = Field(
         description="Wheel torques [t1,t2,t3,t4], N m (from motor current), same wheel order; > 0 drives forward"
     )
-    ground_speed: float = Field(
+    ground_speed: Optional[float] = Field(
         ge=-MAX_GROUND_SPEED,
         le=MAX_GROUND_SPEED,
-        description="Longitudinal speed of the CoM, m/s (GNSS / visual odometry), > 0 forward",
+        description="Longitudinal speed of the CoM, m/s (GNSS / visual odometry), > 0 forward; null when the robot "
+        "has no independent ground-speed sensor (wheel odometry is not one): slip (eq. 1) and K are then not "
+        "identifiable and the estimates say so",
     )
 
 

@@ -76,14 +76,16 @@ class ObserverInputs:
     pitch: np.ndarray
     wheel_speed: np.ndarray
     wheel_torque: np.ndarray
-    ground_speed: np.ndarray
+    ground_speed: np.ndarray  # NaN: no independent ground-speed sensor (slip and K not identifiable)
     normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
 
     def check(self) -> int:
         k = np.shape(self.stamp)[0] if np.ndim(self.stamp) == 1 else -1
         for name in ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed"):
             a = np.asarray(getattr(self, name), dtype=float)
-            if a.shape != (k,) or not np.all(np.isfinite(a)):
+            # a NaN ground speed means "no independent sensor" (the log's null); nothing else may be NaN
+            ok = np.isfinite(a) | (np.isnan(a) if name == "ground_speed" else False)
+            if a.shape != (k,) or not np.all(ok):
                 raise ValueError(f"inputs.{name} must be a finite array of shape ({k},), got {a!r}")
             setattr(self, name, a)
         for name in ("wheel_speed", "wheel_torque", "normal_force"):
@@ -113,6 +115,7 @@ class ObserverBankOutput:
     normal_force: np.ndarray
     speed_age: np.ndarray  # s since the wheel's speed (or the ground speed, whichever is older) last changed
     torque_age: np.ndarray  # s since the wheel's torque reading last changed
+    ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
 
 
 def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
@@ -244,7 +247,8 @@ class ObserverBank:
         for j in np.flatnonzero(rows):
             x0 = np.zeros(L.n)
             x0[L.omega] = inputs.wheel_speed[j]
-            x0[L.v] = inputs.ground_speed[j]
+            gs = inputs.ground_speed[j]
+            x0[L.v] = gs if not np.isnan(gs) else float(np.mean(inputs.wheel_speed[j])) * self.vehicle.wheel_radius
             x0[L.psi] = inputs.yaw_rate[j]
             x[j] = np.clip(x0, self._lower, self._upper)
             P[j] = self._P0
@@ -286,10 +290,12 @@ class ObserverBank:
             if moving.any():
                 xr[moving], Pr[moving] = predict(xr[moving], Pr[moving], A[run][moving], b[run][moving], self._Qc,
                                                  dt[run][moving])
+            gs = inputs.ground_speed[run]
             z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
-                                 inputs.ground_speed[run]])
+                                 np.nan_to_num(gs)])
             available = np.ones(z.shape, dtype=bool)
             available[:, 2:7] = fresh[run][:, :5]  # held wheel / ground speeds are no new measurement
+            available[:, 6] &= ~np.isnan(gs)
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
                                                    self.rejections[ix[run]], cfg.gate_patience, available)
             self.rejections[ix[run]] = counts
@@ -303,9 +309,9 @@ class ObserverBank:
                 self._reset(ix, rows, x, P, inputs, reasons, why)
         self.x[ix], self.P[ix] = x, P
         self.last_stamp[ix] = inputs.stamp
-        return self._output(x, P, fz, rejected, reasons, age)
+        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed))
 
-    def _output(self, x, P, fz, rejected, reasons, age) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age, measured) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
         res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
@@ -336,4 +342,5 @@ class ObserverBank:
             normal_force=fz,
             speed_age=np.maximum(age[:, :4], age[:, 4:5]),
             torque_age=age[:, 5:9],
+            ground_speed_measured=measured,
         )

@@ -60,7 +60,7 @@ class TractionObserver:
         L = self.layout
         x = np.zeros(L.n)
         x[L.omega] = wheel_speed
-        x[L.v] = ground_speed
+        x[L.v] = ground_speed if not np.isnan(ground_speed) else float(np.mean(wheel_speed)) * self.vehicle.wheel_radius
         x[L.psi] = yaw_rate
         self.kf.x = np.clip(x, self._lower, self._upper)
         self.kf.P = initial_covariance(L, self.cfg)
@@ -81,6 +81,7 @@ class TractionObserver:
         if self.vehicle.drive == "per_side":
             torque = split_side_torque(torque[None], fz[None])[0]
         omega = np.asarray(wheel_speed, dtype=float)
+        ground_speed = float("nan") if ground_speed is None else float(ground_speed)
         dt = None if self._last_stamp is None else stamp - self._last_stamp
         reset = dt is None or dt < 0 or dt > self.cfg.max_gap
         speeds = np.array([*omega, ground_speed])
@@ -94,7 +95,7 @@ class TractionObserver:
             F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
             self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
         self._last_stamp = stamp
-        z = np.array([specific_force_x, yaw_rate, *omega, ground_speed])
+        z = np.array([specific_force_x, yaw_rate, *omega, np.nan_to_num(ground_speed)])
         rejected = 0
         if not reset:
             innov = z - H @ self.kf.x
@@ -102,6 +103,7 @@ class TractionObserver:
             keep = (innov**2 <= (self.cfg.gate_sigma**2) * s) | (self._rejections >= self.cfg.gate_patience)
             available = np.ones(N_MEAS, dtype=bool)
             available[2:7] = fresh  # held wheel / ground speeds are no new measurement
+            available[6] &= not np.isnan(ground_speed)
             self._rejections = np.where(available, np.where(keep, 0, self._rejections + 1), self._rejections)
             keep &= available
             rejected = int(np.count_nonzero(~keep))

@@ -119,7 +119,7 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
         pitch=np.array([s.pitch for s in samples], dtype=float),
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
         wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
-        ground_speed=np.array([s.ground_speed for s in samples], dtype=float),
+        ground_speed=np.array([np.nan if s.ground_speed is None else s.ground_speed for s in samples], dtype=float),
         normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
     )
 
@@ -134,6 +134,7 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
         speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
+        ground_speed_measured=bool(out.ground_speed_measured[j]),
     )
 
 
@@ -165,6 +166,7 @@ class SoilInputs:
     gate_slip: np.ndarray  # the low-pass slip the gate decides on (method-notes §9)
     gate_sigma: np.ndarray
     held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
+    identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
 
 
 class SlipGate:
@@ -209,7 +211,8 @@ class SlipGate:
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
         held = (ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
-        return SoilInputs(slip, informative, observed, var, s_sig, lp, g_sig, held)
+        measured = ob.ground_speed_measured
+        return SoilInputs(slip, informative & measured[:, None], observed, var, s_sig, lp, g_sig, held, measured)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -241,12 +244,13 @@ class SoilStage:
             yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
             reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
             speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
+            ground_speed_measured=np.array([obs.ground_speed_measured]),
         )
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held)[0]
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])

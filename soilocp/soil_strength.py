@@ -304,12 +304,13 @@ class SoilBank:
         self.stats = np.zeros((n, 5))
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None, held=None) -> list[SoilState]:
+               gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
         ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw);
-        ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now)."""
+        ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now);
+        ``identifiable`` (k,) bool: False when the sample has no independent ground speed."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -324,7 +325,8 @@ class SoilBank:
         # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
-        use = gated & determined & ~held
+        ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
+        use = gated & determined & ~held & ident[:, None]
         p = self.p[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
@@ -358,7 +360,7 @@ class SoilBank:
             self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, stats)
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
 
     def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
@@ -379,7 +381,7 @@ class SoilBank:
         np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
         np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
 
-    def _summaries(self, ix, stamp, p, info, use, undetermined, held, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
         out = []
@@ -400,7 +402,11 @@ class SoilBank:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
                           "torque-scale / mass uncertainty moves K this much where the traction curve saturates")
             nis = nis_sum / evidence if evidence > 0 else 0.0
-            if rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
+            if not ident[j]:
+                status = "not_observable"
+                reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
+                          "with it; wheel odometry cannot stand in)")
+            elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")

@@ -46,7 +46,19 @@ def test_borealtc_imports_and_runs_with_honest_statuses(tmp_path, run):
     s = samples[len(samples) // 2]
     assert s["wheel_speed"][0] == s["wheel_speed"][1] and s["wheel_speed"][2] == s["wheel_speed"][3]  # per side
     prov = json.loads(Path(str(log) + ".provenance.json").read_text())
-    assert prov["identifiable"] is False and prov["drive"] == "per_side" and prov["ground_speed"] == "wheel_odometry"
+    assert prov["identifiable"] is False and prov["drive"] == "per_side" and prov["ground_speed"] == "absent"
+    assert all(x["ground_speed"] is None for x in samples)  # no stand-in: the log says there is none
+    # the chain itself (as live, without the provenance file) says K is not identifiable and prints no number
+    from soilocp.estimate import estimate_lines
+    from soilocp.pipeline import load_pipeline_config
+
+    own = list(estimate_lines(log.read_text().splitlines(), load_pipeline_config(vehicle=VEHICLE)))
+    assert len(own) == len(samples)
+    for rec in own:
+        assert rec["soil_strength"] is None and rec["soil_class"] is None and rec["mu_T"] is None
+        assert rec["status"] in ("no_estimate", "not_observable")
+    assert any(r["status"] == "not_observable" and r["reason"].startswith("not identifiable: no independent ground speed")
+               for r in own)
     r = CliRunner().invoke(main, ["estimate", str(log), "--vehicle", str(VEHICLE), "--out", str(est)])
     assert r.exit_code == 0, r.output
     assert "K withheld on every record" in r.output and f"statuses {{'no_estimate': {len(samples)}}}" in r.output

@@ -50,7 +50,9 @@ def _read(path) -> list[dict]:
 def _k_stats(truth, samples_lines):
     est = list(estimate_lines(samples_lines, PipelineConfig()))
     seg = evaluate_records(truth, est)[0]
-    return seg.k_median_rel, est[-1]["soil_strength"], est
+    # K over the last 4 s: one sample's K carries that sample's noise, which the three rates resample
+    late = [r["soil_strength"] for r in est if r["soil_strength"] is not None and r["stamp"] >= est[-1]["stamp"] - 4.0]
+    return seg.k_median_rel, float(np.median(late)), est
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

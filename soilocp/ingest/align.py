@@ -98,7 +98,7 @@ class Provenance:
     """
 
     source: str
-    ground_speed: str = "measured"  # measured | wheel_odometry (NOT independent: slip eq. 1 ~ 0 by construction)
+    ground_speed: str = "measured"  # measured | absent (null in the log: slip, eq. 1, and K are not identifiable)
     wheel_torque: str = "torque"  # torque | current_unknown_scale
     drive: str = "per_wheel"
     attitude: str = "orientation"  # orientation | gyro+accelerometer (complementary filter)
@@ -149,7 +149,7 @@ def samples_from_aligned(al: Aligned, vehicle_id: str, skipped: Counter) -> Iter
                 yaw_rate=float(v["yaw_rate"][i]),
                 wheel_speed=tuple(float(x) for x in v["wheel_speed"][i]),
                 wheel_torque=tuple(float(x) for x in v["wheel_torque"][i]),
-                ground_speed=float(v["ground_speed"][i]),
+                ground_speed=None if np.isnan(v["ground_speed"][i]) else float(v["ground_speed"][i]),
             )
         except ValidationError as exc:
             first = exc.errors(include_url=False)[0]

@@ -9,9 +9,9 @@ each with its own time column (seconds) and rate; the rows are put on one clock 
 * ``wheels``: speed and motor current per wheel; a column named for two wheels is one motor per
   side (skid steer): both wheels read its speed, each gets half its torque.  Current x
   ``current_to_torque`` = wheel torque, N m.  Unsigned currents take the sign of the wheel speed.
-* ``ground_speed``: optional.  Without it, the mean wheel rim speed stands in so that the log is
-  complete, and the provenance file marks K as not identifiable (slip, eq. 1, compares the wheel
-  speed with an INDEPENDENT ground speed; wheel odometry makes slip ~ 0 by construction).
+* ``ground_speed``: optional.  Without it the log's ground_speed is null, and the chain reports K
+  as not identifiable (slip, eq. 1, compares the wheel speed with an INDEPENDENT ground speed;
+  wheel odometry would make slip ~ 0 by construction); the provenance file says so too.
 
 Rows with NaN or a stamp going backwards are dropped with a counted reason naming the file,
 column and reason; the rows around them are kept.
@@ -119,10 +119,9 @@ def import_csv(files: dict[str, str | Path], tmap: TopicMap, out: str | Path) ->
         prov.drive = "per_side"
     vals = {"wheel_speed": speed, "wheel_torque": torque}
     if cm.ground_speed is None:
-        if tmap.wheel_radius is None:
-            raise CsvImportError("no ground_speed role and no wheel_radius: give one (without ground speed K is withheld)")
-        vals["ground_speed"] = speed.mean(axis=1) * tmap.wheel_radius
-        prov.ground_speed = "wheel_odometry"
+        # no independent ground speed: null in the log, and the chain says K is not identifiable
+        vals["ground_speed"] = np.full(len(speed), np.nan)
+        prov.ground_speed = "absent"
         prov.identifiable = False
         prov.reasons.insert(0, "no independent ground speed in the source (slip, eq. 1, needs it)")
     streams.append(Stream(f"wheels ({Path(files['wheels']).name})", st, vals, w.max_age))

@@ -97,7 +97,7 @@ class CsvMap(_Strict):
 
     imu: CsvImuMap = CsvImuMap()
     wheels: CsvWheelsMap
-    #: None: the log has no independent ground speed; wheel odometry stands in and K is withheld.
+    #: None: the log has no independent ground speed: it is null in the log and K is not identifiable.
     ground_speed: Optional[CsvGroundSpeedMap] = None
 
 

@@ -280,12 +280,10 @@ def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
             a = np.asarray(rows, dtype=float)
             streams.append(Stream(f"ground_speed ({topic})", st, {"ground_speed": a[:, 0]}, tmap.ground_speed.max_age))
     if tmap.ground_speed is None:
-        if tmap.wheel_radius is None:
-            raise BagImportError("ground_speed: no topic in the map and no wheel_radius for wheel odometry: "
-                                 "give ground_speed.topic (or wheel_radius to run with K withheld)")
+        # no independent ground speed: null in the log, and the chain says K is not identifiable
         js = next(s for s in streams if s.name.startswith("joint_states"))
-        js.values["ground_speed"] = js.values["wheel_speed"].mean(axis=1) * tmap.wheel_radius
-        prov.ground_speed = "wheel_odometry"
+        js.values["ground_speed"] = np.full(len(js.values["wheel_speed"]), np.nan)
+        prov.ground_speed = "absent"
         prov.identifiable = False
         prov.reasons.append("no independent ground speed in the source (slip, eq. 1, needs it)")
     return streams, prov
