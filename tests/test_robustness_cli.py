@@ -77,3 +77,13 @@ def test_robustness_options_are_checked():
     assert r.exit_code == 2 and "rear-mirror" in r.output
     r = CliRunner().invoke(main, ["accuracy", "--seeds", "2"])
     assert r.exit_code == 2 and "--robustness" in r.output
+
+
+def test_seeds_pool_into_one_row_per_variant():
+    from soilocp.robustness import run_robustness
+
+    runs = run_robustness(["cruise"], seeds=(0, 1), duration=1.0, jobs=1)
+    assert [(r.variant, r.seed) for r in runs] == [("cruise", 0), ("cruise", 1)]
+    (row,) = summarize(runs)
+    assert row["seeds"] == [0, 1] and row["samples"] == 200
+    assert sum(row["status_shares"].values()) == pytest.approx(1.0)
