@@ -16,6 +16,15 @@ from .sensor import VehicleId
 PIPELINE_SCHEMA_VERSION = 1
 
 Quad = tuple[float, float, float, float]
+BoolQuad = tuple[bool, bool, bool, bool]
+
+#: Status of a soil / OCP record (see soilocp.soil_strength); ``stale`` is set by the live publisher.
+EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
+_STATUS_DOC = (
+    "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
+    "not_observable (the data do not determine K) | model_mismatch (the traction curve does not explain the data) | "
+    "stale (live publisher: inputs stopped)"
+)
 
 
 class _Message(BaseModel):
@@ -49,8 +58,16 @@ class ObserverOutput(_Message):
     ground_speed: float = Field(description="Filtered longitudinal CoM speed, m/s")
     yaw_rate: float = Field(description="Filtered yaw rate, rad/s")
     normal_force: Quad = Field(description="F_z used in this step, N")
+    mu_determined: BoolQuad = Field(
+        default=(True,) * 4,
+        description="Per wheel: the data determine mu (posterior 1-sigma small). False: the net / resistance split is "
+        "carried by the model's assumptions only (e.g. a traction test with mirrored slips): do not use mu",
+    )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
-    reset: bool = Field(description="True if the filter was (re)initialised at this sample (start or time gap)")
+    reset: bool = Field(description="True if the filter was (re)initialised at this sample")
+    reset_reason: str = Field(
+        default="", description="start | time_gap | stamp_backwards | non_finite_state | state_out_of_physics ('' if no reset)"
+    )
 
 
 class SoilEstimate(_Message):
@@ -63,10 +80,11 @@ class SoilEstimate(_Message):
     log_k_std: Optional[float] = Field(description="1-sigma uncertainty of ln K")
     soil_class: Optional[str] = Field(description="Most probable soil class")
     soil_class_confidence: Optional[float] = Field(description="Probability of that class, 0..1")
-    status: str = Field(description="ok | uncertain | holding | no_estimate (see soilocp.soil_strength)")
+    status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
     last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
+    mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
 
 
 class OcpEstimate(_Message):
@@ -80,7 +98,8 @@ class OcpEstimate(_Message):
     S_T: Optional[float] = Field(description="Slip of maximum traction (eq. 7, sign corrected)")
     S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10)")
     te_at_S_E: Optional[float] = Field(default=None, description="Tractive efficiency (eq. 9) at S_E, when defined")
-    status: str = Field(description="ok | uncertain | holding | no_estimate, or stale (set by the live publisher)")
+    status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
     mu: Quad = Field(description="Observed net traction per wheel")
+    mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
     slip: Quad = Field(description="Slip per wheel (eq. 1)")

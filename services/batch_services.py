@@ -92,10 +92,9 @@ class BatchOcpService(OcpService):
             idx = np.array([self.index[v] for v in vids])
             # normal forces of every stepped vehicle in one call (zero-warp solution, eqs. 21-25)
             fz = normal_forces(self.vehicle, np.array([s.specific_force for s in samples], dtype=float))
-            out = self.batch.step(idx, BatchPipeline.inputs_from_samples(samples, fz))
+            out = self.batch.step(idx, samples, fz)
             self.steps += 1
-            for j, (vid, sample) in enumerate(zip(vids, samples)):
-                est = OcpEstimate(vehicle_id=vid, seq=sample.seq, **out.ocp_fields(j))
+            for vid, est in zip(vids, out):
                 self.stores[vid].add(est)
                 self.pubs[vid].put(est.model_dump_json())
                 c = self.counters[vid]

@@ -56,8 +56,6 @@ class RawSampleChecker:
             return sample
         except SampleRejected as rej:
             return self._rejection(rej.code, rej.message, rej.seq, payload, key, received_at)
-        except RecursionError:  # absurdly nested JSON
-            return self._rejection("malformed_json", "payload: JSON nested too deeply", None, payload, key, received_at)
         except (ValueError, TypeError, OverflowError) as exc:
             # what the parser itself refuses beyond JSON syntax, e.g. an integer of 5000 digits
             return self._rejection("malformed_json", f"payload: cannot be parsed: {exc}"[:300], None, payload, key,

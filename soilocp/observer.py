@@ -37,12 +37,11 @@ Corrections to the print
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Literal
+from dataclasses import dataclass
+from typing import Literal, Optional
 
 import numpy as np
 import scipy.linalg
-from filterpy.kalman import KalmanFilter
 from pydantic import BaseModel, ConfigDict, Field
 
 from .normal_force import STANDARD_GRAVITY
@@ -90,6 +89,19 @@ class ObserverConfig(BaseModel):
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
     gravity: float = Field(STANDARD_GRAVITY, gt=0)
+    # physics bounds and what the data determine (method-notes §11-12)
+    mu_bound: float = Field(1.5, gt=0, description="|mu_i| (net traction coefficient) is kept <= this: no soil gives more")
+    resistance_bound: float = Field(1.0, gt=0, description="|r0| and |mu_xR| shared constant part kept <= this")
+    resistance_slope_bound: float = Field(5.0, gt=0, description="|r1| (d mu_xR / d|S|) kept <= this")
+    lateral_bound: float = Field(2.0, gt=0, description="|mu_yR| kept <= this")
+    speed_bias_bound: float = Field(3.0, gt=0, description="|speed-equation bias| kept <= this, m/s^2")
+    mu_std_determined: float = Field(
+        0.15, gt=0, description="mu_i counts as determined by the data while its posterior 1-sigma is <= this"
+    )
+    travel_speed: float = Field(0.05, gt=0, description="m/s over which the travel direction of a wheel is smoothed")
+    bridge_slip: float = Field(0.005, ge=0, description="Zero-slip bridge of eq. 4's constant part (ModelConstants.bridge_slip)")
+    max_wheel_speed: float = Field(1000.0, gt=0, description="A filtered wheel speed above this (rad/s) is divergence: reset")
+    max_ground_speed: float = Field(100.0, gt=0, description="A filtered ground speed above this (m/s) is divergence: reset")
 
 
 @dataclass(frozen=True)
@@ -146,65 +158,100 @@ class StateLayout:
             return StateLayout(structure, 0, 1)
         raise ValueError(f"observer structure must be slip, shared, per_wheel or none, got {structure!r}")
 
-    def resistance_matrix(self, slip=None, bridge: float = 0.005) -> np.ndarray:
-        """(4, n_res) map from resistance states to each wheel's mu_xR.
-
-        ``slip`` structure: mu_xR_i = r0 * sgn(S_i) + r1 * S_i, eq. 4's form C4 + C5/K + C6 |S|/sqrt(K)
-        mirrored for braking (soilocp.traction's odd convention), with sgn smoothed over the
-        zero-slip bridge.  r0, r1 are shared by the wheels (same soil), and the wheels' different
-        slips make them identifiable over time.
-        """
+    def bounds(self, cfg: "ObserverConfig") -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) physical box of the state (method-notes §12: a net traction coefficient of 3
+        is not a soil); speeds are unbounded here (the divergence guard watches them)."""
+        hi = np.full(self.n, np.inf)
+        hi[self.mu] = cfg.mu_bound
+        hi[self.res] = cfg.resistance_bound
         if self.n_res == 2:
-            s = np.zeros(4) if slip is None else np.asarray(slip, dtype=float)
-            return np.stack([np.clip(s / bridge, -1.0, 1.0), s], axis=1)
-        if self.n_res == 1:
-            return np.ones((4, 1))
-        if self.n_res == 4:
-            return np.eye(4)
-        return np.zeros((4, 0))
+            hi[self.res.start + 1] = cfg.resistance_slope_bound
+        hi[self.lat] = cfg.lateral_bound
+        hi[self.bias] = cfg.speed_bias_bound
+        return -hi, hi
 
 
 # measurement rows: f_x, yaw rate, omega_1..4, ground speed
 N_MEAS = 7
 
 
-def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
-                     pitch: float, g: float = STANDARD_GRAVITY, slip=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A(t), b(t), H(t) of eq. 33, built from eqs. 11-15 and 29 at the current Fz and torques.
+def travel_direction(v_wheel: np.ndarray, travel_speed: float) -> np.ndarray:
+    """Smoothed sign of each wheel's travel, in [-1, 1]: motion resistance opposes travel (§11)."""
+    return np.clip(v_wheel / travel_speed, -1.0, 1.0)
+
+
+def resistance_map(layout: StateLayout, slip: Optional[np.ndarray], travel: Optional[np.ndarray],
+                   bridge: float) -> np.ndarray:
+    """(..., 4, n_res) map from the resistance states to each wheel's mu_xR.
+
+    ``slip`` structure (method-notes §11, eq. 4 even in S): mu_xR_i = d_i (r0 b_i + r1 |S_i|), with
+    b_i = min(|S_i| / bridge, 1) the zero-slip bridge of eq. 4's constant part (as in
+    :mod:`soilocp.traction`) and d_i the travel direction; r0 ~ C4 + C5/K and r1 ~ C6/sqrt(K) are
+    shared by the wheels (same soil).  ``slip`` and ``travel`` have shape (..., 4); None means zero
+    slip and forward travel.  The old form r0 sgn(S) + r1 S flipped the resistance of a braking
+    wheel and biased K 20-30 % low on traction tests.
+    """
+    s = np.zeros(4) if slip is None else np.asarray(slip, dtype=float)
+    if layout.n_res == 2:
+        d = np.ones_like(s) if travel is None else np.asarray(travel, dtype=float)
+        a = np.abs(s)
+        b = np.minimum(a / bridge, 1.0) if bridge > 0 else np.ones_like(a)
+        return np.stack([d * b, d * a], axis=-1)
+    if layout.n_res == 1:
+        return np.ones(s.shape + (1,))
+    if layout.n_res == 4:
+        return np.broadcast_to(np.eye(4), s.shape[:-1] + (4, 4)).copy()
+    return np.zeros(s.shape + (0,))
+
+
+def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray,
+          M: np.ndarray, gravity: float = STANDARD_GRAVITY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A (k, n, n), b (k, n), H (k, 7, n) of eq. 33 for k vehicles, built from eqs. 11-15 and 29 at
+    the current normal forces fz (k, 4) [N], wheel torques (k, 4) [N m] and pitch (k,) [rad], with
+    the resistance maps M (k, 4, n_res) of :func:`resistance_map`.
 
     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w          (eqs. 13-15)
-    V_dot       = sum(mu_i Fz_i) / m + g sin(pitch)                  (longitudinal, REP-103 pitch)
+    V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias           (longitudinal, REP-103 pitch)
     psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z          (eqs. 11-12), Fx_i = mu_i Fz_i
     M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
-    z = [f_x = sum(mu_i Fz_i)/m (eq. 29), psi_dot, omega_1..4, V]
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, method-notes §3), psi_dot, omega_1..4, V]
     """
-    n = layout.n
-    A = np.zeros((n, n))
-    b = np.zeros(n)
-    H = np.zeros((N_MEAS, n))
-    R, Iw, m, Iz = vehicle.wheel_radius, vehicle.wheel_inertia, vehicle.mass, vehicle.yaw_inertia
-    om = layout.omega
-    wheel_gain = -R * fz / Iw
-    A[om, layout.mu] = np.diag(wheel_gain)
-    if layout.n_res:
-        A[om, layout.res] = wheel_gain[:, None] * layout.resistance_matrix(slip)
-    b[om] = torque / Iw
-    A[layout.v, layout.mu] = fz / m
+    L, v = layout, vehicle
+    k = fz.shape[0]
+    nx = L.n
+    A = np.zeros((k, nx, nx))
+    b = np.zeros((k, nx))
+    om = np.arange(nx)[L.omega]
+    wheel_gain = -v.wheel_radius * fz / v.wheel_inertia
+    A[:, om, np.arange(4)] = wheel_gain
+    if L.n_res:
+        A[:, L.omega, L.res] = wheel_gain[:, :, None] * M
+    b[:, L.omega] = torque / v.wheel_inertia
+    A[:, L.v, L.mu] = fz / v.mass
     # an accelerometer bias or a pitch bias would otherwise integrate into V and bias every slip
-    A[layout.v, layout.bias] = -1.0
-    b[layout.v] = g * np.sin(pitch)
-    yaw_arm = np.array([-vehicle.c, -vehicle.c, vehicle.d, vehicle.d])
-    A[layout.psi, layout.mu] = yaw_arm * fz / Iz
-    lat_arm = np.array([vehicle.a, vehicle.b, vehicle.b, vehicle.a]) * fz
-    if layout.n_lat == 1:
-        A[layout.psi, layout.lat] = -lat_arm.sum() / Iz
+    A[:, L.v, L.bias] = -1.0
+    b[:, L.v] = gravity * np.sin(pitch)
+    A[:, L.psi, L.mu] = np.array([-v.c, -v.c, v.d, v.d]) * fz / v.yaw_inertia
+    lat = np.array([v.a, v.b, v.b, v.a]) * fz
+    if L.n_lat == 1:
+        A[:, L.psi, L.lat] = (-lat.sum(axis=1) / v.yaw_inertia)[:, None]
     else:
-        A[layout.psi, layout.lat] = -lat_arm / Iz
-    H[0, layout.mu] = fz / m
-    H[1, layout.psi] = 1.0
-    H[2:6, om] = np.eye(4)
-    H[6, layout.v] = 1.0
+        A[:, L.psi, L.lat] = -lat / v.yaw_inertia
+    H = np.zeros((k, N_MEAS, nx))
+    H[:, 0, L.mu] = fz / v.mass
+    H[:, 1, L.psi] = 1.0
+    H[:, 2:6, L.omega] = np.eye(4)
+    H[:, 6, L.v] = 1.0
     return A, b, H
+
+
+def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
+                     pitch: float, g: float = STANDARD_GRAVITY, slip=None, travel=None):
+    """A (n, n), b (n,), H (7, n) of eq. 33 for one vehicle: :func:`model` with k = 1."""
+    M = resistance_map(layout, slip, travel, ObserverConfig().bridge_slip)
+    A, b, H = model(layout, vehicle, np.asarray(fz, float)[None], np.asarray(torque, float)[None],
+                    np.array([pitch], float), M[None], g)
+    return A[0], b[0], H[0]
 
 
 def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
@@ -272,7 +319,7 @@ def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, sl
         slips = [(0.3, -0.1, -0.1, 0.3), (0.1, -0.05, -0.05, 0.1), (0.5, -0.2, -0.2, 0.5)]
     blocks, Phi = [], np.eye(layout.n)
     for k in range(layout.n):
-        A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0, slip=slips[k % len(slips)])
+        A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0, slip=np.asarray(slips[k % len(slips)], float))
         F, _, _ = discretize(A, b, np.zeros_like(A), 0.01)
         blocks.append(H @ Phi)
         Phi = F @ Phi
@@ -282,182 +329,17 @@ def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, sl
     return int(np.linalg.matrix_rank(O, tol=tol))
 
 
-@dataclass
-class ObserverEstimate:
-    mu: np.ndarray
-    mu_var: np.ndarray
-    resistance: np.ndarray
-    gross: np.ndarray
-    gross_var: np.ndarray
-    wheel_speed: np.ndarray
-    ground_speed: float
-    yaw_rate: float
-    rejected: int
-    reset: bool
-    extra: dict = field(default_factory=dict)
-
-
-def _speed_bias_template(layout: StateLayout) -> np.ndarray:
-    A = np.zeros((layout.n, layout.n))
-    A[layout.v, layout.bias] = -1.0
-    return A
-
-
-class TractionObserver:
-    """One vehicle's traction observer: filterpy KalmanFilter with matrices rebuilt every step."""
-
-    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None = None):
-        self.vehicle = vehicle
-        self.cfg = config or ObserverConfig()
-        self.layout = StateLayout.of(self.cfg.structure)
-        self._Qc = continuous_process_noise(self.layout, self.cfg)
-        self._R = np.diag(
-            [
-                self.cfg.r_specific_force**2,
-                self.cfg.r_yaw_rate**2,
-                *([self.cfg.r_wheel_speed**2] * 4),
-                self.cfg.r_ground_speed**2,
-            ]
-        )
-        self.kf = KalmanFilter(dim_x=self.layout.n, dim_z=N_MEAS)
-        self._last_stamp: float | None = None
-        self._one = np.ones(1)
-        self._rejections = np.zeros(N_MEAS, dtype=int)
-        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
-        self._J = np.zeros((4, self.layout.n))  # d gross / d x, filled per step
-        self._J[:, self.layout.mu] = np.eye(4)
-        self._R_diag = np.diag(self._R).copy()
-        L, v = self.layout, vehicle
-        H0 = np.zeros((N_MEAS, L.n))
-        H0[1, L.psi] = 1.0
-        H0[2:6, L.omega] = np.eye(4)
-        H0[6, L.v] = 1.0
-        self._tpl = {
-            "A": _speed_bias_template(L), "b": np.zeros(L.n), "H": H0,
-            "om_idx": np.arange(L.omega.start, L.omega.stop), "mu_idx": np.arange(4),
-            "wheel_gain": -v.wheel_radius / v.wheel_inertia, "inv_iw": 1.0 / v.wheel_inertia, "inv_m": 1.0 / v.mass,
-            "yaw_arm": np.array([-v.c, -v.c, v.d, v.d]) / v.yaw_inertia,
-            "lat_arm": np.array([v.a, v.b, v.b, v.a]) / v.yaw_inertia,
-        }
-        self.steps = 0
-
-    def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
-        L, c = self.layout, self.cfg
-        x = np.zeros(L.n)
-        x[L.omega] = wheel_speed
-        x[L.v] = ground_speed
-        x[L.psi] = yaw_rate
-        p = np.zeros(L.n)
-        p[L.mu] = c.p0_mu**2
-        p[L.res] = c.p0_resistance**2
-        if L.n_res == 2:
-            p[L.res.start + 1] = c.p0_resistance_slope**2
-        p[L.lat] = c.p0_lateral**2
-        p[L.omega] = c.r_wheel_speed**2
-        p[L.v] = c.p0_speed**2
-        p[L.psi] = c.r_yaw_rate**2
-        p[L.bias] = c.p0_speed_bias**2
-        self.kf.x = x
-        self.kf.P = np.diag(p)
-        self._rejections[:] = 0
-
-    def step(self, stamp: float, specific_force_x: float, yaw_rate: float, pitch: float,
-             wheel_speed, wheel_torque, ground_speed: float, normal_force) -> ObserverEstimate:
-        """One predict/update cycle (eq. 35, standard form) for a sample at ``stamp``."""
-        fz = np.asarray(normal_force, dtype=float)
-        torque = np.asarray(wheel_torque, dtype=float)
-        omega = np.asarray(wheel_speed, dtype=float)
-        reset = False
-        dt = None if self._last_stamp is None else stamp - self._last_stamp
-        # ZOH over [k-1, k] with the inputs (Fz, T, pitch) of sample k held: the same matrices
-        # serve the prediction to k and the measurement model at k.
-        slip = self._state_slip() if self.layout.n_res == 2 and self._last_stamp is not None else None
-        A, b, H = self._model(fz, torque, pitch, slip)
-        if dt is None or dt < 0 or dt > self.cfg.max_gap:
-            self._initialise(omega, ground_speed, yaw_rate)
-            reset = True
-        elif dt > 0:  # a repeated stamp (dt == 0) is a second measurement of the same instant
-            F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
-            # filterpy: x = F x + B u with B = G (column) and u = 1
-            self.kf.predict(u=self._one, B=G[:, None], F=F, Q=Qd)
-        self._last_stamp = stamp
-        z = np.array([specific_force_x, yaw_rate, *omega, ground_speed])
-        rejected = 0
-        if not reset:
-            innov = z - H @ self.kf.x
-            s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + self._R_diag
-            keep = innov**2 <= (self.cfg.gate_sigma**2) * s
-            # a row rejected again and again means the state has lost the sensor: re-acquire it
-            # rather than coast on a diverging prediction
-            keep |= self._rejections >= self.cfg.gate_patience
-            self._rejections = np.where(keep, 0, self._rejections + 1)
-            rejected = int(np.count_nonzero(~keep))
-            if keep.all():
-                self.kf.update(z, R=self._R, H=H)
-            elif keep.any():
-                idx = np.flatnonzero(keep)
-                self.kf.update(z[idx], R=self._R[np.ix_(idx, idx)], H=H[idx])
-            self._condition()
-        self.steps += 1
-        return self.estimate(rejected, reset)
-
-    def _model(self, fz: np.ndarray, torque: np.ndarray, pitch: float, slip):
-        """:func:`continuous_model` filled into preallocated templates (same matrices, tested)."""
-        L, t = self.layout, self._tpl
-        A, b, H = t["A"].copy(), t["b"].copy(), t["H"].copy()
-        gain = fz * t["wheel_gain"]
-        A[t["om_idx"], t["mu_idx"]] = gain
-        if L.n_res:
-            A[L.omega, L.res] = gain[:, None] * L.resistance_matrix(slip)
-        b[L.omega] = torque * t["inv_iw"]
-        fz_m = fz * t["inv_m"]
-        A[L.v, L.mu] = fz_m
-        b[L.v] = self.cfg.gravity * np.sin(pitch)
-        A[L.psi, L.mu] = fz * t["yaw_arm"]
-        lat = fz * t["lat_arm"]
-        A[L.psi, L.lat] = -lat.sum() if L.n_lat == 1 else -lat
-        H[0, L.mu] = fz_m
-        return A, b, H
-
-    def _gross_jacobian(self, M: np.ndarray) -> np.ndarray:
-        J = self._J
-        if self.layout.n_res:
-            J[:, self.layout.res] = M
-        return J
-
-    def _state_slip(self) -> np.ndarray:
-        """Per-wheel slip (eq. 1, floored) of the current estimate: the regressor of the 'slip'
-        structure, taken from the prior so that the model stays linear within a step."""
-        x, L, v = self.kf.x, self.layout, self.vehicle
-        rim = x[L.omega] * v.wheel_radius
-        ground = x[L.v] - x[L.psi] * self._wheel_y
-        return (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
-
-    def _condition(self) -> None:
-        """Keep P symmetric positive definite (symmetrise, clamp variances) over long runs."""
-        P = (self.kf.P + self.kf.P.T) / 2.0
-        d = np.clip(np.diag(P), self.cfg.variance_floor, self.cfg.variance_ceiling)
-        np.fill_diagonal(P, d)
-        self.kf.P = P
-
-    def estimate(self, rejected: int = 0, reset: bool = False) -> ObserverEstimate:
-        L = self.layout
-        x, P = self.kf.x, self.kf.P
-        mu = x[L.mu].copy()
-        M = L.resistance_matrix(self._state_slip() if L.n_res == 2 else None)
-        res = M @ x[L.res] if L.n_res else np.zeros(4)
-        # gross_i = mu_i + (M x_res)_i : its variance from the joint covariance
-        J = self._gross_jacobian(M)
-        gross_var = np.einsum("ij,jk,ik->i", J, P, J)
-        return ObserverEstimate(
-            mu=mu,
-            mu_var=np.diag(P)[L.mu].copy(),
-            resistance=res,
-            gross=mu + res,
-            gross_var=gross_var,
-            wheel_speed=x[L.omega].copy(),
-            ground_speed=float(x[L.v]),
-            yaw_rate=float(x[L.psi]),
-            rejected=rejected,
-            reset=reset,
-        )
+def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
+    """P_0 (n, n): diagonal, from the config's initial 1-sigmas (speeds from their sensors' noise)."""
+    L, c = layout, cfg
+    p = np.zeros(L.n)
+    p[L.mu] = c.p0_mu**2
+    p[L.res] = c.p0_resistance**2
+    if L.n_res == 2:
+        p[L.res.start + 1] = c.p0_resistance_slope**2
+    p[L.lat] = c.p0_lateral**2
+    p[L.omega] = c.r_wheel_speed**2
+    p[L.v] = c.p0_speed**2
+    p[L.psi] = c.r_yaw_rate**2
+    p[L.bias] = c.p0_speed_bias**2
+    return np.diag(p)

@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 
-from .observer import ObserverConfig, TractionObserver
+from .observer import ObserverConfig
+from .observer_reference import TractionObserver
 from .vehicle import DEFAULT_VEHICLE
 
 

@@ -4,14 +4,13 @@ S_E (eq. 10).  Vectorised over K.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .checks import positive, positive_scalar
 from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import net_traction
+from .traction import net_traction, tractive_efficiency
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -66,21 +65,33 @@ class OCP:
         return {"soil_strength": self.soil_strength, "mu_T": self.mu_T, "S_T": self.S_T, "S_E": self.S_E}
 
 
-def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:
-    """All three OCPs for one K: eq. 7 (sign corrected), eq. 8, eq. 10.
+def ocp_arrays(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS) -> dict[str, np.ndarray]:
+    """mu_T (eq. 8), S_T (eq. 7, sign corrected), S_E (eq. 10) and TE at S_E (eq. 9) for an array
+    of K (shape (k,)); NaN where K is NaN (no estimate) and TE NaN where S_E is not a driving slip
+    in (0, 1).  The one OCP kernel of the single-vehicle stage and the batched service."""
+    k = np.asarray(soil_strength, dtype=float).reshape(-1)
+    out = {name: np.full(k.shape, np.nan) for name in ("mu_T", "S_T", "S_E", "te_at_S_E")}
+    have = ~np.isnan(k)
+    if have.any():
+        kk = positive("soil_strength", k[have])
+        with np.errstate(over="ignore", divide="ignore"):
+            evaluable = np.all(np.isfinite(constants.C5 / kk))
+        if not evaluable:
+            raise ValueError(f"soil_strength must be Ks the model can evaluate (>~1e-300), got {kk!r}")
+        out["S_T"][have] = optimal_slip_traction(kk, constants)
+        out["mu_T"][have] = max_traction(kk, constants)
+        se = optimal_slip_efficiency(kk, constants)
+        out["S_E"][have] = se
+        drive = (se > 0) & (se < 1)
+        if drive.any():
+            te = np.full(kk.shape, np.nan)
+            te[drive] = tractive_efficiency(se[drive], kk[drive], constants)
+            out["te_at_S_E"][have] = te
+    return out
 
-    Scalar fast path (the live services call it for every sample): the same formulas as
-    :func:`optimal_slip_traction`, :func:`max_traction` and :func:`optimal_slip_efficiency`
-    evaluated with ``math``; tests check that both paths agree.
-    """
+
+def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:
+    """All three OCPs for one K: eq. 7 (sign corrected), eq. 8, eq. 10 (:func:`ocp_arrays`)."""
     k = positive_scalar("soil_strength", soil_strength)
-    c = constants
-    amp = c.C1 * -math.expm1(-c.C2 * k)
-    arg = c.C3 * math.sqrt(k) * amp / c.C6
-    if not (arg > 0 and math.isfinite(c.C5 / k)):
-        raise ValueError(f"soil_strength must be a K the model can evaluate (>~1e-300), got {k!r}")
-    st = max(math.log(arg) / c.C3, 0.0)  # eq. 7 corrected
-    s_eval = max(st, c.bridge_slip)  # peak at the origin: the bridge's end point
-    mu_pos = amp * (1.0 - math.exp(-c.C3 * s_eval)) - (c.C5 / k + c.C6 * s_eval / math.sqrt(k))  # eq. 6/8
-    se = max((k - c.alpha) / c.beta, 0.0)  # eq. 10
-    return OCP(soil_strength=k, mu_T=mu_pos, S_T=st, S_E=se)
+    o = ocp_arrays(np.array([k]), constants)
+    return OCP(soil_strength=k, mu_T=float(o["mu_T"][0]), S_T=float(o["S_T"][0]), S_E=float(o["S_E"][0]))

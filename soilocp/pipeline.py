@@ -3,14 +3,19 @@
 Each stage is a small deterministic object with a ``step`` method that takes and returns the
 message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
 process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
-messages over Zenoh.  Same code, same numbers.
+messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
+(:mod:`soilocp.observer_bank`, :class:`SlipGate`, :class:`soilocp.soil_strength.SoilBank`,
+:func:`soilocp.ocp.ocp_arrays`): the batched service (:mod:`soilocp.batch`) runs the very same
+kernels with N = many.
 """
 
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -20,15 +25,14 @@ from schemas.sensor import SensorSample
 
 from .constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
 from .normal_force import NormalForceSolver
-from .observer import ObserverConfig, TractionObserver
-from .ocp import ocp_from_soil_strength
-from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
-from .soil_strength import SoilConfig, make_soil_estimator, slip_uncertainty
-from .traction import tractive_efficiency_scalar
+from .observer import ObserverConfig
+from .observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from .ocp import ocp_arrays
+from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from .soil_strength import PaperSoilEstimator, SoilBank, SoilConfig, SoilState
 from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
-#: Normal force (N) below which a wheel is treated as lifted off: no traction information.
-LIFT_OFF_FORCE = 1.0
+__all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
 
 
 class PipelineConfig(BaseModel):
@@ -97,127 +101,176 @@ class NormalForceStage:
         )
 
 
+_ZERO = np.zeros(1, dtype=int)
+
+
+def _bools(a) -> tuple[bool, bool, bool, bool]:
+    return tuple(bool(v) for v in a)  # type: ignore[return-value]
+
+
+def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
+    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's inputs."""
+    if len(samples) != len(normal_forces):
+        raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
+    return ObserverInputs(
+        stamp=np.array([s.stamp for s in samples], dtype=float),
+        specific_force_x=np.array([s.specific_force[0] for s in samples], dtype=float),
+        yaw_rate=np.array([s.yaw_rate for s in samples], dtype=float),
+        pitch=np.array([s.pitch for s in samples], dtype=float),
+        wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
+        wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
+        ground_speed=np.array([s.ground_speed for s in samples], dtype=float),
+        normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
+    )
+
+
+def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
+    """The j-th vehicle of a kernel output as the ObserverOutput message."""
+    return ObserverOutput(
+        vehicle_id=vehicle_id, seq=seq, stamp=stamp,
+        mu=_quad(out.mu[j]), mu_var=_quad(out.mu_var[j]), mu_determined=_bools(out.mu_determined[j]),
+        resistance=_quad(out.resistance[j]), gross=_quad(out.gross[j]), gross_var=_quad(out.gross_var[j]),
+        wheel_speed=_quad(out.wheel_speed[j]), ground_speed=float(out.ground_speed[j]),
+        yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
+        rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
+    )
+
+
 class ObserverStage:
-    """Per-wheel traction observer (eqs. 26-35 on filterpy; state chosen observable, §7)."""
+    """Per-wheel traction observer (eqs. 26-35; state chosen observable, §7; §11-12 resistance and
+    bounds): the kernel :class:`soilocp.observer_bank.ObserverBank` with N = 1."""
 
     def __init__(self, config: PipelineConfig):
-        self.observer = TractionObserver(config.vehicle, config.observer)
+        self.bank = ObserverBank(config.vehicle, config.observer, 1)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
         if forces.seq != sample.seq or forces.vehicle_id != sample.vehicle_id:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        fz = np.maximum(np.asarray(forces.normal_force), LIFT_OFF_FORCE)
-        est = self.observer.step(
-            sample.stamp,
-            sample.specific_force[0],
-            sample.yaw_rate,
-            sample.pitch,
-            sample.wheel_speed,
-            sample.wheel_torque,
-            sample.ground_speed,
-            fz,
-        )
-        return ObserverOutput(
-            vehicle_id=sample.vehicle_id,
-            seq=sample.seq,
-            stamp=sample.stamp,
-            mu=_quad(est.mu),
-            mu_var=_quad(est.mu_var),
-            resistance=_quad(est.resistance),
-            gross=_quad(est.gross),
-            gross_var=_quad(est.gross_var),
-            wheel_speed=_quad(est.wheel_speed),
-            ground_speed=est.ground_speed,
-            yaw_rate=est.yaw_rate,
-            normal_force=_quad(fz),
-            rejected_measurements=est.rejected,
-            reset=est.reset,
-        )
+        out = self.bank.step(_ZERO, observer_inputs([sample], [forces.normal_force]))
+        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+
+
+@dataclass
+class SoilInputs:
+    """What the soil kernel takes for k vehicles, from the observer's outputs: arrays (k, 4)."""
+
+    slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i
+    informative: np.ndarray
+    observed: np.ndarray
+    variance: np.ndarray
+    slip_sigma: np.ndarray
+    gate_slip: np.ndarray  # the low-pass slip the gate decides on (method-notes §9)
+    gate_sigma: np.ndarray
+
+
+class SlipGate:
+    """Slip per wheel (eq. 1 with the floor and deadband of method-notes §6, §10) from the filtered
+    speeds, its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
+    gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
+    method-notes §9), for N vehicles."""
+
+    def __init__(self, config: PipelineConfig, n_vehicles: int):
+        self.cfg = config
+        self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
+        self._lp = np.zeros((n_vehicles, 4))
+        self._lp_stamp = np.full(n_vehicles, np.nan)
+        # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
+        self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
+        cfg = self.cfg
+        r = cfg.vehicle.wheel_radius
+        v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
+        rim = ob.wheel_speed * r
+        scale = np.maximum(np.abs(rim), np.abs(v_wheel))
+        slip = (rim - v_wheel) / np.maximum(scale, cfg.slip_floor)  # eq. 1, floored
+        informative = (scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+        if cfg.soil.measurement == "gross":
+            observed, var = ob.gross, ob.gross_var * self._shared
+        else:
+            observed, var = ob.mu, ob.mu_var * self._shared
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (method-notes §6, §9)
+        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
+        tau = cfg.soil.gate_smoothing
+        last = self._lp_stamp[ix]
+        with np.errstate(invalid="ignore"):
+            dt = np.where(np.isnan(last), 0.0, stamp - last)
+        restart = np.isnan(last) | ob.reset | (tau <= 0) | (dt <= 0) | (dt > 1.0)
+        alpha = np.ones(ix.size)
+        if tau > 0:
+            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
+        lp = np.where(restart[:, None], slip, self._lp[ix] + alpha[:, None] * (slip - self._lp[ix]))
+        self._lp[ix] = lp
+        self._lp_stamp[ix] = stamp
+        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
+        return SoilInputs(slip, informative, observed, var, s_sig, lp, g_sig)
+
+
+def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
+                 j: int) -> SoilEstimate:
+    return SoilEstimate(
+        vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
+        soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
+        soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
+        reason=st.reason, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
+    )
 
 
 class SoilStage:
-    """Slip per wheel (eq. 1, from the filtered speeds) and soil strength K (eqs. 36-37, corrected)."""
+    """Slip per wheel (eq. 1) and soil strength K (eqs. 36-37 corrected: a grid Bayes filter over
+    ln K on gross traction, method-notes §4, §9, §11-12): :class:`SlipGate` and
+    :class:`soilocp.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
 
     def __init__(self, config: PipelineConfig):
         self.cfg = config
-        self.estimator = make_soil_estimator(config.constants, config.soil)
-        v = config.vehicle
-        self._wheel_y = np.asarray(v.wheel_y)
-        self._slip_lp: Optional[np.ndarray] = None  # low-pass slip for the gate (SoilConfig.gate_smoothing)
-        self._last_stamp: Optional[float] = None
+        self.gate = SlipGate(config, 1)
+        self.bank = SoilBank(config.constants, config.soil, 1) if config.soil.method == "bayes" else None
+        self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
 
     def step(self, obs: ObserverOutput) -> SoilEstimate:
-        cfg = self.cfg
-        # ground speed at each wheel of a differentially steered body: V - psi_dot * y_i
-        v_wheel = obs.ground_speed - obs.yaw_rate * self._wheel_y
-        s = slip_ratio_unchecked(np.asarray(obs.wheel_speed), v_wheel, cfg.vehicle.wheel_radius,
-                                 cfg.slip_deadband, cfg.slip_floor)
-        informative = s.informative & (np.asarray(obs.normal_force) > LIFT_OFF_FORCE) & (not obs.reset)
-        if cfg.soil.measurement == "gross":
-            observed, var = obs.gross, obs.gross_var
-        else:
-            observed, var = obs.mu, obs.mu_var
-        speed = np.maximum(np.abs(v_wheel), np.abs(np.asarray(obs.wheel_speed)) * cfg.vehicle.wheel_radius)
-        sigma = slip_uncertainty(speed, cfg.soil)
-        # the gate looks at a low-pass slip: deciding on the raw slip would keep the samples whose
-        # noise pushed |S| over the threshold and bias K (method-notes §9)
-        tau = cfg.soil.gate_smoothing
-        dt = 0.0 if self._last_stamp is None else obs.stamp - self._last_stamp
-        if self._slip_lp is None or obs.reset or tau <= 0 or dt <= 0 or dt > 1.0:
-            self._slip_lp, alpha = s.slip.copy(), 1.0
-        else:
-            alpha = -np.expm1(-dt / tau)
-            self._slip_lp = self._slip_lp + alpha * (s.slip - self._slip_lp)
-        self._last_stamp = obs.stamp
-        gate_sigma = sigma * np.sqrt(alpha / (2.0 - alpha))  # stationary std of the low-passed white noise
-        st = self.estimator.update(obs.stamp, s.slip, observed, var, informative, sigma, self._slip_lp, gate_sigma)
-        return SoilEstimate(
-            vehicle_id=obs.vehicle_id,
-            seq=obs.seq,
-            stamp=obs.stamp,
-            slip=_quad(s.slip),
-            informative=st.used,
-            soil_strength=st.soil_strength,
-            soil_strength_std=st.soil_strength_std,
-            log_k_std=st.log_k_std,
-            soil_class=st.soil_class,
-            soil_class_confidence=st.soil_class_confidence,
-            status=st.status,
-            reason=st.reason,
-            last_update_stamp=st.last_update_stamp,
-            mu=obs.mu,
+        ob = ObserverBankOutput(
+            mu=np.array([obs.mu]), mu_var=np.array([obs.mu_var]), mu_determined=np.array([obs.mu_determined]),
+            resistance=np.array([obs.resistance]), gross=np.array([obs.gross]), gross_var=np.array([obs.gross_var]),
+            wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
+            yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
+            reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
         )
+        stamp = np.array([obs.stamp])
+        inp = self.gate.step(_ZERO, stamp, ob)
+        if self.bank is not None:
+            st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma)[0]
+        else:
+            st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0], inp.informative[0],
+                                   inp.slip_sigma[0])
+        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+
+
+def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:
+    """An OcpEstimate from a soil estimate and the j-th entry of :func:`soilocp.ocp.ocp_arrays`."""
+    have = soil.soil_strength is not None
+    val = (lambda name: None if not have or math.isnan(ocp[name][j]) else float(ocp[name][j]))
+    return OcpEstimate(
+        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
+        soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
+        soil_class_confidence=soil.soil_class_confidence, status=soil.status, reason=soil.reason, mu=soil.mu,
+        mu_determined=soil.mu_determined, slip=soil.slip,
+        mu_T=val("mu_T"), S_T=val("S_T"), S_E=val("S_E"), te_at_S_E=val("te_at_S_E"),
+    )
 
 
 class OcpStage:
-    """mu_T, S_T, S_E from K: eqs. 8, 7 (sign corrected), 10; TE (eq. 9) at S_E."""
+    """mu_T, S_T, S_E from K: eqs. 8, 7 (sign corrected), 10; TE (eq. 9) at S_E (:func:`ocp_arrays`)."""
 
     def __init__(self, config: PipelineConfig):
         self.constants: ModelConstants = config.constants
 
     def step(self, soil: SoilEstimate) -> OcpEstimate:
-        common = dict(
-            vehicle_id=soil.vehicle_id,
-            seq=soil.seq,
-            stamp=soil.stamp,
-            soil_strength=soil.soil_strength,
-            soil_strength_std=soil.soil_strength_std,
-            soil_class=soil.soil_class,
-            soil_class_confidence=soil.soil_class_confidence,
-            status=soil.status,
-            reason=soil.reason,
-            mu=soil.mu,
-            slip=soil.slip,
-        )
-        if soil.soil_strength is None:
-            return OcpEstimate(mu_T=None, S_T=None, S_E=None, te_at_S_E=None, **common)
-        o = ocp_from_soil_strength(soil.soil_strength, self.constants)
-        te: Optional[float] = None
-        if 0 < o.S_E < 1 and o.S_E >= self.constants.bridge_slip:
-            te = tractive_efficiency_scalar(o.S_E, o.soil_strength, self.constants)
-        return OcpEstimate(mu_T=o.mu_T, S_T=o.S_T, S_E=o.S_E, te_at_S_E=te, **common)
+        k = np.array([soil.soil_strength if soil.soil_strength is not None else np.nan])
+        return ocp_message(soil, ocp_arrays(k, self.constants), 0)
 
 
 class VehiclePipeline:

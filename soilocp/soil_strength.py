@@ -37,7 +37,7 @@ from .checks import as_float_array
 from .constants import DEFAULT_CONSTANTS, ModelConstants
 from .traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
 
-Status = Literal["ok", "uncertain", "holding", "no_estimate"]
+Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
 
 
 class SoilConfig(BaseModel):
@@ -67,6 +67,20 @@ class SoilConfig(BaseModel):
     uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
     hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
     expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
+    gross_scale_sigma: float = Field(
+        0.05, ge=0, description="1-sigma relative error of the gross traction common to all samples (torque constant, "
+        "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
+    )
+    radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
+    evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
+    mismatch_nis: float = Field(
+        4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
+        "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
+    )
+    mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
+    observable_max_gross_sigma: float = Field(
+        0.15, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
+    )
     learning_rate: float = Field(0.5, gt=0, le=1, description="lambda of eq. 36 (paper method)")
     k_initial: float = Field(120.0, gt=0, description="K_0 of the paper method")
 
@@ -177,26 +191,37 @@ class LogKGrid:
         self.span = self.theta[-1] - self.theta[0]
         self.names, edges = class_bounds(constants)
         self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
-        # Slip-independent factors of eqs. 3 / 6 on the grid, so an update costs one exp per wheel.
+        # Slip-independent factors of the curve on the grid, per side of S = 0, so an update costs
+        # one exp per wheel: h = sign (amp (1 - e^{-C3 |S|})) + offset_side + slope_side |S|
         c = constants
-        self._amp = c.C1 * -np.expm1(-c.C2 * self.k_grid)  # C1 (1 - e^{-C2 K})
-        self._offset = np.full_like(self.k_grid, c.C4) if self.kind == "gross" else -c.C5 / self.k_grid
-        self._slope = np.zeros_like(self.k_grid) if self.kind == "gross" else -c.C6 / np.sqrt(self.k_grid)
+        k = self.k_grid
+        self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
+        if self.kind == "gross":
+            # S > 0: eq. 3.  S < 0 (method-notes §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
+            self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
+            self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
+        else:  # eq. 6, odd
+            self._offset = (-c.C5 / k, c.C5 / k)
+            self._slope = (-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k))
 
     def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """h(S, K_grid) and d h/dS for slips s (n, 1): eq. 3 (gross) or eq. 6 (net), odd in S.
+        """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
+        method-notes §11 for S < 0) or net traction (eq. 6).
 
         Equal to :func:`soilocp.traction.curve_unchecked` (tested); outside the zero-slip bridge
-        the printed curve factorises into grid constants and one exp per wheel.
+        the curve factorises into grid constants and one exp per wheel.
         """
         a = np.abs(s)
         if np.any(a < self.c.bridge_slip):
             h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
-        sign = np.where(s < 0, -1.0, 1.0)
-        h = sign * (self._amp * (1.0 - e) + self._offset + self._slope * a)
-        d = self._amp * self.c.C3 * e + self._slope
+        neg = s < 0
+        rise = self._amp * (1.0 - e)
+        off = np.where(neg, self._offset[1], self._offset[0])
+        slope = np.where(neg, self._slope[1], self._slope[0])
+        h = np.where(neg, -rise, rise) + off + slope * a
+        d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
         return h, d
 
     def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -228,70 +253,188 @@ class LogKGrid:
         return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
 
 
-class BayesSoilEstimator:
-    """Grid Bayes filter over ln K fusing the four wheels (default estimator; see module doc)."""
+def check_index(idx, n: int) -> np.ndarray:
+    """Indices of the stepped vehicles: a non-empty 1-D integer array in [0, n), each at most once."""
+    ix = np.asarray(idx)
+    if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
+        raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
+    if ix.min() < 0 or ix.max() >= n:
+        raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
+    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
+        raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
+    return ix
 
-    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
+
+class SoilBank:
+    """N grid Bayes filters over ln K (the soil kernel; module doc), stepped together.
+
+    Per vehicle it also keeps, over ``evidence_window`` seconds of informative samples:
+
+    * the mean normalised residual (NIS) of the used wheels at the posterior median: when the
+      traction curve cannot explain the (slip, traction) pairs at any K, the status is
+      ``model_mismatch`` rather than a confident class;
+    * the systematic part of K's error budget: a gross-traction scale error eps (1-sigma
+      ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to every
+      sample, so they do not average out like noise.  Their effect on ln K is the weighted
+      least-squares shift  d lnK = eps sum(w h_K h) / sum(w h_K^2)  (and likewise with
+      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread.
+    """
+
+    def __init__(self, constants: ModelConstants, config: SoilConfig | None, n_vehicles: int):
         self.c = constants
         self.cfg = cfg = config or SoilConfig()
+        if cfg.method != "bayes":
+            raise ValueError(f"soil method {cfg.method!r}: the soil kernel implements 'bayes' only")
+        if not isinstance(n_vehicles, (int, np.integer)) or isinstance(n_vehicles, bool) or n_vehicles < 1:
+            raise ValueError(f"n_vehicles {n_vehicles!r} is invalid: must be an integer >= 1")
+        self.n_vehicles = n = int(n_vehicles)
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
-        self.p = np.full(cfg.grid_points, 1.0 / cfg.grid_points)
-        self._names, self._class_idx = self.grid.names, self.grid.class_idx
-        self._hold = _HoldLogic(cfg)
-        self._last_stamp: Optional[float] = None
+        self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
+        self._names = self.grid.names
+        self._onehot = (self.grid.class_idx[:, None] == np.arange(len(self._names))[None, :]).astype(float)
+        self._holds = [_HoldLogic(cfg) for _ in range(n)]
+        self.last_stamp = np.full(n, np.nan)
+        # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
+        # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
+        self.stats = np.zeros((n, 5))
 
-    def _curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.grid.curve(s)
+    def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
+               gate_sigma=None) -> list[SoilState]:
+        """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
+        coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
+        informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
+        ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw)."""
+        cfg = self.cfg
+        ix = check_index(idx, self.n_vehicles)
+        k = ix.size
+        stamp = np.asarray(stamp, dtype=float).reshape(k)
+        slip, obs, var, s_sig = (np.asarray(a, dtype=float) for a in (slip, observed, variance, slip_sigma))
+        for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
+            if a.shape != (k, 4) or not np.isfinite(a).all():
+                raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
+        g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
+        g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
+        gated = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+        # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
+        determined = var <= cfg.observable_max_gross_sigma**2
+        use = gated & determined
+        p = self.p[ix]
+        last = self.last_stamp[ix]
+        with np.errstate(invalid="ignore"):
+            dt = stamp - last
+            pred = ~np.isnan(last) & (dt > 0)
+        if pred.any():
+            p[pred] = self.grid.predict(p[pred], dt[pred])
+        self.last_stamp[ix] = stamp
+        stats = self.stats[ix]
+        decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
+        stats *= decay[:, None]
+        info = np.zeros(k, dtype=bool)
+        upd = use.any(axis=1)
+        if upd.any():
+            u = use[upd]
+            # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
+            s_used = slip[upd][u][:, None]
+            h, dh_ds = self.grid.curve(s_used)
+            sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
+            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
+            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
+            like = np.ones(u.shape + (self.theta.size,))
+            like[u] = like_used
+            loglike = np.log(np.prod(like, axis=1)) * cfg.temper
+            post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
+            total = post.sum(axis=1)
+            ok = (total > 0) & np.isfinite(total)
+            rows = np.flatnonzero(upd)[ok]
+            p[rows] = post[ok] / total[ok][:, None]
+            info[rows] = True
+            self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+        self.p[ix] = p
+        self.stats[ix] = stats
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, stats)
 
-    def _predict(self, dt: float) -> None:
-        if dt > 0:
-            self.p = self.grid.predict(self.p[None, :], np.array([dt]))[0]
+    def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
+        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
+        cfg, G = self.cfg, self.theta.size
+        which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
+        cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
+        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
+        w = np.arange(which.size)
+        nis = r2[w, j]
+        h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
+        wt = 1.0 / sig2[w, j]
+        ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
+        step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
+        rows_w = rows[which]
+        np.add.at(stats[:, 0], rows, step)
+        np.add.at(stats[:, 1], rows_w, step[which] * nis / u.sum(axis=1)[which])
+        np.add.at(stats[:, 2], rows_w, step[which] * wt * h_k**2)
+        np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
+        np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
+
+    def _summaries(self, ix, stamp, p, info, use, undetermined, stats) -> list[SoilState]:
+        cfg, k = self.cfg, ix.size
+        cdf = np.cumsum(p, axis=1) - 0.5 * p
+        masses = p @ self._onehot
+        best = masses.argmax(axis=1).tolist()
+        out = []
+        for j in range(k):
+            hold = self._holds[int(ix[j])]
+            st = float(stamp[j])
+            if info[j]:
+                hold.last_update = st
+            k_med, _, log_stat = self.grid.summary(cdf[j])
+            evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
+            sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
+            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
+            sys = math.hypot(sys_scale, sys_radius)
+            log_std = math.hypot(log_stat, sys)
+            k_std = k_med * math.sinh(log_std)
+            status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
+            if status in ("ok", "uncertain") and sys > log_stat and status == "uncertain":
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
+                          "torque-scale / mass uncertainty moves K this much where the curve saturates")
+            nis = nis_sum / evidence if evidence > 0 else 0.0
+            if rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
+                status = "model_mismatch"
+                reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
+                          f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
+            elif status == "no_estimate" and undetermined[j].any() and not use[j].any():
+                status = "not_observable"
+                reason = "slip is informative but the wheel torque balance does not determine gross traction"
+            cls = conf = None
+            if rk is not None and status != "model_mismatch":
+                if not info[j]:
+                    cls, conf = classify(rk, rl, self.c)
+                else:
+                    cls, conf = self._names[best[j]], float(masses[j, best[j]])
+            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
+                                 tuple(bool(v) for v in use[j])))
+        return out
+
+
+class BayesSoilEstimator:
+    """One vehicle's grid Bayes soil estimator: the kernel :class:`SoilBank` with N = 1."""
+
+    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
+        self.bank = SoilBank(constants, config, 1)
+        self.c, self.cfg, self.grid = constants, self.bank.cfg, self.bank.grid
+        self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
+
+    @property
+    def p(self) -> np.ndarray:
+        return self.bank.p[0]
 
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
                gate_slip=None, gate_sigma=None) -> SoilState:
-        """Fuse one sample: slip (4,), observed coefficient (4,), its variance (4,), which wheels
-        may be used (4,) and optionally each slip's 1-sigma (4,; default ``cfg.slip_sigma``).
-        ``gate_slip`` / ``gate_sigma``: the (smoothed) slip and its 1-sigma the gate decides on
-        (default: ``slip`` / ``slip_sigma``)."""
-        cfg = self.cfg
-        slip, obs, var, s_sig = _checked_quads(slip=slip, observed=observed, variance=variance,
-                                               slip_sigma=np.full(4, cfg.slip_sigma) if slip_sigma is None else slip_sigma)
-        g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
-        g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
-        use = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
-        if self._last_stamp is not None:
-            self._predict(stamp - self._last_stamp)
-        self._last_stamp = stamp
-        any_info = False
-        if use.any():
-            s = slip[use][:, None]
-            h, dh_ds = self._curve(s)
-            sig2 = var[use][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[use][:, None]) ** 2
-            r2 = (obs[use][:, None] - h) ** 2 / sig2
-            like = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            # Where the curve is insensitive to K (saturation, small slip) the likelihood is flat
-            # over the grid and the update changes nothing: the grid gates on d h/dK by itself.
-            loglike = np.log(np.prod(like, axis=0)) * cfg.temper
-            post = self.p * np.exp(loglike - loglike.max())
-            total = post.sum()
-            if total > 0 and np.isfinite(total):
-                self.p = post / total
-                any_info = True
-        used = use
-        if any_info:
-            self._hold.last_update = stamp
-        k, k_std, log_std = self.grid.summary(np.cumsum(self.p) - 0.5 * self.p)
-        status, reason, (rk, rs, rl) = self._hold.status(stamp, k, k_std, log_std)
-        cls = conf = None
-        if rk is not None:
-            if not any_info:
-                cls, conf = classify(rk, rl, self.c)
-            else:
-                masses = np.bincount(self._class_idx, weights=self.p, minlength=len(self._names))
-                i = int(np.argmax(masses))
-                cls, conf = self._names[i], float(masses[i])
-        return SoilState(rk, rs, rl, cls, conf, status, reason, self._hold.last_update, tuple(bool(u) for u in used))
+        """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
+        ``cfg.slip_sigma``)."""
+        slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
+        s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
+        one = (lambda a: None if a is None else np.asarray(a, dtype=float)[None])
+        return self.bank.update(np.zeros(1, dtype=int), [stamp], slip[None], obs[None], var[None],
+                                np.asarray(informative, dtype=bool)[None], s_sig[None], one(gate_slip), one(gate_sigma))[0]
 
 
 class PaperSoilEstimator:

@@ -57,7 +57,17 @@ _RANGE_TYPES = {"less_than_equal", "greater_than_equal", "less_than", "greater_t
 
 
 def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None) -> SensorSample:
-    """Parse and schema-check one raw payload; SampleRejected says which field, which value, why."""
+    """Parse and schema-check one raw payload; SampleRejected says which field, which value, why.
+
+    The one parser of the gateway and of ``soilocp estimate``: whatever the payload, it returns a
+    sample or raises SampleRejected, never anything else (a deeply nested payload included)."""
+    try:
+        return _parse_sample(payload, expected_vehicle_id)
+    except RecursionError:
+        raise SampleRejected("malformed_json", "payload: JSON nested too deeply") from None
+
+
+def _parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str]) -> SensorSample:
     try:
         obj = json.loads(payload)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -231,7 +231,8 @@ def test_terrain_changes_appear_in_order_front_wheels_first():
     com = classes.index("gravel")
     assert first[1] == first[2] < com < first[0] == first[3]
     d = arr(truth, "distance")
-    assert d[first[1]] >= 1.5 - V.b - 1e-9 and d[first[1] - 1] < 1.5 - V.b
+    # the wheel's terrain is read at the start of each 2.5 ms sub-step: it may switch one sample after the crossing
+    assert d[first[1]] >= 1.5 - V.b - 1e-9 and d[first[1] - 2] < 1.5 - V.b
     assert d[com] >= 1.5 and d[first[0]] >= 1.5 + V.a
 
 

@@ -166,7 +166,7 @@ def test_factorised_grid_curve_equals_the_traction_model(measurement):
 
     est = BayesSoilEstimator(DEFAULT_CONSTANTS, SoilConfig(measurement=measurement))
     s = np.array([[0.05], [-0.3], [0.9], [0.002]])
-    h, d = est._curve(s)
+    h, d = est.grid.curve(s)
     h_ref, d_ref, _ = curve_unchecked(measurement, s, est.k_grid[None, :], DEFAULT_CONSTANTS)
     assert np.allclose(h, h_ref, rtol=1e-12, atol=1e-12)
     assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)

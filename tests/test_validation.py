@@ -49,3 +49,44 @@ def test_parse_sample_names_field_and_value():
     with pytest.raises(SampleRejected) as exc:
         parse_sample('{"vehicle_id": "r1", "seq": -1}')
     assert exc.value.code == "schema" and "seq" in exc.value.message
+
+
+@pytest.mark.parametrize("payload", [
+    "[" * 5000 + "]" * 5000,
+    '{"seq": ' + "[" * 5000 + "]" * 5000 + "}",
+    '{"a":' * 5000 + "1" + "}" * 5000,
+])
+def test_deeply_nested_payload_is_a_rejection_not_a_recursion_error(payload):
+    with pytest.raises(SampleRejected) as exc:
+        parse_sample(payload)
+    assert exc.value.code == "malformed_json" and "nested too deeply" in exc.value.message
+
+
+def test_deep_line_in_a_log_loses_no_good_line_around_it():
+    from soilocp.estimate import EstimateSummary, estimate_lines
+    from soilocp.pipeline import PipelineConfig
+
+    good = [sample(i, i * 0.01).model_dump_json() for i in range(6)]
+    lines = good[:3] + ["[" * 5000 + "]" * 5000] + good[3:]
+    summary = EstimateSummary()
+    recs = list(estimate_lines(lines, PipelineConfig(), summary=summary))
+    assert [r["seq"] for r in recs] == list(range(6))
+    assert [(n, code) for n, code, _ in summary.rejected] == [(4, "malformed_json")]
+
+
+def test_mutated_payloads_only_ever_raise_sample_rejected():
+    from hypothesis import given, settings, strategies as st
+
+    base = sample(3, 0.03).model_dump_json()
+
+    @settings(max_examples=2000, deadline=None)
+    @given(st.integers(0, len(base)), st.integers(0, 40), st.text(alphabet='[]{}":,0123456789.eE-+ntrufalse\\', max_size=60),
+           st.integers(0, 3000))
+    def run(pos, cut, insert, depth):
+        payload = base[:pos] + insert + "[" * depth + base[pos + cut:]
+        try:
+            parse_sample(payload)
+        except SampleRejected:
+            pass
+
+    run()

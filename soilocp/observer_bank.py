@@ -1,0 +1,311 @@
+"""The traction observer's kernel: N vehicles' Kalman filters as stacked numpy arrays.
+
+One implementation serves every caller: the single-vehicle stage (:mod:`soilocp.pipeline`, N = 1),
+the batched service (:mod:`soilocp.batch`, N = many) and, through :func:`model`, the filterpy
+reference :class:`soilocp.observer.TractionObserver` that the tests check this kernel against.
+Shapes follow filterpy's procedural style: x (k, n), P (k, n, n), z (k, 7), with k the number of
+vehicles stepped now.
+
+Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.observer.StateLayout`)
+-------------------------------------------------------------------------------------------------
+    omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w      (eqs. 13-15; mu + mu_xR = gross)
+    V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias       (longitudinal; REP-103 pitch)
+    psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z      (eqs. 11-12), Fx_i = mu_i Fz_i
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, method-notes §3), psi_dot, omega_1..4, V]
+
+* Motion resistance (method-notes §11): eq. 4 is even in slip, so the ``slip`` structure models
+  mu_xR_i = d_i (r0 b(S_i) + r1 |S_i|), with b the zero-slip bridge of :mod:`soilocp.traction` and
+  d_i the wheel's travel direction (smoothed over ``travel_speed``).  The old form
+  r0 sgn(S) + r1 S flipped the resistance on braking wheels and biased K 20-30 % low.
+* ZOH (eq. 34): A is nilpotent (A @ A = 0), so F = I + A dt, G = b dt + A b dt^2/2 and
+  Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3 exactly.
+* Update (eq. 35 misprints its indices): standard Kalman update in Joseph form; a measurement row
+  whose innovation exceeds ``gate_sigma`` is removed by zeroing its H row and innovation (its gain
+  column is then exactly zero), and is taken again after ``gate_patience`` rejections in a row.
+* Conditioning and bounds (method-notes §12: a net traction coefficient of 3 is not a soil):
+  P is symmetrised, its variances clamped and its correlations kept inside (-1, 1); the traction
+  and resistance states are projected into physical bounds (``ObserverConfig.mu_bound`` ...).
+* Divergence: a non-finite or out-of-physics state resets that vehicle's filter with a counted
+  reason (``resets_by_reason``); the next samples are processed normally.
+* Skid-steer (``VehicleParams.drive == "per_side"``): the two wheels of a side share one motor, so
+  the side's torque (logged as half on each wheel) is split between them by normal force, and each
+  side's one speed measurement counts once (its two rows carry twice the variance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, initial_covariance, model,
+                       resistance_map, travel_direction)
+from .vehicle import VehicleParams
+
+#: Normal force (N) below which a wheel is treated as lifted off: no traction information.
+LIFT_OFF_FORCE = 1.0
+
+RESET_REASONS = ("start", "time_gap", "stamp_backwards", "non_finite_state", "state_out_of_physics")
+
+
+def check_count(n: object) -> int:
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"n_vehicles {n!r} is invalid: must be an integer >= 1")
+    return int(n)
+
+
+def check_index(idx, n: int) -> np.ndarray:
+    ix = np.asarray(idx)
+    if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
+        raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
+    if ix.min() < 0 or ix.max() >= n:
+        raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
+    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
+        raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
+    return ix
+
+
+@dataclass
+class ObserverInputs:
+    """One sensor sample per stepped vehicle, stacked: shapes (k,) or (k, 4)."""
+
+    stamp: np.ndarray
+    specific_force_x: np.ndarray
+    yaw_rate: np.ndarray
+    pitch: np.ndarray
+    wheel_speed: np.ndarray
+    wheel_torque: np.ndarray
+    ground_speed: np.ndarray
+    normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
+
+    def check(self) -> int:
+        k = np.shape(self.stamp)[0] if np.ndim(self.stamp) == 1 else -1
+        for name in ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (k,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"inputs.{name} must be a finite array of shape ({k},), got {a!r}")
+            setattr(self, name, a)
+        for name in ("wheel_speed", "wheel_torque", "normal_force"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (k, 4) or not np.all(np.isfinite(a)):
+                raise ValueError(f"inputs.{name} must be a finite array of shape ({k}, 4), got {a!r}")
+            setattr(self, name, a)
+        return k
+
+
+@dataclass
+class ObserverBankOutput:
+    """The observer's estimate for k vehicles: arrays (k,) or (k, 4)."""
+
+    mu: np.ndarray  # net traction per wheel (eq. 6's mu), inside [-mu_bound, mu_bound]
+    mu_var: np.ndarray
+    mu_determined: np.ndarray  # bool: the data determine mu_i (posterior 1-sigma <= mu_std_determined)
+    resistance: np.ndarray
+    gross: np.ndarray  # mu + mu_xR: what the wheel torque balance measures (eq. 13)
+    gross_var: np.ndarray
+    wheel_speed: np.ndarray
+    ground_speed: np.ndarray
+    yaw_rate: np.ndarray
+    rejected: np.ndarray
+    reset: np.ndarray
+    reset_reason: list[str]  # "" when no reset
+    normal_force: np.ndarray
+
+
+def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
+    """Per-wheel torque (k, 4) of a skid-steer robot: each side's motor torque (logged as half on
+    each of its wheels 1+2 left, 3+4 right) shared by its two wheels in proportion to their normal
+    forces, so that both see the same gross traction coefficient."""
+    out = np.empty_like(torque)
+    for a, b in ((0, 1), (2, 3)):
+        side = torque[:, a] + torque[:, b]
+        total = fz[:, a] + fz[:, b]
+        out[:, a] = side * fz[:, a] / total
+        out[:, b] = side * fz[:, b] / total
+    return out
+
+
+def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: np.ndarray):
+    """ZOH prediction (eq. 34, exact series: A nilpotent) over dt (k,) > 0: returns x (k, n), P (k, n, n)."""
+    eye = np.eye(x.shape[1])
+    d3 = dt[:, None, None]
+    F = eye + A * d3
+    G = b * dt[:, None] + np.einsum("kij,kj->ki", A, b) * (dt * dt / 2.0)[:, None]
+    AQ = A @ Qc
+    Qd = Qc * d3 + (AQ + AQ.transpose(0, 2, 1)) * (d3 * d3 / 2.0) + AQ @ A.transpose(0, 2, 1) * (d3**3 / 3.0)
+    return np.einsum("kij,kj->ki", F, x) + G, F @ P @ F.transpose(0, 2, 1) + Qd
+
+
+def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: np.ndarray,
+                 gate_sigma: float, counts: np.ndarray, patience: int):
+    """Kalman update (Joseph form) of x (k, n), P (k, n, n) by z (k, m) with diagonal R (k, m) and
+    H (k, m, n), each row gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)) unless it was
+    rejected ``patience`` times in a row.  Returns x, P, the new rejection counts (k, m) and the
+    normalised innovation squares nu_i^2 / S_ii (k, m) of the prior."""
+    innov = z - np.einsum("kij,kj->ki", H, x)
+    s = np.einsum("kij,kij->ki", H @ P, H) + r
+    nis = innov**2 / s
+    keep = (nis <= gate_sigma**2) | (counts >= patience)
+    counts = np.where(keep, 0, counts + 1)
+    upd = keep.any(axis=1)
+    if upd.any():
+        kp = keep[upd]
+        Hm = H[upd] * kp[:, :, None]
+        y = innov[upd] * kp
+        rm = np.where(kp, r[upd], 1.0)  # a gated row: zero H row and innovation, harmless R
+        Pu = P[upd]
+        PHT = Pu @ Hm.transpose(0, 2, 1)
+        S = Hm @ PHT
+        m = S.shape[1]
+        S[:, np.arange(m), np.arange(m)] += rm
+        K = PHT @ np.linalg.inv(S)
+        x = x.copy()
+        P = P.copy()
+        x[upd] = x[upd] + np.einsum("kij,kj->ki", K, y)
+        IKH = np.eye(x.shape[1]) - K @ Hm
+        P[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + (K * rm[:, None, :]) @ K.transpose(0, 2, 1)
+    return x, P, counts, nis, keep
+
+
+def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray, floor: float, ceiling: float):
+    """Keep P symmetric positive semi-definite (symmetrise, clamp variances to [floor, ceiling] and
+    correlations to +-0.9999) and project x into the physical box [lower, upper] (each (n,)).
+    Returns x, P (new arrays)."""
+    P = (P + P.transpose(0, 2, 1)) / 2.0
+    n = P.shape[1]
+    dg = np.arange(n)
+    var = np.clip(P[:, dg, dg], floor, ceiling)
+    sd = np.sqrt(var)
+    lim = 0.9999 * sd[:, :, None] * sd[:, None, :]
+    P = np.clip(P, -lim, lim)
+    P[:, dg, dg] = var
+    return np.clip(x, lower, upper), P
+
+
+class ObserverBank:
+    """N traction observers stepped together (see the module doc).  ``step(idx, inputs)`` steps
+    the vehicles ``idx`` (any subset, each at most once); vehicles need not be in step."""
+
+    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int):
+        self.vehicle = vehicle
+        self.cfg = cfg = config or ObserverConfig()
+        if cfg.discretization != "series":
+            raise ValueError(f"discretization {cfg.discretization!r}: the observer kernel implements 'series' only")
+        self.n_vehicles = n = check_count(n_vehicles)
+        self.layout = L = StateLayout.of(cfg.structure)
+        self._Qc = continuous_process_noise(L, cfg)
+        r_speed = cfg.r_wheel_speed**2 * (2.0 if vehicle.drive == "per_side" else 1.0)
+        self._r = np.array([cfg.r_specific_force**2, cfg.r_yaw_rate**2, *([r_speed] * 4), cfg.r_ground_speed**2])
+        self.x = np.zeros((n, L.n))
+        self.P = np.zeros((n, L.n, L.n))
+        self.last_stamp = np.full(n, np.nan)
+        self.rejections = np.zeros((n, N_MEAS), dtype=int)
+        self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
+        self._P0 = initial_covariance(L, cfg)
+        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
+        self._lower, self._upper = L.bounds(cfg)
+
+    def state_slip(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-wheel slip (eq. 1, floor 0.05 m/s) and travel direction of states x (k, n): the
+        regressors of the ``slip`` structure, taken from the prior so the model stays linear."""
+        L = self.layout
+        rim = x[:, L.omega] * self.vehicle.wheel_radius
+        ground = x[:, L.v][:, None] - x[:, L.psi][:, None] * self._wheel_y
+        slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
+        return slip, travel_direction(ground, self.cfg.travel_speed)
+
+    def maps(self, x: np.ndarray) -> np.ndarray:
+        if self.layout.n_res != 2:
+            return resistance_map(self.layout, np.zeros((x.shape[0], 4)), None, self.cfg.bridge_slip)
+        slip, travel = self.state_slip(x)
+        return resistance_map(self.layout, slip, travel, self.cfg.bridge_slip)
+
+    def _reset(self, ix: np.ndarray, rows: np.ndarray, x: np.ndarray, P: np.ndarray, inputs: ObserverInputs,
+               reasons: list[str], why: str) -> None:
+        L = self.layout
+        for j in np.flatnonzero(rows):
+            x0 = np.zeros(L.n)
+            x0[L.omega] = inputs.wheel_speed[j]
+            x0[L.v] = inputs.ground_speed[j]
+            x0[L.psi] = inputs.yaw_rate[j]
+            x[j] = np.clip(x0, self._lower, self._upper)
+            P[j] = self._P0
+            self.rejections[ix[j]] = 0
+            reasons[j] = why
+            self.resets_by_reason[why] += 1
+
+    def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
+        """One predict / gated update (eq. 35, standard form) for the vehicles ``idx``."""
+        ix = check_index(idx, self.n_vehicles)
+        k = inputs.check()
+        if k != ix.size:
+            raise ValueError(f"inputs hold {k} samples for {ix.size} vehicle indices")
+        cfg, L = self.cfg, self.layout
+        fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
+        torque = split_side_torque(inputs.wheel_torque, fz) if self.vehicle.drive == "per_side" else inputs.wheel_torque
+        x, P = self.x[ix], self.P[ix]
+        last = self.last_stamp[ix]
+        with np.errstate(invalid="ignore"):
+            dt = inputs.stamp - last
+        reasons = [""] * k
+        first = np.isnan(last)
+        # dt == 0 (a repeated stamp) is no reset: only the update runs
+        for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),
+                          (~first & (dt > cfg.max_gap), "time_gap")):
+            if rows.any():
+                self._reset(ix, rows, x, P, inputs, reasons, why)
+        A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity)
+        run = np.array([not r for r in reasons])
+        rejected = np.zeros(k, dtype=int)
+        if run.any():
+            xr, Pr = x[run], P[run]
+            moving = dt[run] > 0
+            if moving.any():
+                xr[moving], Pr[moving] = predict(xr[moving], Pr[moving], A[run][moving], b[run][moving], self._Qc,
+                                                 dt[run][moving])
+            z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
+                                 inputs.ground_speed[run]])
+            xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
+                                                   self.rejections[ix[run]], cfg.gate_patience)
+            self.rejections[ix[run]] = counts
+            rejected[run] = np.count_nonzero(~keep, axis=1)
+            x[run], P[run] = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
+        # divergence guard: a non-finite or out-of-physics state restarts that vehicle's filter
+        finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
+        sane = (np.abs(x[:, L.omega]).max(axis=1) <= cfg.max_wheel_speed) & (np.abs(x[:, L.v]) <= cfg.max_ground_speed)
+        for rows, why in ((~finite, "non_finite_state"), (finite & ~sane, "state_out_of_physics")):
+            if rows.any():
+                self._reset(ix, rows, x, P, inputs, reasons, why)
+        self.x[ix], self.P[ix] = x, P
+        self.last_stamp[ix] = inputs.stamp
+        return self._output(x, P, fz, rejected, reasons)
+
+    def _output(self, x, P, fz, rejected, reasons) -> ObserverBankOutput:
+        L, k = self.layout, x.shape[0]
+        M = self.maps(x)
+        res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
+        # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
+        # wheel torque balance even when the net / resistance split is not: method-notes §12)
+        J = np.zeros((k, 4, L.n))
+        J[:, :, L.mu] = np.eye(4)
+        if L.n_res:
+            J[:, :, L.res] = M
+        dg = np.arange(L.n)
+        mu_var = P[:, dg, dg][:, L.mu]
+        mu = x[:, L.mu]
+        return ObserverBankOutput(
+            mu=mu.copy(),
+            mu_var=mu_var,
+            mu_determined=mu_var <= self.cfg.mu_std_determined**2,
+            resistance=res,
+            gross=mu + res,
+            gross_var=np.einsum("kil,kil->ki", J @ P, J),
+            wheel_speed=x[:, L.omega].copy(),
+            ground_speed=x[:, L.v].copy(),
+            yaw_rate=x[:, L.psi].copy(),
+            rejected=rejected,
+            reset=np.array([bool(r) for r in reasons]),
+            reset_reason=reasons,
+            normal_force=fz,
+        )
