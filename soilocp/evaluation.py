@@ -50,6 +50,7 @@ class SegmentResult:
     band_samples: int = 0
     band_coverage: Optional[float] = None
     std_rel_median: Optional[float] = None  # median K_std / K over the settled samples that report both
+    std_rel: tuple = field(default=(), repr=False)  # those K_std / K values, to pool segments (not in the JSON)
     #: settled samples with status "ok" and K more than UNFLAGGED_ERROR_REL off (a confident wrong number)
     confident_wrong: int = 0
 
@@ -171,6 +172,7 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
                 band_samples=int(banded.sum()),
                 band_coverage=float(band_hits.mean()) if band_hits.size else None,
                 std_rel_median=float(np.median(k_std[banded] / k_set[banded])) if banded.any() else None,
+                std_rel=tuple((k_std[banded] / k_set[banded]).tolist()),
                 confident_wrong=confident_wrong,
             )
         )
@@ -189,6 +191,7 @@ def results_as_json(results: Iterable[SegmentResult]) -> list[dict]:
     out = []
     for r in results:
         d = asdict(r)
+        d.pop("std_rel")
         d["passes"] = r.passes()
         out.append(d)
     return out

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from soilocp.cli import main
 from soilocp.commands.robustness_table import COLUMNS
-from soilocp.evaluation import evaluate_records
+from soilocp.evaluation import evaluate_records, results_as_json
 from soilocp.robustness import run_variant, summarize
 
 
@@ -41,6 +41,7 @@ def test_band_coverage_and_confident_wrong_count_only_settled_samples():
     assert seg.band_coverage == pytest.approx(1 / 4)
     assert seg.confident_wrong == 1
     assert seg.std_rel_median == pytest.approx((10.0 / 125 + 10.0 / 140) / 2)  # median of std/K
+    assert len(seg.std_rel) == 4 and "std_rel" not in results_as_json([seg])[0]  # pooled by --robustness only
 
 
 def test_cruise_is_not_identifiable_and_the_row_says_so():
