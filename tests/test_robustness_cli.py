@@ -88,3 +88,12 @@ def test_seeds_pool_into_one_row_per_variant():
     (row,) = summarize(runs)
     assert row["seeds"] == [0, 1] and row["samples"] == 200
     assert sum(row["status_shares"].values()) == pytest.approx(1.0)
+
+
+def test_markdown_table_for_the_readme():
+    res = CliRunner().invoke(main, ["accuracy", "--robustness", "--variant", "cruise", "--duration", "1", "--markdown",
+                                    "--jobs", "1"])
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("|")]
+    assert len(lines) == 3 and lines[1] == "|" + "---|" * len(COLUMNS)
+    assert all(ln.replace("\\|", "").count("|") == len(COLUMNS) + 1 for ln in lines)
+    assert lines[2].startswith("| cruise | no |")

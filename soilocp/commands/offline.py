@@ -126,7 +126,8 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.variants)")
 @click.option("--seeds", default=1, show_default=True, help="--robustness: seeds per variant (seed, seed+1, ...)")
 @click.option("--variant", "variants", multiple=True, help="--robustness: only these variant(s); default: all")
-def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants):
+@click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
+def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants, markdown):
     """Accuracy against simulator truth: every scenario x mode x compensation, worst segment per run.
 
     Excitation mode is judged against the targets; cruise mode shows what is identifiable without
@@ -139,9 +140,9 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     if robustness:
         from .robustness_table import run_and_print
 
-        return run_and_print(variants, seed, seeds, duration, jobs, json_out)
-    if variants or seeds != 1:
-        raise click.UsageError("--variant and --seeds need --robustness")
+        return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
+    if variants or seeds != 1 or markdown:
+        raise click.UsageError("--variant, --seeds and --markdown need --robustness")
     from ..accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
     from ..evaluation import TARGETS
 

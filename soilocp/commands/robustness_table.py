@@ -18,7 +18,19 @@ def _fmt(v, spec):
     return "—" if v is None else format(v, spec)
 
 
-def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out) -> None:
+def _cells(r, shown) -> list[str]:
+    ident = r["identifiable"] + (f": {r['why_limited']}" if r["why_limited"] else "")
+    shares = [_fmt(r["status_shares"].get(s, 0.0), ".0%") for s in shown]
+    verdict = "met" if r["pass"] else "missed: " + ", ".join(r["missed"])
+    conv = _fmt(r["change_convergence_s"], ".2f") if r["terrain_changes"] else "n/a"
+    return [
+        r["variant"], ident, _fmt(r["k_median_rel"], ".1%"), _fmt(r["k_p90_rel"], ".1%"), _fmt(r["band_coverage"], ".0%"),
+        _fmt(r["std_rel_median"], ".2f"), conv, _fmt(r["mu_T_err"], ".3f"), _fmt(r["S_T_err"], ".3f"),
+        _fmt(r["S_E_err"], ".3f"), *shares, verdict,
+    ]  # fmt: skip
+
+
+def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out, markdown: bool = False) -> None:
     from ..robustness import ROBUSTNESS_TARGETS, SHOWN_STATUSES, rows_json, run_robustness, summarize
     from ..variants import list_variants
 
@@ -38,15 +50,16 @@ def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out
     for col in COLUMNS:
         table.add_column(col, justify="left" if col in ("variant", "identifiable", "verdict") else "right", no_wrap=True)
     for r in rows:
-        ident = r["identifiable"] + (f": {r['why_limited']}" if r["why_limited"] else "")
-        shares = [_fmt(r["status_shares"].get(s, 0.0), ".0%") for s in SHOWN_STATUSES]
-        verdict = "met" if r["pass"] else "missed: " + ", ".join(r["missed"])
-        table.add_row(
-            r["variant"], ident, _fmt(r["k_median_rel"], ".1%"), _fmt(r["k_p90_rel"], ".1%"),
-            _fmt(r["band_coverage"], ".0%"), _fmt(r["std_rel_median"], ".2f"), _fmt(r["change_convergence_s"], ".2f") if r["terrain_changes"] else "n/a",
-            _fmt(r["mu_T_err"], ".3f"), _fmt(r["S_T_err"], ".3f"), _fmt(r["S_E_err"], ".3f"), *shares, verdict,
-        )  # fmt: skip
-    Console(width=260).print(table)
+        table.add_row(*_cells(r, SHOWN_STATUSES))
+    if markdown:  # for the README
+        def md(cells):
+            return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+        click.echo(md(COLUMNS) + "\n|" + "---|" * len(COLUMNS))
+        for r in rows:
+            click.echo(md(_cells(r, SHOWN_STATUSES)))
+    else:
+        Console(width=260).print(table)
     described = {v.name: v.description for v in list_variants()}
     for r in rows:
         click.echo(f"  {r['variant']}: {described[r['variant']]}")
