@@ -291,9 +291,9 @@ class SoilBank:
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
-        self._names = self.grid.names
-        self._onehot = (self.grid.class_idx[:, None] == np.arange(len(self._names))[None, :]).astype(float)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
+        # the lowest 3 % of the ln K range: a belief sitting there is the model's edge, not a soil
+        self._floor_idx = int(0.03 * (cfg.grid_points - 1))
         self.last_stamp = np.full(n, np.nan)
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
@@ -376,8 +376,6 @@ class SoilBank:
     def _summaries(self, ix, stamp, p, info, use, undetermined, stats) -> list[SoilState]:
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
-        masses = p @ self._onehot
-        best = masses.argmax(axis=1).tolist()
         out = []
         for j in range(k):
             hold = self._holds[int(ix[j])]
@@ -392,23 +390,25 @@ class SoilBank:
             log_std = math.hypot(log_stat, sys)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
-            if status in ("ok", "uncertain") and sys > log_stat and status == "uncertain":
+            if status == "uncertain" and sys > log_stat:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
-                          "torque-scale / mass uncertainty moves K this much where the curve saturates")
+                          "torque-scale / mass uncertainty moves K this much where the traction curve saturates")
             nis = nis_sum / evidence if evidence > 0 else 0.0
             if rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
+            elif rk is not None and cdf[j][self._floor_idx] > 0.5:
+                status = "model_mismatch"
+                reason = (f"gross traction is below what any soil in the model gives at this slip (K at the floor of "
+                          f"the model's range, {cfg.k_min:g}): torque scale or units?")
             elif status == "no_estimate" and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
             cls = conf = None
             if rk is not None and status != "model_mismatch":
-                if not info[j]:
-                    cls, conf = classify(rk, rl, self.c)
-                else:
-                    cls, conf = self._names[best[j]], float(masses[j, best[j]])
+                # the class from the whole band (statistical and systematic), as reported
+                cls, conf = classify(rk, rl, self.c)
             out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
                                  tuple(bool(v) for v in use[j])))
         return out
