@@ -123,8 +123,14 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
             return float(v[(len(v) - 1) // 2]), float(v[min(int(np.ceil(0.9 * len(v))) - 1, len(v) - 1)])
 
         kmed, kp90 = med_p(rel_settled)
-        # convergence: first time after which the estimate stays inside the band to segment end
-        inside = np.isfinite(rel) & (rel <= TARGETS["convergence_band"])
+        # convergence: first time after which the estimate stays inside the band to segment end,
+        # where the end is the last sample with every wheel on this soil: the front wheels reach
+        # the next soil b/V s before the CoM, and an estimate that follows them is fast, not wrong
+        wheels_on = [all(abs(w - kt) <= 1e-9 * kt for w in t.get("wheel_soil_strength", (kt,))) for t, _ in seg]
+        n_judged = len(seg)
+        while n_judged > 1 and not wheels_on[n_judged - 1]:
+            n_judged -= 1
+        inside = (np.isfinite(rel) & (rel <= TARGETS["convergence_band"]))[:n_judged]
         conv = None
         if inside[-1]:
             outside = np.flatnonzero(~inside)

@@ -97,3 +97,24 @@ def test_markdown_table_for_the_readme():
     assert len(lines) == 3 and lines[1] == "|" + "---|" * len(COLUMNS)
     assert all(ln.replace("\\|", "").count("|") == len(COLUMNS) + 1 for ln in lines)
     assert lines[2].startswith("| cruise | no |")
+
+
+def test_convergence_is_judged_while_every_wheel_is_on_the_segment_soil():
+    # 100 -> 200 at t = 5; the front wheels (2, 3) reach the 200 soil at t = 4.8, the estimate follows them
+    truth, est = [], []
+    for i in range(100):
+        t = i * 0.1
+        k = 100.0 if t < 5.0 else 200.0
+        front = 100.0 if t < 4.8 else 200.0
+        rec = _truth(i, k, t)
+        rec["wheel_soil_strength"] = (k, front, front, k)
+        truth.append(rec)
+        k_est = 100.0 if t < 4.8 else (150.0 if t < 5.5 else 200.0)
+        est.append(_est(i, k_est if t >= 0.3 else 300.0, 5.0))
+    first, second = evaluate_records(truth, est)
+    assert first.convergence_s == pytest.approx(0.3)  # not "never": 4.8..5 s is the next soil's
+    assert second.convergence_s == pytest.approx(0.5)
+    # without per-wheel truth the whole segment is judged: the tail leaves the band
+    for rec in truth:
+        del rec["wheel_soil_strength"]
+    assert evaluate_records(truth, est)[0].convergence_s is None
