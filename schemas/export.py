@@ -13,7 +13,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from .messages import OcpReply, Rejection, ServiceHealth
+from .messages import OcpReply, Rejection, ServiceHealth, SlipSetpoint
 from .pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from .sensor import SENSOR_SCHEMA_ID, SensorSample
 
@@ -27,6 +27,7 @@ MESSAGE_MODELS: dict[type[BaseModel], str] = {
     SoilEstimate: "soilocp/<vid>/soil",
     OcpEstimate: "soilocp/<vid>/ocp (publication)",
     OcpReply: "soilocp/<vid>/ocp (queryable reply)",
+    SlipSetpoint: "soilocp/<vid>/control/slip",
     Rejection: "soilocp/<vid>/rejected",
     ServiceHealth: "soilocp/<vid>/status/<service> (publication and queryable reply)",
 }

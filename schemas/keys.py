@@ -12,6 +12,8 @@ Public keys (a contract for other programs, see ``docs/services.md``)::
                                        (?last=N or ?since=STAMP add a history)
     soilocp/<vid>/rejected             Rejection JSON, one per rejected raw sample
     soilocp/<vid>/alive/<service>      liveliness token of each running service
+    soilocp/<vid>/control/slip         SlipSetpoint JSON: wheel slip set-points of the controller service
+                                       (on each OCP, and the safe fallback while the OCPs are stale)
 
 Internal keys (between the services of one vehicle; stable, documented, but not a promise)::
 
@@ -34,7 +36,7 @@ ROOT = "soilocp"
 #: Service names, in pipeline order.  They are key chunks, so they obey the same character rules.
 PIPELINE_SERVICES: tuple[str, ...] = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
 #: Every service that can hold a liveliness token (the synthetic vehicle is a sensor source).
-ALL_SERVICES: tuple[str, ...] = PIPELINE_SERVICES + ("vehicle",)
+ALL_SERVICES: tuple[str, ...] = PIPELINE_SERVICES + ("vehicle", "controller")
 
 _VID_RE = re.compile(VEHICLE_ID_PATTERN)
 _SERVICE_RE = re.compile(r"^[a-z][a-z0-9-]{0,31}$")
@@ -75,6 +77,11 @@ def raw(vehicle_id: str) -> str:
 def ocp(vehicle_id: str) -> str:
     """OCP output (publication and queryable): ``soilocp/<vid>/ocp``."""
     return f"{ROOT}/{_vid(vehicle_id)}/ocp"
+
+
+def control_slip(vehicle_id: str) -> str:
+    """Wheel slip set-points of the controller service: ``soilocp/<vid>/control/slip``."""
+    return f"{ROOT}/{_vid(vehicle_id)}/control/slip"
 
 
 def rejected(vehicle_id: str) -> str:

@@ -62,8 +62,9 @@ class ServiceHealth(_ServiceMessage):
     vehicle_id: VehicleId
     pid: int
     host: str
-    state: Literal["starting", "running", "stale", "stopping"] = Field(
-        description="running, or stale (OCP publisher: no input for longer than stale_timeout_s)"
+    state: Literal["starting", "running", "failing", "stale", "stopping"] = Field(
+        description="running; failing (most recent inputs fail: see failure_rate and the log); or stale (OCP "
+        "publisher: no input for longer than stale_timeout_s)"
     )
     uptime_s: float = Field(ge=0)
     received: int = Field(ge=0, description="Messages received on the service's input keys")
@@ -71,6 +72,7 @@ class ServiceHealth(_ServiceMessage):
     rejected: int = Field(ge=0, description="Inputs refused (gateway: rejections published)")
     dropped: int = Field(ge=0, description="Inputs dropped: worker queue full, or never joined (observer)")
     errors: int = Field(ge=0, description="Inputs whose processing raised (logged)")
+    failure_rate: float = Field(default=0.0, ge=0, le=1, description="Share of the last ~20 inputs whose processing failed")
     queue_depth: int = Field(ge=0, description="Items waiting in the worker queue")
     last_seq: Optional[int] = Field(default=None, description="seq of the last processed input")
     last_stamp: Optional[float] = Field(default=None, description="stamp of the last processed input")
@@ -96,3 +98,29 @@ class OcpReply(_ServiceMessage):
         default=None, description="Estimates selected by ?last=N or ?since=STAMP, oldest first (null without them)"
     )
     history_capacity: int = Field(ge=1, description="How many estimates the publisher keeps")
+
+
+SlipSetpointSource = Literal["estimate", "fallback", "fixed", "none"]
+
+
+class SlipSetpoint(_ServiceMessage):
+    """Wheel slip set-points of the controller service (``soilocp/<vid>/control/slip``).
+
+    Published on every OCP estimate, and while the OCPs are stale or missing, every half stale
+    timeout with the safe fallback (``source: "fallback"``).  The vehicle's own torque loops track
+    them (slip limiters under its speed command); a vehicle that hears no set-point for longer than
+    ``stale_timeout_s`` applies ``fallback`` itself."""
+
+    vehicle_id: VehicleId
+    controller: str = Field(description="Controller name: speed, fixed_<slip>, ocp_traction, ocp_efficiency")
+    slip: Optional[tuple[float, float, float, float]] = Field(
+        description="Slip set-point per wheel (1 LR, 2 LF, 3 RF, 4 RR), eq. 1; null: no slip control (speed)")
+    source: SlipSetpointSource = Field(description="estimate (from the live OCP), fallback (safe), fixed, none")
+    reason: str = Field(default="", description="Why the fallback is in use")
+    fallback: Optional[float] = Field(description="The safe slip set-point of this controller (null: none)")
+    seq: Optional[int] = Field(default=None, description="seq of the sensor sample whose estimate gave the set-point")
+    stamp: Optional[float] = Field(default=None, description="stamp of that sample, s")
+    soil_strength: Optional[float] = Field(default=None, description="K the set-point came from")
+    ocp_age_s: Optional[float] = Field(default=None, description="Wall-clock s since the last OCP (null: none yet)")
+    stale_timeout_s: float = Field(gt=0)
+    issued_at: float = Field(description="Wall-clock time of publication, s since the Unix epoch")

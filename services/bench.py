@@ -11,6 +11,8 @@
    standard pipeline a sample crosses six client -> router -> client hops on its critical path
    (raw, clean, normal_forces, observer, soil, ocp), i.e. three ping-pong round trips; in the
    batched one three (raw, clean, ocp): ``floor`` = hops / 2 x the ping-pong figure.
+5. control loop: sample -> slip set-point, through the pipeline and the controller service
+   (:mod:`services.bench_control`; the bench plays the closed-loop vehicle).
 
 Nothing here changes the services; the ``batched`` pipeline replaces normal-force, observer,
 soil-strength and OCP by :mod:`services.batch_services` (one process stepping every vehicle with
@@ -125,6 +127,15 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         finally:
             rig.stop()
 
+    # 5. control loop: sample -> slip set-point (pipeline + controller service), 100 Hz
+    from .bench_control import control_loop_latency
+
+    log("bench: control loop latency (controller service, ocp_traction)")
+    try:
+        report["control_loop"] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100)
+    except RuntimeError as exc:
+        report["control_loop"] = {"error": str(exc)}
+
     # 3 + 4. scale: vehicles x 100 Hz until the first failure
     report["scale"] = {}
     for pipe in pipelines:
@@ -234,6 +245,13 @@ def render(report: dict[str, Any], console) -> None:
                   str(r["sent"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]),
                   _f(HOPS[row["pipeline"]] / 2 * b["p50"]))
     console.print(t)
+
+    cl = report.get("control_loop")
+    if cl:
+        console.print("5. control loop, sample -> slip set-point (pipeline + controller service, 100 Hz), ms: "
+                      + (cl["error"] if "error" in cl else
+                         f"p50 {_f(cl['p50'])}, p90 {_f(cl['p90'])}, p99 {_f(cl['p99'])}, max {_f(cl['max'])}; "
+                         f"{cl['sent']} sent, {cl['drops']} without a set-point ({cl['hops']} hops)"))
 
     for pipe, sc in report["scale"].items():
         t = Table(title=f"3. scale, {pipe} pipeline: vehicles x 100 Hz (pass: p99 < {TARGETS['scale_p99_ms']:.0f} ms, "

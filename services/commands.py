@@ -9,7 +9,7 @@ import sys
 
 import click
 
-SERVICE_NAMES = ("gateway", "normal-force", "observer", "soil-strength", "ocp", "vehicle")
+SERVICE_NAMES = ("gateway", "normal-force", "observer", "soil-strength", "ocp", "vehicle", "controller")
 
 
 def _fatal(prefix: str, message: str, code: int = 2) -> None:
@@ -41,6 +41,8 @@ def _service_class(name: str):
         from .soil_strength import SoilStrengthService as cls
     elif name == "ocp":
         from .ocp import OcpService as cls
+    elif name == "controller":
+        from .controller import ControllerService as cls
     else:
         from .vehicle import VehicleService as cls
     return cls
@@ -64,8 +66,11 @@ def _service_class(name: str):
 @click.option("--seed", type=int, default=0, show_default=True, help="vehicle: scenario noise seed.")
 @click.option("--wait-timeout", type=float, default=20.0, show_default=True,
               help="vehicle: wait at most this long for the pipeline services before publishing (0: don't wait).")
+@click.option("--control", metavar="CONTROLLER",
+              help="controller: the set-point policy (ocp_traction, ocp_efficiency, fixed_<slip>, speed); "
+                   "vehicle: follow that controller's set-points (closed loop, --scenario only).")
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
-                scenario, replay, speed, duration, rate, seed, wait_timeout) -> None:
+                scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
     from .runtime import ConfigError, load_service_config, run_service
 
@@ -81,18 +86,35 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
 
             if (scenario is None) == (replay is None):
                 raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
+            wait = keys.PIPELINE_SERVICES
+            inbox = None
             if replay is not None:
+                if control:
+                    raise ConfigError("--control needs --scenario (a replayed log cannot follow set-points)")
                 source = replay_source(replay, duration)
                 describe = f"replay {replay}"
+            elif control:
+                from .vehicle_control import SetpointInbox, controlled_source
+
+                if rate <= 0:
+                    raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
+                inbox = SetpointInbox(cfg.vehicle_id, control, cfg.stale_timeout_s)
+                source = controlled_source(scenario, cfg.vehicle_id, inbox, duration=duration, rate=rate, seed=seed)
+                describe = f"scenario {scenario}, closed loop under {control}"
+                wait = keys.PIPELINE_SERVICES + ("controller",)
             else:
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
                 source = scenario_source(scenario, cfg.vehicle_id, duration=duration, rate=rate, seed=seed)
                 describe = f"scenario {scenario}"
-            kwargs = dict(source=source, speed=speed, describe=describe,
-                          wait_for=keys.PIPELINE_SERVICES if wait_timeout > 0 else (), wait_timeout_s=wait_timeout)
+            kwargs = dict(source=source, speed=speed, describe=describe, inbox=inbox,
+                          wait_for=wait if wait_timeout > 0 else (), wait_timeout_s=wait_timeout)
         elif scenario or replay:
             raise ConfigError("--scenario/--replay are options of the vehicle service only")
+        elif name == "controller":
+            kwargs = dict(control=control or "ocp_traction")
+        elif control:
+            raise ConfigError("--control is an option of the controller and vehicle services only")
         _exit_now(run_service(_service_class(name), cfg, **kwargs))
     except ConfigError as exc:
         _fatal(prefix, str(exc))
@@ -127,8 +149,11 @@ def router_cmd(config_path, listen, connect) -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--log-dir", type=click.Path(file_okay=False), help="Where each process's log goes (default: a new temp dir).")
 @click.option("--plain", is_flag=True, help="Periodic plain lines instead of the live table (automatic without a TTY).")
+@click.option("--control", metavar="CONTROLLER",
+              help="Close the loop: run the controller service with this policy (ocp_traction, ocp_efficiency, "
+                   "fixed_<slip>, speed); the synthetic vehicle follows its slip set-points.")
 def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
-            plain) -> None:
+            plain, control) -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
@@ -138,7 +163,14 @@ def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_conf
         _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
     try:
         keys.check_vehicle_id(vehicle_id)
-        if scenario is not None:
+        if control is not None:
+            from soilocp.control import make_policy
+            from soilocp.control.rig import RIG_SCENARIOS
+
+            make_policy(control)  # ValueError listing the controllers
+            if scenario is None:
+                raise ValueError("--control needs --synthetic SCENARIO (a replayed log cannot follow set-points)")
+        if scenario is not None and not (control is not None and scenario in RIG_SCENARIOS):
             from soilocp.scenarios import get_scenario
 
             get_scenario(scenario)  # ValueError listing the known scenarios
@@ -150,7 +182,7 @@ def run_cmd(scenario, replay, speed, vehicle_id, duration, listen, pipeline_conf
         _fatal("soilocp run", str(exc))
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
-                      seed=seed, log_dir=log_dir, plain=plain)
+                      seed=seed, log_dir=log_dir, plain=plain, control=control)
     sys.exit(run_system(opts))
 
 

@@ -121,9 +121,12 @@ class ObserverService(Service):
     def _step(self, vid: str, sample: SensorSample, forces: NormalForces) -> None:
         c = self.counters[vid]
         out = self.stages[vid].step(sample, forces)
+        if out.reset_reason in ("non_finite_state", "state_out_of_physics"):
+            self.log.warning("observer_reset", vehicle_id=vid, seq=out.seq, reason=out.reset_reason)
         self.pubs[vid].put(out.model_dump_json())
         c.published += 1
         c.last_seq, c.last_stamp = out.seq, out.stamp
 
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
-        return {"detail": {**self.counters[vehicle_id].detail, "join_pending": self.joiners[vehicle_id].pending()}}
+        resets = {f"reset_{why}": n for why, n in self.stages[vehicle_id].bank.resets_by_reason.items() if n}
+        return {"detail": {**self.counters[vehicle_id].detail, **resets, "join_pending": self.joiners[vehicle_id].pending()}}

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from schemas import keys
-from schemas.messages import Rejection, ServiceHealth
+from schemas.messages import Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import OcpEstimate
 
 from .runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
@@ -48,6 +48,7 @@ class RunOptions:
     log_dir: Optional[str] = None
     plain: bool = False
     startup_timeout_s: float = 90.0
+    control: Optional[str] = None  # closed loop: the controller service's policy, the vehicle follows it
 
 
 def client_endpoints(listen: list[str]) -> list[str]:
@@ -142,6 +143,7 @@ class Monitor:
         self.health: dict[str, ServiceHealth] = {}
         self.alive: set[str] = set()
         self.stale_reports = 0
+        self.setpoint: Optional[SlipSetpoint] = None
         self._decls: list[Any] = []
 
     def attach(self, session) -> None:
@@ -180,6 +182,14 @@ class Monitor:
                 if h.service == "ocp" and h.stale:
                     self.stale_reports += 1
 
+        def on_setpoint(sample) -> None:
+            try:
+                sp = SlipSetpoint.model_validate_json(sample.payload.to_bytes())
+            except ValueError:
+                return
+            with self.lock:
+                self.setpoint = sp
+
         def on_alive(sample) -> None:
             try:
                 _vid, service = keys.service_of_alive_key(str(sample.key_expr))
@@ -195,6 +205,7 @@ class Monitor:
             session.declare_subscriber(keys.ocp(vid), on_ocp),
             session.declare_subscriber(keys.rejected(vid), on_rejected),
             session.declare_subscriber(keys.vehicle_status_all(vid), on_status),
+            session.declare_subscriber(keys.control_slip(vid), on_setpoint),
             session.liveliness().declare_subscriber(keys.vehicle_alive_all(vid), on_alive, history=True),
         ]
 
@@ -225,6 +236,7 @@ class Monitor:
                 alive=set(self.alive),
                 health=dict(self.health),
                 ocp_stale_reported=bool(ocp_h and ocp_h.stale),
+                setpoint=self.setpoint,
             )
 
 
@@ -248,6 +260,7 @@ def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
         fresh = "source ended"  # silence after the end of the drive is expected, not a fault
     alive = snap["alive"]
     want = keys.PIPELINE_SERVICES
+    sp: Optional[SlipSetpoint] = snap.get("setpoint")
     n_alive = sum(1 for s in want if s in alive)
     return {
         "K ± std": k,
@@ -260,6 +273,7 @@ def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
         "rejections": str(snap["rejections"]),
         "services alive": f"{n_alive}/{len(want)}" + ("" if n_alive == len(want) else
                                                       " (missing " + ",".join(s for s in want if s not in alive) + ")"),
+        **({} if sp is None else {"slip set-point": f"{_fmt(sp.slip[0] if sp.slip else None)} ({sp.source})"}),
     }
 
 
@@ -354,6 +368,11 @@ def run_system(opts: RunOptions) -> int:
             if opts.pipeline_config and name != "gateway":
                 args += ["--pipeline-config", opts.pipeline_config]
             group.start(name, args)
+        want_alive = set(keys.PIPELINE_SERVICES)
+        if opts.control:
+            group.start("controller", ["service", "controller", *common, "--control", opts.control,
+                                       "--stale-timeout", str(opts.stale_timeout)])
+            want_alive.add("controller")
         session = _open_monitor_session(connect, group, stop, failures)
         if session is not None:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
@@ -367,17 +386,19 @@ def run_system(opts: RunOptions) -> int:
                             c.outcome = "died"
                             failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
                     break
-                if set(keys.PIPELINE_SERVICES) <= monitor.snapshot()["alive"]:
+                if want_alive <= monitor.snapshot()["alive"]:
                     break
                 if time.monotonic() > deadline:
                     failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
-                                    + ",".join(sorted(set(keys.PIPELINE_SERVICES) - monitor.snapshot()["alive"])))
+                                    + ",".join(sorted(want_alive - monitor.snapshot()["alive"])))
                     break
                 stop.wait(0.1)
             if not failures and not stop.is_set():
                 vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
                 if opts.scenario:
                     vargs += ["--scenario", opts.scenario, "--seed", str(opts.seed)]
+                    if opts.control:
+                        vargs += ["--control", opts.control, "--stale-timeout", str(opts.stale_timeout)]
                 else:
                     vargs += ["--replay", str(opts.replay)]
                 if opts.duration is not None:

@@ -333,9 +333,19 @@ class Counters:
     last_stamp: Optional[float] = None
     last_input_wall: Optional[float] = None
     detail: dict[str, Any] = field(default_factory=dict)
+    #: share of the recent inputs whose processing failed (exponential window of ~FAILURE_WINDOW inputs)
+    failure_rate: float = 0.0
 
     def bump(self, name: str, n: int = 1) -> None:
         self.detail[name] = int(self.detail.get(name, 0)) + n
+
+    def outcome(self, failed: bool) -> None:
+        self.failure_rate += (float(failed) - self.failure_rate) / FAILURE_WINDOW
+
+
+#: Inputs over which a service's failure rate is averaged; above FAILING_RATE its health says "failing".
+FAILURE_WINDOW = 20
+FAILING_RATE = 0.5
 
 
 class BoundedWorker:
@@ -441,6 +451,10 @@ class Service:
 
     def _handle_safe(self, item: Any) -> None:
         self.handle(item)
+        vid = item[0] if isinstance(item, tuple) and item else self.cfg.vehicle_id
+        c = self.counters.get(vid)
+        if c is not None:
+            c.outcome(False)
 
     def _dropped(self, item: Any) -> None:
         vid = item[0] if isinstance(item, tuple) and item else self.cfg.vehicle_id
@@ -457,6 +471,7 @@ class Service:
         c = self.counters.get(vid)
         if c is not None:
             c.errors += 1
+            c.outcome(True)
             n = c.errors
         else:
             n = 0
@@ -478,6 +493,7 @@ class Service:
             rejected=c.rejected,
             dropped=c.dropped,
             errors=c.errors,
+            failure_rate=c.failure_rate,
             queue_depth=self.worker.depth(),
             last_seq=c.last_seq,
             last_stamp=c.last_stamp,
@@ -486,6 +502,8 @@ class Service:
             time=now,
         )
         fields.update(self.health_extra(vehicle_id))
+        if fields["state"] == "running" and c.failure_rate > FAILING_RATE:
+            fields["state"] = "failing"  # alive, but most inputs fail: never look healthy
         if state == "stopping":
             fields["state"] = "stopping"
         return ServiceHealth(**fields)

@@ -74,7 +74,7 @@ class VehicleService(Service):
 
     def __init__(self, cfg, log, *, source: Iterator[tuple[bytes, Optional[float]]], speed: float = 1.0,
                  wait_for: tuple[str, ...] = keys.PIPELINE_SERVICES, wait_timeout_s: float = 20.0,
-                 describe: str = ""):
+                 describe: str = "", inbox=None):
         super().__init__(cfg, log)
         if speed < 0 or speed != speed:
             raise ValueError(f"speed {speed!r}: must be >= 0 (0 = as fast as possible)")
@@ -83,6 +83,7 @@ class VehicleService(Service):
         self.wait_for = tuple(wait_for)
         self.wait_timeout_s = float(wait_timeout_s)
         self.describe = describe
+        self.inbox = inbox  # closed loop: services.vehicle_control.SetpointInbox (None: open loop)
         self.pub = None
         self._thread: Optional[threading.Thread] = None
         self._done = threading.Event()
@@ -91,6 +92,14 @@ class VehicleService(Service):
         if vehicle_id != self.cfg.vehicle_id:
             return  # one source feeds one vehicle
         self.pub = self.publisher(session, keys.raw(vehicle_id))
+        if self.inbox is not None:  # the callback only stores: the torque loop reads the latest
+            offer, counters = self.inbox.offer, self.counters[vehicle_id]
+
+            def _setpoint(sample) -> None:
+                counters.received += 1
+                offer(sample.payload.to_bytes())
+
+            self.keep(session.declare_subscriber(keys.control_slip(vehicle_id), _setpoint))
         self._thread = threading.Thread(target=self._publish_all, name="vehicle-source", daemon=True)
         self._thread.start()
 
@@ -138,15 +147,27 @@ class VehicleService(Service):
                     delay = t0 + (stamp - s0) / self.speed - time.monotonic()
                     if delay > 0 and self.stop_event.wait(delay):
                         break
+                if self.inbox is not None and stamp is not None:
+                    self.inbox.sent(stamp, time.perf_counter())
                 self.pub.put(payload)
                 c.published += 1
                 c.last_stamp = stamp
-            self.log.info("source_done", vehicle_id=vid, published=c.published)
+            self.log.info("source_done", vehicle_id=vid, published=c.published,
+                          **(self.inbox.latency_summary() if self.inbox is not None else {}))
         except Exception as exc:  # a broken source (bad scenario, unreadable file) ends the process non-zero
             self.exit_code = 1
             self.log.error("source_failed", vehicle_id=vid, error=f"{type(exc).__name__}: {exc}"[:500])
         finally:
             self._done.set()
+
+    def health_extra(self, vehicle_id: str) -> dict:
+        if self.inbox is None:
+            return {}
+        sp = self.inbox.current()
+        return {"detail": {**self.counters[vehicle_id].detail, **self.inbox.latency_summary(),
+                           "control": self.inbox.control, "setpoint": sp.value, "setpoint_source": sp.source,
+                           "setpoints_received": self.inbox.received,
+                           **{f"setpoints_{k}": v for k, v in self.inbox.sources.items()}}}
 
     def tick(self, now: float) -> None:
         if self._done.is_set():

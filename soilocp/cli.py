@@ -18,6 +18,7 @@ COMMAND_MODULES = (
     "soilocp.commands.physics",  # ocp, curves, calibrate
     "soilocp.commands.sim",  # simulate
     "soilocp.commands.offline",  # estimate, evaluate, plot
+    "soilocp.commands.control",  # control compare
     "services.commands",  # service, router, run, schemas, fleet, dashboard, bench
 )
 

@@ -23,6 +23,10 @@ class EstimateSummary:
     rejected: list[tuple[int, str, str]] = field(default_factory=list)  # (line number, code, message)
     vehicles: set[str] = field(default_factory=set)
     statuses: dict[str, int] = field(default_factory=dict)
+    #: samples whose processing raised (line number, error): that vehicle's chain restarts, the log goes on
+    stage_errors: list[tuple[int, str]] = field(default_factory=list)
+    #: observer resets by reason, over all vehicles (start, time_gap, non_finite_state, ...)
+    resets: dict[str, int] = field(default_factory=dict)
 
 
 def estimate_lines(
@@ -52,7 +56,14 @@ def estimate_lines(
         pipe = pipelines.get(sample.vehicle_id)
         if pipe is None:
             pipe = pipelines[sample.vehicle_id] = VehiclePipeline(config)
-        nf, ob, so, oc = pipe.process_all(sample)
+        try:
+            nf, ob, so, oc = pipe.process_all(sample)
+        except Exception as exc:  # no exception escapes a stage: restart this vehicle's chain, keep going
+            summary.stage_errors.append((lineno, f"{type(exc).__name__}: {exc}"[:300]))
+            pipelines[sample.vehicle_id] = VehiclePipeline(config)
+            continue
+        if ob.reset_reason:
+            summary.resets[ob.reset_reason] = summary.resets.get(ob.reset_reason, 0) + 1
         summary.estimates += 1
         summary.vehicles.add(sample.vehicle_id)
         summary.statuses[oc.status] = summary.statuses.get(oc.status, 0) + 1

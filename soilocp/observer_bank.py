@@ -111,6 +111,15 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
+    speed_age: np.ndarray  # s since the wheel's speed (or the ground speed, whichever is older) last changed
+    torque_age: np.ndarray  # s since the wheel's torque reading last changed
+
+
+def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Which readings (k, c) are new: a value exactly equal to the previous sample's is a reading
+    held by a slow driver or logger (method-notes §13: wheel speeds and currents refresh at
+    0.5-5 Hz and are held in between), not a new measurement.  Everything is new at a start."""
+    return (now != prev) | first[:, None]
 
 
 def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
@@ -138,16 +147,21 @@ def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.n
 
 
 def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: np.ndarray,
-                 gate_sigma: float, counts: np.ndarray, patience: int):
+                 gate_sigma: float, counts: np.ndarray, patience: int, available: np.ndarray | None = None):
     """Kalman update (Joseph form) of x (k, n), P (k, n, n) by z (k, m) with diagonal R (k, m) and
     H (k, m, n), each row gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)) unless it was
-    rejected ``patience`` times in a row.  Returns x, P, the new rejection counts (k, m) and the
-    normalised innovation squares nu_i^2 / S_ii (k, m) of the prior."""
+    rejected ``patience`` times in a row.  Rows not ``available`` (k, m) (a held, not a new,
+    reading) take no part and count no rejection.  Returns x, P, the new rejection counts (k, m),
+    the normalised innovation squares nu_i^2 / S_ii (k, m) of the prior and the kept rows (k, m)."""
     innov = z - np.einsum("kij,kj->ki", H, x)
     s = np.einsum("kij,kij->ki", H @ P, H) + r
     nis = innov**2 / s
     keep = (nis <= gate_sigma**2) | (counts >= patience)
-    counts = np.where(keep, 0, counts + 1)
+    if available is not None:
+        counts = np.where(available, np.where(keep, 0, counts + 1), counts)
+        keep &= available
+    else:
+        counts = np.where(keep, 0, counts + 1)
     upd = keep.any(axis=1)
     if upd.any():
         kp = keep[upd]
@@ -202,6 +216,9 @@ class ObserverBank:
         self.last_stamp = np.full(n, np.nan)
         self.rejections = np.zeros((n, N_MEAS), dtype=int)
         self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
+        # the last raw readings (wheel speeds, ground speed, torques) and when each last changed
+        self._prev = np.full((n, 9), np.nan)
+        self._changed_at = np.full((n, 9), np.nan)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -250,6 +267,11 @@ class ObserverBank:
             dt = inputs.stamp - last
         reasons = [""] * k
         first = np.isnan(last)
+        raw = np.column_stack([inputs.wheel_speed, inputs.ground_speed, inputs.wheel_torque])
+        fresh = fresh_readings(self._prev[ix], raw, first | (dt < 0))
+        changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[ix])
+        self._prev[ix], self._changed_at[ix] = raw, changed_at
+        age = inputs.stamp[:, None] - changed_at
         # dt == 0 (a repeated stamp) is no reset: only the update runs
         for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),
                           (~first & (dt > cfg.max_gap), "time_gap")):
@@ -266,8 +288,10 @@ class ObserverBank:
                                                  dt[run][moving])
             z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
                                  inputs.ground_speed[run]])
+            available = np.ones(z.shape, dtype=bool)
+            available[:, 2:7] = fresh[run][:, :5]  # held wheel / ground speeds are no new measurement
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
-                                                   self.rejections[ix[run]], cfg.gate_patience)
+                                                   self.rejections[ix[run]], cfg.gate_patience, available)
             self.rejections[ix[run]] = counts
             rejected[run] = np.count_nonzero(~keep, axis=1)
             x[run], P[run] = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
@@ -279,9 +303,9 @@ class ObserverBank:
                 self._reset(ix, rows, x, P, inputs, reasons, why)
         self.x[ix], self.P[ix] = x, P
         self.last_stamp[ix] = inputs.stamp
-        return self._output(x, P, fz, rejected, reasons)
+        return self._output(x, P, fz, rejected, reasons, age)
 
-    def _output(self, x, P, fz, rejected, reasons) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
         res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
@@ -300,7 +324,9 @@ class ObserverBank:
             mu_determined=mu_var <= self.cfg.mu_std_determined**2,
             resistance=res,
             gross=mu + res,
-            gross_var=np.einsum("kil,kil->ki", J @ P, J),
+            # a quadratic form of the conditioned P: floored, since clamping correlations keeps P only
+            # nearly positive semi-definite
+            gross_var=np.maximum(np.einsum("kil,kil->ki", J @ P, J), self.cfg.variance_floor),
             wheel_speed=x[:, L.omega].copy(),
             ground_speed=x[:, L.v].copy(),
             yaw_rate=x[:, L.psi].copy(),
@@ -308,4 +334,6 @@ class ObserverBank:
             reset=np.array([bool(r) for r in reasons]),
             reset_reason=reasons,
             normal_force=fz,
+            speed_age=np.maximum(age[:, :4], age[:, 4:5]),
+            torque_age=age[:, 5:9],
         )

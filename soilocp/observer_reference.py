@@ -17,7 +17,7 @@ from filterpy.kalman import KalmanFilter
 
 from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from .observer_bank import LIFT_OFF_FORCE, condition, split_side_torque
+from .observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, split_side_torque
 from .vehicle import VehicleParams
 
 
@@ -51,6 +51,7 @@ class TractionObserver:
         self.kf = KalmanFilter(dim_x=L.n, dim_z=N_MEAS)
         self._last_stamp: float | None = None
         self._rejections = np.zeros(N_MEAS, dtype=int)
+        self._prev = np.full(5, np.nan)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
         self.steps = 0
@@ -82,6 +83,9 @@ class TractionObserver:
         omega = np.asarray(wheel_speed, dtype=float)
         dt = None if self._last_stamp is None else stamp - self._last_stamp
         reset = dt is None or dt < 0 or dt > self.cfg.max_gap
+        speeds = np.array([*omega, ground_speed])
+        fresh = fresh_readings(self._prev[None], speeds[None], np.array([dt is None or dt < 0]))[0]
+        self._prev = speeds
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)
         A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
@@ -96,7 +100,10 @@ class TractionObserver:
             innov = z - H @ self.kf.x
             s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + self._R_diag
             keep = (innov**2 <= (self.cfg.gate_sigma**2) * s) | (self._rejections >= self.cfg.gate_patience)
-            self._rejections = np.where(keep, 0, self._rejections + 1)
+            available = np.ones(N_MEAS, dtype=bool)
+            available[2:7] = fresh  # held wheel / ground speeds are no new measurement
+            self._rejections = np.where(available, np.where(keep, 0, self._rejections + 1), self._rejections)
+            keep &= available
             rejected = int(np.count_nonzero(~keep))
             if keep.any():
                 idx = np.flatnonzero(keep)
@@ -121,7 +128,7 @@ class TractionObserver:
             mu_var=np.diag(P)[L.mu].copy(),
             resistance=res,
             gross=x[L.mu] + res,
-            gross_var=np.einsum("ij,jk,ik->i", J, P, J),
+            gross_var=np.maximum(np.einsum("ij,jk,ik->i", J, P, J), self.cfg.variance_floor),
             wheel_speed=x[L.omega].copy(),
             ground_speed=float(x[L.v]),
             yaw_rate=float(x[L.psi]),

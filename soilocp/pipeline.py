@@ -133,6 +133,7 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         wheel_speed=_quad(out.wheel_speed[j]), ground_speed=float(out.ground_speed[j]),
         yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
+        speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
     )
 
 
@@ -163,6 +164,7 @@ class SoilInputs:
     slip_sigma: np.ndarray
     gate_slip: np.ndarray  # the low-pass slip the gate decides on (method-notes §9)
     gate_sigma: np.ndarray
+    held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
 
 
 class SlipGate:
@@ -206,7 +208,8 @@ class SlipGate:
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        return SoilInputs(slip, informative, observed, var, s_sig, lp, g_sig)
+        held = (ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+        return SoilInputs(slip, informative, observed, var, s_sig, lp, g_sig, held)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -237,15 +240,16 @@ class SoilStage:
             wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
             yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
             reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
+            speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
         )
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma)[0]
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held)[0]
         else:
-            st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0], inp.informative[0],
-                                   inp.slip_sigma[0])
+            st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
+                                   inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])
         return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
 
 

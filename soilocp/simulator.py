@@ -43,7 +43,7 @@ import bisect
 import itertools
 import math
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -62,6 +62,9 @@ from .traction import gross_traction_with_derivatives, net_traction_with_derivat
 from .vehicle import DEFAULT_VEHICLE, VehicleParams
 
 TRUTH_SCHEMA_ID = "soilocp.truth_record/1"
+
+#: m/s: the drawbar draft ramps in as tanh(V / _LOAD_EPS), so that it resists motion like friction
+_LOAD_EPS = 0.05
 
 _F4 = tuple[float, float, float, float]
 _F3 = tuple[float, float, float]
@@ -235,6 +238,8 @@ def simulate(
     sweep: SweepParams | None = None,
     controller: ControllerParams = DEFAULT_CONTROLLER,
     params: SimParams = DEFAULT_SIM,
+    wheel_torque_command: Callable[[SensorSample], Sequence[float]] | None = None,
+    drawbar_load: Callable[[float, float], float] | None = None,
 ) -> Iterator[tuple[SensorSample, TruthRecord]]:
     """Drive ``scenario`` and yield ``(SensorSample, TruthRecord)`` pairs lazily, one per sensor
     sample at ``stamp = seq / rate`` (seq 0 = at rest at t = 0), for ``duration`` seconds
@@ -243,6 +248,16 @@ def simulate(
     ``mode`` overrides the scenario's controller mode; ``sweep`` its front-axle slip sweep;
     ``noise`` the sensor noise levels (None = :class:`SensorNoise` defaults;
     ``SensorNoise.noiseless()`` = exact truth through the sensors).  The same seed gives the same logs.
+
+    Closed-loop hooks (``soilocp.control``), both None by default (the built-in controllers):
+
+    * ``wheel_torque_command(sample)`` is called with each sensor sample before the next interval
+      is integrated and returns the four motor torques (N m, clamped to the controller's
+      ``torque_limit``), held over that interval (zero-order hold, as a digital motor drive):
+      it replaces the wheel-speed PIs, so an external controller closes the loop on the sensors.
+    * ``drawbar_load(t, V)`` is a towed load's draft force (N >= 0) at time t and speed V, held over each
+      interval; it opposes the motion like friction (F tanh(V / _LOAD_EPS)), so a stalled
+      rover is not pulled backwards (``_LOAD_EPS`` = 0.05 m/s).
     """
     sc = get_scenario(scenario)
     _check_args(duration, rate, seed, mode, vehicle_id)
@@ -266,6 +281,8 @@ def simulate(
         vehicle_id=vehicle_id,
         ctl=controller,
         par=params,
+        torque_command=wheel_torque_command,
+        drawbar_load=drawbar_load,
     )
     return run.samples()
 
@@ -273,7 +290,8 @@ def simulate(
 class _Run:
     """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
 
-    def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par):
+    def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par,
+                 torque_command=None, drawbar_load=None):
         self.sc, self.duration, self.rate, self.mode = sc, duration, rate, mode
         self.v, self.c, self.ctl, self.par, self.vehicle_id = vehicle, constants, ctl, par, vehicle_id
         self.interval = 1.0 / rate
@@ -315,6 +333,10 @@ class _Run:
         self.newton_iters = 0
         self.newton_failures = 0
         self.substeps = 0
+        self.torque_command, self.drawbar_load = torque_command, drawbar_load
+        self.held_torque: list[float] | None = None  # external torque command over this interval
+        self.load = 0.0  # drawbar draft force over this interval, N
+        self.drawbar_work = 0.0  # work done against the draft, J (not in the truth record's balance)
         self._terrain()
         self.f_used = self._specific_force()
         self.fz = self._fz(self.f_used)
@@ -413,6 +435,9 @@ class _Run:
         w_ref = self._references(t_new)
         R, m, Iw, Iz, ys, ax = v.wheel_radius, v.mass, v.wheel_inertia, v.yaw_inertia, self.ys, self.absx
         kp, tmax = ctl.wheel_kp, ctl.torque_limit
+        held, load = self.held_torque, self.load
+        if held is not None:
+            kp = 0.0  # torque held over the interval: no d T / d omega in the Jacobian
         t_int = [ctl.wheel_ki * q for q in self.i_wheel]
         muy, eps, floor, tol = par.lateral_resistance, par.yaw_rate_eps, par.slip_floor, par.newton_tol
         loose = par.newton_loose_tol
@@ -471,7 +496,7 @@ class _Run:
                 dg = tdg[j] + fr * (tdg[j + 1] - tdg[j])
                 mu = tmu[j] + fr * (tmu[j + 1] - tmu[j])
                 dmu = tdmu[j] + fr * (tdmu[j + 1] - tdmu[j])
-                tr = kp * (w_ref[i] - wi) + t_int[i]
+                tr = kp * (w_ref[i] - wi) + t_int[i] if held is None else held[i]
                 if tr > tmax:
                     T, kpe = tmax, 0.0
                 elif tr < -tmax:
@@ -506,8 +531,13 @@ class _Run:
                 gs[i], mus[i], tq[i], traw[i], ss[i], fz[i] = g, mu, T, tr, s, fzi
             th = math.tanh(r / eps)
             FV = m * (V - V0) - h * (sum_fx - m * gx)
+            if load:  # draft opposing the motion, implicit like the rest of the body row
+                thl = math.tanh(V / _LOAD_EPS)
+                FV += h * load * thl
             Fr = Iz * (r - r0) + h * (sum_yfx + muy * lz * th)
             A11 = m - h * eVV - a11c
+            if load:
+                A11 += h * load * (1.0 - thl * thl) / _LOAD_EPS
             A12 = -h * eVr - a12c
             A21 = h * (eRV + muy * lzV * th) - a21c
             A22 = Iz + h * (eRr + muy * (lzr * th + lz * (1.0 - th * th) / eps)) - a22c
@@ -545,6 +575,8 @@ class _Run:
         e["slip_dissipation"] += h * ps
         e["resistance_work"] += h * pr
         e["yaw_dissipation"] += h * muy * lz * th * r
+        if load:
+            self.drawbar_work += h * load * math.tanh(V / _LOAD_EPS) * V
         self.z += h * V * gx / STANDARD_GRAVITY
         # advance
         self.prev = x0
@@ -633,4 +665,16 @@ class _Run:
                         f"simulation diverged at t={self.t:.4f} s: wheel speeds {self.w}, V {self.V}, yaw rate "
                         f"{self.r}, specific force {self.f_used} (controller gains or vehicle out of range?)"
                     )
-            yield self._records(seq)
+            records = self._records(seq)
+            yield records
+            if self.torque_command is not None:
+                cmd = [float(q) for q in self.torque_command(records[0])]
+                if len(cmd) != 4 or not all(map(math.isfinite, cmd)):
+                    raise ValueError(f"wheel_torque_command must return 4 finite torques (N m), got {cmd!r}")
+                tmax = self.ctl.torque_limit
+                self.held_torque = [min(max(q, -tmax), tmax) for q in cmd]
+            if self.drawbar_load is not None:
+                f = float(self.drawbar_load(self.t, self.V))
+                if not (math.isfinite(f) and f >= 0):
+                    raise ValueError(f"drawbar_load must return a finite draft force >= 0 N, got {f!r}")
+                self.load = f

@@ -72,6 +72,10 @@ class SoilConfig(BaseModel):
         "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
     )
     radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
+    max_input_age: float = Field(
+        0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
+        "(a held reading from a slow driver is not a measurement, method-notes §13)"
+    )
     evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
     mismatch_nis: float = Field(
         4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
@@ -300,11 +304,12 @@ class SoilBank:
         self.stats = np.zeros((n, 5))
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None) -> list[SoilState]:
+               gate_sigma=None, held=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
-        ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw)."""
+        ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw);
+        ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -318,7 +323,8 @@ class SoilBank:
         gated = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
         # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
         determined = var <= cfg.observable_max_gross_sigma**2
-        use = gated & determined
+        held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
+        use = gated & determined & ~held
         p = self.p[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
@@ -352,7 +358,7 @@ class SoilBank:
             self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, info, use, gated & ~determined, stats)
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, stats)
 
     def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
@@ -373,7 +379,7 @@ class SoilBank:
         np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
         np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
 
-    def _summaries(self, ix, stamp, p, info, use, undetermined, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, p, info, use, undetermined, held, stats) -> list[SoilState]:
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
         out = []
@@ -402,9 +408,15 @@ class SoilBank:
                 status = "model_mismatch"
                 reason = (f"gross traction is below what any soil in the model gives at this slip (K at the floor of "
                           f"the model's range, {cfg.k_min:g}): torque scale or units?")
-            elif status == "no_estimate" and undetermined[j].any() and not use[j].any():
+            elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
+                status = "not_observable"
+                reason = (f"slip is informative but the wheel speed / torque readings are held longer than "
+                          f"{cfg.max_input_age:g} s (sensor refresh too slow to measure traction)")
+            elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
+            if status == "not_observable":  # the data do not determine K now: no number (method-notes §12)
+                rk = rs = rl = None
             cls = conf = None
             if rk is not None and status != "model_mismatch":
                 # the class from the whole band (statistical and systematic), as reported
@@ -427,14 +439,15 @@ class BayesSoilEstimator:
         return self.bank.p[0]
 
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
-               gate_slip=None, gate_sigma=None) -> SoilState:
+               gate_slip=None, gate_sigma=None, held=None) -> SoilState:
         """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
         ``cfg.slip_sigma``)."""
         slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
         s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
         one = (lambda a: None if a is None else np.asarray(a, dtype=float)[None])
         return self.bank.update(np.zeros(1, dtype=int), [stamp], slip[None], obs[None], var[None],
-                                np.asarray(informative, dtype=bool)[None], s_sig[None], one(gate_slip), one(gate_sigma))[0]
+                                np.asarray(informative, dtype=bool)[None], s_sig[None], one(gate_slip), one(gate_sigma),
+                                None if held is None else np.asarray(held, dtype=bool)[None])[0]
 
 
 class PaperSoilEstimator:

@@ -86,5 +86,11 @@ def test_quick_bench_report_is_well_formed(tmp_path):
                 p = step["processes"][name]
                 _finite(p["cpu_percent"], (pipe, name, "cpu"))
                 _finite(p["rss_mib"], (pipe, name, "rss"))
+    cl = rep["control_loop"]  # sample -> slip set-point through pipeline + controller service
+    assert "error" not in cl, cl
+    assert cl["sent"] > 0 and 0 <= cl["drops"] < cl["sent"] and cl["n"] > 0
+    for k in ("p50", "p99", "max"):
+        _finite(cl[k], ("control_loop", k))
+    assert "5. control loop" in r.stdout
     assert set(verdict(rep)) == set(rep["verdict"])
     assert all(isinstance(v, bool) for v in rep["verdict"].values())

@@ -49,9 +49,13 @@ def estimate(sensors, out, vehicle, constants, config, no_compensation, method, 
     rate = summary.estimates / dt if dt > 0 else float("inf")
     click.echo(
         f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
-        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses} -> {out}",
+        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses}; observer resets {summary.resets} -> {out}",
         err=True,
     )
+    for lineno, error in summary.stage_errors[:20]:
+        click.echo(f"{sensors}:{lineno}: processing failed, that vehicle's chain restarted: {error}", err=True)
+    if len(summary.stage_errors) > 20:
+        click.echo(f"... {len(summary.stage_errors)} processing failures in all", err=True)
 
 
 @click.command()
