@@ -24,8 +24,8 @@ def _cells(r, shown) -> list[str]:
     verdict = "met" if r["pass"] else "missed: " + ", ".join(r["missed"])
     conv = _fmt(r["change_convergence_s"], ".2f") if r["terrain_changes"] else "n/a"
     return [
-        r["variant"], ident, _fmt(r["k_median_rel"], ".1%"), _fmt(r["k_p90_rel"], ".1%"), _fmt(r["band_coverage"], ".0%"),
-        _fmt(r["std_rel_median"], ".2f"), conv, _fmt(r["mu_T_err"], ".3f"), _fmt(r["S_T_err"], ".3f"),
+        r["variant"], ident, _fmt(r["k_median_rel"], ".1%"), _fmt(r["k_p90_rel"], ".1%"), _fmt(r["band_coverage"], ".1%"),
+        _fmt(r["std_rel_median"], ".3f"), conv, _fmt(r["mu_T_err"], ".3f"), _fmt(r["S_T_err"], ".3f"),
         _fmt(r["S_E_err"], ".3f"), *shares, verdict,
     ]  # fmt: skip
 
