@@ -139,6 +139,13 @@ class ControllerParams:
     #: Excitation: the speed-holding axle never brakes harder than this slip, so that it stays on
     #: the stable side of the traction peak (past it a braking wheel locks).
     brake_slip_limit: float = 0.35
+    #: Excitation: > 0 makes the rear axle mirror the front's slip set-point (brake at about
+    #: -rear_mirror x S, trimmed by the speed PI) instead of holding the speed alone (method-notes §12).
+    rear_mirror: float = 0.0
+    mirror_trim: float = 0.05  #: rear_mirror: slip trim per m/s of the speed PI output (small: a close mirror)
+    #: S-turns: yaw-rate set-point s_turn_rate * sin(2 pi t / s_turn_period), rad/s (0 = heading hold).
+    s_turn_rate: float = 0.0
+    s_turn_period: float = 6.0
 
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
@@ -386,8 +393,13 @@ class _Run:
         v_ref = sc.speed * ramp
         self.speed_cmd = v_ref
         # heading hold: a yaw-rate PI commands a small differential (V_i = V - r_c y_i)
-        self.i_yaw += h * self.r
-        r_c = -(ctl.yaw_kp * self.r + ctl.yaw_ki * self.i_yaw)
+        if ctl.s_turn_rate > 0:  # S-turns: the same PI around a sinusoidal yaw-rate set-point
+            r_ref = ctl.s_turn_rate * ramp * math.sin(2.0 * math.pi * t / ctl.s_turn_period)
+            self.i_yaw += h * (self.r - r_ref)
+            r_c = r_ref - (ctl.yaw_kp * (self.r - r_ref) + ctl.yaw_ki * self.i_yaw)
+        else:
+            self.i_yaw += h * self.r
+            r_c = -(ctl.yaw_kp * self.r + ctl.yaw_ki * self.i_yaw)
         if self.mode == "cruise":
             self.slip_cmd = None
             return [max(v_ref - r_c * yi, 0.0) / R for yi in self.ys]
@@ -404,7 +416,11 @@ class _Run:
         # rear: speed PI.  Its integrator keeps integrating while the braking slip is clamped, so
         # that the dwell makes up for the overspeed near the sweep's peak (mean speed = V_ref).
         self.i_speed = min(max(self.i_speed + h * err, -ctl.speed_i_limit), ctl.speed_i_limit)
-        v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
+        if ctl.rear_mirror > 0:  # braking slip -m S means omega R = V (1 - m S); the PI trims the slip
+            trim = ctl.mirror_trim * (ctl.speed_kp * err + ctl.speed_ki * self.i_speed)
+            v_hold = max(self.V, v_ref) * (1.0 - ctl.rear_mirror * s_cmd + trim)  # v_ref: start from rest
+        else:
+            v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
         # the braking axle stays on the stable side of the traction peak: slip >= -brake_slip_limit
         v_hold = max(v_hold, self.V * (1.0 - ctl.brake_slip_limit))
         out = []
