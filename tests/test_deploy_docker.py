@@ -210,7 +210,7 @@ def image_build_seconds():
 
 
 @pytest.mark.docker
-@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.timeout(1500)
 def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_seconds, tmp_path):
     fleet = Fleet(tmp_path)

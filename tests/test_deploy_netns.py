@@ -49,7 +49,7 @@ RECOVERY_TARGET_S = 2.0  # the deployment's stated goal; printed, the test asser
 
 
 @pytest.mark.netns
-@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.timeout(600)
 def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, tmp_path):
     run_id = vehicle_netns
