@@ -28,10 +28,14 @@ def certs_group() -> None:
 @click.option("--tool", "tools", multiple=True, help="Fleet tool certificate (repeatable); default dashboard.")
 @click.option("--days", type=click.IntRange(1, 3650), default=825, show_default=True, help="Validity of the leaf certificates.")
 @click.option("--force", is_flag=True, help="Replace an existing development CA (invalidates what it signed).")
-def certs_init(directory, vehicles, fleet_hosts, tools, days, force) -> None:
+@click.option("--if-missing", is_flag=True, help="Keep an existing CA and its certificates and exit 0 (containers).")
+def certs_init(directory, vehicles, fleet_hosts, tools, days, force, if_missing) -> None:
     """A development CA in DIRECTORY, and certificates for the fleet router, the tools and each vehicle."""
     from .certs import DEFAULT_FLEET_HOSTS, DEFAULT_TOOLS, init_fleet
 
+    if if_missing and not force and (Path(directory) / "ca.key").exists():
+        click.echo(f"{directory}: development CA present, kept")
+        return
     try:
         files = init_fleet(Path(directory), vehicles or ("rover1", "rover2"), days=days, force=force,
                            fleet_hosts=fleet_hosts or DEFAULT_FLEET_HOSTS, tools=tools or DEFAULT_TOOLS)

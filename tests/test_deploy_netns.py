@@ -37,6 +37,8 @@ PROBE = ROOT / "scripts" / "ocp_probe.py"
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing.json"
 ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 FLEET = ROOT / "deploy" / "fleet" / "fleet-router.json"
+SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
+FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
 SOILOCP = [sys.executable, "-m", "soilocp.cli"]
 
 VID = "rover1"
@@ -186,7 +188,8 @@ def test_netns_script_rejects_bad_run_ids():
 
 SYSTEMD = ROOT / "deploy" / "systemd"
 #: where the example env files point (/etc/soilocp/NAME) -> the file of the repository
-ETC_FILES = {"sensing.json": SENSING, "estimation.json": ESTIMATION, "fleet-router.json": FLEET}
+ETC_FILES = {"sensing.json": SENSING, "estimation.json": ESTIMATION, "fleet-router.json": FLEET,
+             "sensing-secure.json": SENSING_SECURE, "fleet-router-secure.json": FLEET_SECURE}
 
 
 def _env_file(path: Path) -> dict[str, str]:
@@ -201,24 +204,37 @@ def _env_file(path: Path) -> dict[str, str]:
     return out
 
 
-def test_systemd_example_environments_resolve_through_the_loaders():
+def test_systemd_example_environments_resolve_through_the_loaders(tmp_path):
     import shlex
 
     from services.commands import service_cmd
     from services.router import router_settings
     from services.runtime import load_service_config
 
+    # the certificates the secure units name, made where the test can read them
+    certs = tmp_path / "certs"
+    subprocess.run([*SOILOCP, "certs", "init", str(certs), "--vehicle", "rover1", "--vehicle", "rover2"], check=True,
+                   capture_output=True)
     units = sorted(p for p in (SYSTEMD / "env").iterdir() if p.is_dir())
-    assert [u.name for u in units] == ["estimation", "fleet", "sensing"]
+    assert [u.name for u in units] == ["estimation", "fleet", "fleet-secure", "sensing", "sensing-secure"]
     for unit in units:
         common = _env_file(unit / "soilocp.env")
         assert "SOILOCP_LISTEN" not in common, f"{unit.name}: SOILOCP_LISTEN in soilocp.env would reach the services"
+        assert not any(k.startswith("SOILOCP_TLS_") for k in common), f"{unit.name}: keys belong to the router only"
         config = ETC_FILES[Path(common["SOILOCP_CONFIG"]).name]
         router_env = {**common, **_env_file(unit / "router.env"), "SOILOCP_CONFIG": str(config)}
+        router_env = {k: v.replace("/etc/soilocp/certs", str(certs)) for k, v in router_env.items()}
         router = router_settings(None, (), (), env=router_env)
-        assert router["listen"] == [router_env["SOILOCP_LISTEN"]]
-        if unit.name != "fleet":
+        assert router["listen"] == router_env["SOILOCP_LISTEN"].split(",")
+        if not unit.name.startswith("fleet"):
             assert router["connect"] == [router_env["SOILOCP_ROUTER_CONNECT"]]
+        secure = unit.name.endswith("-secure")
+        assert all(ep.startswith("tls/") for ep in (router["connect"] or router["listen"])) == secure, unit.name
+        assert (router["tls"] is not None) == secure
+        if unit.name == "fleet-secure":
+            assert router["access_control"] == {"vehicles": ["rover1", "rover2"], "tools": ["dashboard"]}
+        if unit.name == "sensing-secure":  # inside the vehicle: plain TCP, never a fleet-facing address
+            assert all(ep.startswith("tcp/") and "0.0.0.0" not in ep for ep in router["listen"])
         for name in json.loads(config.read_text()).get("services", {}):
             extra = unit / f"{name}.env"
             env = {**common, **(_env_file(extra) if extra.exists() else {}), "SOILOCP_CONFIG": str(config)}

@@ -8,7 +8,8 @@ What must hold (issue: fleet links that keep strangers out):
 * a vehicle cannot publish (or answer queries) under another vehicle's keys, nor read them;
 * a dashboard certificate cannot publish, answer queries or hold liveliness tokens;
 * a real vehicle (`soilocp run`, its router linked over TLS with its certificate) reaches the real
-  dashboard and `soilocp fleet status`, both connected with the dashboard certificate.
+  dashboard and `soilocp fleet status`, both connected with the dashboard certificate;
+* the native file deploy/zenoh/fleet-router-secure.json5 (for zenohd) enforces the same rules.
 
 Negative checks wait for a positive control sent after the forbidden message on the same path
 (it must arrive), then a grace period: "not received" is never a bare timeout.
@@ -33,6 +34,7 @@ from services.fleet_security import TlsFiles, apply_tls
 
 ROOT = Path(__file__).resolve().parents[1]
 FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
+NATIVE_SECURE = ROOT / "deploy" / "zenoh" / "fleet-router-secure.json5"
 SOILOCP = [sys.executable, "-m", "soilocp.cli"]
 GRACE_S = 1.0
 
@@ -126,7 +128,7 @@ def _replies(session, selector: str) -> list[bytes]:
     return [r.ok.payload.to_bytes() for r in session.get(selector, timeout=2.0) if r.ok is not None]
 
 
-def test_clients_without_a_fleet_certificate_are_refused(fleet):
+def _check_refusals(fleet, *, with_cli: bool) -> None:
     import zenoh
 
     refused = {
@@ -143,6 +145,8 @@ def test_clients_without_a_fleet_certificate_are_refused(fleet):
     # the same client code with a certificate of the fleet CA is let in (the control)
     zenoh.open(fleet.config(fleet.tls("dashboard"))).close()
 
+    if not with_cli:
+        return
     # the fleet CLI says why, without a certificate and with a foreign one
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
     res = subprocess.run([*SOILOCP, "fleet", "status", "--connect", fleet.ep], env=e, capture_output=True,
@@ -155,7 +159,7 @@ def test_clients_without_a_fleet_certificate_are_refused(fleet):
     assert res.returncode == 1 and "no router answered" in res.stdout + res.stderr, res
 
 
-def test_vehicle_cannot_publish_or_answer_under_another_vehicles_keys(fleet):
+def _check_vehicle_confined(fleet) -> None:
     inbox, rover2_inbox = Inbox(), Inbox()
     with fleet.session("dashboard") as dash, fleet.session("rover1") as r1, fleet.session("rover2") as r2:
         dash.declare_subscriber("soilocp/**", inbox)
@@ -175,7 +179,7 @@ def test_vehicle_cannot_publish_or_answer_under_another_vehicles_keys(fleet):
         print(f"dashboard received {sorted(got)}; rover2 saw none of rover1's data")
 
 
-def test_dashboard_certificate_cannot_publish_answer_or_hold_tokens(fleet):
+def _check_tools_read_only(fleet) -> None:
     inbox = Inbox()
     with fleet.session("dashboard") as dash, fleet.session("dashboard") as watcher, \
             fleet.session("rover1") as r1, fleet.session("intruder") as intruder:
@@ -199,6 +203,73 @@ def test_dashboard_certificate_cannot_publish_answer_or_hold_tokens(fleet):
         # (its own put is delivered to it locally, inside its session: that never crossed the router)
         assert b"rover1-control" not in intruder_inbox.payloads(), "a certificate named in no policy read fleet data"
         token.undeclare()
+
+
+def test_clients_without_a_fleet_certificate_are_refused(fleet):
+    _check_refusals(fleet, with_cli=True)
+
+
+def test_vehicle_cannot_publish_or_answer_under_another_vehicles_keys(fleet):
+    _check_vehicle_confined(fleet)
+
+
+def test_dashboard_certificate_cannot_publish_answer_or_hold_tokens(fleet):
+    _check_tools_read_only(fleet)
+
+
+@pytest.fixture(scope="module")
+def native_fleet(tmp_path_factory):
+    """deploy/zenoh/fleet-router-secure.json5 as it is, run by a plain Zenoh router session (what
+    `zenohd -c` does), with only the certificate directory and the port rewritten."""
+    base = tmp_path_factory.mktemp("native-fleet")
+    f = SecureFleet(base)
+    text = NATIVE_SECURE.read_text().replace("/etc/soilocp/certs", str(f.certs))
+    text = text.replace('"tls/0.0.0.0:7447"', json.dumps(f.ep))
+    conf = base / "fleet-router.json5"
+    conf.write_text(text)
+    log = open(base / "router.log", "wb")
+    proc = subprocess.Popen([sys.executable, "-c", NATIVE_ROUTER, str(conf)], stdout=log, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL)
+    log.close()
+    try:
+        assert wait_for(lambda: b"running" in (base / "router.log").read_bytes() or proc.poll() is not None, 60)
+        assert proc.poll() is None, (base / "router.log").read_text()
+        yield f
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+#: a Zenoh router from a native configuration file until SIGTERM (zenohd's job, in Python)
+NATIVE_ROUTER = """
+import os, signal, sys, threading, zenoh
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+s = zenoh.open(zenoh.Config.from_file(sys.argv[1]))
+print("running", flush=True)
+stop.wait()
+s.close()
+os._exit(0)
+"""
+
+
+def test_native_json5_fleet_router_enforces_the_same_rules(native_fleet):
+    import zenoh
+
+    from services.fleet_security import fleet_access_control
+
+    # the file's access control is the one `soilocp router` builds (both read back through Zenoh)
+    built = zenoh.Config()
+    built.insert_json5("access_control", json.dumps(fleet_access_control(["rover1", "rover2"], ["dashboard"])))
+    native = zenoh.Config.from_file(str(NATIVE_SECURE))
+    assert json.loads(native.get_json("access_control")) == json.loads(built.get_json("access_control"))
+    _check_refusals(native_fleet, with_cli=False)
+    _check_vehicle_confined(native_fleet)
+    _check_tools_read_only(native_fleet)
 
 
 def _api(port: int, path: str):
