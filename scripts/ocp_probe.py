@@ -106,7 +106,11 @@ def main(argv: list[str] | None = None) -> int:
               "present": sample.kind == zenoh.SampleKind.PUT})
 
     deadline = time.time() + args.duration
-    with zenoh.open(_config(args.connect)) as session:
+    try:
+        conf = _config(args.connect)
+    except ValueError as exc:  # TLS settings incomplete or unreadable
+        parser.error(str(exc))
+    with zenoh.open(conf) as session:
         subs = [session.declare_subscriber(keys.ocp(v), on_sample(v)) for v in vids]
         subs += [session.liveliness().declare_subscriber(keys.vehicle_alive_all(v), on_alive, history=True)
                  for v in vids]
