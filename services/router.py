@@ -63,6 +63,9 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
     if tls_eps and out["tls"] is None:
         raise ConfigError(f"router endpoints {tls_eps} use TLS but no certificate is set: give router.tls "
                           f"{{ca, cert, key}} in the config file or {ENV_TLS_CA}, {ENV_TLS_CERT}, {ENV_TLS_KEY}")
+    if out["access_control"] is not None and not any(ep.startswith("tls/") for ep in out["listen"]):
+        raise ConfigError(f"router: access control identifies vehicles and tools by their TLS certificate, but it "
+                          f"listens on {out['listen']} without tls/: every link would match no policy and be denied")
     if out["tls"] is not None:
         try:
             out["tls"].check()

@@ -312,3 +312,32 @@ def test_vehicle_ocps_reach_dashboard_and_fleet_cli_over_tls(fleet, tmp_path):
         codes = procs.close(timeout=20.0)
     # `soilocp run` says 143 when SIGTERM stopped everything cleanly (1 if a child failed)
     assert codes == {"rover1": 143, "dashboard": 0}, (codes, procs.log_text("rover1")[-1500:])
+
+
+def test_security_settings_fail_with_a_clear_message(tmp_path):
+    from services.router import router_settings
+    from services.runtime import ConfigError
+
+    certs = tmp_path / "certs"
+    _certs(certs, "init", str(certs), "--vehicle", "rover1")
+    tls = {"SOILOCP_TLS_CA": str(certs / "ca.pem"), "SOILOCP_TLS_CERT": str(certs / "fleet-router.pem"),
+           "SOILOCP_TLS_KEY": str(certs / "fleet-router.key")}
+    cases = {
+        "use TLS but no certificate": ({}, ("tls/0.0.0.0:7447",)),
+        "SOILOCP_TLS_KEY not set": ({k: v for k, v in tls.items() if k != "SOILOCP_TLS_KEY"}, ("tls/0.0.0.0:7447",)),
+        "no such file": ({**tls, "SOILOCP_TLS_CA": str(certs / "missing.pem")}, ("tls/0.0.0.0:7447",)),
+        "without tls/": ({**tls, "SOILOCP_FLEET_VEHICLES": "rover1"}, ("tcp/0.0.0.0:7447",)),
+        "is invalid": ({**tls, "SOILOCP_FLEET_VEHICLES": "rover1,a/b"}, ("tls/0.0.0.0:7447",)),
+        "both as vehicle and as fleet tool": ({**tls, "SOILOCP_FLEET_VEHICLES": "dashboard"}, ("tls/0.0.0.0:7447",)),
+    }
+    for needle, (env, listen) in cases.items():
+        with pytest.raises(ConfigError, match=needle):
+            router_settings(None, listen, (), env=env)
+    ok = router_settings(str(FLEET_SECURE), (), (), env=tls)
+    assert ok["access_control"] == {"vehicles": ["rover1", "rover2"], "tools": ["dashboard"]}
+    # certs: an existing CA is never replaced by accident; a vehicle may not take a tool's name
+    res = subprocess.run([*SOILOCP, "certs", "init", str(certs), "--vehicle", "rover1"], capture_output=True, text=True)
+    assert res.returncode == 2 and "ca.key exists" in res.stderr
+    res = subprocess.run([*SOILOCP, "certs", "init", str(tmp_path / "x"), "--vehicle", "dashboard"], capture_output=True,
+                         text=True)
+    assert res.returncode == 2 and "could not tell them apart" in res.stderr
