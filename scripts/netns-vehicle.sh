@@ -62,6 +62,11 @@ up() {
     ip -n "$ns_est"   addr add 10.99.1.2/24 dev "$if_es"
     ip -n "$ns_sense" addr add 10.99.2.1/24 dev "$if_sf"
     ip -n "$ns_fleet" addr add 10.99.2.2/24 dev "$if_fs"
+    # every host of the fleet gives up a TCP connection after ~12.6 s without acknowledgement
+    # (deploy/sysctl/90-soilocp.conf: why)
+    for ns in "$ns_fleet" "$ns_sense" "$ns_est"; do
+        ip netns exec "$ns" sysctl -qw net.ipv4.tcp_retries2=5
+    done
     ip -n "$ns_sense" link set "$if_se" up
     ip -n "$ns_est"   link set "$if_es" up
     ip -n "$ns_sense" link set "$if_sf" up

@@ -132,3 +132,24 @@ def check_client_tls(endpoints: Iterable[str], env: Optional[dict[str, str]] = N
         raise ValueError(f"endpoints {tls_eps} use TLS: set {ENV_TLS_CA}, {ENV_TLS_CERT} and {ENV_TLS_KEY} "
                          "(the fleet CA and this tool's certificate, e.g. dashboard.pem / dashboard.key)")
     return tls.check() if tls is not None else None
+
+
+#: Publications leaving over a TLS link (a vehicle router's uplink, the fleet router's links to
+#: vehicles and tools) are dropped rather than waited for when that link's queue is full.  The
+#: pipeline publishes with congestion control BLOCK (nothing may be lost inside a vehicle), and a
+#: router forwards a BLOCK message by waiting for room on every outgoing link: while the fleet
+#: link is down, its queue fills within seconds and the vehicle router then stops forwarding
+#: between the vehicle's own services too (measured: OCPs stale on the vehicle for the whole
+#: lease, fleet recovery 2.5-7.5 s after the link returned).  The fleet only monitors, and reads
+#: back what it missed with a query.
+FLEET_LINK_QOS = [{
+    "id": "fleet-links-never-block",
+    "link_protocols": ["tls"],
+    "messages": ["put", "delete"],
+    "flows": ["egress"],
+    "overwrite": {"congestion_control": "drop"},
+}]
+
+
+def apply_fleet_link_qos(conf) -> None:
+    conf.insert_json5("qos/network", json.dumps(FLEET_LINK_QOS))

@@ -11,7 +11,8 @@ import threading
 from typing import Any, Optional
 
 from .fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
-                             apply_access_control, apply_tls, fleet_access_control, tls_from_env)
+                             apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
+                             tls_from_env)
 from .runtime import (DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, ConfigError, JsonLog,
                       _read_config_file, _split_list, check_endpoint, install_stop_handlers, watch_parent, zenoh_config)
 
@@ -121,6 +122,7 @@ def run_router(settings: dict[str, Any]) -> int:
                         tls_from_environment=False)
     if settings.get("tls") is not None:
         apply_tls(conf, settings["tls"], listener=any(ep.startswith("tls/") for ep in settings["listen"]))
+        apply_fleet_link_qos(conf)
     if settings.get("access_control") is not None:
         apply_access_control(conf, settings["access_control"]["vehicles"], settings["access_control"]["tools"])
     try:

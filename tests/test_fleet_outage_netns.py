@@ -7,10 +7,13 @@
 Every process starts from the deploy/ files of the secure fleet (mutual TLS on the fleet link,
 access control on the fleet router; certificates made by `soilocp certs init`), the fleet probe
 uses the dashboard's certificate.  The vehicle<->fleet link is cut for 15-30 s (longer than the
-10 s lease, so both ends drop the session) and restored, several times in a row.  After each
+10 s lease, so both ends drop the session) and restored, several times in a row, while a
+recorder at the fleet subscribes to everything the vehicle publishes (so the fleet link's queue
+is full soon after each cut: the case where a blocked uplink used to stall the vehicle router).  After each
 restore every vehicle's OCPs must be fresh at the fleet (a query answered `stale: false` and a
 new OCP publication received) within RECOVERY_LIMIT_S; the distribution of recovery times is
-printed.  The default suite runs 3 outages; `pytest -m slow` runs 20.
+printed, and so is how often a consumer on the vehicle itself saw its OCPs stale during the
+outages.  The default suite runs 3 outages; `pytest -m slow` runs 20.
 """
 
 from __future__ import annotations
@@ -57,6 +60,33 @@ def _fresh_at(recs: list[dict], after: float) -> tuple[float | None, float | Non
     return q, s
 
 
+#: A fleet-side recorder: everything the vehicle publishes (raw samples, normal forces, states,
+#: OCPs, health) crosses the fleet link, so the link's queue is full within seconds of a cut.
+RECORDER = """
+import os, signal, sys, time, zenoh
+from services.fleet_security import apply_tls, check_client_tls
+c = zenoh.Config()
+c.insert_json5("mode", '"client"')
+c.insert_json5("connect/endpoints", '["' + sys.argv[1] + '"]')
+c.insert_json5("connect/timeout_ms", "-1")
+c.insert_json5("scouting/multicast/enabled", "false")
+apply_tls(c, check_client_tls([sys.argv[1]]), listener=False)
+n = [0]
+signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+s = zenoh.open(c)
+sub = s.declare_subscriber(sys.argv[2], lambda _s: n.__setitem__(0, n[0] + 1))
+while True:
+    time.sleep(1.0)
+    print(time.time(), n[0], flush=True)
+"""
+
+
+def _stale_share(recs: list[dict], start: float, end: float) -> tuple[int, int]:
+    """(stale, answered) OCP queries of the vehicle's own consumer between ``start`` and ``end``."""
+    q = [r for r in recs if r["kind"] == "query" and start < r["t"] < end and r["replies"]]
+    return sum(1 for r in q if r["stale"]), len(q)
+
+
 def _wait_quietly(cond, timeout: float, procs: Processes) -> bool:
     t0 = time.time()
     while time.time() - t0 < timeout:
@@ -85,7 +115,7 @@ def _diagnosis(recs: list[dict], after: float) -> str:
 def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[float]:
     certs = _certs(tmp_path)
     procs = Processes(run_id, tmp_path)
-    probe = tmp_path / "probe-fleet.jsonl"
+    probe, unit_probe = tmp_path / "probe-fleet.jsonl", tmp_path / "probe-est.jsonl"
     sense = {"SOILOCP_CONFIG": str(SENSING), "SOILOCP_TLS_CA": str(certs / "ca.pem"),
              "SOILOCP_TLS_CERT": str(certs / f"{VID}.pem"), "SOILOCP_TLS_KEY": str(certs / f"{VID}.key")}
     est = {"SOILOCP_CONFIG": str(ESTIMATION)}
@@ -95,6 +125,7 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
                 "SOILOCP_TLS_KEY": str(certs / "dashboard.key")}
     rng = random.Random(seed)
     recoveries: list[float] = []
+    vehicle_stale: list[tuple[int, int]] = []
     try:
         procs.start("fleet-router", "fleet", [*SOILOCP, "router"],
                     {"SOILOCP_CONFIG": str(FLEET), "SOILOCP_LISTEN": FLEET_EP, "SOILOCP_FLEET_VEHICLES": VID,
@@ -112,6 +143,10 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
         procs.start("probe-fleet", "fleet", [sys.executable, str(PROBE), "--vehicle", VID, "--period", "0.1",
                                              "--query-timeout", "0.4", "--connect", FLEET_EP, "--out", str(probe)],
                     tool_tls)
+        procs.start("recorder", "fleet", [sys.executable, "-c", RECORDER, FLEET_EP, f"soilocp/{VID}/**"], tool_tls)
+        # a consumer on the vehicle itself: a fleet outage must not make the vehicle's OCPs stale
+        procs.start("probe-est", "est", [sys.executable, str(PROBE), "--vehicle", VID, "--period", "0.1",
+                                         "--query-timeout", "0.4", "--connect", LOCAL_EP, "--out", str(unit_probe)], {})
         startup = wait_until("fresh OCPs at the fleet", lambda: all(_fresh_at(json_lines_so_far(probe), 0.0)),
                              360, procs)
         print(f"\nnetns run {run_id}: secure fleet up in {startup:.1f} s; {outages} outages of "
@@ -119,6 +154,7 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
         time.sleep(2.0)
         for i in range(outages):
             length = rng.uniform(*OUTAGE_S)
+            t_cut = time.time()
             subprocess.run([str(NETNS), "cut-fleet", run_id], check=True)
             time.sleep(length)
             t_restore = time.time()
@@ -131,8 +167,11 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
                             f"{[round(r, 2) for r in recoveries]}")
             q, s = _fresh_at(json_lines_so_far(probe), t_restore)
             recoveries.append(max(q, s) - t_restore)
+            stale, answered = _stale_share(json_lines_so_far(unit_probe), t_cut, t_restore)
+            vehicle_stale.append((stale, answered))
             print(f"  outage {i + 1:2d}: {length:5.1f} s -> OCPs fresh at the fleet {recoveries[-1]:.2f} s after "
-                  f"the link returned (query {q - t_restore:.2f} s, publication {s - t_restore:.2f} s)")
+                  f"the link returned (query {q - t_restore:.2f} s, publication {s - t_restore:.2f} s); on the "
+                  f"vehicle {stale} of {answered} OCP queries stale during the outage")
             time.sleep(3.0)  # normal operation between outages
         dead = procs.dead()
         assert not dead, f"processes died: {dead}\n" + "\n".join(procs.tail(n) for n in dead)
@@ -149,6 +188,9 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
     print(f"  recovery over {len(recoveries)} outages: min {min(recoveries):.2f} s, median "
           f"{statistics.median(recoveries):.2f} s, p90 {qs[-1]:.2f} s, max {max(recoveries):.2f} s "
           f"(limit {RECOVERY_LIMIT_S:.0f} s)")
+    stale, answered = sum(a for a, _ in vehicle_stale), sum(b for _, b in vehicle_stale)
+    print(f"  on the vehicle during the outages: {stale} of {answered} OCP queries answered stale "
+          f"({100.0 * stale / max(answered, 1):.1f} %)")
     late = [(i + 1, round(r, 2)) for i, r in enumerate(recoveries) if r > RECOVERY_LIMIT_S]
     assert not late, f"OCPs fresh at the fleet later than {RECOVERY_LIMIT_S} s after outages {late}"
     return recoveries

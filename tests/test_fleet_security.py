@@ -260,13 +260,18 @@ os._exit(0)
 def test_native_json5_fleet_router_enforces_the_same_rules(native_fleet):
     import zenoh
 
-    from services.fleet_security import fleet_access_control
+    from services.fleet_security import apply_fleet_link_qos, fleet_access_control
 
     # the file's access control is the one `soilocp router` builds (both read back through Zenoh)
     built = zenoh.Config()
     built.insert_json5("access_control", json.dumps(fleet_access_control(["rover1", "rover2"], ["dashboard"])))
     native = zenoh.Config.from_file(str(NATIVE_SECURE))
     assert json.loads(native.get_json("access_control")) == json.loads(built.get_json("access_control"))
+    # and both native secure routers carry the "fleet links never block" rule `soilocp router` sets
+    apply_fleet_link_qos(built)
+    for name in ("fleet-router-secure.json5", "vehicle-router-secure.json5"):
+        native = zenoh.Config.from_file(str(NATIVE_SECURE.parent / name))
+        assert json.loads(native.get_json("qos/network")) == json.loads(built.get_json("qos/network")), name
     _check_refusals(native_fleet, with_cli=False)
     _check_vehicle_confined(native_fleet)
     _check_tools_read_only(native_fleet)
