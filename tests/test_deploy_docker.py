@@ -12,7 +12,8 @@ vehicles' OCPs with scripts/ocp_probe.py:
 3. rover1's observer container is killed: rover1's OCPs go stale while rover2's stay fresh;
    started again, rover1's OCPs resume;
 4. rover1's router is disconnected from the fleet network: the fleet sees rover1's liveliness
-   tokens disappear (rover2's stay); reconnected, they come back and rover1's OCPs flow again.
+   tokens disappear (rover2's stay); reconnected, they come back and rover1's OCPs flow again
+   (asserted).
 
 Image build time and every recovery time are measured and printed. The project is always torn
 down (`down -v --remove-orphans`) in a finally.  OCP records must never arrive corrupted or out
@@ -301,16 +302,13 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
         fleet.wait("rover1's liveliness back at the fleet",
                    lambda recs: len(_present_tokens(recs, "rover1")) == len(SERVICES), 120)
         times["rover1 liveliness back after reconnect"] = time.time() - t_join
-        # Whether rover1's OCPs reach the fleet again is measured and printed here; the assertion
-        # over many long outages is tests/test_fleet_outage_netns.py.
-        ocp_back = lambda recs: any(r["kind"] == "sample" and r["vid"] == "rover1" and r["t"] > t_join + 1.0
-                                    for r in recs) and fresh("rover1", t_join + 1.0)(recs)
-        deadline = time.time() + 60
-        while time.time() < deadline and not ocp_back(fleet.records()):
-            time.sleep(0.25)
-        ocp_resumed = ocp_back(fleet.records())
-        if ocp_resumed:
-            times["rover1 OCPs at the fleet after reconnect"] = time.time() - t_join
+        # ... and its OCPs flow again: publications and fresh query answers after the reconnect
+        # (the long-outage fixes, docs/deploy.md "Long fleet outages"; many outages in a row:
+        # tests/test_fleet_outage_netns.py)
+        fleet.wait("rover1's OCPs at the fleet again after the reconnect",
+                   lambda recs: any(r["kind"] == "sample" and r["vid"] == "rover1" and r["t"] > t_join + 1.0
+                                    for r in recs) and fresh("rover1", t_join + 1.0)(recs), 60)
+        times["rover1 OCPs at the fleet after reconnect"] = time.time() - t_join
         time.sleep(1.0)
         assert fleet.stop_probe() == 0
     finally:
@@ -331,9 +329,6 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
     print(f"  image build {image_build_seconds:.1f} s")
     for name, value in times.items():
         print(f"  {name}: {value:.2f} s")
-    if not ocp_resumed:
-        print("  rover1's OCPs did NOT reach the fleet within 60 s of the reconnect although its liveliness "
-              "tokens were back (docs/deploy.md, 'Long fleet outages')")
     if not has_dashboard:
         print("  dashboard: the image's soilocp has no 'dashboard' command: not checked")
 

@@ -188,6 +188,13 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
     print(f"  recovery over {len(recoveries)} outages: min {min(recoveries):.2f} s, median "
           f"{statistics.median(recoveries):.2f} s, p90 {qs[-1]:.2f} s, max {max(recoveries):.2f} s "
           f"(limit {RECOVERY_LIMIT_S:.0f} s)")
+    counts = [(float(t), int(n)) for t, n in (line.split()[:2] for line in
+              (tmp_path / "recorder.log").read_text().splitlines() if line[:1].isdigit())]
+    rates = sorted((n1 - n0) / (t1 - t0) for (t0, n0), (t1, n1) in zip(counts, counts[1:]) if n1 > n0)
+    median_rate = statistics.median(rates) if rates else 0.0
+    print(f"  fleet recorder: {counts[-1][1]} messages of {VID}, {median_rate:.0f}/s while the link was up")
+    # the point of the recorder: the fleet link carried enough to fill its queue during a cut
+    assert median_rate > 100, f"the recorder received {median_rate:.0f} messages/s: the fleet link was not loaded"
     stale, answered = sum(a for a, _ in vehicle_stale), sum(b for _, b in vehicle_stale)
     print(f"  on the vehicle during the outages: {stale} of {answered} OCP queries answered stale "
           f"({100.0 * stale / max(answered, 1):.1f} %)")
