@@ -59,6 +59,7 @@ class ObserverOutput(_Message):
     ground_speed_measured: bool = Field(
         default=True, description="False: the sample had no independent ground speed (then slip and K are not identifiable)"
     )
+    specific_force_x: float = Field(default=0.0, description="The sample's accelerometer f_x, m/s^2 (eq. 29's V_x dot)")
     yaw_rate: float = Field(description="Filtered yaw rate, rad/s")
     normal_force: Quad = Field(description="F_z used in this step, N")
     mu_determined: BoolQuad = Field(
