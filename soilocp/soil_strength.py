@@ -437,7 +437,7 @@ class SoilBank:
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             sys = math.hypot(sys_scale, sys_radius)
             log_std = math.hypot(log_stat, sys)
-            # the accelerometer's check: a torque-based K its scale-free belief excludes is a scale error
+            # the accelerometer's check: a torque-based K that its scale-free belief excludes is a scale error
             k_net, _, log_net = self.grid.summary(np.cumsum(p_net[j]) - 0.5 * p_net[j])
             k_torque = k_med
             gap = abs(math.log(k_med / k_net))
@@ -446,6 +446,7 @@ class SoilBank:
             if disagree:  # report the band that holds both: their geometric middle, +-2 sigma reaching each
                 k_med = math.sqrt(k_med * k_net)
                 log_std = max(log_std, log_net) + gap / 4.0
+
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             if status == "uncertain" and sys > log_stat:
