@@ -113,10 +113,10 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed (or the ground speed, whichever is older) last changed
+    speed_age: np.ndarray  # s since the wheel's speed reading last changed
+    ground_speed_age: np.ndarray  # (k,) s since the ground speed reading last changed
     torque_age: np.ndarray  # s since the wheel's torque reading last changed
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
-    specific_force_x: np.ndarray  # (k,) the accelerometer's f_x of the sample, m/s^2 (sum mu_i Fz_i / m, eq. 29)
 
 
 def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
@@ -319,9 +319,9 @@ class ObserverBank:
                 self._reset(ix, rows, x, P, inputs, reasons, why)
         self.x[ix], self.P[ix] = x, P
         self.last_stamp[ix] = inputs.stamp
-        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), inputs.specific_force_x)
+        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed))
 
-    def _output(self, x, P, fz, rejected, reasons, age, measured, f_x) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age, measured) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
         res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
@@ -350,8 +350,8 @@ class ObserverBank:
             reset=np.array([bool(r) for r in reasons]),
             reset_reason=reasons,
             normal_force=fz,
-            speed_age=np.maximum(age[:, :4], age[:, 4:5]),
+            speed_age=age[:, :4],
+            ground_speed_age=age[:, 4],
             torque_age=age[:, 5:9],
             ground_speed_measured=measured,
-            specific_force_x=f_x,
         )

@@ -134,7 +134,8 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
         speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
-        ground_speed_measured=bool(out.ground_speed_measured[j]), specific_force_x=float(out.specific_force_x[j]),
+        ground_speed_age=float(out.ground_speed_age[j]),
+        ground_speed_measured=bool(out.ground_speed_measured[j]),
     )
 
 
@@ -167,7 +168,6 @@ class SoilInputs:
     gate_sigma: np.ndarray
     held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
-    net_force: tuple  # (f_x (k,), Fz_i / m (k, 4), valid (k,)): the accelerometer's scale-free view (eq. 29)
 
 
 class SlipGate:
@@ -211,15 +211,13 @@ class SlipGate:
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        held = (ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+        held = ((ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+                | (ob.ground_speed_age > cfg.soil.max_input_age)[:, None])
         measured = ob.ground_speed_measured
         # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
         # samples repeat one measurement: K learns from the samples that bring a new one
         fresh = ob.speed_age <= cfg.soil.fresh_age
-        net = (ob.specific_force_x, ob.normal_force / cfg.vehicle.mass,
-               (scale >= cfg.slip_deadband).all(axis=1) & measured & ~ob.reset & fresh.all(axis=1))
-        return SoilInputs(slip, informative & measured[:, None] & fresh, observed, var, s_sig, lp, g_sig, held, measured,
-                          net)
+        return SoilInputs(slip, informative & measured[:, None] & fresh, observed, var, s_sig, lp, g_sig, held, measured)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -251,15 +249,14 @@ class SoilStage:
             yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
             reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
             speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
+            ground_speed_age=np.array([obs.ground_speed_age]),
             ground_speed_measured=np.array([obs.ground_speed_measured]),
-            specific_force_x=np.array([obs.specific_force_x]),
         )
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
-                                  inp.net_force)[0]
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])

@@ -466,7 +466,9 @@ class _Run:
         x = [2.0 * a - b for a, b in zip(x0, self.prev)]  # linear predictor
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
-        Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz = ([0.0] * 4 for _ in range(10))
+        Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz, cv = ([0.0] * 4 for _ in range(11))
+        # skid steer: the two wheels of a side are chained to one motor (one speed per side)
+        units = ((0, 1), (2, 3)) if v.drive == "per_side" else ((0,), (1,), (2,), (3,))
         hkp, hR, inv_h = h * kp, h * R, 1.0 / h
         for it in range(par.newton_max_iter):
             V, r = x[4], x[5]
@@ -535,18 +537,27 @@ class _Run:
                 eVr += dFr
                 eRV += yi * dFV
                 eRr += yi * dFr
-                q = -h * ai * sw * invi  # CV_i / Dw_i  (and Cr_i = -CV_i y_i)
-                a11c += q * bvi
-                a12c += q * bri
-                a21c -= q * yi * bvi
-                a22c -= q * yi * bri
-                b1c += q * fwi
-                b2c -= q * yi * fwi
+                cv[i] = -h * ai * sw  # CV_i: the body row's d/d omega_i (and Cr_i = -CV_i y_i)
                 fx = mu * fzi
                 sum_fx += fx
                 sum_yfx += yi * fx
                 Fw[i], BV[i], Br[i], inv[i] = fwi, bvi, bri, invi
                 gs[i], mus[i], tq[i], traw[i], ss[i], fz[i] = g, mu, T, tr, s, fzi
+            # eliminate the wheel rows: each wheel (or, skid steer, each side's chained pair: one speed,
+            # the pair's rows summed) couples to the body rows through CV / D
+            for u in units:
+                d_u = sum(1.0 / inv[i] for i in u)
+                f_u, bv_u, br_u = sum(Fw[i] for i in u), sum(BV[i] for i in u), sum(Br[i] for i in u)
+                q = sum(cv[i] for i in u) / d_u
+                yu = ys[u[0]]
+                a11c += q * bv_u
+                a12c += q * br_u
+                a21c -= q * yu * bv_u
+                a22c -= q * yu * br_u
+                b1c += q * f_u
+                b2c -= q * yu * f_u
+                for i in u:
+                    Fw[i], BV[i], Br[i], inv[i] = f_u, bv_u, br_u, 1.0 / d_u
             th = math.tanh(r / eps)
             FV = m * (V - V0) - h * (sum_fx - m * gx)
             if load:  # draft opposing the motion, implicit like the rest of the body row

@@ -76,13 +76,6 @@ class SoilConfig(BaseModel):
         0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
         "(a held reading from a slow driver is not a measurement, method-notes §13)"
     )
-    net_force_sigma: float = Field(
-        0.15, gt=0, description="1-sigma of the accelerometer's f_x against sum mu_i Fz_i / m (noise, vibration, "
-        "lateral and yaw resistance), m/s^2"
-    )
-    net_informative_log_sigma: float = Field(
-        0.3, gt=0, description="The accelerometer's own K belief is used as a check once its ln K 1-sigma is below this"
-    )
     fresh_age: float = Field(
         0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
     )
@@ -312,20 +305,16 @@ class SoilBank:
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
         self.stats = np.zeros((n, 5))
-        # the accelerometer's view (eq. 29): sum_i mu(S_i, K) Fz_i / m = f_x needs no torque, wheel radius
-        # or mass, so its own belief over ln K checks the torque-based one for scale errors
-        self.net_grid = LogKGrid(constants, cfg.model_copy(update={"measurement": "net"}))
-        self.p_net = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
+
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None, held=None, identifiable=None, net_force=None) -> list[SoilState]:
+               gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
         ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw);
         ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now);
-        ``identifiable`` (k,) bool: False when the sample has no independent ground speed;
-        ``net_force``: (f_x (k,) m/s^2, Fz_i / m (k, 4) m/s^2, valid (k,) bool), the accelerometer's check."""
+        ``identifiable`` (k,) bool: False when the sample has no independent ground speed."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -347,10 +336,8 @@ class SoilBank:
         with np.errstate(invalid="ignore"):
             dt = stamp - last
             pred = ~np.isnan(last) & (dt > 0)
-        p_net = self.p_net[ix]
         if pred.any():
             p[pred] = self.grid.predict(p[pred], dt[pred])
-            p_net[pred] = self.grid.predict(p_net[pred], dt[pred])
         self.last_stamp[ix] = stamp
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
@@ -375,33 +362,9 @@ class SoilBank:
             p[rows] = post[ok] / total[ok][:, None]
             info[rows] = True
             self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
-        if net_force is not None:
-            self._net_update(p_net, net_force, slip, s_sig, use.any(axis=1))
-        self.p[ix], self.p_net[ix] = p, p_net
+        self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, p_net, info, use, gated & ~determined, gated & held, ident, stats)
-
-    def _net_update(self, p_net, net_force, slip, s_sig, informative) -> None:
-        """The accelerometer's likelihood of ln K (eq. 29 with eq. 6): f_x ~ sum_i mu(S_i, K) Fz_i / m, at
-        the samples where the torque-based update runs too (informative slip, every wheel moving)."""
-        cfg = self.cfg
-        f_x, w, valid = (np.asarray(a) for a in net_force)
-        rows = np.flatnonzero(valid & informative)
-        if rows.size == 0:
-            return
-        m = rows.size
-        h, dh = self.net_grid.curve(slip[rows].reshape(-1, 1))
-        h, dh = h.reshape(m, 4, -1), dh.reshape(m, 4, -1)
-        wr = w[rows][:, :, None]
-        pred = (h * wr).sum(axis=1)
-        var = cfg.net_force_sigma**2 + ((dh * wr * s_sig[rows][:, :, None]) ** 2).sum(axis=1) \
-            + (cfg.model_sigma * w[rows].sum(axis=1))[:, None] ** 2
-        like = (1 - cfg.outlier_prob) * np.exp(-0.5 * (f_x[rows][:, None] - pred) ** 2 / var) / np.sqrt(var) + cfg.outlier_prob
-        loglike = np.log(like) * cfg.temper
-        post = p_net[rows] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
-        total = post.sum(axis=1)
-        ok = (total > 0) & np.isfinite(total)
-        p_net[rows[ok]] = post[ok] / total[ok][:, None]
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
 
     def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
@@ -422,7 +385,7 @@ class SoilBank:
         np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
         np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
 
-    def _summaries(self, ix, stamp, p, p_net, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
         out = []
@@ -437,15 +400,6 @@ class SoilBank:
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             sys = math.hypot(sys_scale, sys_radius)
             log_std = math.hypot(log_stat, sys)
-            # the accelerometer's check: a torque-based K its scale-free belief excludes is a scale error
-            k_net, _, log_net = self.grid.summary(np.cumsum(p_net[j]) - 0.5 * p_net[j])
-            k_torque = k_med
-            gap = abs(math.log(k_med / k_net))
-            disagree = (log_net < cfg.net_informative_log_sigma and evidence >= cfg.mismatch_min_evidence
-                        and gap > 2.0 * math.hypot(log_std, log_net))
-            if disagree:  # report the band that holds both: their geometric middle, +-2 sigma reaching each
-                k_med = math.sqrt(k_med * k_net)
-                log_std = max(log_std, log_net) + gap / 4.0
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             if status == "uncertain" and sys > log_stat:
@@ -456,10 +410,6 @@ class SoilBank:
                 status = "not_observable"
                 reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
                           "with it; wheel odometry cannot stand in)")
-            elif rk is not None and disagree:
-                status = "model_mismatch"
-                reason = (f"the wheel torques and the accelerometer disagree on K ({k_torque:.0f} "
-                          f"vs {k_net:.0f}): torque scale, wheel radius or vehicle mass off? the band holds both")
             elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
