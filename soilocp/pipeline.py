@@ -183,6 +183,7 @@ class SlipGate:
         self._lp_stamp = np.full(n_vehicles, np.nan)
         # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
         self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
 
     def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
         """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
@@ -217,7 +218,9 @@ class SlipGate:
         # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
         # samples repeat one measurement: K learns from the samples that bring a new one
         fresh = ob.speed_age <= cfg.soil.fresh_age
-        return SoilInputs(slip, informative & measured[:, None] & fresh, observed, var, s_sig, lp, g_sig, held, measured)
+        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        return SoilInputs(slip, informative & measured[:, None] & fresh & loaded, observed, var, s_sig, lp, g_sig, held,
+                          measured)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,

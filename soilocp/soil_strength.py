@@ -76,6 +76,10 @@ class SoilConfig(BaseModel):
         0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
         "(a held reading from a slow driver is not a measurement, method-notes §13)"
     )
+    min_load_fraction: float = Field(
+        0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
+        "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
+    )
     fresh_age: float = Field(
         0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
     )
@@ -331,7 +335,10 @@ class SoilBank:
                 raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
         g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
         g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
-        gated = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+        # the gate decides on the smoothed slip (no selection bias from noise), but the slip the curve
+        # is evaluated at must itself be away from zero: a fast reversal leaves the smoothed slip behind
+        gated = (_gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+                 & (np.abs(slip) >= 0.5 * cfg.slip_min))
         # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
