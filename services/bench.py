@@ -256,6 +256,18 @@ def render(report: dict[str, Any], console) -> None:
                   _f(HOPS[row["pipeline"]] / 2 * b["p50"]))
     console.print(t)
 
+    from .bench_compare import NOT_PIPELINE, pipeline_rss_mib
+
+    for row in report["latency"]:  # memory of the processes, one vehicle at 100 Hz
+        if row["rate_hz"] != 100.0 or not row.get("processes"):
+            continue
+        pr = row["processes"]
+        each = " ".join(f"{n}={_f(v.get('rss_mib'), '.0f')}/{_f(v.get('pss_mib'), '.0f')}" for n, v in pr.items()
+                        if n not in NOT_PIPELINE)
+        console.print(f"memory, {row['pipeline']} pipeline, MiB RSS/PSS per process: {each}; in all RSS "
+                      f"{_f(pipeline_rss_mib(pr), '.0f')} (target <= {TARGETS['rss_mib_total']:.0f}), PSS "
+                      f"{_f(pipeline_rss_mib(pr, 'pss_mib'), '.0f')} (shared pages counted once)")
+
     cl = report.get("control_loop")
     if cl:
         console.print("5. control loop, sample -> slip set-point (pipeline + controller service, 100 Hz), ms: "

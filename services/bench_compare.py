@@ -26,9 +26,10 @@ def _num(x: Any) -> Optional[float]:
     return x if math.isfinite(x) else None
 
 
-def pipeline_rss_mib(processes: dict[str, Any]) -> Optional[float]:
-    """Resident memory of a pipeline's processes (router + services) in all, MiB."""
-    vals = [_num(v.get("rss_mib")) for n, v in processes.items() if n not in NOT_PIPELINE]
+def pipeline_rss_mib(processes: dict[str, Any], field: str = "rss_mib") -> Optional[float]:
+    """Resident memory of a pipeline's processes (router + services) in all, MiB (``field``
+    "pss_mib": proportional set size, shared pages counted once)."""
+    vals = [_num(v.get(field)) for n, v in processes.items() if n not in NOT_PIPELINE]
     vals = [v for v in vals if v is not None]
     return sum(vals) if vals else None
 
@@ -52,7 +53,9 @@ def figures(report: dict[str, Any]) -> dict[str, tuple[Optional[float], str]]:
         out[f"latency {tag} drops"] = (_num(r.get("drops")), LOWER)
         out[f"ping-pong {tag} p50, ms"] = (_num((row.get("baseline") or {}).get("p50")), LOWER)
         if row["rate_hz"] == 100.0:
-            out[f"RSS {row['pipeline']} router + services, MiB"] = (pipeline_rss_mib(row.get("processes") or {}), LOWER)
+            procs = row.get("processes") or {}
+            out[f"RSS {row['pipeline']} router + services, MiB"] = (pipeline_rss_mib(procs), LOWER)
+            out[f"PSS {row['pipeline']} router + services, MiB"] = (pipeline_rss_mib(procs, "pss_mib"), LOWER)
     cl = report.get("control_loop") or {}
     if "error" not in cl:
         out["control loop p50, ms"] = (_num(cl.get("p50")), LOWER)

@@ -66,6 +66,20 @@ def proc_rss_mib(pid: int) -> Optional[float]:
     return None
 
 
+def proc_pss_mib(pid: int) -> Optional[float]:
+    """Proportional set size of ``pid`` in MiB (Pss of /proc/<pid>/smaps_rollup): its resident pages,
+    each shared page divided by the number of processes mapping it.  The sum over processes is what
+    they take together; the sum of RSS counts the shared libraries (numpy's OpenBLAS, Zenoh) once
+    per process.  None if unavailable."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 class CpuWindow:
     """CPU use (% of one core) and RSS of named processes over a measurement window."""
 
@@ -80,7 +94,7 @@ class CpuWindow:
         for n, p in self.pids.items():
             c1, c0 = proc_cpu_seconds(p), self.c0.get(n)
             cpu = None if c1 is None or c0 is None else 100.0 * (c1 - c0) / wall
-            out[n] = {"pid": p, "cpu_percent": cpu, "rss_mib": proc_rss_mib(p)}
+            out[n] = {"pid": p, "cpu_percent": cpu, "rss_mib": proc_rss_mib(p), "pss_mib": proc_pss_mib(p)}
         return out
 
 

@@ -14,7 +14,7 @@ import time
 import pytest
 
 from services.bench import json_safe, verdict
-from services.bench_live import proc_cpu_seconds, proc_rss_mib
+from services.bench_live import proc_cpu_seconds, proc_pss_mib, proc_rss_mib
 from services.bench_stages import STAGES, summarize
 
 PIPELINE_PROCS = {"standard": {"router", "gateway", "normal-force", "observer", "soil-strength", "ocp"},
@@ -41,6 +41,8 @@ def test_proc_readers_see_this_process():
         x += 1
     assert proc_cpu_seconds(os.getpid()) - t0 >= 0.1
     assert proc_rss_mib(os.getpid()) > 10.0
+    pss = proc_pss_mib(os.getpid())
+    assert pss is None or 0.0 < pss <= proc_rss_mib(os.getpid()) + 1.0  # shared pages count a share
     assert proc_cpu_seconds(2**22 + 12345) is None  # no such pid
 
 
@@ -141,3 +143,20 @@ def test_compare_cli_renders_saved_reports_and_rejects_a_bad_baseline(tmp_path):
     assert "before / after" in r.stdout and "stage total CPU median, us" in r.stdout and "4.00" in r.stdout
     r = subprocess.run(cmd + [str(bad)], capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "is not a bench report" in r.stderr
+
+
+@pytest.mark.parametrize("argv", [["service", "observer"], ["router"]])
+def test_process_commands_load_no_heavy_module(argv):
+    """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
+    register only the services area's commands, and a stage service loads no scipy / rich /
+    matplotlib / filterpy (the cli with any other command still registers every area)."""
+    code = ("import sys; sys.argv = ['soilocp', *sys.argv[1:]]; import soilocp.cli as cli, services.observer; "
+            "heavy = sorted(m for m in ('scipy', 'rich', 'matplotlib', 'filterpy') if m in sys.modules); "
+            "print(heavy, sorted(cli.main.commands))")
+    r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    heavy, commands = r.stdout.strip().split("] [")
+    assert heavy == "[", r.stdout
+    assert "'service'" in commands and "'router'" in commands and "'estimate'" not in commands
+    r = subprocess.run([sys.executable, "-c", code, "estimate"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "'estimate'" in r.stdout and "'bench'" in r.stdout, r.stdout + r.stderr
