@@ -110,6 +110,10 @@ class Rig:
     log_dir: Optional[Path] = None
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     endpoint: str = ""
+    #: "client": every service a client of the router (each hop client -> router -> client);
+    #: "peer": the services are peers that also listen on an ephemeral loopback port, so that
+    #: they link to each other directly (the router only introduces them) - issue 11's hops
+    links: str = "client"
 
     @staticmethod
     def standard(vehicle_ids: list[str]) -> "Rig":
@@ -142,6 +146,10 @@ class Rig:
         self._spawn("router", ["-m", "soilocp.cli", "router", "--listen", self.endpoint], env)
         senv = dict(env, SOILOCP_VEHICLE_ID=",".join(self.vehicle_ids), SOILOCP_CONNECT=self.endpoint,
                     SOILOCP_LOG_LEVEL="warning")
+        if self.links == "peer":
+            senv.update(SOILOCP_MODE="peer", SOILOCP_LISTEN="tcp/127.0.0.1:0")
+        elif self.links != "client":
+            raise ValueError(f"links {self.links!r}: must be 'client' or 'peer'")
         for name, argv in self.services:
             self._spawn(name, argv, senv)
         self._spawn("echo", ["-m", "services.bench_echo", "--connect", self.endpoint], env)
