@@ -237,8 +237,11 @@ def _sleep_until(t: float) -> None:
 # ----------------------------------------------------------------------------------------------
 # baseline: ping-pong through the router
 # ----------------------------------------------------------------------------------------------
-def ping_pong(session, rate: float, duration: float, payload_size: int = 400) -> dict[str, Any]:
-    """Round trip bench -> router -> echo -> router -> bench, paced at ``rate`` Hz; ms stats."""
+def ping_pong(session, rate: float, duration: float, payload_size: int = 400, *, express: bool = False,
+              shm_provider=None) -> dict[str, Any]:
+    """Round trip bench -> router -> echo -> router -> bench, paced at ``rate`` Hz; ms stats.
+    ``express``: no batching on the ping publisher; ``shm_provider``: put each ping from a
+    zenoh shared-memory buffer (``services.bench_transport`` compares the options)."""
     import zenoh
 
     n = max(1, int(round(rate * duration)))
@@ -246,6 +249,13 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
     got: dict[int, float] = {}
     lock = threading.Lock()
     pad = b" " * max(0, payload_size - 30)
+
+    def _payload(body: bytes):
+        if shm_provider is None:
+            return body
+        buf = shm_provider.alloc(len(body), zenoh.shm.BlockOn(zenoh.shm.GarbageCollect()))
+        buf[0:len(body)] = body
+        return buf
 
     def _pong(sample) -> None:
         t = time.perf_counter()
@@ -255,12 +265,12 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
                 got[int(m.group(1))] = t
 
     sub = session.declare_subscriber(PONG_KEY, _pong)
-    pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+    pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK, express=express)
     try:
         # warm the path (and wait for the echo's subscription to be known to the router)
         deadline = time.monotonic() + 10.0
         while not got and time.monotonic() < deadline:
-            pub.put(b'{"seq":' + b"0" + b"}")
+            pub.put(_payload(b'{"seq":' + b"0" + b"}"))
             time.sleep(0.05)
         got.clear()
         t0 = time.perf_counter() + 0.01
@@ -268,7 +278,7 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
             _sleep_until(due)
             seq = k + 1
             sent[seq] = time.perf_counter()
-            pub.put(b'{"seq":' + str(seq).encode() + b"}" + pad)
+            pub.put(_payload(b'{"seq":' + str(seq).encode() + b"}" + pad))
         _wait_all(lambda: len(got) >= len(sent), 2.0)
     finally:
         sub.undeclare()

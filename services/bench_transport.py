@@ -31,8 +31,7 @@ import time
 from typing import Any
 
 from .bench_echo import PING_KEY, PONG_KEY
-from .bench_live import _SEQ_RE, _paced, _sleep_until, free_port
-from .bench_stages import summarize
+from .bench_live import free_port, ping_pong
 
 VARIANTS = ("client-router", "client-router-express", "peer-direct", "peer-direct-lowlatency", "peer-direct-shm")
 
@@ -98,59 +97,6 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def _ping(session, rate: float, duration: float, payload_size: int, express: bool, shm_provider=None):
-    import zenoh
-
-    n = max(1, int(round(rate * duration)))
-    sent: dict[int, float] = {}
-    got: dict[int, float] = {}
-    lock = threading.Lock()
-
-    def _pong(sample) -> None:
-        t = time.perf_counter()
-        m = _SEQ_RE.search(sample.payload.to_bytes())
-        if m:
-            with lock:
-                got[int(m.group(1))] = t
-
-    def _payload(seq: int):
-        body = b'{"seq":' + str(seq).encode() + b"}"
-        body += b" " * max(0, payload_size - len(body))
-        if shm_provider is None:
-            return body
-        buf = shm_provider.alloc(len(body), zenoh.shm.BlockOn(zenoh.shm.GarbageCollect()))
-        buf[0:len(body)] = body
-        return buf
-
-    sub = session.declare_subscriber(PONG_KEY, _pong)
-    pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK, express=express)
-    try:
-        deadline = time.monotonic() + 10.0
-        while not got and time.monotonic() < deadline:  # until the echo's subscription is known
-            pub.put(_payload(0))
-            time.sleep(0.05)
-        if not got:
-            raise RuntimeError("no pong within 10 s")
-        got.clear()
-        t0 = time.perf_counter() + 0.01
-        for k, _i, due in _paced(1, n, rate, t0):
-            _sleep_until(due)
-            seq = k + 1
-            sent[seq] = time.perf_counter()
-            pub.put(_payload(seq))
-        end = time.monotonic() + 2.0
-        while len(got) < len(sent) and time.monotonic() < end:
-            time.sleep(0.01)
-    finally:
-        sub.undeclare()
-        pub.undeclare()
-    with lock:
-        rtt = [(got[s] - t) * 1e3 for s, t in sent.items() if s in got]
-    st = summarize(rtt)
-    st.update(sent=len(sent), lost=len(sent) - len(rtt), rate_hz=rate)
-    return st
-
-
 def measure(variant: str, rates=(100.0, 1000.0), duration: float = 3.0, payload_size: int = 1000) -> dict[str, Any]:
     """Ping-pong statistics of one variant at each rate (ms); ``error`` if it cannot run here."""
     import zenoh
@@ -175,7 +121,12 @@ def measure(variant: str, rates=(100.0, 1000.0), duration: float = 3.0, payload_
         with zenoh.open(conf) as session:
             if shm:
                 provider = zenoh.shm.ShmProvider.default_backend(1 << 20)
-            out = {f"{r:.0f}": _ping(session, r, duration, payload_size, express, provider) for r in rates}
+            out = {}
+            for r in rates:
+                st = ping_pong(session, r, duration, payload_size, express=express, shm_provider=provider)
+                if st["lost"] == st["sent"]:
+                    raise RuntimeError(f"no pong at {r:.0f} Hz")
+                out[f"{r:.0f}"] = st
         return {"variant": variant, "payload_bytes": payload_size, "rates": out}
     except Exception as exc:  # a variant this build cannot run is reported, not fatal
         return {"variant": variant, "error": f"{type(exc).__name__}: {exc}"}
