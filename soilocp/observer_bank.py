@@ -356,10 +356,10 @@ class ObserverBank:
         # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
         # wheel torque balance even when the net / resistance split is not: method-notes §12)
         J = np.zeros((k, 4, L.n))
-        J[:, :, L.mu] = np.eye(4)
+        J[:, :, L.mu] = _eye(4)
         if L.n_res:
             J[:, :, L.res] = M
-        dg = np.arange(L.n)
+        dg = _arange(L.n)
         mu_var = P[:, dg, dg][:, L.mu]
         mu = x[:, L.mu]
         return ObserverBankOutput(
