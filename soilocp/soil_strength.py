@@ -105,12 +105,20 @@ class SoilState:
     used: tuple[bool, bool, bool, bool]
 
 
+_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
+
+
 def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
     """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours)."""
-    names = list(constants.soils)
-    logs = np.log([constants.soils[n] for n in names])
-    edges = np.concatenate([[-np.inf], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
-    return names, edges
+    key = tuple(constants.soils.items())
+    hit = _CLASS_BOUNDS.get(key)
+    if hit is None:
+        names = list(constants.soils)
+        logs = np.log([constants.soils[n] for n in names])
+        edges = np.concatenate([[-np.inf], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges.flags.writeable = False
+        hit = _CLASS_BOUNDS[key] = (names, edges)
+    return list(hit[0]), hit[1]
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
