@@ -42,6 +42,7 @@ RUN set -eu; \
     if ls /tmp/wheelhouse/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /tmp/wheelhouse"; else offline=""; fi; \
     pip install $offline /tmp/src; \
     mkdir -p /etc/soilocp; \
+    install -d -o soilocp -g soilocp -m 0700 /etc/soilocp/certs; \
     mv /tmp/src/*.json /tmp/src/*.json5 /etc/soilocp/; \
     { echo '#!/opt/soilocp/bin/python3'; tail -n +2 /tmp/src/healthcheck.py; } > /usr/local/bin/soilocp-healthcheck; \
     chmod 0755 /usr/local/bin/soilocp-healthcheck; \

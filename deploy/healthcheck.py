@@ -90,6 +90,10 @@ def _client_config(connect: list[str], timeout_ms: int):
     conf.insert_json5("connect/endpoints", json.dumps(connect))
     conf.insert_json5("connect/timeout_ms", str(int(timeout_ms)))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if any(ep.startswith("tls/") for ep in connect):  # the secure fleet router: the container's own certificate
+        from services.fleet_security import apply_tls, check_client_tls
+
+        apply_tls(conf, check_client_tls(connect), listener=False)
     return conf
 
 

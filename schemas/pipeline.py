@@ -66,7 +66,8 @@ class ObserverOutput(_Message):
         description="Per wheel: the data determine mu (posterior 1-sigma small). False: the net / resistance split is "
         "carried by the model's assumptions only (e.g. a traction test with mirrored slips): do not use mu",
     )
-    speed_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's (or the ground) speed reading last changed")
+    speed_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's speed reading last changed")
+    ground_speed_age: float = Field(default=0.0, description="s since the ground speed reading last changed")
     torque_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's torque reading last changed")
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")

@@ -24,6 +24,7 @@ die() { echo "netns-vehicle: $*" >&2; exit 2; }
 cmd="$1"; id="$2"; shift 2
 [[ "$id" =~ ^[a-z0-9]{1,6}$ ]] || die "RUN_ID '$id' must be 1-6 characters [a-z0-9]"
 
+sysctl_conf="$(cd "$(dirname "$0")/.." && pwd)/deploy/sysctl/90-soilocp.conf"
 ns_fleet="soilocp-$id-fleet"; ns_sense="soilocp-$id-sense"; ns_est="soilocp-$id-est"
 # veth ends: <unit-letter><id><peer-letter>, e.g. "sab12e" = on sense, towards est
 if_se="s${id}e"; if_es="e${id}s"; if_sf="s${id}f"; if_fs="f${id}s"
@@ -62,6 +63,11 @@ up() {
     ip -n "$ns_est"   addr add 10.99.1.2/24 dev "$if_es"
     ip -n "$ns_sense" addr add 10.99.2.1/24 dev "$if_sf"
     ip -n "$ns_fleet" addr add 10.99.2.2/24 dev "$if_fs"
+    # the kernel settings every host of a fleet gets (deploy/sysctl/90-soilocp.conf: a dead TCP
+    # connection is given up after ~12.6 s, so a router reconnects as soon as a long outage ends)
+    for ns in "$ns_fleet" "$ns_sense" "$ns_est"; do
+        ip netns exec "$ns" sysctl -q -p "$sysctl_conf" >/dev/null
+    done
     ip -n "$ns_sense" link set "$if_se" up
     ip -n "$ns_est"   link set "$if_es" up
     ip -n "$ns_sense" link set "$if_sf" up

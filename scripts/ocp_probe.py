@@ -4,7 +4,8 @@
     ocp_probe.py --connect tcp/10.99.1.2:7447 --vehicle rover1 [--vehicle rover2] \
                  [--period 0.1] [--duration 60] [--out FILE]
 
-Opens a Zenoh client session (waits for the router), then records, each line one JSON object
+Opens a Zenoh client session (waits for the router; for a ``tls/`` endpoint with the certificate
+named by SOILOCP_TLS_CA / SOILOCP_TLS_CERT / SOILOCP_TLS_KEY), then records, each line one JSON object
 with ``t`` (wall clock, s since the epoch):
 
 * ``{"kind": "sample", "vid", "seq", "stamp", "status"}`` for every OCP publication received on
@@ -43,6 +44,12 @@ def _config(connect: list[str]):
     conf.insert_json5("connect/endpoints", json.dumps(connect))
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router rather than fail
     conf.insert_json5("scouting/multicast/enabled", "false")
+    # a secure fleet router (tls/ endpoint) admits only certified tools: SOILOCP_TLS_CA/_CERT/_KEY
+    from services.fleet_security import apply_tls, check_client_tls
+
+    tls = check_client_tls(connect)
+    if tls is not None:
+        apply_tls(conf, tls, listener=False)
     return conf
 
 
@@ -99,7 +106,11 @@ def main(argv: list[str] | None = None) -> int:
               "present": sample.kind == zenoh.SampleKind.PUT})
 
     deadline = time.time() + args.duration
-    with zenoh.open(_config(args.connect)) as session:
+    try:
+        conf = _config(args.connect)
+    except ValueError as exc:  # TLS settings incomplete or unreadable
+        parser.error(str(exc))
+    with zenoh.open(conf) as session:
         subs = [session.declare_subscriber(keys.ocp(v), on_sample(v)) for v in vids]
         subs += [session.liveliness().declare_subscriber(keys.vehicle_alive_all(v), on_alive, history=True)
                  for v in vids]

@@ -232,7 +232,7 @@ COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
 
 #: Other command modules of the services area (fleet + dashboard, bench), each with its own
 #: ``COMMANDS`` list; registered here because ``soilocp.cli`` lists only this module.
-EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench", "services.record")
+EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench", "services.record", "services.certs_commands")
 
 
 def _register_extra() -> None:

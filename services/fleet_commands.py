@@ -151,8 +151,11 @@ def fleet_status_cmd(connect, timeout, watch, as_json) -> None:
     """One row per vehicle: services alive, K ± std, soil class, mu_T, S_T, S_E, freshness, rejections.
 
     Exit status 1 when no router or no vehicle answers within --timeout."""
+    from .fleet_security import check_client_tls
+
     try:
         eps = _endpoints(connect)
+        check_client_tls(eps)
         if not (timeout > 0):
             raise ValueError(f"--timeout {timeout!r}: must be > 0 s")
     except ValueError as exc:
@@ -174,8 +177,11 @@ def dashboard_cmd(port, host, connect, constants_path, poll) -> None:
 
     from .dashboard.app import DashboardHub, serve
 
+    from .fleet_security import check_client_tls
+
     try:
         eps = _endpoints(connect)
+        check_client_tls(eps)
         if not (poll > 0):
             raise ValueError(f"--poll {poll!r}: must be > 0 s")
         constants = load_constants(constants_path)

@@ -10,6 +10,9 @@ import os
 import threading
 from typing import Any, Optional
 
+from .fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
+                             apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
+                             tls_from_env)
 from .runtime import (DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, ConfigError, JsonLog,
                       _read_config_file, _split_list, check_endpoint, install_stop_handlers, watch_parent, zenoh_config)
 
@@ -22,7 +25,8 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
                     env: Optional[dict[str, str]] = None) -> dict[str, Any]:
     """listen/connect/multicast/log_level: defaults < file section ``router`` < env < command line."""
     env = dict(os.environ) if env is None else env
-    out: dict[str, Any] = {"listen": [DEFAULT_ENDPOINT], "connect": [], "multicast": False, "log_level": "info"}
+    out: dict[str, Any] = {"listen": [DEFAULT_ENDPOINT], "connect": [], "multicast": False, "log_level": "info",
+                           "tls": None, "access_control": None}
     path = config_path or env.get(ENV_CONFIG)
     if path:
         data = _read_config_file(path)
@@ -41,6 +45,7 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
         out["connect"] = _split_list(env[ENV_ROUTER_CONNECT])
     if env.get(ENV_LOG_LEVEL):
         out["log_level"] = env[ENV_LOG_LEVEL].strip().lower()
+    _security_settings(out, env)
     if listen:
         out["listen"] = list(listen)
     if connect:
@@ -55,9 +60,54 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
                 raise ConfigError(f"router setting {name}: {exc}") from None
     if not out["listen"]:
         raise ConfigError("router setting listen: at least one endpoint is needed")
+    tls_eps = [ep for ep in out["listen"] + out["connect"] if ep.startswith("tls/")]
+    if tls_eps and out["tls"] is None:
+        raise ConfigError(f"router endpoints {tls_eps} use TLS but no certificate is set: give router.tls "
+                          f"{{ca, cert, key}} in the config file or {ENV_TLS_CA}, {ENV_TLS_CERT}, {ENV_TLS_KEY}")
+    if out["access_control"] is not None and not any(ep.startswith("tls/") for ep in out["listen"]):
+        raise ConfigError(f"router: access control identifies vehicles and tools by their TLS certificate, but it "
+                          f"listens on {out['listen']} without tls/: every link would match no policy and be denied")
+    if out["tls"] is not None:
+        try:
+            out["tls"].check()
+        except ValueError as exc:
+            raise ConfigError(f"router: {exc}") from None
     if out["log_level"] not in ("debug", "info", "warning", "error"):
         raise ConfigError(f"log_level={out['log_level']!r}: must be debug, info, warning or error")
     return out
+
+
+def _security_settings(out: dict[str, Any], env: dict[str, str]) -> None:
+    """``tls`` {ca, cert, key} and ``access_control`` {vehicles, tools}: file < environment."""
+    section = out["tls"]
+    tls = None
+    if section is not None:
+        if not isinstance(section, dict) or set(section) != {"ca", "cert", "key"}:
+            raise ConfigError(f"router setting tls={section!r}: must be an object with exactly ca, cert and key (paths)")
+        tls = TlsFiles(str(section["ca"]), str(section["cert"]), str(section["key"]))
+    try:
+        tls = tls_from_env(env) or tls
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    out["tls"] = tls
+    acl = out["access_control"]
+    if acl is None and not env.get(ENV_FLEET_VEHICLES):
+        return
+    acl = dict(acl or {})
+    unknown = set(acl) - {"vehicles", "tools"}
+    if unknown:
+        raise ConfigError(f"router setting access_control: unknown key(s) {sorted(unknown)} (vehicles, tools)")
+    if env.get(ENV_FLEET_VEHICLES):
+        acl["vehicles"] = _split_list(env[ENV_FLEET_VEHICLES])
+    if env.get(ENV_FLEET_TOOLS):
+        acl["tools"] = _split_list(env[ENV_FLEET_TOOLS])
+    acl.setdefault("vehicles", [])
+    acl.setdefault("tools", ["dashboard"])
+    try:
+        fleet_access_control(acl["vehicles"], acl["tools"])
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"router setting access_control: {exc}") from None
+    out["access_control"] = {"vehicles": list(acl["vehicles"]), "tools": list(acl["tools"])}
 
 
 def run_router(settings: dict[str, Any]) -> int:
@@ -68,14 +118,22 @@ def run_router(settings: dict[str, Any]) -> int:
     stop = threading.Event()
     install_stop_handlers(stop, log)
     watch_parent(stop, log)
-    conf = zenoh_config("router", settings["connect"], settings["listen"], multicast=settings["multicast"])
+    conf = zenoh_config("router", settings["connect"], settings["listen"], multicast=settings["multicast"],
+                        tls_from_environment=False)
+    if settings.get("tls") is not None:
+        apply_tls(conf, settings["tls"], listener=any(ep.startswith("tls/") for ep in settings["listen"]))
+        apply_fleet_link_qos(conf)
+    if settings.get("access_control") is not None:
+        apply_access_control(conf, settings["access_control"]["vehicles"], settings["access_control"]["tools"])
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         raise ConfigError(f"router: cannot listen on {settings['listen']}: {str(exc).splitlines()[0][:200]}") from None
     try:
+        acl = settings.get("access_control")
         log.info("running", listen=settings["listen"], connect=settings["connect"], zid=str(session.zid()),
-                 pid=os.getpid())
+                 pid=os.getpid(), tls=settings.get("tls") is not None,
+                 access_control=None if acl is None else {"vehicles": acl["vehicles"], "tools": acl["tools"]})
         while not stop.wait(0.2):
             pass
     finally:

@@ -175,7 +175,8 @@ def load_service_config(
 
 
 def zenoh_config(
-    mode: str, connect: list[str], listen: list[str], *, multicast: bool = False, connect_timeout_ms: Optional[int] = None
+    mode: str, connect: list[str], listen: list[str], *, multicast: bool = False, connect_timeout_ms: Optional[int] = None,
+    tls_from_environment: bool = True,
 ):
     """A ``zenoh.Config`` with explicit endpoints (multicast scouting off unless asked for)."""
     import zenoh
@@ -190,6 +191,22 @@ def zenoh_config(
     # After a lost link (router restarted), retry quickly: the default backoff grows to several
     # seconds, far longer than the stale timeout of the OCP output.
     conf.insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
+    # Links that leave a vehicle are tls/ (mutual TLS, docs/deploy.md): the certificate comes from
+    # SOILOCP_TLS_CA/_CERT/_KEY; plain tcp/ endpoints of the same process ignore it.
+    from .fleet_security import apply_tls, tls_from_env
+
+    if not tls_from_environment:  # the caller (the router) applies its own, file < environment
+        return conf
+    try:
+        tls = tls_from_env()
+        tls_eps = [ep for ep in [*connect, *listen] if ep.startswith("tls/")]
+        if tls_eps and tls is None:
+            raise ValueError(f"endpoints {tls_eps} use TLS but SOILOCP_TLS_CA, SOILOCP_TLS_CERT and "
+                             "SOILOCP_TLS_KEY are not set")
+        if tls is not None:
+            apply_tls(conf, tls, listener=any(ep.startswith("tls/") for ep in listen))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     return conf
 
 

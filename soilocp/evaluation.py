@@ -23,6 +23,11 @@ TARGETS = {
     "settle_s": 2.0,
 }
 
+#: Relative K error beyond which a number served with status "ok" counts as confidently wrong
+#: (issue 10: where K is not identifiable the output must say so "instead of a number more than
+#: 30 % off").
+UNFLAGGED_ERROR_REL = 0.30
+
 
 @dataclass
 class SegmentResult:
@@ -41,6 +46,13 @@ class SegmentResult:
     S_E_median_abs: Optional[float]
     class_accuracy: Optional[float]
     statuses: dict = field(default_factory=dict)
+    #: settled samples that report K and its std; share of them with |K - K_true| <= 2 std
+    band_samples: int = 0
+    band_coverage: Optional[float] = None
+    std_rel_median: Optional[float] = None  # median K_std / K over the settled samples that report both
+    std_rel: tuple = field(default=(), repr=False)  # those K_std / K values, to pool segments (not in the JSON)
+    #: settled samples with status "ok" and K more than UNFLAGGED_ERROR_REL off (a confident wrong number)
+    confident_wrong: int = 0
 
     def passes(self) -> dict[str, bool]:
         t = TARGETS
@@ -111,8 +123,14 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
             return float(v[(len(v) - 1) // 2]), float(v[min(int(np.ceil(0.9 * len(v))) - 1, len(v) - 1)])
 
         kmed, kp90 = med_p(rel_settled)
-        # convergence: first time after which the estimate stays inside the band to segment end
-        inside = np.isfinite(rel) & (rel <= TARGETS["convergence_band"])
+        # convergence: first time after which the estimate stays inside the band to segment end,
+        # where the end is the last sample with every wheel on this soil: the front wheels reach
+        # the next soil b/V s before the CoM, and an estimate that follows them is fast, not wrong
+        wheels_on = [all(abs(w - kt) <= 1e-9 * kt for w in t.get("wheel_soil_strength", (kt,))) for t, _ in seg]
+        n_judged = len(seg)
+        while n_judged > 1 and not wheels_on[n_judged - 1]:
+            n_judged -= 1
+        inside = (np.isfinite(rel) & (rel <= TARGETS["convergence_band"]))[:n_judged]
         conv = None
         if inside[-1]:
             outside = np.flatnonzero(~inside)
@@ -129,6 +147,15 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
                 else:
                     vals.append(abs(e[name] - t[name]))
             return float(np.median(vals)) if vals else None
+
+        # the reported band: 2 std around K, over the settled samples that report both
+        k_std = np.array([e["soil_strength_std"] if e and e.get("soil_strength_std") is not None else np.nan
+                          for _, e in seg])[settled]
+        k_set = k_est[settled]
+        banded = np.isfinite(k_set) & np.isfinite(k_std)
+        band_hits = np.abs(k_set[banded] - kt) <= 2.0 * k_std[banded]
+        status_ok = np.array([bool(e) and e["status"] == "ok" for _, e in seg])[settled]
+        confident_wrong = int(np.sum(status_ok & np.isfinite(rel_settled) & (rel_settled > UNFLAGGED_ERROR_REL)))
 
         cls_ok = [bool(e and e.get("soil_class") == t.get("soil_class")) for (t, e), ok in zip(seg, settled) if ok]
         results.append(
@@ -148,6 +175,11 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
                 S_E_median_abs=_fin(ocp_err("S_E")),
                 class_accuracy=float(np.mean(cls_ok)) if cls_ok else None,
                 statuses=statuses,
+                band_samples=int(banded.sum()),
+                band_coverage=float(band_hits.mean()) if band_hits.size else None,
+                std_rel_median=float(np.median(k_std[banded] / k_set[banded])) if banded.any() else None,
+                std_rel=tuple((k_std[banded] / k_set[banded]).tolist()),
+                confident_wrong=confident_wrong,
             )
         )
     return results
@@ -165,6 +197,7 @@ def results_as_json(results: Iterable[SegmentResult]) -> list[dict]:
     out = []
     for r in results:
         d = asdict(r)
+        d.pop("std_rel")
         d["passes"] = r.passes()
         out.append(d)
     return out

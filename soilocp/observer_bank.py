@@ -142,7 +142,8 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed (or the ground speed, whichever is older) last changed
+    speed_age: np.ndarray  # s since the wheel's speed reading last changed
+    ground_speed_age: np.ndarray  # (k,) s since the ground speed reading last changed
     torque_age: np.ndarray  # s since the wheel's torque reading last changed
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
 
@@ -178,28 +179,37 @@ def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.n
     return np.einsum("kij,kj->ki", F, x) + G, F @ P @ F.transpose(0, 2, 1) + Qd
 
 
+def outlier_variance(innov: np.ndarray, hph: np.ndarray, r: np.ndarray, gate_sigma: float, keep: np.ndarray):
+    """Measurement variance of each row for the update: R where the row passes its gate (``keep``);
+    for a row beyond it, the variance that puts its innovation exactly on the gate
+    (nu^2 / gate^2 - H P H^T, Huber's weighting): a sensor spike moves the state by at most a
+    gate's worth, and a model that is off (a traction change faster than the random walk) is
+    still followed, instead of coasting on a prediction that runs away."""
+    return np.where(keep, r, np.maximum(r, innov**2 / gate_sigma**2 - hph))
+
+
 def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: np.ndarray,
                  gate_sigma: float, counts: np.ndarray, patience: int, available: np.ndarray | None = None):
     """Kalman update (Joseph form) of x (k, n), P (k, n, n) by z (k, m) with diagonal R (k, m) and
-    H (k, m, n), each row gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)) unless it was
-    rejected ``patience`` times in a row.  Rows not ``available`` (k, m) (a held, not a new,
-    reading) take no part and count no rejection.  Returns x, P, the new rejection counts (k, m),
-    the normalised innovation squares nu_i^2 / S_ii (k, m) of the prior and the kept rows (k, m)."""
+    H (k, m, n).  Each row is gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)); a row beyond
+    it is down-weighted (:func:`outlier_variance`) unless it was beyond it ``patience`` times in a
+    row (then the model, not the sensor, is off: full weight again).  Rows not ``available`` (k, m)
+    (a held, not a new, reading) take no part and count nothing.  Returns x, P, the new counts
+    (k, m), the normalised innovation squares nu_i^2 / S_ii (k, m) of the prior and the rows taken
+    at full weight (k, m)."""
     innov = z - np.einsum("kij,kj->ki", H, x)
-    s = np.einsum("kij,kij->ki", H @ P, H) + r
-    nis = innov**2 / s
+    hph = np.einsum("kij,kij->ki", H @ P, H)
+    nis = innov**2 / (hph + r)
     keep = (nis <= gate_sigma**2) | (counts >= patience)
-    if available is not None:
-        counts = np.where(available, np.where(keep, 0, counts + 1), counts)
-        keep &= available
-    else:
-        counts = np.where(keep, 0, counts + 1)
-    upd = keep.any(axis=1)
+    avail = np.ones_like(keep) if available is None else available
+    counts = np.where(avail, np.where(keep, 0, counts + 1), counts)
+    keep &= avail
+    upd = avail.any(axis=1)
     if upd.any():
-        kp = keep[upd]
-        Hm = H[upd] * kp[:, :, None]
-        y = innov[upd] * kp
-        rm = np.where(kp, r[upd], 1.0)  # a gated row: zero H row and innovation, harmless R
+        av = avail[upd]
+        Hm = H[upd] * av[:, :, None]  # a row not available: zero H row and innovation, harmless R
+        y = innov[upd] * av
+        rm = np.where(av, outlier_variance(innov[upd], hph[upd], r[upd], gate_sigma, keep[upd]), 1.0)
         Pu = P[upd]
         PHT = Pu @ Hm.transpose(0, 2, 1)
         S = Hm @ PHT
@@ -211,7 +221,7 @@ def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: 
         x[upd] = x[upd] + np.einsum("kij,kj->ki", K, y)
         IKH = _eye(x.shape[1]) - K @ Hm
         P[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + (K * rm[:, None, :]) @ K.transpose(0, 2, 1)
-    return x, P, counts, nis, keep
+    return x, P, counts, nis, keep & avail
 
 
 def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray, floor: float, ceiling: float):
@@ -333,7 +343,7 @@ class ObserverBank:
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
                                                    self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
-            rejected[run] = np.count_nonzero(~keep, axis=1)
+            rejected[run] = np.count_nonzero(available & ~keep, axis=1)
             xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
             if every:
                 x, P = xr, Pr
@@ -378,7 +388,8 @@ class ObserverBank:
             reset=np.array([bool(r) for r in reasons]),
             reset_reason=reasons,
             normal_force=fz,
-            speed_age=np.maximum(age[:, :4], age[:, 4:5]),
+            speed_age=age[:, :4],
+            ground_speed_age=age[:, 4],
             torque_age=age[:, 5:9],
             ground_speed_measured=measured,
         )

@@ -17,7 +17,7 @@ from filterpy.kalman import KalmanFilter
 
 from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from .observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, split_side_torque
+from .observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, outlier_variance, split_side_torque
 from .vehicle import VehicleParams
 
 
@@ -99,17 +99,17 @@ class TractionObserver:
         rejected = 0
         if not reset:
             innov = z - H @ self.kf.x
-            s = np.einsum("ij,jk,ik->i", H, self.kf.P, H) + self._R_diag
-            keep = (innov**2 <= (self.cfg.gate_sigma**2) * s) | (self._rejections >= self.cfg.gate_patience)
+            hph = np.einsum("ij,jk,ik->i", H, self.kf.P, H)
+            keep = (innov**2 <= (self.cfg.gate_sigma**2) * (hph + self._R_diag)) | (self._rejections >= self.cfg.gate_patience)
             available = np.ones(N_MEAS, dtype=bool)
             available[2:7] = fresh  # held wheel / ground speeds are no new measurement
             available[6] &= not np.isnan(ground_speed)
             self._rejections = np.where(available, np.where(keep, 0, self._rejections + 1), self._rejections)
             keep &= available
-            rejected = int(np.count_nonzero(~keep))
-            if keep.any():
-                idx = np.flatnonzero(keep)
-                self.kf.update(z[idx], R=self._R[np.ix_(idx, idx)], H=H[idx])
+            rejected = int(np.count_nonzero(available & ~keep))
+            idx = np.flatnonzero(available)
+            r = outlier_variance(innov, hph, self._R_diag, self.cfg.gate_sigma, keep)
+            self.kf.update(z[idx], R=np.diag(r[idx]), H=H[idx])
             x, P = condition(self.kf.x[None], self.kf.P[None], self._lower, self._upper,
                              self.cfg.variance_floor, self.cfg.variance_ceiling)
             self.kf.x, self.kf.P = x[0], P[0]

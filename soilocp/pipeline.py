@@ -134,6 +134,7 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
         speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
+        ground_speed_age=float(out.ground_speed_age[j]),
         ground_speed_measured=bool(out.ground_speed_measured[j]),
     )
 
@@ -210,9 +211,13 @@ class SlipGate:
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        held = (ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+        held = ((ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+                | (ob.ground_speed_age > cfg.soil.max_input_age)[:, None])
         measured = ob.ground_speed_measured
-        return SoilInputs(slip, informative & measured[:, None], observed, var, s_sig, lp, g_sig, held, measured)
+        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
+        # samples repeat one measurement: K learns from the samples that bring a new one
+        fresh = ob.speed_age <= cfg.soil.fresh_age
+        return SoilInputs(slip, informative & measured[:, None] & fresh, observed, var, s_sig, lp, g_sig, held, measured)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -244,6 +249,7 @@ class SoilStage:
             yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
             reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
             speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
+            ground_speed_age=np.array([obs.ground_speed_age]),
             ground_speed_measured=np.array([obs.ground_speed_measured]),
         )
         stamp = np.array([obs.stamp])

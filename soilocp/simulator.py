@@ -139,6 +139,13 @@ class ControllerParams:
     #: Excitation: the speed-holding axle never brakes harder than this slip, so that it stays on
     #: the stable side of the traction peak (past it a braking wheel locks).
     brake_slip_limit: float = 0.35
+    #: Excitation: > 0 makes the rear axle mirror the front's slip set-point (brake at about
+    #: -rear_mirror x S, trimmed by the speed PI) instead of holding the speed alone (method-notes §12).
+    rear_mirror: float = 0.0
+    mirror_trim: float = 0.05  #: rear_mirror: slip trim per m/s of the speed PI output (small: a close mirror)
+    #: S-turns: yaw-rate set-point s_turn_rate * sin(2 pi t / s_turn_period), rad/s (0 = heading hold).
+    s_turn_rate: float = 0.0
+    s_turn_period: float = 6.0
 
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
@@ -386,8 +393,13 @@ class _Run:
         v_ref = sc.speed * ramp
         self.speed_cmd = v_ref
         # heading hold: a yaw-rate PI commands a small differential (V_i = V - r_c y_i)
-        self.i_yaw += h * self.r
-        r_c = -(ctl.yaw_kp * self.r + ctl.yaw_ki * self.i_yaw)
+        if ctl.s_turn_rate > 0:  # S-turns: the same PI around a sinusoidal yaw-rate set-point
+            r_ref = ctl.s_turn_rate * ramp * math.sin(2.0 * math.pi * t / ctl.s_turn_period)
+            self.i_yaw += h * (self.r - r_ref)
+            r_c = r_ref - (ctl.yaw_kp * (self.r - r_ref) + ctl.yaw_ki * self.i_yaw)
+        else:
+            self.i_yaw += h * self.r
+            r_c = -(ctl.yaw_kp * self.r + ctl.yaw_ki * self.i_yaw)
         if self.mode == "cruise":
             self.slip_cmd = None
             return [max(v_ref - r_c * yi, 0.0) / R for yi in self.ys]
@@ -404,7 +416,11 @@ class _Run:
         # rear: speed PI.  Its integrator keeps integrating while the braking slip is clamped, so
         # that the dwell makes up for the overspeed near the sweep's peak (mean speed = V_ref).
         self.i_speed = min(max(self.i_speed + h * err, -ctl.speed_i_limit), ctl.speed_i_limit)
-        v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
+        if ctl.rear_mirror > 0:  # braking slip -m S means omega R = V (1 - m S); the PI trims the slip
+            trim = ctl.mirror_trim * (ctl.speed_kp * err + ctl.speed_ki * self.i_speed)
+            v_hold = max(self.V, v_ref) * (1.0 - ctl.rear_mirror * s_cmd + trim)  # v_ref: start from rest
+        else:
+            v_hold = v_ref + ctl.speed_kp * err + ctl.speed_ki * self.i_speed
         # the braking axle stays on the stable side of the traction peak: slip >= -brake_slip_limit
         v_hold = max(v_hold, self.V * (1.0 - ctl.brake_slip_limit))
         out = []
@@ -450,7 +466,9 @@ class _Run:
         x = [2.0 * a - b for a, b in zip(x0, self.prev)]  # linear predictor
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
-        Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz = ([0.0] * 4 for _ in range(10))
+        Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz, cv = ([0.0] * 4 for _ in range(11))
+        # skid steer: the two wheels of a side are chained to one motor (one speed per side)
+        units = ((0, 1), (2, 3)) if v.drive == "per_side" else ((0,), (1,), (2,), (3,))
         hkp, hR, inv_h = h * kp, h * R, 1.0 / h
         for it in range(par.newton_max_iter):
             V, r = x[4], x[5]
@@ -519,18 +537,27 @@ class _Run:
                 eVr += dFr
                 eRV += yi * dFV
                 eRr += yi * dFr
-                q = -h * ai * sw * invi  # CV_i / Dw_i  (and Cr_i = -CV_i y_i)
-                a11c += q * bvi
-                a12c += q * bri
-                a21c -= q * yi * bvi
-                a22c -= q * yi * bri
-                b1c += q * fwi
-                b2c -= q * yi * fwi
+                cv[i] = -h * ai * sw  # CV_i: the body row's d/d omega_i (and Cr_i = -CV_i y_i)
                 fx = mu * fzi
                 sum_fx += fx
                 sum_yfx += yi * fx
                 Fw[i], BV[i], Br[i], inv[i] = fwi, bvi, bri, invi
                 gs[i], mus[i], tq[i], traw[i], ss[i], fz[i] = g, mu, T, tr, s, fzi
+            # eliminate the wheel rows: each wheel (or, skid steer, each side's chained pair: one speed,
+            # the pair's rows summed) couples to the body rows through CV / D
+            for u in units:
+                d_u = sum(1.0 / inv[i] for i in u)
+                f_u, bv_u, br_u = sum(Fw[i] for i in u), sum(BV[i] for i in u), sum(Br[i] for i in u)
+                q = sum(cv[i] for i in u) / d_u
+                yu = ys[u[0]]
+                a11c += q * bv_u
+                a12c += q * br_u
+                a21c -= q * yu * bv_u
+                a22c -= q * yu * br_u
+                b1c += q * f_u
+                b2c -= q * yu * f_u
+                for i in u:
+                    Fw[i], BV[i], Br[i], inv[i] = f_u, bv_u, br_u, 1.0 / d_u
             th = math.tanh(r / eps)
             FV = m * (V - V0) - h * (sum_fx - m * gx)
             if load:  # draft opposing the motion, implicit like the rest of the body row

@@ -76,6 +76,9 @@ class SoilConfig(BaseModel):
         0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
         "(a held reading from a slow driver is not a measurement, method-notes §13)"
     )
+    fresh_age: float = Field(
+        0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
+    )
     evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
     mismatch_nis: float = Field(
         4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
@@ -83,7 +86,7 @@ class SoilConfig(BaseModel):
     )
     mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
     observable_max_gross_sigma: float = Field(
-        0.15, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
+        0.4, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
     )
     learning_rate: float = Field(0.5, gt=0, le=1, description="lambda of eq. 36 (paper method)")
     k_initial: float = Field(120.0, gt=0, description="K_0 of the paper method")
@@ -310,6 +313,7 @@ class SoilBank:
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
         self.stats = np.zeros((n, 5))
+
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:

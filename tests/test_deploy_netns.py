@@ -21,26 +21,24 @@ The configuration-file checks at the end need neither root nor a network.
 from __future__ import annotations
 
 import json
-import os
-import secrets
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Optional
 
 import pytest
+from netns_rig import NETNS, Processes, vehicle_netns, wait_until  # noqa: F401 (fixture)
 from zenoh_helpers import json_lines_so_far
 
 ROOT = Path(__file__).resolve().parents[1]
-NETNS = ROOT / "scripts" / "netns-vehicle.sh"
 PROBE = ROOT / "scripts" / "ocp_probe.py"
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing.json"
 ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 FLEET = ROOT / "deploy" / "fleet" / "fleet-router.json"
+SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
+FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
 SOILOCP = [sys.executable, "-m", "soilocp.cli"]
 
 VID = "rover1"
@@ -52,104 +50,8 @@ CUT_S = 5.0
 RECOVERY_TARGET_S = 2.0  # the deployment's stated goal; printed, the test asserts recovery itself
 
 
-def _netns_unavailable() -> Optional[str]:
-    if not sys.platform.startswith("linux"):
-        return "network namespaces need Linux"
-    if os.geteuid() != 0:
-        return "needs root to create network namespaces (ip netns add)"
-    if shutil.which("ip") is None:
-        return "iproute2's `ip` command is not installed"
-    name = f"soilocp-chk{os.getpid()}"
-    res = subprocess.run(["ip", "netns", "add", name], capture_output=True, text=True)
-    if res.returncode != 0:
-        return f"`ip netns add` is not permitted here: {res.stderr.strip()[:200]}"
-    subprocess.run(["ip", "netns", "del", name], capture_output=True)
-    return None
-
-
-class Processes:
-    """Processes started inside the run's namespaces; stopped by id (SIGTERM, then SIGKILL)."""
-
-    def __init__(self, run_id: str, logdir: Path):
-        self.run_id = run_id
-        self.logdir = logdir
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str, unit: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen:
-        full_env = dict(os.environ, PYTHONUNBUFFERED="1", **env)
-        # never inherit endpoint settings from the caller's shell
-        for k in ("SOILOCP_CONNECT", "SOILOCP_LISTEN", "SOILOCP_ROUTER_CONNECT", "SOILOCP_CONFIG"):
-            if k not in env:
-                full_env.pop(k, None)
-        log = open(self.logdir / f"{name}.log", "wb")
-        # netns-vehicle.sh execs `ip netns exec`, which execs argv: the pid is the process itself
-        proc = subprocess.Popen([str(NETNS), "exec", self.run_id, unit, *argv], stdout=log,
-                                stderr=subprocess.STDOUT, env=full_env, cwd=str(self.logdir))
-        log.close()
-        self.procs[name] = proc
-        return proc
-
-    def dead(self) -> dict[str, int]:
-        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
-
-    def stop(self, names: Optional[list[str]] = None, timeout: float = 8.0) -> dict[str, int]:
-        names = list(self.procs) if names is None else names
-        for n in reversed(names):
-            if self.procs[n].poll() is None:
-                self.procs[n].send_signal(signal.SIGTERM)
-        deadline = time.time() + timeout
-        codes = {}
-        for n in names:
-            p = self.procs[n]
-            try:
-                codes[n] = p.wait(max(0.1, deadline - time.time()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                codes[n] = p.wait()
-                codes[n] = -9 if codes[n] is None else codes[n]
-        return codes
-
-    def tail(self, name: str, n: int = 15) -> str:
-        try:
-            lines = (self.logdir / f"{name}.log").read_text(errors="replace").splitlines()
-        except OSError:
-            return ""
-        return "\n".join(lines[-n:])
-
-
-
-
-def _wait(what: str, cond: Callable[[], bool], timeout: float, procs: Processes) -> float:
-    """Poll ``cond`` until true; fail with the logs of dead processes if it never becomes true."""
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if cond():
-            return time.time() - t0
-        dead = procs.dead()
-        if dead:
-            name = next(iter(dead))
-            pytest.fail(f"while waiting for {what}: {name} exited with {dead[name]}:\n{procs.tail(name)}")
-        time.sleep(0.2)
-    pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
-
-
-@pytest.fixture
-def vehicle_netns():
-    reason = _netns_unavailable()
-    if reason:
-        pytest.skip(reason)
-    run_id = secrets.token_hex(3)
-    subprocess.run([str(NETNS), "up", run_id], check=True, capture_output=True, text=True)
-    try:
-        yield run_id
-    finally:
-        subprocess.run([str(NETNS), "down", run_id], capture_output=True, text=True)
-        left = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
-        assert f"soilocp-{run_id}-" not in left, f"namespaces of run {run_id} left behind:\n{left}"
-
-
 @pytest.mark.netns
-@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.timeout(600)
 def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, tmp_path):
     run_id = vehicle_netns
@@ -173,7 +75,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
         procs.start("probe-est", "est", [*probe_args, "--connect", LOCAL_EP, "--out", str(unit_probe)], {})
         procs.start("probe-fleet", "fleet", [*probe_args, "--connect", FLEET_EP, "--out", str(fleet_probe)], {})
 
-        startup = _wait("fresh OCPs on the estimation unit and at the fleet",
+        startup = wait_until("fresh OCPs on the estimation unit and at the fleet",
                         lambda: any(r["kind"] == "query" and r["stale"] is False for r in json_lines_so_far(unit_probe))
                         and any(r["kind"] == "sample" for r in json_lines_so_far(fleet_probe)), 360, procs)
         print(f"\nnetns run {run_id}: pipeline up across 3 namespaces in {startup:.1f} s")
@@ -191,7 +93,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
             fleet_ok = any(r["kind"] == "sample" and r["t"] > t_restore for r in json_lines_so_far(fleet_probe))
             return unit_ok and fleet_ok
 
-        _wait("fresh OCPs again after the link came back", recovered, 60, procs)
+        wait_until("fresh OCPs again after the link came back", recovered, 60, procs)
         time.sleep(2.0)  # a tail of normal operation: catch a late reorder or crash
         dead = procs.dead()
         assert not dead, f"processes died: {dead}\n" + "\n".join(procs.tail(n) for n in dead)
@@ -286,7 +188,8 @@ def test_netns_script_rejects_bad_run_ids():
 
 SYSTEMD = ROOT / "deploy" / "systemd"
 #: where the example env files point (/etc/soilocp/NAME) -> the file of the repository
-ETC_FILES = {"sensing.json": SENSING, "estimation.json": ESTIMATION, "fleet-router.json": FLEET}
+ETC_FILES = {"sensing.json": SENSING, "estimation.json": ESTIMATION, "fleet-router.json": FLEET,
+             "sensing-secure.json": SENSING_SECURE, "fleet-router-secure.json": FLEET_SECURE}
 
 
 def _env_file(path: Path) -> dict[str, str]:
@@ -301,24 +204,37 @@ def _env_file(path: Path) -> dict[str, str]:
     return out
 
 
-def test_systemd_example_environments_resolve_through_the_loaders():
+def test_systemd_example_environments_resolve_through_the_loaders(tmp_path):
     import shlex
 
     from services.commands import service_cmd
     from services.router import router_settings
     from services.runtime import load_service_config
 
+    # the certificates the secure units name, made where the test can read them
+    certs = tmp_path / "certs"
+    subprocess.run([*SOILOCP, "certs", "init", str(certs), "--vehicle", "rover1", "--vehicle", "rover2"], check=True,
+                   capture_output=True)
     units = sorted(p for p in (SYSTEMD / "env").iterdir() if p.is_dir())
-    assert [u.name for u in units] == ["estimation", "fleet", "sensing"]
+    assert [u.name for u in units] == ["estimation", "fleet", "fleet-secure", "sensing", "sensing-secure"]
     for unit in units:
         common = _env_file(unit / "soilocp.env")
         assert "SOILOCP_LISTEN" not in common, f"{unit.name}: SOILOCP_LISTEN in soilocp.env would reach the services"
+        assert not any(k.startswith("SOILOCP_TLS_") for k in common), f"{unit.name}: keys belong to the router only"
         config = ETC_FILES[Path(common["SOILOCP_CONFIG"]).name]
         router_env = {**common, **_env_file(unit / "router.env"), "SOILOCP_CONFIG": str(config)}
+        router_env = {k: v.replace("/etc/soilocp/certs", str(certs)) for k, v in router_env.items()}
         router = router_settings(None, (), (), env=router_env)
-        assert router["listen"] == [router_env["SOILOCP_LISTEN"]]
-        if unit.name != "fleet":
+        assert router["listen"] == router_env["SOILOCP_LISTEN"].split(",")
+        if not unit.name.startswith("fleet"):
             assert router["connect"] == [router_env["SOILOCP_ROUTER_CONNECT"]]
+        secure = unit.name.endswith("-secure")
+        assert all(ep.startswith("tls/") for ep in (router["connect"] or router["listen"])) == secure, unit.name
+        assert (router["tls"] is not None) == secure
+        if unit.name == "fleet-secure":
+            assert router["access_control"] == {"vehicles": ["rover1", "rover2"], "tools": ["dashboard"]}
+        if unit.name == "sensing-secure":  # inside the vehicle: plain TCP, never a fleet-facing address
+            assert all(ep.startswith("tcp/") and "0.0.0.0" not in ep for ep in router["listen"])
         for name in json.loads(config.read_text()).get("services", {}):
             extra = unit / f"{name}.env"
             env = {**common, **(_env_file(extra) if extra.exists() else {}), "SOILOCP_CONFIG": str(config)}

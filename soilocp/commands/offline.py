@@ -130,12 +130,26 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--seed", default=0, show_default=True)
 @click.option("--jobs", default=2, show_default=True, help="Parallel processes")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the full results as JSON")
-def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out):
+@click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.variants)")
+@click.option("--seeds", default=1, show_default=True, help="--robustness: seeds per variant (seed, seed+1, ...)")
+@click.option("--variant", "variants", multiple=True, help="--robustness: only these variant(s); default: all")
+@click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
+def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants, markdown):
     """Accuracy against simulator truth: every scenario x mode x compensation, worst segment per run.
 
     Excitation mode is judged against the targets; cruise mode shows what is identifiable without
     a traction test (on flat ground at cruise slip is ~0: the right answer is no estimate).
+
+    With --robustness: one row per variant (other sample rates, epoch stamps, sensor scale errors,
+    held channels, a different true vehicle, mirrored or other sweeps, S-turns) run through the
+    nominal estimator.
     """
+    if robustness:
+        from .robustness_table import run_and_print
+
+        return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
+    if variants or seeds != 1 or markdown:
+        raise click.UsageError("--variant, --seeds and --markdown need --robustness")
     from ..accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
     from ..evaluation import TARGETS
 

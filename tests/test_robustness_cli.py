@@ -1,0 +1,120 @@
+"""``soilocp accuracy --robustness`` on a tiny case, and the band / confidently-wrong scores it
+adds to soilocp.evaluation.  No accuracy thresholds on the estimator here: the table is the
+measurement."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from soilocp.cli import main
+from soilocp.commands.robustness_table import COLUMNS
+from soilocp.evaluation import evaluate_records, results_as_json
+from soilocp.robustness import run_variant, summarize
+
+
+def _truth(seq, k, stamp):
+    return {"vehicle_id": "r", "seq": seq, "stamp": stamp, "soil_strength": k, "soil_class": "x",
+            "mu_T": 0.5, "S_T": 0.2, "S_E": 0.1}
+
+
+def _est(seq, k, std, status="ok"):
+    return {"vehicle_id": "r", "seq": seq, "soil_strength": k, "soil_strength_std": std, "status": status,
+            "soil_class": "x", "mu_T": 0.5, "S_T": 0.2, "S_E": 0.1}
+
+
+def test_band_coverage_and_confident_wrong_count_only_settled_samples():
+    truth = [_truth(i, 100.0, float(i)) for i in range(7)]
+    est = [
+        _est(0, 500.0, 1.0),  # before the 2 s settle: ignored
+        _est(1, 500.0, 1.0),  # ignored
+        _est(2, 110.0, 10.0),  # inside 2 std
+        _est(3, 125.0, 10.0),  # outside, 25 % off: not "confidently wrong"
+        _est(4, 140.0, 10.0),  # outside, 40 % off with status ok: confidently wrong
+        _est(5, 140.0, 10.0, status="uncertain"),  # flagged
+        _est(6, None, None, status="no_estimate"),
+    ]
+    (seg,) = evaluate_records(truth, est)
+    assert seg.settled_samples == 5 and seg.band_samples == 4
+    assert seg.band_coverage == pytest.approx(1 / 4)
+    assert seg.confident_wrong == 1
+    assert seg.std_rel_median == pytest.approx((10.0 / 125 + 10.0 / 140) / 2)  # median of std/K
+    assert len(seg.std_rel) == 4 and "std_rel" not in results_as_json([seg])[0]  # pooled by --robustness only
+
+
+def test_cruise_is_not_identifiable_and_the_row_says_so():
+    run = run_variant("cruise", 0, duration=4.0)
+    (row,) = summarize([run])
+    assert row["identifiable"] == "no"
+    assert sum(run.statuses.values()) == run.samples == 400
+    assert row["status_shares"].get("no_estimate", 0.0) + row["status_shares"].get("holding", 0.0) > 0.5
+    assert row["pass"] == (row["confident_wrong_share"] <= 0.05)
+
+
+def test_robustness_command_prints_one_row_per_variant(tmp_path):
+    out = tmp_path / "rob.json"
+    res = CliRunner().invoke(
+        main,
+        ["accuracy", "--robustness", "--variant", "nominal", "--variant", "epoch-stamps", "--duration", "5",
+         "--jobs", "1", "--json", str(out)],
+    )
+    assert res.exit_code in (0, 1), res.output
+    for col in COLUMNS:
+        assert col in res.output
+    assert "nominal" in res.output and "epoch-stamps" in res.output
+    data = json.loads(out.read_text())
+    assert [r["variant"] for r in data["variants"]] == ["nominal", "epoch-stamps"]
+    for r in data["variants"]:
+        assert r["samples"] == 500 and r["identifiable"] == "yes"
+        assert r["pass"] == (not r["missed"])
+        # the verdict is exit-coded: any missed variant makes the command fail
+    assert (res.exit_code == 1) == any(not r["pass"] for r in data["variants"])
+
+
+def test_robustness_options_are_checked():
+    r = CliRunner().invoke(main, ["accuracy", "--robustness", "--variant", "bogus"])
+    assert r.exit_code == 2 and "rear-mirror" in r.output
+    r = CliRunner().invoke(main, ["accuracy", "--seeds", "2"])
+    assert r.exit_code == 2 and "--robustness" in r.output
+
+
+def test_seeds_pool_into_one_row_per_variant():
+    from soilocp.robustness import run_robustness
+
+    runs = run_robustness(["cruise"], seeds=(0, 1), duration=1.0, jobs=1)
+    assert [(r.variant, r.seed) for r in runs] == [("cruise", 0), ("cruise", 1)]
+    (row,) = summarize(runs)
+    assert row["seeds"] == [0, 1] and row["samples"] == 200
+    assert sum(row["status_shares"].values()) == pytest.approx(1.0)
+
+
+def test_markdown_table_for_the_readme():
+    res = CliRunner().invoke(main, ["accuracy", "--robustness", "--variant", "cruise", "--duration", "1", "--markdown",
+                                    "--jobs", "1"])
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("|")]
+    assert len(lines) == 3 and lines[1] == "|" + "---|" * len(COLUMNS)
+    assert all(ln.replace("\\|", "").count("|") == len(COLUMNS) + 1 for ln in lines)
+    assert lines[2].startswith("| cruise | no |")
+
+
+def test_convergence_is_judged_while_every_wheel_is_on_the_segment_soil():
+    # 100 -> 200 at t = 5; the front wheels (2, 3) reach the 200 soil at t = 4.8, the estimate follows them
+    truth, est = [], []
+    for i in range(100):
+        t = i * 0.1
+        k = 100.0 if t < 5.0 else 200.0
+        front = 100.0 if t < 4.8 else 200.0
+        rec = _truth(i, k, t)
+        rec["wheel_soil_strength"] = (k, front, front, k)
+        truth.append(rec)
+        k_est = 100.0 if t < 4.8 else (150.0 if t < 5.5 else 200.0)
+        est.append(_est(i, k_est if t >= 0.3 else 300.0, 5.0))
+    first, second = evaluate_records(truth, est)
+    assert first.convergence_s == pytest.approx(0.3)  # not "never": 4.8..5 s is the next soil's
+    assert second.convergence_s == pytest.approx(0.5)
+    # without per-wheel truth the whole segment is judged: the tail leaves the band
+    for rec in truth:
+        del rec["wheel_soil_strength"]
+    assert evaluate_records(truth, est)[0].convergence_s is None
