@@ -112,13 +112,18 @@ _CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table:
 
 
 def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
-    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours)."""
+    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
+
+    The weakest class starts at half its reference K: below that no class applies (the traction
+    constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
+    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
+    table (``classify`` runs on every sample)."""
     key = tuple(constants.soils.items())
     hit = _CLASS_BOUNDS.get(key)
     if hit is None:
-        names = list(constants.soils)
+        names = sorted(constants.soils, key=constants.soils.get)
         logs = np.log([constants.soils[n] for n in names])
-        edges = np.concatenate([[-np.inf], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
         edges.flags.writeable = False
         hit = _CLASS_BOUNDS[key] = (names, edges)
     return list(hit[0]), hit[1]
@@ -307,8 +312,10 @@ class SoilBank:
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
-        # the lowest 3 % of the ln K range: a belief sitting there is the model's edge, not a soil
-        self._floor_idx = int(0.03 * (cfg.grid_points - 1))
+        # half the weakest reference soil's K: the traction constants were fitted on soils from there
+        # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
+        self.k_floor = math.exp(class_bounds(constants)[1][0])
+        self._floor_idx = int(np.searchsorted(self.k_grid, self.k_floor))
         self.last_stamp = np.full(n, np.nan)
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
@@ -424,8 +431,8 @@ class SoilBank:
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
             elif rk is not None and cdf[j][self._floor_idx] > 0.5:
                 status = "model_mismatch"
-                reason = (f"gross traction is below what any soil in the model gives at this slip (K at the floor of "
-                          f"the model's range, {cfg.k_min:g}): torque scale or units?")
+                reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
+                          f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
             elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = (f"slip is informative but the wheel speed / torque readings are held longer than "
