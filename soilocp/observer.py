@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Literal, Optional
 
 import numpy as np
-import scipy.linalg
 from pydantic import BaseModel, ConfigDict, Field
 
 from .normal_force import STANDARD_GRAVITY
@@ -287,6 +286,8 @@ def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: 
         Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + AQ @ A.T * (dt**3 / 3.0)
         return F, G, Qd
     if method == "expm":
+        import scipy.linalg  # the checking path only: not loaded in every service process (issue 11, memory)
+
         aug = np.zeros((n + 1, n + 1))
         aug[:n, :n] = A
         aug[:n, n] = b

@@ -284,10 +284,13 @@ class OcpStage:
 
     def __init__(self, config: PipelineConfig):
         self.constants: ModelConstants = config.constants
+        self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
 
     def step(self, soil: SoilEstimate) -> OcpEstimate:
-        k = np.array([soil.soil_strength if soil.soil_strength is not None else np.nan])
-        return ocp_message(soil, ocp_arrays(k, self.constants), 0)
+        k = soil.soil_strength
+        if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
+            self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
+        return ocp_message(soil, self._last[1], 0)
 
 
 class VehiclePipeline:

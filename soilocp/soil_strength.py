@@ -112,16 +112,25 @@ class SoilState:
     used: tuple[bool, bool, bool, bool]
 
 
+_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
+
+
 def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
     """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
 
     The weakest class starts at half its reference K: below that no class applies (the traction
     constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
-    typically a wrong torque scale), so that mass counts for no class."""
-    names = sorted(constants.soils, key=constants.soils.get)
-    logs = np.log([constants.soils[n] for n in names])
-    edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
-    return names, edges
+    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
+    table (``classify`` runs on every sample)."""
+    key = tuple(constants.soils.items())
+    hit = _CLASS_BOUNDS.get(key)
+    if hit is None:
+        names = sorted(constants.soils, key=constants.soils.get)
+        logs = np.log([constants.soils[n] for n in names])
+        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges.flags.writeable = False
+        hit = _CLASS_BOUNDS[key] = (names, edges)
+    return list(hit[0]), hit[1]
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:

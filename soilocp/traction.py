@@ -169,8 +169,14 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
     if np.any((s <= 0) | (s >= 1)):
         bad = s[(s <= 0) | (s >= 1)].ravel()[:4].tolist()
         raise ValueError(f"slip must be in (0, 1) for tractive efficiency (eq. 9), got {bad}")
-    mu = net_traction(s, k, constants)
-    g = gross_traction(s, k, constants)
+    return tractive_efficiency_unchecked(s, k, constants)
+
+
+def tractive_efficiency_unchecked(s: np.ndarray, k: np.ndarray, constants: ModelConstants) -> np.ndarray:
+    """Eq. 9, TE = (mu / g)(1 - S), for validated float arrays (0 < S < 1, K > 0) that broadcast:
+    the one definition behind :func:`tractive_efficiency` and the OCP kernel's hot path."""
+    mu = _odd_bridged_unchecked(_net_pos, s, k, constants)[0]
+    g = _gross_unchecked(s, k, constants)[0]
     return mu / g * (1.0 - s)
 
 
