@@ -11,9 +11,9 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.o
     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w      (eqs. 13-15; mu + mu_xR = gross)
     V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias       (longitudinal; REP-103 pitch)
     psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z      (eqs. 11-12), Fx_i = mu_i Fz_i
-    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, method-notes §3), psi_dot, omega_1..4, V]
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
 
-* Motion resistance (method-notes §11): eq. 4 is even in slip, so the ``slip`` structure models
+* Motion resistance (docs/method.md §11): eq. 4 is even in slip, so the ``slip`` structure models
   mu_xR_i = d_i (r0 b(S_i) + r1 |S_i|), with b the zero-slip bridge of :mod:`soilocp.traction` and
   d_i the wheel's travel direction (smoothed over ``travel_speed``).  The old form
   r0 sgn(S) + r1 S flipped the resistance on braking wheels and biased K 20-30 % low.
@@ -22,7 +22,7 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.o
 * Update (eq. 35 misprints its indices): standard Kalman update in Joseph form; a measurement row
   whose innovation exceeds ``gate_sigma`` is removed by zeroing its H row and innovation (its gain
   column is then exactly zero), and is taken again after ``gate_patience`` rejections in a row.
-* Conditioning and bounds (method-notes §12: a net traction coefficient of 3 is not a soil):
+* Conditioning and bounds (docs/method.md §12: a net traction coefficient of 3 is not a soil):
   P is symmetrised, its variances clamped and its correlations kept inside (-1, 1); the traction
   and resistance states are projected into physical bounds (``ObserverConfig.mu_bound`` ...).
 * Divergence: a non-finite or out-of-physics state resets that vehicle's filter with a counted
@@ -150,7 +150,7 @@ class ObserverBankOutput:
 
 def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
     """Which readings (k, c) are new: a value exactly equal to the previous sample's is a reading
-    held by a slow driver or logger (method-notes §13: wheel speeds and currents refresh at
+    held by a slow driver or logger (docs/method.md §13: wheel speeds and currents refresh at
     0.5-5 Hz and are held in between), not a new measurement.  Everything is new at a start."""
     return (now != prev) | first[:, None]
 
@@ -364,7 +364,7 @@ class ObserverBank:
         M = self.maps(x)
         res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
         # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
-        # wheel torque balance even when the net / resistance split is not: method-notes §12)
+        # wheel torque balance even when the net / resistance split is not: docs/method.md §12)
         J = np.zeros((k, 4, L.n))
         J[:, :, L.mu] = _eye(4)
         if L.n_res:

@@ -14,7 +14,7 @@ from .traction import curve_unchecked, tractive_efficiency_unchecked
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """S_T(K): the slip of maximum net traction, eq. 7 with its sign corrected (method-notes §1).
+    """S_T(K): the slip of maximum net traction, eq. 7 with its sign corrected (docs/method.md §1).
 
     Setting d mu/dS = 0 in eq. 6 (S > 0) gives
         S_T = (1/C3) ln( C1 C3 sqrt(K) (1 - e^{-C2 K}) / C6 ),
@@ -51,7 +51,7 @@ def _max_traction(k: np.ndarray, c: ModelConstants, st: np.ndarray | None = None
 def optimal_slip_efficiency(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """S_E(K) = (K - alpha) / beta, eq. 10 (alpha = 677.4, beta = -5242.9 by default).
 
-    The paper's empirical line (method-notes §5: eq. 9 with the printed constants has no interior
+    The paper's empirical line (docs/method.md §5: eq. 9 with the printed constants has no interior
     efficiency peak for K <= 120, so the line is the model).  It reaches 0 at K = alpha; above that
     the most efficient slip is the smallest one, so S_E is clamped at 0 rather than going negative.
     """

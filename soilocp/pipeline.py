@@ -84,7 +84,7 @@ def _quad(a) -> tuple[float, float, float, float]:
 
 
 class NormalForceStage:
-    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, method-notes §2-3)."""
+    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, docs/method.md §2-3)."""
 
     def __init__(self, config: PipelineConfig):
         self.vehicle = config.vehicle
@@ -164,17 +164,17 @@ class SoilInputs:
     observed: np.ndarray
     variance: np.ndarray
     slip_sigma: np.ndarray
-    gate_slip: np.ndarray  # the low-pass slip the gate decides on (method-notes §9)
+    gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
     gate_sigma: np.ndarray
     held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
 
 
 class SlipGate:
-    """Slip per wheel (eq. 1 with the floor and deadband of method-notes §6, §10) from the filtered
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10) from the filtered
     speeds, its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
     gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
-    method-notes §9), for N vehicles."""
+    docs/method.md §9), for N vehicles."""
 
     def __init__(self, config: PipelineConfig, n_vehicles: int):
         self.cfg = config
@@ -198,7 +198,7 @@ class SlipGate:
             observed, var = ob.gross, ob.gross_var * self._shared
         else:
             observed, var = ob.mu, ob.mu_var * self._shared
-        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (method-notes §6, §9)
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         tau = cfg.soil.gate_smoothing
         last = self._lp_stamp[ix]
@@ -235,7 +235,7 @@ def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: S
 
 class SoilStage:
     """Slip per wheel (eq. 1) and soil strength K (eqs. 36-37 corrected: a grid Bayes filter over
-    ln K on gross traction, method-notes §4, §9, §11-12): :class:`SlipGate` and
+    ln K on gross traction, docs/method.md §4, §9, §11-12): :class:`SlipGate` and
     :class:`soilocp.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
 
     def __init__(self, config: PipelineConfig):
