@@ -47,7 +47,7 @@ ObserverStructure = Literal["shared", "per_wheel", "none"]
 
 
 class ObserverOutput(_Message):
-    """Kalman observer estimate (eqs. 26-35, with the state chosen observable: method-notes §7)."""
+    """Kalman observer estimate (eqs. 26-35, with the state chosen observable: docs/method.md §7)."""
 
     mu: Quad = Field(description="Net traction coefficient per wheel (F_DP/W, eq. 6's mu)")
     mu_var: Quad = Field(description="Variance of mu per wheel")

@@ -35,7 +35,10 @@ from typing import Any, Optional
 import click
 
 HOPS = {"standard": 6, "batched": 3}  # client -> router -> client hops on a sample's critical path
-TARGETS = {"p50_ms_100hz": 2.0, "p99_ms_100hz": 5.0, "scale_p99_ms": 10.0, "vehicles_100hz": 50, "replay_x": 20.0}
+# issue 11's targets: chain CPU per sample (median), offline replay, one vehicle at 100 Hz and 1 kHz on the
+# standard pipeline, vehicles x 100 Hz on the batched one, resident memory of router + 5 services
+TARGETS = {"chain_cpu_us": 100.0, "replay_x": 100.0, "p50_ms_100hz": 1.5, "p99_ms_100hz": 3.0, "p99_ms_1khz": 5.0,
+           "scale_p99_ms": 10.0, "vehicles_100hz": 100, "rss_mib_total": 300.0}
 LADDER = (1, 2, 5, 10, 20, 50, 100, 200)
 
 
@@ -179,15 +182,22 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
 
 def verdict(report: dict[str, Any]) -> dict[str, Any]:
     """Which targets were met, per pipeline."""
-    out: dict[str, Any] = {"replay_x_real_time": report["replay"]["x_real_time"] >= TARGETS["replay_x"]}
+    from .bench_compare import pipeline_rss_mib
+
+    out: dict[str, Any] = {"chain_cpu_per_sample": report["stages"]["total"].get("cpu_p50", math.inf)
+                           <= TARGETS["chain_cpu_us"],
+                           "replay_x_real_time": report["replay"]["x_real_time"] >= TARGETS["replay_x"]}
     for row in report["latency"]:
         r = row["result"]
         p = row["pipeline"]
         if row["rate_hz"] == 100.0:
             out[f"{p}_p50_100hz"] = r["p50"] < TARGETS["p50_ms_100hz"]
             out[f"{p}_p99_100hz"] = r["p99"] < TARGETS["p99_ms_100hz"]
+            rss = pipeline_rss_mib(row.get("processes") or {})
+            out[f"{p}_rss_total"] = rss is not None and rss <= TARGETS["rss_mib_total"]
         else:
             out[f"{p}_1khz_no_drops"] = r["drops"] == 0 and r["rejections"] == 0
+            out[f"{p}_1khz_p99"] = out[f"{p}_1khz_no_drops"] and r["p99"] < TARGETS["p99_ms_1khz"]
     for p, sc in report["scale"].items():
         out[f"{p}_vehicles_100hz"] = sc["max_vehicles"] >= TARGETS["vehicles_100hz"]
     return out
@@ -246,6 +256,18 @@ def render(report: dict[str, Any], console) -> None:
                   _f(HOPS[row["pipeline"]] / 2 * b["p50"]))
     console.print(t)
 
+    from .bench_compare import NOT_PIPELINE, pipeline_rss_mib
+
+    for row in report["latency"]:  # memory of the processes, one vehicle at 100 Hz
+        if row["rate_hz"] != 100.0 or not row.get("processes"):
+            continue
+        pr = row["processes"]
+        each = " ".join(f"{n}={_f(v.get('rss_mib'), '.0f')}/{_f(v.get('pss_mib'), '.0f')}" for n, v in pr.items()
+                        if n not in NOT_PIPELINE)
+        console.print(f"memory, {row['pipeline']} pipeline, MiB RSS/PSS per process: {each}; in all RSS "
+                      f"{_f(pipeline_rss_mib(pr), '.0f')} (target <= {TARGETS['rss_mib_total']:.0f}), PSS "
+                      f"{_f(pipeline_rss_mib(pr, 'pss_mib'), '.0f')} (shared pages counted once)")
+
     cl = report.get("control_loop")
     if cl:
         console.print("5. control loop, sample -> slip set-point (pipeline + controller service, 100 Hz), ms: "
@@ -282,11 +304,29 @@ def render(report: dict[str, Any], console) -> None:
 @click.option("--pipeline", "pipelines", multiple=True, type=click.Choice(["standard", "batched"]),
               help="Which live pipeline(s) to measure (default: both when the batched one is installed).")
 @click.option("--max-vehicles", type=int, help="Stop the scale ladder at this many vehicles.")
-def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int]) -> None:
+@click.option("--compare", "compare_to", type=click.Path(dir_okay=False),
+              help="A baseline report (--json of an earlier run): print each figure's before/after ratio.")
+@click.option("--report", "saved", type=click.Path(dir_okay=False),
+              help="Do not run: render this saved report (with --compare, compare it to the baseline).")
+def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int],
+          compare_to: Optional[str], saved: Optional[str]) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
 
+    from .bench_compare import compare, load_report, render_compare
+
     console = Console(width=200) if not sys.stdout.isatty() else Console()
+    try:  # a bad baseline fails before minutes of measuring, naming the file
+        base = load_report(compare_to) if compare_to else None
+        report = load_report(saved) if saved else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--compare" if compare_to and not saved else "--report")
+    if report is not None:  # a saved run: its tables, or only its comparison with the baseline
+        if base is not None:
+            render_compare(compare(base, report), console, compare_to)
+        else:
+            render(report, console)
+        return
     ladder = None
     if max_vehicles is not None:
         if max_vehicles < 1:
@@ -294,6 +334,9 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
         ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
     report = run_bench(quick, list(pipelines) or None, ladder, log=lambda m: console.print(m, style="dim"))
     render(report, console)
+    if base is not None:
+        report["compare"] = {"baseline": str(compare_to), "rows": compare(base, json_safe(report))}
+        render_compare(report["compare"]["rows"], console, compare_to)
     if json_out:
         Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
         console.print(f"report written to {json_out}")

@@ -66,6 +66,20 @@ def proc_rss_mib(pid: int) -> Optional[float]:
     return None
 
 
+def proc_pss_mib(pid: int) -> Optional[float]:
+    """Proportional set size of ``pid`` in MiB (Pss of /proc/<pid>/smaps_rollup): its resident pages,
+    each shared page divided by the number of processes mapping it.  The sum over processes is what
+    they take together; the sum of RSS counts the shared libraries (numpy's OpenBLAS, Zenoh) once
+    per process.  None if unavailable."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 class CpuWindow:
     """CPU use (% of one core) and RSS of named processes over a measurement window."""
 
@@ -80,7 +94,7 @@ class CpuWindow:
         for n, p in self.pids.items():
             c1, c0 = proc_cpu_seconds(p), self.c0.get(n)
             cpu = None if c1 is None or c0 is None else 100.0 * (c1 - c0) / wall
-            out[n] = {"pid": p, "cpu_percent": cpu, "rss_mib": proc_rss_mib(p)}
+            out[n] = {"pid": p, "cpu_percent": cpu, "rss_mib": proc_rss_mib(p), "pss_mib": proc_pss_mib(p)}
         return out
 
 
@@ -96,6 +110,10 @@ class Rig:
     log_dir: Optional[Path] = None
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     endpoint: str = ""
+    #: "client": every service a client of the router (each hop client -> router -> client);
+    #: "peer": the services are peers that also listen on an ephemeral loopback port, so that
+    #: they link to each other directly (the router only introduces them) - issue 11's hops
+    links: str = "client"
 
     @staticmethod
     def standard(vehicle_ids: list[str]) -> "Rig":
@@ -128,6 +146,10 @@ class Rig:
         self._spawn("router", ["-m", "soilocp.cli", "router", "--listen", self.endpoint], env)
         senv = dict(env, SOILOCP_VEHICLE_ID=",".join(self.vehicle_ids), SOILOCP_CONNECT=self.endpoint,
                     SOILOCP_LOG_LEVEL="warning")
+        if self.links == "peer":
+            senv.update(SOILOCP_MODE="peer", SOILOCP_LISTEN="tcp/127.0.0.1:0")
+        elif self.links != "client":
+            raise ValueError(f"links {self.links!r}: must be 'client' or 'peer'")
         for name, argv in self.services:
             self._spawn(name, argv, senv)
         self._spawn("echo", ["-m", "services.bench_echo", "--connect", self.endpoint], env)
@@ -215,8 +237,11 @@ def _sleep_until(t: float) -> None:
 # ----------------------------------------------------------------------------------------------
 # baseline: ping-pong through the router
 # ----------------------------------------------------------------------------------------------
-def ping_pong(session, rate: float, duration: float, payload_size: int = 400) -> dict[str, Any]:
-    """Round trip bench -> router -> echo -> router -> bench, paced at ``rate`` Hz; ms stats."""
+def ping_pong(session, rate: float, duration: float, payload_size: int = 400, *, express: bool = False,
+              shm_provider=None) -> dict[str, Any]:
+    """Round trip bench -> router -> echo -> router -> bench, paced at ``rate`` Hz; ms stats.
+    ``express``: no batching on the ping publisher; ``shm_provider``: put each ping from a
+    zenoh shared-memory buffer (``services.bench_transport`` compares the options)."""
     import zenoh
 
     n = max(1, int(round(rate * duration)))
@@ -224,6 +249,13 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
     got: dict[int, float] = {}
     lock = threading.Lock()
     pad = b" " * max(0, payload_size - 30)
+
+    def _payload(body: bytes):
+        if shm_provider is None:
+            return body
+        buf = shm_provider.alloc(len(body), zenoh.shm.BlockOn(zenoh.shm.GarbageCollect()))
+        buf[0:len(body)] = body
+        return buf
 
     def _pong(sample) -> None:
         t = time.perf_counter()
@@ -233,12 +265,12 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
                 got[int(m.group(1))] = t
 
     sub = session.declare_subscriber(PONG_KEY, _pong)
-    pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+    pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK, express=express)
     try:
         # warm the path (and wait for the echo's subscription to be known to the router)
         deadline = time.monotonic() + 10.0
         while not got and time.monotonic() < deadline:
-            pub.put(b'{"seq":' + b"0" + b"}")
+            pub.put(_payload(b'{"seq":' + b"0" + b"}"))
             time.sleep(0.05)
         got.clear()
         t0 = time.perf_counter() + 0.01
@@ -246,7 +278,7 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400) ->
             _sleep_until(due)
             seq = k + 1
             sent[seq] = time.perf_counter()
-            pub.put(b'{"seq":' + str(seq).encode() + b"}" + pad)
+            pub.put(_payload(b'{"seq":' + str(seq).encode() + b"}" + pad))
         _wait_all(lambda: len(got) >= len(sent), 2.0)
     finally:
         sub.undeclare()

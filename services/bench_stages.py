@@ -141,9 +141,9 @@ def batch_costs(samples: Sequence[SensorSample], counts: Sequence[int], config=N
         per: list[float] = []
         per_cpu: list[float] = []
         for s, fz in zip(samples, forces):
-            block = BatchPipeline.inputs_from_samples([s] * n, [fz] * n)
+            block, fzs = [s] * n, [fz] * n
             t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
-            bp.step(idx, block)
+            bp.step(idx, block, fzs)  # stacking the inputs and building the OCP records included
             per.append((time.perf_counter_ns() - t0) / 1000.0 / n)
             per_cpu.append((time.thread_time_ns() - c0) / 1000.0 / n)
         out[str(n)] = summarize(per)

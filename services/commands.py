@@ -248,4 +248,5 @@ def _register_extra() -> None:
         COMMANDS.extend(getattr(mod, "COMMANDS", ()))
 
 
-_register_extra()
+if not (len(sys.argv) > 1 and sys.argv[1] in ("service", "router")):  # soilocp.cli.PROCESS_COMMANDS: light
+    _register_extra()

@@ -329,7 +329,7 @@ class FleetState:
 def traction_curve(k: Optional[float], k_std: Optional[float], wheel_slips: Iterable[Optional[float]] = (),
                    constants: ModelConstants = DEFAULT_CONSTANTS, points: int = 111) -> Optional[dict[str, Any]]:
     """Net traction mu(S) at the current K (eq. 6, via :func:`soilocp.traction.net_traction`, with
-    method-notes §8's bridge at S=0), plus the curves at K - std and K + std (K - std floored at
+    docs/method.md §8's bridge at S=0), plus the curves at K - std and K + std (K - std floored at
     K/10 so the band stays defined).  Slip axis: -0.1..1, widened to every wheel's slip (within
     -1..1).  None without a K."""
     if k is None or not (k > 0):

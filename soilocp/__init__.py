@@ -7,7 +7,7 @@ thin adapters around it, and ``soilocp estimate`` runs the very same functions o
 
 Equation numbers refer to Kim & Lee, "Soil Strength-based Estimation of Optimal Control
 Parameters for Wheeled Robots on Rough Terrain"; corrections to the printed equations follow
-``shared/design/method-notes.md`` and are named in each docstring.
+``docs/method.md`` and are named in each docstring.
 """
 
 __version__ = "0.1.0"

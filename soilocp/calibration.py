@@ -28,7 +28,7 @@ Identifiability (read this before trusting a number):
 * C1 and C2 are separable only through soils of different K: the fit needs at least two soils,
   and at least three distinct slips per soil (each soil's curve has three shape numbers).
 
-S_E (eq. 10): the peaks of eq. 9 come from the *fitted* model, so method-notes §5 applies: with a
+S_E (eq. 10): the peaks of eq. 9 come from the *fitted* model, so docs/method.md §5 applies: with a
 negative C5 the drawbar coefficient is positive at zero slip, "TE" exceeds 1 near S = 0 and there
 is no interior peak on weak soils.  A soil counts only if eq. 9 has an interior maximum with
 0 < TE <= 1 and positive gross traction.  If any calibrated soil has no such peak (or there are
@@ -283,7 +283,7 @@ def efficiency_peak(soil_strength: float, constants: ModelConstants) -> tuple[fl
     """Slip of the interior maximum of eq. 9 (tractive efficiency) for one K, by numerical argmax.
 
     Returns (S_peak, "") or (None, reason).  A peak counts only if it lies strictly inside the
-    grid (not at the small-slip end, where method-notes §5's TE > 1 artefact sits), its TE is in
+    grid (not at the small-slip end, where docs/method.md §5's TE > 1 artefact sits), its TE is in
     (0, 1] and gross traction is positive up to it: otherwise eq. 9 is outside its validity.
     """
     k = positive_scalar("soil_strength", soil_strength)
@@ -331,7 +331,7 @@ def fit_efficiency_line(soils: Mapping[str, float], constants: ModelConstants) -
         # a line through the other soils would be extrapolated exactly where eq. 9 is invalid
         msg = (
             f"S_E line not fitted: no interior eq. 9 peak with 0 < TE <= 1 for {', '.join(missing)} "
-            f"(method-notes §5); {keep}"
+            f"(docs/method.md §5); {keep}"
         )
         return EfficiencyFit(constants.alpha, constants.beta, False, peaks, reasons, msg)
     if len({k for k, _ in good}) < 2:
@@ -344,7 +344,7 @@ def fit_efficiency_line(soils: Mapping[str, float], constants: ModelConstants) -
         return EfficiencyFit(constants.alpha, constants.beta, False, peaks, reasons, msg)
     beta = 1.0 / slope
     alpha = -intercept / slope
-    msg = f"S_E line fitted through {len(good)} eq. 9 peaks (valid only where eq. 9 is, method-notes §5)"
+    msg = f"S_E line fitted through {len(good)} eq. 9 peaks (valid only where eq. 9 is, docs/method.md §5)"
     return EfficiencyFit(float(alpha), float(beta), True, peaks, reasons, msg)
 
 

@@ -30,8 +30,14 @@ def main() -> None:
     """Soil strength K and optimal control parameters (mu_T, S_T, S_E) for wheeled robots."""
 
 
+#: The long-running processes of a deployment load only the services area's commands: the other
+#: areas' imports would otherwise sit in the memory of each of the six processes (issue 11).
+PROCESS_COMMANDS = ("service", "router")
+
+
 def _register() -> None:
-    for modname in COMMAND_MODULES:
+    light = len(sys.argv) > 1 and sys.argv[1] in PROCESS_COMMANDS
+    for modname in ("services.commands",) if light else COMMAND_MODULES:
         try:
             mod = importlib.import_module(modname)
         except ModuleNotFoundError as exc:

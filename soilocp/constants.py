@@ -43,7 +43,7 @@ class ModelConstants(BaseModel):
         ge=0,
         lt=0.1,
         description=(
-            "Half-width of the linear bridge through S=0 (method-notes §8): eq. 6 jumps from -C5/K "
+            "Half-width of the linear bridge through S=0 (docs/method.md §8): eq. 6 jumps from -C5/K "
             "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear. 0 = as printed."
         ),
     )

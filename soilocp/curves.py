@@ -78,7 +78,7 @@ def plot_tractive_efficiency(
 ) -> Path:
     """Fig. 4: tractive efficiency TE(S) of eq. 9 for 0 < S < 1, eq. 10's S_E marked on each curve.
 
-    The printed constants give TE > 1 near S = 0 for K <= 120 (method-notes §5); the plot shows the
+    The printed constants give TE > 1 near S = 0 for K <= 120 (docs/method.md §5); the plot shows the
     model as it is and says so, with the TE = 1 bound drawn.
     """
     plt = _pyplot()
@@ -101,7 +101,7 @@ def plot_tractive_efficiency(
     ax.set_ylabel("tractive efficiency TE = (F_DP / F_GT)(1 - S) [-]")
     ax.set_title(
         "Fig. 4: tractive efficiency, eq. 9 (diamonds: S_E of eq. 10)\n"
-        "caveat (method-notes §5): eq. 9 is meaningful only where 0 < TE <= 1; with C5 < 0, TE > 1 near S = 0\n"
+        "caveat (docs/method.md §5): eq. 9 is meaningful only where 0 < TE <= 1; with C5 < 0, TE > 1 near S = 0\n"
         "and weak soils have no interior peak, so eq. 10 is an empirical line, not eq. 9's argmax",
         fontsize=9,
     )

@@ -1,6 +1,6 @@
 """Normal forces on the four wheels from the measured specific force, eqs. 16-25.
 
-Corrections (method-notes §2-3):
+Corrections (docs/method.md §2-3):
 
 * The 4x4 matrix A of eq. 23 is singular (rank 3) for every geometry: A (1,-1,1,-1)^T = 0 is the
   warp mode of a rigid body on four wheels, which statics cannot fix.  Eq. 25's A^{-1} does not

@@ -1,6 +1,6 @@
 """Kalman observer of per-wheel traction (paper eqs. 11-15 and 26-35), on filterpy.
 
-State and observability (method-notes §7)
+State and observability (docs/method.md §7)
 -----------------------------------------
 The paper's state (eq. 26) is [mu_1..4, mu_xR_1..4, mu_yR_1..4, psi_dot, omega_1..4] with
 measurements [V_x_dot, psi_dot, omega_1..4] (eq. 28).  It is not observable: each wheel equation
@@ -23,7 +23,7 @@ its prior; reported rank-deficient).
 
 Corrections to the print
 ------------------------
-* Eq. 29's V_x_dot is the accelerometer's specific force f_x (method-notes §3): sum(mu_i Fz_i)/m
+* Eq. 29's V_x_dot is the accelerometer's specific force f_x (docs/method.md §3): sum(mu_i Fz_i)/m
   is a specific force, which is why it has no slope term.
 * Eq. 35 mixes indices (P_k with M_k+1); we use the standard predict/update of filterpy with the
   Joseph-form covariance update, re-symmetrised and with variances clamped (as robot_localization
@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Literal, Optional
 
 import numpy as np
-import scipy.linalg
 from pydantic import BaseModel, ConfigDict, Field
 
 from .normal_force import STANDARD_GRAVITY
@@ -89,7 +88,7 @@ class ObserverConfig(BaseModel):
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
     gravity: float = Field(STANDARD_GRAVITY, gt=0)
-    # physics bounds and what the data determine (method-notes §11-12)
+    # physics bounds and what the data determine (docs/method.md §11-12)
     mu_bound: float = Field(1.5, gt=0, description="|mu_i| (net traction coefficient) is kept <= this: no soil gives more")
     resistance_bound: float = Field(1.0, gt=0, description="|r0| and |mu_xR| shared constant part kept <= this")
     resistance_slope_bound: float = Field(5.0, gt=0, description="|r1| (d mu_xR / d|S|) kept <= this")
@@ -159,7 +158,7 @@ class StateLayout:
         raise ValueError(f"observer structure must be slip, shared, per_wheel or none, got {structure!r}")
 
     def bounds(self, cfg: "ObserverConfig") -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) physical box of the state (method-notes §12: a net traction coefficient of 3
+        """(lower, upper) physical box of the state (docs/method.md §12: a net traction coefficient of 3
         is not a soil); speeds are unbounded here (the divergence guard watches them)."""
         hi = np.full(self.n, np.inf)
         hi[self.mu] = cfg.mu_bound
@@ -184,7 +183,7 @@ def resistance_map(layout: StateLayout, slip: Optional[np.ndarray], travel: Opti
                    bridge: float) -> np.ndarray:
     """(..., 4, n_res) map from the resistance states to each wheel's mu_xR.
 
-    ``slip`` structure (method-notes §11, eq. 4 even in S): mu_xR_i = d_i (r0 b_i + r1 |S_i|), with
+    ``slip`` structure (docs/method.md §11, eq. 4 even in S): mu_xR_i = d_i (r0 b_i + r1 |S_i|), with
     b_i = min(|S_i| / bridge, 1) the zero-slip bridge of eq. 4's constant part (as in
     :mod:`soilocp.traction`) and d_i the travel direction; r0 ~ C4 + C5/K and r1 ~ C6/sqrt(K) are
     shared by the wheels (same soil).  ``slip`` and ``travel`` have shape (..., 4); None means zero
@@ -214,7 +213,7 @@ def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: n
     V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias           (longitudinal, REP-103 pitch)
     psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z          (eqs. 11-12), Fx_i = mu_i Fz_i
     M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
-    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, method-notes §3), psi_dot, omega_1..4, V]
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
     """
     L, v = layout, vehicle
     k = fz.shape[0]
@@ -287,6 +286,8 @@ def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: 
         Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + AQ @ A.T * (dt**3 / 3.0)
         return F, G, Qd
     if method == "expm":
+        import scipy.linalg  # the checking path only: not loaded in every service process (issue 11, memory)
+
         aug = np.zeros((n + 1, n + 1))
         aug[:n, :n] = A
         aug[:n, n] = b
@@ -307,7 +308,7 @@ def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, sl
 
     ``slips`` is a sequence of per-wheel slip vectors, one per step (cycled), for the ``slip``
     structure whose model varies with slip; by default a traction test's pattern.  With the
-    paper's full state (``per_wheel``) the rank is below the state dimension (method-notes §7);
+    paper's full state (``per_wheel``) the rank is below the state dimension (docs/method.md §7);
     ``slip``, ``shared`` and ``none`` are fully observable (``slip`` only while the wheels' slips
     vary, as in a traction test: at one constant slip pattern its two resistance coefficients
     merge into one).

@@ -11,9 +11,9 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.o
     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w      (eqs. 13-15; mu + mu_xR = gross)
     V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias       (longitudinal; REP-103 pitch)
     psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z      (eqs. 11-12), Fx_i = mu_i Fz_i
-    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, method-notes §3), psi_dot, omega_1..4, V]
+    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
 
-* Motion resistance (method-notes §11): eq. 4 is even in slip, so the ``slip`` structure models
+* Motion resistance (docs/method.md §11): eq. 4 is even in slip, so the ``slip`` structure models
   mu_xR_i = d_i (r0 b(S_i) + r1 |S_i|), with b the zero-slip bridge of :mod:`soilocp.traction` and
   d_i the wheel's travel direction (smoothed over ``travel_speed``).  The old form
   r0 sgn(S) + r1 S flipped the resistance on braking wheels and biased K 20-30 % low.
@@ -22,7 +22,7 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.o
 * Update (eq. 35 misprints its indices): standard Kalman update in Joseph form; a measurement row
   whose innovation exceeds ``gate_sigma`` is removed by zeroing its H row and innovation (its gain
   column is then exactly zero), and is taken again after ``gate_patience`` rejections in a row.
-* Conditioning and bounds (method-notes §12: a net traction coefficient of 3 is not a soil):
+* Conditioning and bounds (docs/method.md §12: a net traction coefficient of 3 is not a soil):
   P is symmetrised, its variances clamped and its correlations kept inside (-1, 1); the traction
   and resistance states are projected into physical bounds (``ObserverConfig.mu_bound`` ...).
 * Divergence: a non-finite or out-of-physics state resets that vehicle's filter with a counted
@@ -35,6 +35,7 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Optional
 
 import numpy as np
@@ -47,6 +48,25 @@ from .vehicle import VehicleParams
 LIFT_OFF_FORCE = 1.0
 
 RESET_REASONS = ("start", "time_gap", "stamp_backwards", "non_finite_state", "state_out_of_physics")
+
+
+@lru_cache(maxsize=None)
+def _eye(n: int) -> np.ndarray:
+    """I (n, n), built once per size (read-only): the hot path allocates no constant."""
+    e = np.eye(n)
+    e.flags.writeable = False
+    return e
+
+
+@lru_cache(maxsize=None)
+def _arange(n: int) -> np.ndarray:
+    a = np.arange(n)
+    a.flags.writeable = False
+    return a
+
+
+_FIELDS_K = ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed")
+_FIELDS_K4 = ("wheel_speed", "wheel_torque", "normal_force")
 
 
 def check_count(n: object) -> int:
@@ -81,14 +101,23 @@ class ObserverInputs:
 
     def check(self) -> int:
         k = np.shape(self.stamp)[0] if np.ndim(self.stamp) == 1 else -1
-        for name in ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed"):
+        # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
+        # one test; anything else takes the field-by-field check below, which names the field
+        arrs = [getattr(self, n) for n in _FIELDS_K + _FIELDS_K4]
+        if k >= 0 and all(type(a) is np.ndarray and a.dtype == np.float64 for a in arrs) \
+                and all(a.shape == (k,) for a in arrs[:5]) and all(a.shape == (k, 4) for a in arrs[5:]):
+            gs = arrs[4]
+            if np.isfinite(np.concatenate([*arrs[:4], *arrs[5:]], axis=None)).all() \
+                    and not np.isinf(gs).any():
+                return k
+        for name in _FIELDS_K:
             a = np.asarray(getattr(self, name), dtype=float)
             # a NaN ground speed means "no independent sensor" (the log's null); nothing else may be NaN
             ok = np.isfinite(a) | (np.isnan(a) if name == "ground_speed" else False)
             if a.shape != (k,) or not np.all(ok):
                 raise ValueError(f"inputs.{name} must be a finite array of shape ({k},), got {a!r}")
             setattr(self, name, a)
-        for name in ("wheel_speed", "wheel_torque", "normal_force"):
+        for name in _FIELDS_K4:
             a = np.asarray(getattr(self, name), dtype=float)
             if a.shape != (k, 4) or not np.all(np.isfinite(a)):
                 raise ValueError(f"inputs.{name} must be a finite array of shape ({k}, 4), got {a!r}")
@@ -121,7 +150,7 @@ class ObserverBankOutput:
 
 def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
     """Which readings (k, c) are new: a value exactly equal to the previous sample's is a reading
-    held by a slow driver or logger (method-notes §13: wheel speeds and currents refresh at
+    held by a slow driver or logger (docs/method.md §13: wheel speeds and currents refresh at
     0.5-5 Hz and are held in between), not a new measurement.  Everything is new at a start."""
     return (now != prev) | first[:, None]
 
@@ -141,7 +170,7 @@ def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
 
 def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: np.ndarray):
     """ZOH prediction (eq. 34, exact series: A nilpotent) over dt (k,) > 0: returns x (k, n), P (k, n, n)."""
-    eye = np.eye(x.shape[1])
+    eye = _eye(x.shape[1])
     d3 = dt[:, None, None]
     F = eye + A * d3
     G = b * dt[:, None] + np.einsum("kij,kj->ki", A, b) * (dt * dt / 2.0)[:, None]
@@ -184,13 +213,13 @@ def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: 
         Pu = P[upd]
         PHT = Pu @ Hm.transpose(0, 2, 1)
         S = Hm @ PHT
-        m = S.shape[1]
-        S[:, np.arange(m), np.arange(m)] += rm
+        dg = _arange(S.shape[1])
+        S[:, dg, dg] += rm
         K = PHT @ np.linalg.inv(S)
         x = x.copy()
         P = P.copy()
         x[upd] = x[upd] + np.einsum("kij,kj->ki", K, y)
-        IKH = np.eye(x.shape[1]) - K @ Hm
+        IKH = _eye(x.shape[1]) - K @ Hm
         P[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + (K * rm[:, None, :]) @ K.transpose(0, 2, 1)
     return x, P, counts, nis, keep & avail
 
@@ -200,8 +229,7 @@ def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray
     correlations to +-0.9999) and project x into the physical box [lower, upper] (each (n,)).
     Returns x, P (new arrays)."""
     P = (P + P.transpose(0, 2, 1)) / 2.0
-    n = P.shape[1]
-    dg = np.arange(n)
+    dg = _arange(P.shape[1])
     var = np.clip(P[:, dg, dg], floor, ceiling)
     sd = np.sqrt(var)
     lim = 0.9999 * sd[:, :, None] * sd[:, None, :]
@@ -292,25 +320,35 @@ class ObserverBank:
             if rows.any():
                 self._reset(ix, rows, x, P, inputs, reasons, why)
         A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity)
-        run = np.array([not r for r in reasons])
         rejected = np.zeros(k, dtype=int)
-        if run.any():
-            xr, Pr = x[run], P[run]
-            moving = dt[run] > 0
-            if moving.any():
+        every = not any(reasons)  # the usual case: no mask copies, same arithmetic
+        run = slice(None) if every else np.array([not r for r in reasons])
+        if every or run.any():
+            xr, Pr = (x, P) if every else (x[run], P[run])
+            dtr = dt if every else dt[run]
+            moving = dtr > 0
+            if moving.all():
+                xr, Pr = predict(xr, Pr, A if every else A[run], b if every else b[run], self._Qc, dtr)
+            elif moving.any():
                 xr[moving], Pr[moving] = predict(xr[moving], Pr[moving], A[run][moving], b[run][moving], self._Qc,
-                                                 dt[run][moving])
+                                                 dtr[moving])
             gs = inputs.ground_speed[run]
+            no_gs = np.isnan(gs)
             z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
-                                 np.nan_to_num(gs)])
+                                 np.where(no_gs, 0.0, gs)])
             available = np.ones(z.shape, dtype=bool)
             available[:, 2:7] = fresh[run][:, :5]  # held wheel / ground speeds are no new measurement
-            available[:, 6] &= ~np.isnan(gs)
+            available[:, 6] &= ~no_gs
+            rows = ix[run]
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
-                                                   self.rejections[ix[run]], cfg.gate_patience, available)
-            self.rejections[ix[run]] = counts
+                                                   self.rejections[rows], cfg.gate_patience, available)
+            self.rejections[rows] = counts
             rejected[run] = np.count_nonzero(available & ~keep, axis=1)
-            x[run], P[run] = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
+            xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
+            if every:
+                x, P = xr, Pr
+            else:
+                x[run], P[run] = xr, Pr
         # divergence guard: a non-finite or out-of-physics state restarts that vehicle's filter
         finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
         sane = (np.abs(x[:, L.omega]).max(axis=1) <= cfg.max_wheel_speed) & (np.abs(x[:, L.v]) <= cfg.max_ground_speed)
@@ -326,12 +364,12 @@ class ObserverBank:
         M = self.maps(x)
         res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
         # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
-        # wheel torque balance even when the net / resistance split is not: method-notes §12)
+        # wheel torque balance even when the net / resistance split is not: docs/method.md §12)
         J = np.zeros((k, 4, L.n))
-        J[:, :, L.mu] = np.eye(4)
+        J[:, :, L.mu] = _eye(4)
         if L.n_res:
             J[:, :, L.res] = M
-        dg = np.arange(L.n)
+        dg = _arange(L.n)
         mu_var = P[:, dg, dg][:, L.mu]
         mu = x[:, L.mu]
         return ObserverBankOutput(

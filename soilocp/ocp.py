@@ -10,11 +10,11 @@ import numpy as np
 
 from .checks import positive, positive_scalar
 from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import net_traction, tractive_efficiency
+from .traction import curve_unchecked, tractive_efficiency_unchecked
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """S_T(K): the slip of maximum net traction, eq. 7 with its sign corrected (method-notes §1).
+    """S_T(K): the slip of maximum net traction, eq. 7 with its sign corrected (docs/method.md §1).
 
     Setting d mu/dS = 0 in eq. 6 (S > 0) gives
         S_T = (1/C3) ln( C1 C3 sqrt(K) (1 - e^{-C2 K}) / C6 ),
@@ -23,35 +23,45 @@ def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CON
     For very weak soil (K below about 9 with the paper's constants) the argument is < 1: the curve
     falls from S = 0 on and has no interior peak; S_T is then 0 (the peak is at the origin).
     """
-    c = constants
-    k = positive("soil_strength", soil_strength)
-    arg = c.C1 * c.C3 * np.sqrt(k) * -np.expm1(-c.C2 * k) / c.C6
-    st = np.log(arg) / c.C3
-    st = np.maximum(st, 0.0)
+    st = _slip_traction(positive("soil_strength", soil_strength), constants)
     return st if st.ndim else float(st)
+
+
+def _slip_traction(k: np.ndarray, c: ModelConstants) -> np.ndarray:
+    """Eq. 7 (sign corrected, floored at 0) for a validated K array: :func:`optimal_slip_traction`."""
+    arg = c.C1 * c.C3 * np.sqrt(k) * -np.expm1(-c.C2 * k) / c.C6
+    return np.maximum(np.log(arg) / c.C3, 0.0)
 
 
 def max_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """mu_T(K) = mu(S_T(K), K): eq. 8 (eq. 6 evaluated at the corrected S_T of eq. 7)."""
-    k = positive("soil_strength", soil_strength)
-    st = np.asarray(optimal_slip_traction(k, constants))
-    if constants.bridge_slip > 0:
-        # at the origin the peak is the bridge's end point, where the printed curve starts
-        st = np.maximum(st, constants.bridge_slip)
-    mu = net_traction(st, k, constants)
+    mu = _max_traction(positive("soil_strength", soil_strength), constants)
     return mu if np.ndim(mu) else float(mu)
+
+
+def _max_traction(k: np.ndarray, c: ModelConstants, st: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 8 for a validated K array (``st``: its S_T if already computed): :func:`max_traction`."""
+    st = _slip_traction(k, c) if st is None else st
+    if c.bridge_slip > 0:
+        # at the origin the peak is the bridge's end point, where the printed curve starts
+        st = np.maximum(st, c.bridge_slip)
+    return curve_unchecked("net", st, k, c)[0]  # eq. 6 at S_T
 
 
 def optimal_slip_efficiency(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """S_E(K) = (K - alpha) / beta, eq. 10 (alpha = 677.4, beta = -5242.9 by default).
 
-    The paper's empirical line (method-notes §5: eq. 9 with the printed constants has no interior
+    The paper's empirical line (docs/method.md §5: eq. 9 with the printed constants has no interior
     efficiency peak for K <= 120, so the line is the model).  It reaches 0 at K = alpha; above that
     the most efficient slip is the smallest one, so S_E is clamped at 0 rather than going negative.
     """
-    k = positive("soil_strength", soil_strength)
-    se = np.maximum((k - constants.alpha) / constants.beta, 0.0)
+    se = _slip_efficiency(positive("soil_strength", soil_strength), constants)
     return se if se.ndim else float(se)
+
+
+def _slip_efficiency(k: np.ndarray, c: ModelConstants) -> np.ndarray:
+    """Eq. 10 clamped at 0 for a validated K array: :func:`optimal_slip_efficiency`."""
+    return np.maximum((k - c.alpha) / c.beta, 0.0)
 
 
 @dataclass(frozen=True)
@@ -78,14 +88,16 @@ def ocp_arrays(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS) -> 
             evaluable = np.all(np.isfinite(constants.C5 / kk))
         if not evaluable:
             raise ValueError(f"soil_strength must be Ks the model can evaluate (>~1e-300), got {kk!r}")
-        out["S_T"][have] = optimal_slip_traction(kk, constants)
-        out["mu_T"][have] = max_traction(kk, constants)
-        se = optimal_slip_efficiency(kk, constants)
+        # K checked once above; the per-sample path runs the unchecked single definitions
+        st = _slip_traction(kk, constants)
+        out["S_T"][have] = st
+        out["mu_T"][have] = _max_traction(kk, constants, st)
+        se = _slip_efficiency(kk, constants)
         out["S_E"][have] = se
         drive = (se > 0) & (se < 1)
         if drive.any():
             te = np.full(kk.shape, np.nan)
-            te[drive] = tractive_efficiency(se[drive], kk[drive], constants)
+            te[drive] = tractive_efficiency_unchecked(se[drive], kk[drive], constants)
             out["te_at_S_E"][have] = te
     return out
 

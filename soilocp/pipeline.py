@@ -84,7 +84,7 @@ def _quad(a) -> tuple[float, float, float, float]:
 
 
 class NormalForceStage:
-    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, method-notes §2-3)."""
+    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, docs/method.md §2-3)."""
 
     def __init__(self, config: PipelineConfig):
         self.vehicle = config.vehicle
@@ -164,17 +164,17 @@ class SoilInputs:
     observed: np.ndarray
     variance: np.ndarray
     slip_sigma: np.ndarray
-    gate_slip: np.ndarray  # the low-pass slip the gate decides on (method-notes §9)
+    gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
     gate_sigma: np.ndarray
     held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
 
 
 class SlipGate:
-    """Slip per wheel (eq. 1 with the floor and deadband of method-notes §6, §10) from the filtered
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10) from the filtered
     speeds, its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
     gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
-    method-notes §9), for N vehicles."""
+    docs/method.md §9), for N vehicles."""
 
     def __init__(self, config: PipelineConfig, n_vehicles: int):
         self.cfg = config
@@ -183,6 +183,7 @@ class SlipGate:
         self._lp_stamp = np.full(n_vehicles, np.nan)
         # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
         self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
 
     def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
         """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
@@ -197,7 +198,7 @@ class SlipGate:
             observed, var = ob.gross, ob.gross_var * self._shared
         else:
             observed, var = ob.mu, ob.mu_var * self._shared
-        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (method-notes §6, §9)
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         tau = cfg.soil.gate_smoothing
         last = self._lp_stamp[ix]
@@ -217,7 +218,9 @@ class SlipGate:
         # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
         # samples repeat one measurement: K learns from the samples that bring a new one
         fresh = ob.speed_age <= cfg.soil.fresh_age
-        return SoilInputs(slip, informative & measured[:, None] & fresh, observed, var, s_sig, lp, g_sig, held, measured)
+        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        return SoilInputs(slip, informative & measured[:, None] & fresh & loaded, observed, var, s_sig, lp, g_sig, held,
+                          measured)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -232,7 +235,7 @@ def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: S
 
 class SoilStage:
     """Slip per wheel (eq. 1) and soil strength K (eqs. 36-37 corrected: a grid Bayes filter over
-    ln K on gross traction, method-notes §4, §9, §11-12): :class:`SlipGate` and
+    ln K on gross traction, docs/method.md §4, §9, §11-12): :class:`SlipGate` and
     :class:`soilocp.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
 
     def __init__(self, config: PipelineConfig):
@@ -281,10 +284,13 @@ class OcpStage:
 
     def __init__(self, config: PipelineConfig):
         self.constants: ModelConstants = config.constants
+        self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
 
     def step(self, soil: SoilEstimate) -> OcpEstimate:
-        k = np.array([soil.soil_strength if soil.soil_strength is not None else np.nan])
-        return ocp_message(soil, ocp_arrays(k, self.constants), 0)
+        k = soil.soil_strength
+        if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
+            self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
+        return ocp_message(soil, self._last[1], 0)
 
 
 class VehiclePipeline:

@@ -5,7 +5,7 @@ Segments are placed by distance along the path: segment j covers [start_j, start
 and the last segment extends without end.  Each wheel sees the segment at its own position
 (distance of the CoM + the wheel's x offset), so the front wheels cross a soil change first.
 
-Angles follow the sensor-log conventions (REP-103, method-notes): ``grade`` > 0 is a climb
+Angles follow the sensor-log conventions (REP-103, docs/method.md, Conventions): ``grade`` > 0 is a climb
 (the rover's pitch is -grade, nose up), ``cross_slope`` > 0 means the ground rises to the left
 (the rover's roll is +cross_slope, left side up, so the right wheels are the lower ones).
 """

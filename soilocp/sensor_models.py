@@ -4,7 +4,7 @@ All noise levels live in :class:`SensorNoise` (documented defaults); every rando
 one seeded ``numpy.random.Generator``, so the same seed gives the same log.  ``SensorNoise.noiseless()``
 passes the truth through exactly (no noise, no bias, no gain error, no encoder quantisation).
 
-Conventions (method-notes, sensor-log contract): specific force in the body frame, x forward,
+Conventions (docs/method.md, Conventions): specific force in the body frame, x forward,
 y left, z up, IMU at the CoM (+9.81 on z at rest); roll/pitch REP-103 (pitch > 0 = nose down);
 wheel speeds may be encoder count differences over the last sample interval (quantised).
 """

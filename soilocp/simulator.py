@@ -3,9 +3,9 @@
 This is the truth the whole project is measured against.  It uses the library's physics and
 nothing else: the traction model of :mod:`soilocp.traction` (net traction mu, eq. 6; gross
 traction g, eq. 3; motion resistance r = g - mu, eq. 4, odd in slip and bridged near S = 0,
-method-notes §8), the zero-warp normal-force solver of :mod:`soilocp.normal_force` (eqs. 16-25
-corrected, method-notes §2-3), slip eq. 1 with the standstill floor of :mod:`soilocp.slip`
-(method-notes §6, §10) and the OCPs of :mod:`soilocp.ocp`.
+docs/method.md §8), the zero-warp normal-force solver of :mod:`soilocp.normal_force` (eqs. 16-25
+corrected, docs/method.md §2-3), slip eq. 1 with the standstill floor of :mod:`soilocp.slip`
+(docs/method.md §6, §10) and the OCPs of :mod:`soilocp.ocp`.
 
 Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
 
@@ -18,13 +18,13 @@ Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
   skid-steer resistance moment M_zR = mu_y (a (Fz1 + Fz4) + b (Fz2 + Fz3)) tanh(psi'/eps), which
   opposes the yaw rate smoothly (eq. 12 with a regularised sign);
 * normal forces from the TRUE specific force f = (V', V psi', 0) + g_R(roll, pitch) (eq. 20's
-  gravity reaction plus the acceleration, method-notes §3) through the zero-warp solver, solved
+  gravity reaction plus the acceleration, docs/method.md §3) through the zero-warp solver, solved
   together with the dynamics in each step (see ``_Run._substep`` for why not lagged).
 
 Lateral sliding is not modelled (the rover tracks its heading); grade and cross-slope are those
 of the segment under the CoM, taken as pitch = -grade and roll = +cross_slope.
 
-Stiffness (method-notes §10): at low speed the wheel-slip time constants are well below 1 ms,
+Stiffness (docs/method.md §10): at low speed the wheel-slip time constants are well below 1 ms,
 so every sub-step (default <= 2.5 ms, several per sensor interval) is a backward-Euler step of
 (omega_1..4, V, psi') solved by Newton's method with the analytic Jacobian (d g/dS, d mu/dS,
 d S/d omega, d S/dV, d Fz/dV, d Fz/d psi'; the 6x6 system is reduced to 2x2 by eliminating the
@@ -112,7 +112,7 @@ class TruthRecord(BaseModel):
     potential_energy: float = Field(description="m g (height gained since the start), J")
     slip_dissipation: float = Field(description="Energy dissipated by slip, sum Fz g (omega R_w - V_i) dt, J (>= 0)")
     resistance_work: float = Field(
-        description="Work of motion resistance, sum Fz r V_i dt, J (can be < 0 for K < ~125, method-notes §8)"
+        description="Work of motion resistance, sum Fz r V_i dt, J (can be < 0 for K < ~125, docs/method.md §8)"
     )
     yaw_dissipation: float = Field(description="Energy dissipated by the skid-steer moment M_zR, J (>= 0)")
 
@@ -140,7 +140,7 @@ class ControllerParams:
     #: the stable side of the traction peak (past it a braking wheel locks).
     brake_slip_limit: float = 0.35
     #: Excitation: > 0 makes the rear axle mirror the front's slip set-point (brake at about
-    #: -rear_mirror x S, trimmed by the speed PI) instead of holding the speed alone (method-notes §12).
+    #: -rear_mirror x S, trimmed by the speed PI) instead of holding the speed alone (docs/method.md §12).
     rear_mirror: float = 0.0
     mirror_trim: float = 0.05  #: rear_mirror: slip trim per m/s of the speed PI output (small: a close mirror)
     #: S-turns: yaw-rate set-point s_turn_rate * sin(2 pi t / s_turn_period), rad/s (0 = heading hold).

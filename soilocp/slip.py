@@ -8,10 +8,10 @@ import numpy as np
 
 from .checks import as_float_array, positive_scalar
 
-#: Below this speed (m/s) slip is reported but flagged as not informative (method-notes §6):
+#: Below this speed (m/s) slip is reported but flagged as not informative (docs/method.md §6):
 #: quantised encoders and a noisy ground speed make eq. 1 meaningless when both speeds are small.
 DEFAULT_DEADBAND = 0.15
-#: Floor on eq. 1's denominator (m/s), so that standstill gives a finite slip (method-notes §10).
+#: Floor on eq. 1's denominator (m/s), so that standstill gives a finite slip (docs/method.md §10).
 DEFAULT_FLOOR = 0.05
 
 
@@ -31,7 +31,7 @@ def slip_ratio(
 ) -> Slip:
     """Slip ratio S = (omega R_w - V_x) / max(V_x, omega R_w), eq. 1.
 
-    Departures from the print (method-notes §6, §10):
+    Departures from the print (docs/method.md §6, §10):
 
     * the denominator is max(|V_x|, |omega R_w|, floor), so S is finite at standstill
       (the print divides 0 by 0);

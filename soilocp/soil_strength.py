@@ -4,7 +4,7 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
 
 * :class:`PaperSoilEstimator` — the paper's numerical rule, kept for reproduction:
   K_n+1 = K_n + lambda * eta_E (eq. 36), eta_E = E / S_a with E = mu_e - mu_ref(S_a, K_n)
-  (eq. 37).  Corrections (method-notes §4): the printed absolute value |E/S_a| can only increase
+  (eq. 37).  Corrections (docs/method.md §4): the printed absolute value |E/S_a| can only increase
   K, so the sign is kept (K grows when the observed traction exceeds the curve's prediction); and
   the update is gated on informative slip (|S| in [s_min, s_max], so that dividing by S_a cannot
   blow up) and on d mu/dK > 0 at the current K (at small slip mu is not monotone in K).
@@ -13,7 +13,7 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
   coefficient given the model at its slip; between samples the belief diffuses (random walk in
   ln K) and mixes with a small uniform hazard, so abrupt terrain changes are picked up within a
   fraction of a second.  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone
-  in K at small slip, and above K ~ 300 the curve saturates (method-notes §9), which shows up as a
+  in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
   wide posterior (status ``uncertain``), not false precision.  When slip carries no information
   (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
   ``holding``, and after ``expire_after`` seconds it is withdrawn (``no_estimate``) — never a
@@ -60,7 +60,7 @@ class SoilConfig(BaseModel):
     slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
     gate_smoothing: float = Field(
         0.15, ge=0, description="Time constant (s) of the low-pass slip the gate looks at: gating on the raw, noisy "
-        "slip keeps the samples whose noise pushed |S| up and biases K low (method-notes §9)"
+        "slip keeps the samples whose noise pushed |S| up and biases K low (docs/method.md §9)"
     )
     outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
     temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
@@ -74,7 +74,11 @@ class SoilConfig(BaseModel):
     radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
     max_input_age: float = Field(
         0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
-        "(a held reading from a slow driver is not a measurement, method-notes §13)"
+        "(a held reading from a slow driver is not a measurement, docs/method.md §13)"
+    )
+    min_load_fraction: float = Field(
+        0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
+        "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
     )
     fresh_age: float = Field(
         0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
@@ -108,12 +112,25 @@ class SoilState:
     used: tuple[bool, bool, bool, bool]
 
 
+_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
+
+
 def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
-    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours)."""
-    names = list(constants.soils)
-    logs = np.log([constants.soils[n] for n in names])
-    edges = np.concatenate([[-np.inf], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
-    return names, edges
+    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
+
+    The weakest class starts at half its reference K: below that no class applies (the traction
+    constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
+    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
+    table (``classify`` runs on every sample)."""
+    key = tuple(constants.soils.items())
+    hit = _CLASS_BOUNDS.get(key)
+    if hit is None:
+        names = sorted(constants.soils, key=constants.soils.get)
+        logs = np.log([constants.soils[n] for n in names])
+        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges.flags.writeable = False
+        hit = _CLASS_BOUNDS[key] = (names, edges)
+    return list(hit[0]), hit[1]
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
@@ -138,7 +155,7 @@ def _checked_quads(**arrays) -> list[np.ndarray]:
 
 def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
     """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
-    dS ~ dV / V, which dominates at low speed (method-notes §6, §9)."""
+    dS ~ dV / V, which dominates at low speed (docs/method.md §6, §9)."""
     v = np.maximum(np.abs(np.asarray(speed, dtype=float)), 1e-3)
     return np.hypot(cfg.slip_sigma, cfg.speed_sigma / v)
 
@@ -152,7 +169,7 @@ def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma
 
 
 class _HoldLogic:
-    """Shared 'holding' / expiry bookkeeping (method-notes §9: hold, flagged; never drift)."""
+    """Shared 'holding' / expiry bookkeeping (docs/method.md §9: hold, flagged; never drift)."""
 
     def __init__(self, cfg: SoilConfig):
         self.cfg = cfg
@@ -173,7 +190,7 @@ class _HoldLogic:
             self.held = (k, k_std, log_std)  # fresh: this sample updated the belief
         else:
             # no information this sample: report the last informed estimate, not the belief
-            # that is diffusing towards the change prior (method-notes §9: never drift)
+            # that is diffusing towards the change prior (docs/method.md §9: never drift)
             k, _, _ = self.held
             k_std, log_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0), log_std
         if age > cfg.hold_after:
@@ -204,7 +221,7 @@ class LogKGrid:
         k = self.k_grid
         self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
         if self.kind == "gross":
-            # S > 0: eq. 3.  S < 0 (method-notes §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
+            # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
             self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
             self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
         else:  # eq. 6, odd
@@ -213,7 +230,7 @@ class LogKGrid:
 
     def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
-        method-notes §11 for S < 0) or net traction (eq. 6).
+        docs/method.md §11 for S < 0) or net traction (eq. 6).
 
         Equal to :func:`soilocp.traction.curve_unchecked` (tested); outside the zero-slip bridge
         the curve factorises into grid constants and one exp per wheel.
@@ -299,8 +316,10 @@ class SoilBank:
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
-        # the lowest 3 % of the ln K range: a belief sitting there is the model's edge, not a soil
-        self._floor_idx = int(0.03 * (cfg.grid_points - 1))
+        # half the weakest reference soil's K: the traction constants were fitted on soils from there
+        # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
+        self.k_floor = math.exp(class_bounds(constants)[1][0])
+        self._floor_idx = int(np.searchsorted(self.k_grid, self.k_floor))
         self.last_stamp = np.full(n, np.nan)
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
@@ -325,7 +344,10 @@ class SoilBank:
                 raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
         g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
         g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
-        gated = _gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+        # the gate decides on the smoothed slip (no selection bias from noise), but the slip the curve
+        # is evaluated at must itself be away from zero: a fast reversal leaves the smoothed slip behind
+        gated = (_gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+                 & (np.abs(slip) >= 0.5 * cfg.slip_min))
         # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
@@ -416,8 +438,8 @@ class SoilBank:
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
             elif rk is not None and cdf[j][self._floor_idx] > 0.5:
                 status = "model_mismatch"
-                reason = (f"gross traction is below what any soil in the model gives at this slip (K at the floor of "
-                          f"the model's range, {cfg.k_min:g}): torque scale or units?")
+                reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
+                          f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
             elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = (f"slip is informative but the wheel speed / torque readings are held longer than "
@@ -425,7 +447,7 @@ class SoilBank:
             elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
-            if status == "not_observable":  # the data do not determine K now: no number (method-notes §12)
+            if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
                 rk = rs = rl = None
             cls = conf = None
             if rk is not None and status != "model_mismatch":
@@ -479,7 +501,7 @@ class PaperSoilEstimator:
         used = np.zeros(4, dtype=bool)
         for i in np.flatnonzero(use):
             ref, _, dk = model(slip[i], self.k, self.c)
-            # eq. 37 assumes |mu| grows with K: not so at small slip (method-notes §4); the curve is
+            # eq. 37 assumes |mu| grows with K: not so at small slip (docs/method.md §4); the curve is
             # odd in S, so for a braking wheel d mu/dK < 0 is the normal, monotone case
             if float(dk) * np.sign(slip[i]) <= 0:
                 continue

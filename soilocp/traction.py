@@ -6,7 +6,7 @@ All coefficients are per unit normal load W (a force divided by W):
 * motion resistance r(S, K) = F_MR / W                     (eq. 4)
 * net (drawbar) traction mu(S, K) = F_DP / W = g - r       (eqs. 2, 5, 6)
 
-Sign convention (method-notes, Conventions and §11): S > 0 driving, S < 0 braking, for a wheel
+Sign convention (docs/method.md, Conventions and §11): S > 0 driving, S < 0 braking, for a wheel
 travelling forward.  Eq. 6 is odd in S (mu(-S) = -mu(S)): braking is the mirror image of driving.
 Motion resistance (eq. 4 with |S|) is EVEN in S: it opposes travel whatever the sign of the slip,
 and does not flip when the wheel brakes.  The wheel's torque balance (eq. 13) sees gross traction
@@ -16,13 +16,13 @@ Correction (§11): the printed lower branch of eq. 3 (which flips C4 with the to
 together with eqs. 2, 4 and 6; we keep eq. 6 (net, odd) and eq. 4 (resistance, even) and derive g.
 A wheel travelling backwards is the mirror image of all of this (S -> -S, every force negated).
 
-Correction (method-notes §8): eq. 6 jumps from -C5/K to +C5/K at S = 0, so zero slip would not
+Correction (docs/method.md §8): eq. 6 jumps from -C5/K to +C5/K at S = 0, so zero slip would not
 give zero force.  Inside |S| < ``constants.bridge_slip`` every coefficient is the straight line
 through the origin that meets the printed curve at +-bridge_slip.  bridge_slip = 0 gives the
 print (with the jump).
 
 With the paper's C5 = -5 the motion resistance is negative at low slip for K below ~125
-(method-notes §8): this is the model, not a bug, so nothing here asserts r >= 0.
+(docs/method.md §8): this is the model, not a bug, so nothing here asserts r >= 0.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def _net_pos(s, k, c):
 
 
 def _odd_bridged(one_sided, slip, soil_strength, c: ModelConstants):
-    """Odd extension of a one-sided curve, with the linear bridge of method-notes §8 near S=0."""
+    """Odd extension of a one-sided curve, with the linear bridge of docs/method.md §8 near S=0."""
     s, k = _inputs(slip, soil_strength)
     return _odd_bridged_unchecked(one_sided, s, k, c)
 
@@ -100,7 +100,7 @@ def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelCons
 
 
 def _even_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants):
-    """Even extension of a one-sided curve (method-notes §11), with the same linear bridge as
+    """Even extension of a one-sided curve (docs/method.md §11), with the same linear bridge as
     :func:`_odd_bridged_unchecked` inside |S| < bridge_slip, so that it vanishes at zero slip
     (a wheel at rest feels no resistance torque).  Returns (value, d/dS, d/dK)."""
     sign = np.where(s < 0, -1.0, 1.0)
@@ -109,7 +109,7 @@ def _even_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelCon
 
 
 def _gross_unchecked(s: np.ndarray, k: np.ndarray, c: ModelConstants):
-    """g = mu + r (eq. 2 with method-notes §11): net traction odd (eq. 6), resistance even (eq. 4).
+    """g = mu + r (eq. 2 with docs/method.md §11): net traction odd (eq. 6), resistance even (eq. 4).
 
     Written as eq. 3's odd extension plus 2 r(|S|) on the braking side, which is the same sum
     (-mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)) but keeps eq. 3 and its d/dK exact for S > 0, where
@@ -128,19 +128,19 @@ def net_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTA
     """Net (drawbar) traction coefficient mu(S, K) = F_DP / W, eq. 6 (both slip signs).
 
     mu = +-[C1 (1 - e^{-C2 K}) (1 - e^{-+C3 S}) - (C5/K +- C6 S / sqrt(K))]  (upper sign S > 0).
-    Departs from the print only inside |S| < bridge_slip (method-notes §8, linear bridge).
+    Departs from the print only inside |S| < bridge_slip (docs/method.md §8, linear bridge).
     """
     return _odd_bridged(_net_pos, slip, soil_strength, constants)[0]
 
 
 def gross_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """Gross traction coefficient F_GT / W = mu + r (eq. 2): eq. 3 for S > 0; for a braking wheel
-    -mu(|S|) + r(|S|) (method-notes §11, not eq. 3's printed lower branch); bridged near S = 0."""
+    -mu(|S|) + r(|S|) (docs/method.md §11, not eq. 3's printed lower branch); bridged near S = 0."""
     return _gross_unchecked(*_inputs(slip, soil_strength), constants)[0]
 
 
 def motion_resistance(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
-    """Motion-resistance coefficient F_MR / W, eq. 4 with |S| (method-notes §11): even in S, it
+    """Motion-resistance coefficient F_MR / W, eq. 4 with |S| (docs/method.md §11): even in S, it
     opposes travel for both slip signs, so that g = mu + r (eq. 2); bridged near S = 0."""
     s, k = _inputs(slip, soil_strength)
     return _even_bridged_unchecked(_resist_pos, s, k, constants)[0]
@@ -162,15 +162,21 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
 
     Defined only while driving: for S <= 0 no power is delivered to the ground and for S >= 1 the
     vehicle stands still, so such slip raises ValueError rather than returning a meaningless
-    number.  With the paper's C5 = -5, TE exceeds 1 near S = 0 for K <= 120 (method-notes §5):
+    number.  With the paper's C5 = -5, TE exceeds 1 near S = 0 for K <= 120 (docs/method.md §5):
     that is the printed model, reproduced as is; eq. 10 is the S_E model we use.
     """
     s, k = _inputs(slip, soil_strength)
     if np.any((s <= 0) | (s >= 1)):
         bad = s[(s <= 0) | (s >= 1)].ravel()[:4].tolist()
         raise ValueError(f"slip must be in (0, 1) for tractive efficiency (eq. 9), got {bad}")
-    mu = net_traction(s, k, constants)
-    g = gross_traction(s, k, constants)
+    return tractive_efficiency_unchecked(s, k, constants)
+
+
+def tractive_efficiency_unchecked(s: np.ndarray, k: np.ndarray, constants: ModelConstants) -> np.ndarray:
+    """Eq. 9, TE = (mu / g)(1 - S), for validated float arrays (0 < S < 1, K > 0) that broadcast:
+    the one definition behind :func:`tractive_efficiency` and the OCP kernel's hot path."""
+    mu = _odd_bridged_unchecked(_net_pos, s, k, constants)[0]
+    g = _gross_unchecked(s, k, constants)[0]
     return mu / g * (1.0 - s)
 
 

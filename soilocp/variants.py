@@ -1,5 +1,5 @@
 """Robustness variants: drives the estimator was not tuned to (issue 10, "A robustness evaluation
-you did not tune to"; method-notes §11-13).
+you did not tune to"; docs/method.md §11-13).
 
 A :class:`Variant` changes what the simulator does or what the sensors report while the
 estimator keeps its NOMINAL vehicle and default configuration:

@@ -14,7 +14,7 @@ import time
 import pytest
 
 from services.bench import json_safe, verdict
-from services.bench_live import proc_cpu_seconds, proc_rss_mib
+from services.bench_live import proc_cpu_seconds, proc_pss_mib, proc_rss_mib
 from services.bench_stages import STAGES, summarize
 
 PIPELINE_PROCS = {"standard": {"router", "gateway", "normal-force", "observer", "soil-strength", "ocp"},
@@ -41,6 +41,8 @@ def test_proc_readers_see_this_process():
         x += 1
     assert proc_cpu_seconds(os.getpid()) - t0 >= 0.1
     assert proc_rss_mib(os.getpid()) > 10.0
+    pss = proc_pss_mib(os.getpid())
+    assert pss is None or 0.0 < pss <= proc_rss_mib(os.getpid()) + 1.0  # shared pages count a share
     assert proc_cpu_seconds(2**22 + 12345) is None  # no such pid
 
 
@@ -94,3 +96,67 @@ def test_quick_bench_report_is_well_formed(tmp_path):
     assert "5. control loop" in r.stdout
     assert set(verdict(rep)) == set(rep["verdict"])
     assert all(isinstance(v, bool) for v in rep["verdict"].values())
+
+
+def _report(total_cpu, replay_x, p99, rss_gateway, vehicles):
+    return {"machine": {"nproc": 2}, "stages": {"total": {"p50": 2 * total_cpu, "cpu_p50": total_cpu}},
+            "replay": {"x_real_time": replay_x, "x_real_time_cpu": replay_x},
+            "latency": [{"pipeline": "standard", "rate_hz": 100.0, "result": {"p50": 1.0, "p99": p99, "drops": 0},
+                         "baseline": {"p50": 0.5},
+                         "processes": {"router": {"rss_mib": 50.0}, "gateway": {"rss_mib": rss_gateway},
+                                       "bench": {"rss_mib": 999.0}, "echo": {"rss_mib": 999.0}}}],
+            "scale": {"batched": {"max_vehicles": vehicles, "max_vehicles_no_drop": vehicles}}}
+
+
+def test_compare_ratios_and_gains_on_known_reports():
+    from services.bench_compare import compare, pipeline_rss_mib
+
+    base, now = _report(400.0, 20.0, 8.0, 150.0, 10), _report(100.0, 50.0, 2.0, 50.0, None)
+    assert pipeline_rss_mib(base["latency"][0]["processes"]) == 200.0  # bench and echo are not the pipeline
+    rows = {r["figure"]: r for r in compare(base, now)}
+    cpu = rows["stage total CPU median, us"]
+    assert (cpu["base"], cpu["now"], cpu["ratio"], cpu["gain"]) == (400.0, 100.0, 0.25, 4.0)
+    rp = rows["offline replay, x real time (wall)"]
+    assert rp["ratio"] == 2.5 and rp["gain"] == 2.5  # higher is better: gain = ratio
+    assert rows["latency standard 100 Hz p99, ms"]["gain"] == 4.0
+    assert rows["RSS standard router + services, MiB"]["now"] == 100.0
+    gone = rows["scale batched: vehicles x 100 Hz passing"]
+    assert gone["base"] == 10 and gone["now"] is None and gone["ratio"] is None and gone["gain"] is None
+
+
+def test_compare_cli_renders_saved_reports_and_rejects_a_bad_baseline(tmp_path):
+    base, now, bad = tmp_path / "base.json", tmp_path / "now.json", tmp_path / "bad.json"
+    b, n = _report(400.0, 20.0, 8.0, 150.0, 10), _report(100.0, 50.0, 2.0, 50.0, 20)
+    for r in (b, n):
+        r.update(quick=True, command="soilocp bench", latency=r["latency"], elapsed_s=1.0, verdict={"x": True})
+        r["machine"].update(cpu_model="cpu", load_start=[0, 0, 0], python="3", zenoh="1")
+        r["stages"]["total"].update(p99=1.0, cpu_p99=1.0, n=3)
+        r["latency"][0]["result"].update(p90=1.0, max=1.0, sent=1, rejections=0)
+        r["latency"][0]["baseline"]["p99"] = 1.0
+        r["scale"] = {}
+    base.write_text(json.dumps(b))
+    now.write_text(json.dumps(n))
+    bad.write_text(json.dumps({"not": "a report"}))
+    cmd = [sys.executable, "-m", "services.bench", "--report", str(now), "--compare"]
+    r = subprocess.run(cmd + [str(base)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "before / after" in r.stdout and "stage total CPU median, us" in r.stdout and "4.00" in r.stdout
+    r = subprocess.run(cmd + [str(bad)], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "is not a bench report" in r.stderr
+
+
+@pytest.mark.parametrize("argv", [["service", "observer"], ["router"]])
+def test_process_commands_load_no_heavy_module(argv):
+    """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
+    register only the services area's commands, and a stage service loads no scipy / rich /
+    matplotlib / filterpy (the cli with any other command still registers every area)."""
+    code = ("import sys; sys.argv = ['soilocp', *sys.argv[1:]]; import soilocp.cli as cli, services.observer; "
+            "heavy = sorted(m for m in ('scipy', 'rich', 'matplotlib', 'filterpy') if m in sys.modules); "
+            "print(heavy, sorted(cli.main.commands))")
+    r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    heavy, commands = r.stdout.strip().split("] [")
+    assert heavy == "[", r.stdout
+    assert "'service'" in commands and "'router'" in commands and "'estimate'" not in commands
+    r = subprocess.run([sys.executable, "-c", code, "estimate"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "'estimate'" in r.stdout and "'bench'" in r.stdout, r.stdout + r.stderr

@@ -136,7 +136,7 @@ def test_efficiency_line_refitted_when_the_model_has_interior_peaks():
 
 
 def test_efficiency_line_falls_back_without_interior_peaks():
-    # paper-like constants (C5 < 0): TE > 1 near S = 0 for sand and gravel (method-notes §5)
+    # paper-like constants (C5 < 0): TE > 1 near S = 0 for sand and gravel (docs/method.md §5)
     data = synthetic_testbed(TRUTH, SOILS, noise=0.005, seed=8, with_gross=True)
     init = DEFAULT_CONSTANTS.model_copy(update={"alpha": 600.0, "beta": -5000.0})
     res = fit_constants(data, initial=init)

@@ -1,5 +1,5 @@
 """Never diverge, never crash, never freeze: the estimation chain driven for more than 10^5
-vehicle-steps with hostile but schema-valid sensor sequences (method-notes §12-13).
+vehicle-steps with hostile but schema-valid sensor sequences (docs/method.md §12-13).
 
 Each vehicle gets a drive drawn by hypothesis: its sample rate (10, 20, 100 or 1000 Hz), jittered
 and repeated stamps, wheels that reverse slowly under large torque, wheel speeds held for 0.5-1 s,

@@ -1,4 +1,4 @@
-"""Normal forces, eqs. 16-25 (method-notes §2-3): zero-warp least-squares solution from the measured
+"""Normal forces, eqs. 16-25 (docs/method.md §2-3): zero-warp least-squares solution from the measured
 specific force.  Checked against rigid-body statics derived here independently of the library:
 
     sum F_i = m f_z,   sum x_i F_i = -h m f_x,   sum y_i F_i = -h m f_y,   F1 - F2 + F3 - F4 = 0
@@ -42,7 +42,7 @@ def statics(v: VehicleParams, f) -> np.ndarray:
 
 def test_matrix_is_rank_3_with_warp_null_vector():
     A = system_matrix(V)
-    assert np.linalg.matrix_rank(A) == 3  # method-notes erratum 2: eq. 25's inverse does not exist
+    assert np.linalg.matrix_rank(A) == 3  # docs/method.md §2: eq. 25's inverse does not exist
     np.testing.assert_allclose(A @ WARP, 0.0, atol=1e-12)
 
 

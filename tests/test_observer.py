@@ -18,7 +18,7 @@ from soilocp.vehicle import DEFAULT_VEHICLE as V
 
 
 def test_paper_state_is_not_observable_but_ours_is():
-    # method-notes §7: the paper's 17-state observer (+ our speed and speed-bias states) is rank deficient
+    # docs/method.md §7: the paper's 17-state observer (+ our speed and speed-bias states) is rank deficient
     assert StateLayout.of("per_wheel").n == 19
     assert observability_rank("per_wheel", V) < 19
     assert observability_rank("shared", V) == StateLayout.of("shared").n

@@ -1,4 +1,4 @@
-"""OCP models: S_T (eq. 7, sign corrected), mu_T (eq. 8), S_E (eq. 10) - the method-notes table,
+"""OCP models: S_T (eq. 7, sign corrected), mu_T (eq. 8), S_E (eq. 10) - the docs/method.md table,
 S_T as the true argmax of eq. 6, and bad input."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from soilocp.ocp import (
 )
 from soilocp.traction import net_traction
 
-# method-notes.md, "Constants and reference figures": K, S_T, mu_T, S_E
+# docs/method.md, "Constants and reference values": K, S_T, mu_T, S_E
 TABLE = [
     (50.0, 0.2626, 0.3828, 0.1197),
     (80.0, 0.3435, 0.5614, 0.1139),
@@ -50,7 +50,7 @@ def test_printed_eq7_is_negative_and_corrected_is_its_mirror():
     c = DEFAULT_CONSTANTS
     for k, s_t, _, _ in TABLE:
         printed = math.log(c.C6 / (c.C1 * c.C3 * math.sqrt(k) * (1 - math.exp(-c.C2 * k)))) / c.C3
-        assert printed < 0  # method-notes erratum 1
+        assert printed < 0  # docs/method.md §1
         assert optimal_slip_traction(k) == pytest.approx(-printed, abs=1e-12)
 
 

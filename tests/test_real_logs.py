@@ -1,6 +1,6 @@
 """The real Warthog logs (shared/data/real/warthog: skid steer, 20 Hz, wheel speeds held 0.5-1 s,
 'torque' a motor current of unknown scale) run to the end offline and live, with finite outputs
-and no confident soil class (method-notes §13)."""
+and no confident soil class (docs/method.md §13)."""
 
 from __future__ import annotations
 

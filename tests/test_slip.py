@@ -1,4 +1,4 @@
-"""Slip ratio, eq. 1, with the deadband and denominator floor of method-notes §6 and §10."""
+"""Slip ratio, eq. 1, with the deadband and denominator floor of docs/method.md §6 and §10."""
 
 from __future__ import annotations
 

@@ -28,9 +28,10 @@ def _feed(est, k_true, slips, steps, t0=0.0, dt=0.01, measurement="gross", noise
 
 
 @settings(max_examples=25, deadline=None)
-@given(log_k=st.floats(math.log(20), math.log(2000)), s0=st.floats(0.1, 0.6))
+@given(log_k=st.floats(math.log(26), math.log(2000)), s0=st.floats(0.1, 0.6))
 def test_recovers_k_from_noiseless_net_traction_pairs(log_k, s0):
-    """Issue 2: the estimator recovers K from noiseless (S, mu) pairs across K in [20, 2000]."""
+    """The estimator recovers K from noiseless (S, mu) pairs across K in [26, 2000] (from just above
+    half the weakest reference soil's K: below that, see the next test)."""
     k_true = math.exp(log_k)
     cfg = SoilConfig(measurement="net", model_sigma=0.002, slip_sigma=0.0, temper=1.0, change_rate=0.0, q_log_k=0.0,
                      grid_points=801)
@@ -39,6 +40,15 @@ def test_recovers_k_from_noiseless_net_traction_pairs(log_k, s0):
     state = _feed(est, k_true, slips, 200, measurement="net")
     assert state.status in ("ok", "uncertain")
     assert state.soil_strength == pytest.approx(k_true, rel=0.03)
+
+
+def test_k_far_below_the_weakest_reference_soil_is_flagged_not_classified():
+    # what a torque channel in amperes looks like: gross traction far below sand's at every slip
+    est = BayesSoilEstimator()
+    slips = [[0.3, -0.1, -0.1, 0.3], [0.5, -0.2, -0.2, 0.5]]
+    state = _feed(est, 12.0, slips, 300)
+    assert state.status == "model_mismatch" and "weakest" in state.reason
+    assert state.soil_class is None
 
 
 @pytest.mark.parametrize("k_true", [50, 80, 120, 200, 300])

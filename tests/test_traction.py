@@ -49,7 +49,7 @@ def test_net_traction_known_value_sand():
 @FAST
 @given(slips, strengths)
 def test_mu_is_odd_and_resistance_even_in_slip(s, k):
-    # method-notes §11: net traction (eq. 6) is odd, motion resistance (eq. 4 with |S|) is even
+    # docs/method.md §11: net traction (eq. 6) is odd, motion resistance (eq. 4 with |S|) is even
     assert net_traction(-s, k) == pytest.approx(-net_traction(s, k), abs=1e-12)
     assert motion_resistance(-s, k) == pytest.approx(motion_resistance(s, k), abs=1e-12)
 
@@ -99,7 +99,7 @@ def test_bridge_is_continuous_and_zero_at_origin(fn, k):
 def test_without_bridge_eq6_jumps_at_zero_slip():
     c = C.model_copy(update={"bridge_slip": 0.0})
     up, down = net_traction(1e-12, 50.0, c), net_traction(-1e-12, 50.0, c)
-    # method-notes §8: -C5/K = +0.1 above zero, -0.1 below
+    # docs/method.md §8: -C5/K = +0.1 above zero, -0.1 below
     assert up == pytest.approx(0.1, abs=1e-9)
     assert down == pytest.approx(-0.1, abs=1e-9)
 
@@ -118,7 +118,7 @@ def test_derivatives_match_finite_differences(s, k):
 @FAST
 @given(st.floats(0.01, 1.0), strengths)
 def test_gross_traction_monotone_in_k(s, k):
-    # method-notes §9: gross traction (seen through wheel torque) is monotone in K
+    # docs/method.md §9: gross traction (seen through wheel torque) is monotone in K
     assert gross_traction_with_derivatives(s, k)[2] > 0
     assert gross_traction(s, k * 1.5) >= gross_traction(s, k)
     if k <= 1000:  # above, 1 - exp(-C2 K) saturates to 1 in double precision
@@ -137,7 +137,7 @@ def test_tractive_efficiency_eq9():
     s, k = 0.2, 120.0
     expect = net_traction(s, k) / gross_traction(s, k) * (1 - s)
     assert tractive_efficiency(s, k) == pytest.approx(expect, rel=1e-12)
-    # method-notes §5: with C5 = -5, TE exceeds 1 near zero slip for sand; with C5 = +5 it has a peak near 0.1
+    # docs/method.md §5: with C5 = -5, TE exceeds 1 near zero slip for sand; with C5 = +5 it has a peak near 0.1
     assert tractive_efficiency(0.01, 50.0) > 1.0
     c = C.model_copy(update={"C5": 5.0})
     grid = np.linspace(0.01, 0.99, 981)
