@@ -22,7 +22,8 @@ import numpy as np
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from .observer_bank import ObserverBank, ObserverInputs, check_count, check_index
+from .checks import check_count, check_index
+from .observer_bank import ObserverBank, ObserverInputs
 from .ocp import ocp_arrays
 from .pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
 from .soil_strength import SoilBank

@@ -52,3 +52,20 @@ def positive_scalar(name: str, value) -> float:
     if v <= 0:
         raise ValueError(f"{name} must be > 0, got {v!r}")
     return v
+
+
+def check_count(n: object) -> int:
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"n_vehicles {n!r} is invalid: must be an integer >= 1")
+    return int(n)
+
+
+def check_index(idx, n: int) -> np.ndarray:
+    ix = np.asarray(idx)
+    if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
+        raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
+    if ix.min() < 0 or ix.max() >= n:
+        raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
+    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
+        raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
+    return ix

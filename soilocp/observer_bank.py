@@ -42,6 +42,7 @@ import numpy as np
 
 from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, initial_covariance, model,
                        resistance_map, travel_direction)
+from .checks import check_count, check_index
 from .vehicle import VehicleParams
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -67,23 +68,6 @@ def _arange(n: int) -> np.ndarray:
 
 _FIELDS_K = ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed")
 _FIELDS_K4 = ("wheel_speed", "wheel_torque", "normal_force")
-
-
-def check_count(n: object) -> int:
-    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
-        raise ValueError(f"n_vehicles {n!r} is invalid: must be an integer >= 1")
-    return int(n)
-
-
-def check_index(idx, n: int) -> np.ndarray:
-    ix = np.asarray(idx)
-    if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
-        raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
-    if ix.min() < 0 or ix.max() >= n:
-        raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
-    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
-        raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
-    return ix
 
 
 @dataclass

@@ -33,7 +33,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .checks import as_float_array
+from .checks import as_float_array, check_count, check_index
 from .constants import DEFAULT_CONSTANTS, ModelConstants
 from .traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
 
@@ -277,18 +277,6 @@ class LogKGrid:
         return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
 
 
-def check_index(idx, n: int) -> np.ndarray:
-    """Indices of the stepped vehicles: a non-empty 1-D integer array in [0, n), each at most once."""
-    ix = np.asarray(idx)
-    if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
-        raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
-    if ix.min() < 0 or ix.max() >= n:
-        raise ValueError(f"idx {idx!r} is invalid: indices must be in [0, {n - 1}]")
-    if ix.size > 1 and len(set(ix.tolist())) != ix.size:
-        raise ValueError(f"idx {idx!r} is invalid: a vehicle can be stepped only once per call")
-    return ix
-
-
 class SoilBank:
     """N grid Bayes filters over ln K (the soil kernel; module doc), stepped together.
 
@@ -309,9 +297,7 @@ class SoilBank:
         self.cfg = cfg = config or SoilConfig()
         if cfg.method != "bayes":
             raise ValueError(f"soil method {cfg.method!r}: the soil kernel implements 'bayes' only")
-        if not isinstance(n_vehicles, (int, np.integer)) or isinstance(n_vehicles, bool) or n_vehicles < 1:
-            raise ValueError(f"n_vehicles {n_vehicles!r} is invalid: must be an integer >= 1")
-        self.n_vehicles = n = int(n_vehicles)
+        self.n_vehicles = n = check_count(n_vehicles)
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
