@@ -21,6 +21,21 @@ from .simulator import simulate
 DEFAULT_SCENARIOS = ("sand", "gravel", "grass", "firm", "sandy-slope", "mixed")
 
 
+def estimate_and_score(pairs, cfg: PipelineConfig, settle: float = TARGETS["settle_s"]):
+    """The offline chain on simulated ``(SensorSample, TruthRecord)`` pairs, scored against their
+    truth: (samples, estimates per second, per-segment results, the estimate summary).  One path
+    for ``soilocp accuracy`` and its ``--robustness`` variants."""
+    lines, truth = [], []
+    for sample, tr in pairs:
+        lines.append(sample.model_dump_json())
+        truth.append(tr.model_dump())
+    summary = EstimateSummary()
+    t0 = time.perf_counter()
+    estimates = list(estimate_lines(lines, cfg, summary=summary))
+    rate = len(estimates) / max(time.perf_counter() - t0, 1e-9)
+    return len(lines), rate, evaluate_records(truth, estimates, settle), summary
+
+
 @dataclass
 class RunResult:
     scenario: str
@@ -75,16 +90,9 @@ def run_one(scenario: str, mode: str, compensation: bool, seed: int = 0, duratio
     cfg = config or PipelineConfig()
     if not compensation:
         cfg = cfg.model_copy(update={"observer": cfg.observer.model_copy(update={"structure": "none"})})
-    lines, truth = [], []
-    for sample, tr in simulate(scenario, duration=duration, seed=seed, mode=mode, vehicle=cfg.vehicle, constants=cfg.constants):
-        lines.append(sample.model_dump_json())
-        truth.append(tr.model_dump())
-    summary = EstimateSummary()
-    t0 = time.perf_counter()
-    estimates = list(estimate_lines(lines, cfg, summary=summary))
-    rate = len(estimates) / max(time.perf_counter() - t0, 1e-9)
-    segs = evaluate_records(truth, estimates)
-    return RunResult(scenario, mode, compensation, len(lines), rate, segs, summary.statuses)
+    pairs = simulate(scenario, duration=duration, seed=seed, mode=mode, vehicle=cfg.vehicle, constants=cfg.constants)
+    n, rate, segs, summary = estimate_and_score(pairs, cfg)
+    return RunResult(scenario, mode, compensation, n, rate, segs, summary.statuses)
 
 
 def _run_args(args):

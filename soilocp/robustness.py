@@ -23,16 +23,14 @@ Verdicts (issue 10, "Done means"):
 from __future__ import annotations
 
 import json
-import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 
-from .accuracy import RunResult
-from .estimate import EstimateSummary, estimate_lines
-from .evaluation import TARGETS, UNFLAGGED_ERROR_REL, SegmentResult, evaluate_records
+from .accuracy import RunResult, estimate_and_score
+from .evaluation import TARGETS, UNFLAGGED_ERROR_REL, SegmentResult
 from .pipeline import PipelineConfig
 from .variants import get_variant, list_variants
 
@@ -71,16 +69,9 @@ def run_variant(name: str, seed: int = 0, duration: Optional[float] = None) -> V
     """simulate (the variant) -> estimate (nominal config) -> evaluate, in this process."""
     variant = get_variant(name)
     cfg = PipelineConfig()
-    lines, truth = [], []
-    for sample, tr in variant.simulate(seed, duration=duration, nominal=cfg.vehicle, constants=cfg.constants):
-        lines.append(sample.model_dump_json())
-        truth.append(tr.model_dump())
-    summary = EstimateSummary()
-    t0 = time.perf_counter()
-    estimates = list(estimate_lines(lines, cfg, summary=summary))
-    rate = len(estimates) / max(time.perf_counter() - t0, 1e-9)
-    segs = evaluate_records(truth, estimates, ROBUSTNESS_TARGETS["settle_s"])
-    return VariantRun(name, seed, len(lines), rate, segs, dict(summary.statuses), len(summary.rejected))
+    pairs = variant.simulate(seed, duration=duration, nominal=cfg.vehicle, constants=cfg.constants)
+    n, rate, segs, summary = estimate_and_score(pairs, cfg, ROBUSTNESS_TARGETS["settle_s"])
+    return VariantRun(name, seed, n, rate, segs, dict(summary.statuses), len(summary.rejected))
 
 
 def _run_args(args) -> VariantRun:

@@ -376,7 +376,7 @@ class SoilBank:
 
     def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
-        cfg, G = self.cfg, self.theta.size
+        G = self.theta.size
         which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
         cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
         j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
