@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 
 from schemas import keys
-from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 from soilocp.batch import BatchPipeline
 from soilocp.normal_force import normal_forces

@@ -16,7 +16,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
+from schemas.pipeline import NormalForces, ObserverOutput, SoilEstimate
 from schemas.sensor import SensorSample
 
 STAGES = ("validation", "normal_forces", "observer", "soil_strength", "ocp", "messages")

@@ -7,8 +7,6 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from typing import Literal
-
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 
