@@ -157,16 +157,28 @@ class StateLayout:
             return StateLayout(structure, 0, 1)
         raise ValueError(f"observer structure must be slip, shared, per_wheel or none, got {structure!r}")
 
+    def per_state(self, mu: float, res: float, res_slope: float, lat: float, omega: float, v: float, psi: float,
+                  bias: float) -> np.ndarray:
+        """(n,) one value per state, by kind (``res_slope`` for the second resistance state of the
+        ``slip`` structure)."""
+        out = np.zeros(self.n)
+        out[self.mu] = mu
+        out[self.res] = res
+        if self.n_res == 2:
+            out[self.res.start + 1] = res_slope
+        out[self.lat] = lat
+        out[self.omega] = omega
+        out[self.v] = v
+        out[self.psi] = psi
+        out[self.bias] = bias
+        return out
+
     def bounds(self, cfg: "ObserverConfig") -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) physical box of the state (docs/method.md §12: a net traction coefficient of 3
         is not a soil); speeds are unbounded here (the divergence guard watches them)."""
-        hi = np.full(self.n, np.inf)
-        hi[self.mu] = cfg.mu_bound
-        hi[self.res] = cfg.resistance_bound
-        if self.n_res == 2:
-            hi[self.res.start + 1] = cfg.resistance_slope_bound
-        hi[self.lat] = cfg.lateral_bound
-        hi[self.bias] = cfg.speed_bias_bound
+        inf = np.inf
+        hi = self.per_state(cfg.mu_bound, cfg.resistance_bound, cfg.resistance_slope_bound, cfg.lateral_bound,
+                            inf, inf, inf, cfg.speed_bias_bound)
         return -hi, hi
 
 
@@ -254,17 +266,10 @@ def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray
 
 
 def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
-    q = np.zeros(layout.n)
-    q[layout.mu] = cfg.q_mu**2
-    q[layout.res] = cfg.q_resistance**2
-    if layout.n_res == 2:
-        q[layout.res.start + 1] = cfg.q_resistance_slope**2
-    q[layout.lat] = cfg.q_lateral**2
-    q[layout.omega] = cfg.q_wheel_speed**2
-    q[layout.v] = cfg.q_ground_speed**2
-    q[layout.psi] = cfg.q_yaw_rate**2
-    q[layout.bias] = cfg.q_speed_bias**2
-    return np.diag(q)
+    """Q (n, n): diagonal random-walk intensities of the states, squared."""
+    c = cfg
+    return np.diag(layout.per_state(c.q_mu, c.q_resistance, c.q_resistance_slope, c.q_lateral, c.q_wheel_speed,
+                                    c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
 
 
 def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: str = "series"):
@@ -332,15 +337,6 @@ def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, sl
 
 def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
     """P_0 (n, n): diagonal, from the config's initial 1-sigmas (speeds from their sensors' noise)."""
-    L, c = layout, cfg
-    p = np.zeros(L.n)
-    p[L.mu] = c.p0_mu**2
-    p[L.res] = c.p0_resistance**2
-    if L.n_res == 2:
-        p[L.res.start + 1] = c.p0_resistance_slope**2
-    p[L.lat] = c.p0_lateral**2
-    p[L.omega] = c.r_wheel_speed**2
-    p[L.v] = c.p0_speed**2
-    p[L.psi] = c.r_yaw_rate**2
-    p[L.bias] = c.p0_speed_bias**2
-    return np.diag(p)
+    c = cfg
+    return np.diag(layout.per_state(c.p0_mu, c.p0_resistance, c.p0_resistance_slope, c.p0_lateral, c.r_wheel_speed,
+                                    c.p0_speed, c.r_yaw_rate, c.p0_speed_bias) ** 2)
