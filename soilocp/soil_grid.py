@@ -98,10 +98,11 @@ class LogKGrid:
         d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
         return h, d
 
-    def predict(self, p: np.ndarray, m: np.ndarray, v: np.ndarray, dt: np.ndarray):
+    def predict(self, p: np.ndarray, m: np.ndarray, v: np.ndarray, dt: np.ndarray, free=True):
         """Beliefs (p (k, G), m (k, 2, G), V (k, 3, G)) after dt (k,) > 0 seconds: diffusion of ln K
         (random walk), mixing with the uniform change prior over ln K (c keeps its marginal
-        belief), drift of c.  After a long gap no ln K information survives: uniform at once."""
+        belief), drift of c where ``free`` (k,) (a row whose scale is fixed keeps V = 0).  After a
+        long gap no ln K information survives: uniform at once."""
         cfg = self.cfg
         G = p.shape[1]
         # raw moments per node: p, p m_f, p m_r, p (V_ff + m_f^2), p (V_fr + m_f m_r), p (V_rr + m_r^2)
@@ -133,7 +134,7 @@ class LogKGrid:
         v[:, 0] = a[:, 3] / safe - m[:, 0] ** 2
         v[:, 1] = a[:, 4] / safe - m[:, 0] * m[:, 1]
         v[:, 2] = a[:, 5] / safe - m[:, 1] ** 2
-        v += (cfg.scale_drift**2 * dt)[:, None, None] * self._drift[None, :, None]
+        v += (cfg.scale_drift**2 * dt * free)[:, None, None] * self._drift[None, :, None]
         return p, m, psd(v)
 
     def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:

@@ -42,10 +42,6 @@ from .traction import gross_traction_with_derivatives, net_traction_with_derivat
 __all__ = ["SoilConfig", "SoilState", "Status", "class_bounds", "classify", "LogKGrid", "SoilBank",
            "BayesSoilEstimator", "PaperSoilEstimator", "make_soil_estimator", "slip_uncertainty"]
 
-#: Posterior / prior 1-sigma of an axle's scale above which the data have not determined it.
-SCALE_UNDETERMINED = 0.7
-
-
 def _checked_quads(**arrays) -> list[np.ndarray]:
     """Per-wheel float arrays of shape (4,), finite; one vectorised check on the happy path."""
     out = [np.asarray(v, dtype=float) for v in arrays.values()]
@@ -126,16 +122,20 @@ class SoilBank:
         self.n_vehicles = n = check_count(n_vehicles)
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
-        self.p, self.m, self.v = self.grid.initial(n)
+        # Two hypotheses per vehicle (docs/method.md §14), rows 2i and 2i + 1: the configured scale
+        # (c = 1 exactly: K as the configured vehicle and torque constant imply) and the fitted one
+        # (c estimated with K).  K is reported from the first; their disagreement enters K's band.
+        self.p, self.m, self.v = self.grid.initial(2 * n)
+        self.v[0::2] = 0.0
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
         # half the weakest reference soil's K: the traction constants were fitted on soils from there
         # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
         self.k_floor = math.exp(class_bounds(constants)[1][0])
         self._floor_idx = int(np.searchsorted(self.k_grid, self.k_floor))
-        self.last_stamp = np.full(n, np.nan)
+        self.last_stamp = np.full(2 * n, np.nan)
         # window statistics: evidence (s of informative samples), NIS sum, and the radius budget's
         # sums  sum w h_K^2, sum w h_K h_S dS
-        self.stats = np.zeros((n, 4))
+        self.stats = np.zeros((2 * n, 4))
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
@@ -163,19 +163,22 @@ class SoilBank:
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
         ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
-        use = gated & determined & ~held & ident[:, None]
-        p, m, v = self.p[ix], self.m[ix], self.v[ix]
-        last = self.last_stamp[ix]
+        use0 = gated & determined & ~held & ident[:, None]
+        # two hypotheses per vehicle, stepped as rows 2i (configured scale) and 2i + 1 (fitted scale)
+        ir = (2 * ix[:, None] + np.arange(2)).ravel()
+        stamp, slip, obs, var, s_sig, use = (np.repeat(a, 2, axis=0) for a in (stamp, slip, obs, var, s_sig, use0))
+        p, m, v = self.p[ir], self.m[ir], self.v[ir]
+        last = self.last_stamp[ir]
         with np.errstate(invalid="ignore"):
             dt = stamp - last
             pred = ~np.isnan(last) & (dt > 0)
         if pred.any():
-            p[pred], m[pred], v[pred] = self.grid.predict(p[pred], m[pred], v[pred], dt[pred])
-        self.last_stamp[ix] = stamp
-        stats = self.stats[ix]
+            p[pred], m[pred], v[pred] = self.grid.predict(p[pred], m[pred], v[pred], dt[pred], (ir % 2 == 1)[pred])
+        self.last_stamp[ir] = stamp
+        stats = self.stats[ir]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
         stats *= decay[:, None]
-        info = np.zeros(k, dtype=bool)
+        info = np.zeros(2 * k, dtype=bool)
         rows = np.flatnonzero(use.any(axis=1))
         if rows.size:
             rr, ww = np.nonzero(use[rows])  # the used wheels, stacked: row (in rows) and wheel
@@ -203,9 +206,10 @@ class SoilBank:
             m[good], v[good] = mu_[ok], psd(vu[ok])
             info[good] = True
             self._window_stats(stats, rows, rr, ok, p, h, dh_ds, sig2, nis, slip[at], dt)
-        self.p[ix], self.m[ix], self.v[ix] = p, m, v
-        self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, m, v, info, use, gated & ~determined, gated & held, ident, stats)
+        self.p[ir], self.m[ir], self.v[ir] = p, m, v
+        self.stats[ir] = stats
+        return self._summaries(ix, stamp[::2], p, m, v, info[::2], use0, gated & ~determined, gated & held, ident,
+                               stats[::2])
 
     def _window_stats(self, stats, rows, rr, ok, p, h, dh_ds, sig2, nis, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the radius budget's sums (class doc)."""
@@ -232,36 +236,41 @@ class SoilBank:
         return mean, np.sqrt(np.maximum(second - mean**2, 0.0))
 
     def _summaries(self, ix, stamp, p, m, v, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+        """Per vehicle: K and its band from the configured-scale belief (rows 2j), widened by the
+        distance to the fitted-scale belief's K (rows 2j + 1, docs/method.md §14), statuses, reasons."""
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
-        c_mean, c_std = self._scales(p, m, v)
-        prior_sd = math.sqrt(self.grid.scale_prior[0])
+        c_mean, c_std = self._scales(p[1::2], m[1::2], v[1::2])
         out = []
         for j in range(k):
             hold = self._holds[int(ix[j])]
             st = float(stamp[j])
             if info[j]:
                 hold.last_update = st
-            k_med, _, log_stat = self.grid.summary(cdf[j])
+            k_med, _, log_stat = self.grid.summary(cdf[2 * j])
+            k_fit, _, log_fit = self.grid.summary(cdf[2 * j + 1])
+            # the data cannot tell a scale error from a different soil: the band must reach over the
+            # fitted-scale belief too (its distance and its own spread, in quadrature)
+            d_scale = math.hypot(math.log(k_med / k_fit), log_fit)
             evidence, nis_sum, s_kk, s_ks = stats[j]
             sys = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            log_std = math.hypot(log_stat, sys)
+            log_std = math.sqrt(log_stat**2 + sys**2 + d_scale**2)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             cm, cs = c_mean[j], c_std[j]
             scale_txt = f"front {cm[0]:.2f} +- {cs[0]:.2f}, rear {cm[1]:.2f} +- {cs[1]:.2f}"
-            if status == "uncertain" and prior_sd > 0 and cs.max() > SCALE_UNDETERMINED * prior_sd:
-                reason = (f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: these slips do not separate K from "
-                          f"the gross-traction scale ({scale_txt}; prior +- {prior_sd:.2f}): the torque-constant / "
-                          "mass uncertainty widens K's band")
+            if status == "uncertain" and d_scale > max(log_stat, sys):
+                reason = (f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}, mostly the torque scale: K = "
+                          f"{k_med:.0f} at the configured torque constant and loads, {k_fit:.0f} if the gross traction "
+                          f"is scaled by ({scale_txt}) as the traction curve's shape suggests; these data cannot "
+                          "tell the two apart (docs/method.md §14)")
             elif status == "uncertain" and sys > log_stat:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:.0f} % "
                           "wheel-radius uncertainty moves K this much where the traction curve saturates")
-            off = np.abs(cm - 1.0) > np.maximum(2.0 * cs, 0.05)
-            if rk is not None and off.any() and status in ("ok", "uncertain", "holding"):
+            elif rk is not None and status in ("ok", "holding") and (np.abs(cm - 1.0) > np.maximum(2.0 * cs, 0.05)).any():
                 reason = (reason + "; " if reason else "") + (
-                    f"gross traction reads {scale_txt} x the model: torque constant or mass / CoM differ from "
-                    "the configuration (docs/method.md §14)")
+                    f"the traction curve's shape suggests a gross-traction scale of {scale_txt} (torque constant "
+                    f"or mass / CoM differ from the configuration?); K at it: {k_fit:.0f} (docs/method.md §14)")
             nis = nis_sum / evidence if evidence > 0 else 0.0
             if not ident[j]:
                 status = "not_observable"
@@ -271,7 +280,7 @@ class SoilBank:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
-            elif rk is not None and cdf[j][self._floor_idx] > 0.5:
+            elif rk is not None and cdf[2 * j][self._floor_idx] > 0.5:
                 status = "model_mismatch"
                 reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
                           f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
