@@ -138,17 +138,54 @@ def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.n
     return (now != prev) | first[:, None]
 
 
-def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
-    """Per-wheel torque (k, 4) of a skid-steer robot: each side's motor torque (logged as half on
-    each of its wheels 1+2 left, 3+4 right) shared by its two wheels in proportion to their normal
-    forces, so that both see the same gross traction coefficient."""
+def split_side_torque(torque: np.ndarray, fz: np.ndarray, inertia_torque: np.ndarray | None = None) -> np.ndarray:
+    """Per-wheel torque (k, 4) of a skid-steer robot: each side's motor torque T_s (logged as half on
+    each of its wheels 1+2 left, 3+4 right) shared by its two chained wheels so that both see the
+    same gross traction coefficient g (same slip, same soil) in eq. 13.
+
+    Eq. 13 for the pair (one speed): 2 I_w omega_dot = T_s - R_w g (Fz_a + Fz_b), and for wheel a
+    alone T_a = I_w omega_dot + R_w g Fz_a, hence
+        T_a = T_s Fz_a / (Fz_a + Fz_b) + I_w omega_dot (1 - 2 Fz_a / (Fz_a + Fz_b)).
+    ``inertia_torque`` (k, 4) is I_w omega_dot per wheel (the side's mean is used); None = 0, the
+    pure split by normal force, which is exact only at constant wheel speed: under a hard
+    acceleration (load moved off the front) it hands the unloaded wheel a share of the inertia
+    torque in proportion to its small load, and its g comes out ~0.1-0.3 low (docs/method.md §7)."""
     out = np.empty_like(torque)
     for a, b in ((0, 1), (2, 3)):
         side = torque[:, a] + torque[:, b]
         total = fz[:, a] + fz[:, b]
-        out[:, a] = side * fz[:, a] / total
-        out[:, b] = side * fz[:, b] / total
+        share_a, share_b = fz[:, a] / total, fz[:, b] / total
+        out[:, a] = side * share_a
+        out[:, b] = side * share_b
+        if inertia_torque is not None:
+            inert = 0.5 * (inertia_torque[:, a] + inertia_torque[:, b])
+            out[:, a] += inert * (1.0 - 2.0 * share_a)
+            out[:, b] += inert * (1.0 - 2.0 * share_b)
     return out
+
+
+def wheel_acceleration(prev: np.ndarray, now: np.ndarray, interval: np.ndarray, fresh: np.ndarray,
+                       max_gap: float) -> np.ndarray:
+    """omega_dot per wheel (k, 4) from two consecutive encoder readings, (now - prev) / interval:
+    each is the mean speed over its interval, so this is the acceleration about one interval ago.
+    Held readings (not ``fresh``), a first reading and intervals beyond ``max_gap`` give 0 (no
+    inertia term, no lead).  From the readings and not from the filter's state, so that no filter
+    output feeds back into its own inputs."""
+    ok = fresh & (interval > 0) & (interval <= max_gap) & np.isfinite(prev)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = (now - prev) / np.where(ok, interval, 1.0)
+    return np.where(ok, rate, 0.0)
+
+
+def encoder_lead(interval: np.ndarray, omega_rate: np.ndarray) -> np.ndarray:
+    """What to add to an encoder wheel speed (k, 4) (vehicle ``wheel_speed_reading``
+    "interval_mean") to read it as the speed at its stamp: a count difference over the interval tau
+    since the previous reading is the mean speed over that interval, omega(t - tau/2) + O(tau^2),
+    so it lags by omega_dot tau / 2.  At 0.01 s and the ~50 rad/s^2 of a hard skid-steer
+    acceleration that is 0.23 rad/s, a slip error of ~0.02 at 1.5 m/s: enough to read firm soil
+    (K 300) as K > 1000 (docs/method.md §10).  ``omega_rate`` from :func:`wheel_acceleration` (the
+    readings, not the model: the model's omega_dot carries the lag of its traction states)."""
+    return 0.5 * interval * omega_rate
 
 
 def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: np.ndarray):
@@ -285,7 +322,6 @@ class ObserverBank:
             raise ValueError(f"inputs hold {k} samples for {ix.size} vehicle indices")
         cfg, L = self.cfg, self.layout
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
-        torque = split_side_torque(inputs.wheel_torque, fz) if self.vehicle.drive == "per_side" else inputs.wheel_torque
         x, P = self.x[ix], self.P[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
@@ -294,6 +330,14 @@ class ObserverBank:
         first = np.isnan(last)
         raw = np.column_stack([inputs.wheel_speed, inputs.ground_speed, inputs.wheel_torque])
         fresh = fresh_readings(self._prev[ix], raw, first | (dt < 0))
+        # a fresh encoder speed is a count difference: the mean over the interval since the last one
+        interval = np.where(fresh[:, :4], inputs.stamp[:, None] - self._changed_at[ix][:, :4], 0.0)
+        interval = np.where(interval <= cfg.max_gap, interval, 0.0)
+        omega_rate = wheel_acceleration(self._prev[ix][:, :4], inputs.wheel_speed, interval, fresh[:, :4], cfg.max_gap)
+        torque = (split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
+                  if self.vehicle.drive == "per_side" else inputs.wheel_torque)
+        if self.vehicle.wheel_speed_reading == "instant":
+            interval = np.zeros_like(interval)  # no lead
         changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[ix])
         self._prev[ix], self._changed_at[ix] = raw, changed_at
         age = inputs.stamp[:, None] - changed_at
@@ -303,6 +347,7 @@ class ObserverBank:
             if rows.any():
                 self._reset(ix, rows, x, P, inputs, reasons, why)
         A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity)
+        lead = encoder_lead(interval, omega_rate)
         rejected = np.zeros(k, dtype=int)
         every = not any(reasons)  # the usual case: no mask copies, same arithmetic
         run = slice(None) if every else np.array([not r for r in reasons])
@@ -317,7 +362,7 @@ class ObserverBank:
                                                  dtr[moving])
             gs = inputs.ground_speed[run]
             no_gs = np.isnan(gs)
-            z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run],
+            z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run] + lead[run],
                                  np.where(no_gs, 0.0, gs)])
             available = np.ones(z.shape, dtype=bool)
             available[:, 2:7] = fresh[run][:, :5]  # held wheel / ground speeds are no new measurement

@@ -614,7 +614,9 @@ class _Run:
         self.torque = tq[:]
         self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
         self.f_used, self.fz = f, fz[:]
-        self.wheel_angle = [a + h * wi for a, wi in zip(self.wheel_angle, w)]
+        # trapezoid rule: the encoder's count difference is then the interval's mean speed to O(h^2),
+        # as on the real wheel (the right-Riemann sum h * w_new read it (1 - 1/n_sub) of the true lag)
+        self.wheel_angle = [a + 0.5 * h * (wi + wo) for a, wi, wo in zip(self.wheel_angle, w, w0)]
         self.dist += h * V
         self.heading += h * r
         self.t = t_new
