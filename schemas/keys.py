@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import re
 
-from .sensor import VEHICLE_ID_PATTERN
+from schemas.sensor import VEHICLE_ID_PATTERN
 
 ROOT = "soilocp"
 

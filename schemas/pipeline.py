@@ -11,7 +11,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from .sensor import VehicleId
+from schemas.sensor import VehicleId
 
 PIPELINE_SCHEMA_VERSION = 1
 

@@ -35,8 +35,8 @@ from schemas.sensor import SensorSample
 from soilocp.batch import BatchPipeline
 from soilocp.normal_force import normal_forces
 
-from .ocp import OcpService
-from .stages import pipeline_config
+from services.ocp import OcpService
+from services.stages import pipeline_config
 
 #: Flush the joined samples once this many are waiting per served vehicle, even if input is queued.
 MAX_PENDING_PER_VEHICLE = 4
@@ -110,7 +110,7 @@ class BatchOcpService(OcpService):
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from .runtime import ConfigError, load_service_config, run_service
+    from services.runtime import ConfigError, load_service_config, run_service
 
     ap = argparse.ArgumentParser(prog="python -m services.batch_services",
                                  description="Batched observer + soil strength + OCP publisher for many vehicles.")

@@ -82,8 +82,8 @@ def batch_available() -> bool:
 def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
               log=print) -> dict[str, Any]:
     """Run every part and return the report (a JSON-able dict)."""
-    from .bench_live import CpuWindow, Rig, drive, open_client, ping_pong
-    from .bench_stages import batch_costs, cpu_share, replay_rate, simulate_drive, stage_costs
+    from services.bench_live import CpuWindow, Rig, drive, open_client, ping_pong
+    from services.bench_stages import batch_costs, cpu_share, replay_rate, simulate_drive, stage_costs
 
     t_start = time.monotonic()
     if pipelines is None:
@@ -131,7 +131,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
             rig.stop()
 
     # 5. control loop: sample -> slip set-point (pipeline + controller service), 100 Hz
-    from .bench_control import control_loop_latency
+    from services.bench_control import control_loop_latency
 
     log("bench: control loop latency (controller service, ocp_traction)")
     try:
@@ -182,7 +182,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
 
 def verdict(report: dict[str, Any]) -> dict[str, Any]:
     """Which targets were met, per pipeline."""
-    from .bench_compare import pipeline_rss_mib
+    from services.bench_compare import pipeline_rss_mib
 
     out: dict[str, Any] = {"chain_cpu_per_sample": report["stages"]["total"].get("cpu_p50", math.inf)
                            <= TARGETS["chain_cpu_us"],
@@ -256,7 +256,7 @@ def render(report: dict[str, Any], console) -> None:
                   _f(HOPS[row["pipeline"]] / 2 * b["p50"]))
     console.print(t)
 
-    from .bench_compare import NOT_PIPELINE, pipeline_rss_mib
+    from services.bench_compare import NOT_PIPELINE, pipeline_rss_mib
 
     for row in report["latency"]:  # memory of the processes, one vehicle at 100 Hz
         if row["rate_hz"] != 100.0 or not row.get("processes"):
@@ -313,7 +313,7 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
 
-    from .bench_compare import compare, load_report, render_compare
+    from services.bench_compare import compare, load_report, render_compare
 
     console = Console(width=200) if not sys.stdout.isatty() else Console()
     try:  # a bad baseline fails before minutes of measuring, naming the file

@@ -15,7 +15,7 @@ from typing import Any
 
 from schemas import keys
 
-from .bench_live import _SEQ_RE, PIPELINE, Rig, _paced, _sleep_until, _wait_all, open_client, summarize
+from services.bench_live import _SEQ_RE, PIPELINE, Rig, _paced, _sleep_until, _wait_all, open_client, summarize
 
 CONTROL_HOPS = 8  # raw, clean, normal_forces, observer, soil, ocp, control/slip: client->router->client hops
 

@@ -27,8 +27,8 @@ from typing import Any, Optional, Sequence
 
 from schemas import keys
 
-from .bench_echo import PING_KEY, PONG_KEY
-from .bench_stages import summarize
+from services.bench_echo import PING_KEY, PONG_KEY
+from services.bench_stages import summarize
 
 PIPELINE = keys.PIPELINE_SERVICES
 _SEQ_RE = re.compile(rb'"seq":\s*(\d+)')
@@ -210,7 +210,7 @@ class Rig:
 def open_client(endpoint: str):
     import zenoh
 
-    from .runtime import zenoh_config
+    from services.runtime import zenoh_config
 
     return zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000))
 

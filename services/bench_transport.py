@@ -30,8 +30,8 @@ import threading
 import time
 from typing import Any
 
-from .bench_echo import PING_KEY, PONG_KEY
-from .bench_live import free_port, ping_pong
+from services.bench_echo import PING_KEY, PONG_KEY
+from services.bench_live import free_port, ping_pong
 
 VARIANTS = ("client-router", "client-router-express", "peer-direct", "peer-direct-lowlatency", "peer-direct-shm")
 
@@ -39,7 +39,7 @@ VARIANTS = ("client-router", "client-router-express", "peer-direct", "peer-direc
 def _config(mode: str, connect: list[str], listen: list[str], lowlatency: bool = False, shm: bool = False):
     import zenoh
 
-    from .runtime import zenoh_config
+    from services.runtime import zenoh_config
 
     conf = zenoh_config(mode, connect, listen, connect_timeout_ms=10000) if mode != "router" else zenoh.Config()
     if mode == "router":

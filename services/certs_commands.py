@@ -31,7 +31,7 @@ def certs_group() -> None:
 @click.option("--if-missing", is_flag=True, help="Keep an existing CA and its certificates and exit 0 (containers).")
 def certs_init(directory, vehicles, fleet_hosts, tools, days, force, if_missing) -> None:
     """A development CA in DIRECTORY, and certificates for the fleet router, the tools and each vehicle."""
-    from .certs import DEFAULT_FLEET_HOSTS, DEFAULT_TOOLS, init_fleet
+    from services.certs import DEFAULT_FLEET_HOSTS, DEFAULT_TOOLS, init_fleet
 
     if if_missing and not force and (Path(directory) / "ca.key").exists():
         click.echo(f"{directory}: development CA present, kept")
@@ -52,7 +52,7 @@ def certs_init(directory, vehicles, fleet_hosts, tools, days, force, if_missing)
 @click.option("--days", type=click.IntRange(1, 3650), default=825, show_default=True)
 def certs_issue(directory, name, hosts, days) -> None:
     """One more certificate (a new vehicle or tool) signed by the development CA in DIRECTORY."""
-    from .certs import issue
+    from services.certs import issue
 
     try:
         click.echo(str(issue(Path(directory), name, hosts=hosts, days=days)))
@@ -64,7 +64,7 @@ def certs_issue(directory, name, hosts, days) -> None:
 @click.argument("files", nargs=-1, type=click.Path(dir_okay=False, exists=True))
 def certs_show(files) -> None:
     """Common name, issuer, alternative names and expiry of certificate files (JSON lines)."""
-    from .certs import describe
+    from services.certs import describe
 
     for f in files:
         try:
@@ -78,7 +78,7 @@ def certs_show(files) -> None:
 @click.option("--tool", "tools", multiple=True, help="Fleet tool certificate name (repeatable); default dashboard.")
 def certs_acl(vehicles, tools) -> None:
     """Print the fleet router's access_control section (for a native zenohd configuration)."""
-    from .fleet_security import fleet_access_control
+    from services.fleet_security import fleet_access_control
 
     try:
         click.echo(json.dumps(fleet_access_control(vehicles, tools or ("dashboard",)), indent=2))

@@ -33,19 +33,19 @@ def _exit_now(code: int) -> None:
 
 def _service_class(name: str):
     if name == "gateway":
-        from .gateway import GatewayService as cls
+        from services.gateway import GatewayService as cls
     elif name == "normal-force":
-        from .normal_force import NormalForceService as cls
+        from services.normal_force import NormalForceService as cls
     elif name == "observer":
-        from .observer import ObserverService as cls
+        from services.observer import ObserverService as cls
     elif name == "soil-strength":
-        from .soil_strength import SoilStrengthService as cls
+        from services.soil_strength import SoilStrengthService as cls
     elif name == "ocp":
-        from .ocp import OcpService as cls
+        from services.ocp import OcpService as cls
     elif name == "controller":
-        from .controller import ControllerService as cls
+        from services.controller import ControllerService as cls
     else:
-        from .vehicle import VehicleService as cls
+        from services.vehicle import VehicleService as cls
     return cls
 
 
@@ -73,7 +73,7 @@ def _service_class(name: str):
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
                 scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
-    from .runtime import ConfigError, load_service_config, run_service
+    from services.runtime import ConfigError, load_service_config, run_service
 
     prefix = f"soilocp service {name}"
     overrides = dict(vehicle_ids=vehicle_ids, connect=connect, listen=listen, mode=mode, log_level=log_level,
@@ -83,7 +83,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
         cfg = load_service_config(name, config_path=config_path, overrides=overrides)
         if name == "vehicle":
             from schemas import keys
-            from .vehicle import replay_source, scenario_source
+            from services.vehicle import replay_source, scenario_source
 
             if (scenario is None) == (replay is None):
                 raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
@@ -95,7 +95,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                 source = replay_source(replay, duration)
                 describe = f"replay {replay}"
             elif control:
-                from .vehicle_control import SetpointInbox, controlled_source
+                from services.vehicle_control import SetpointInbox, controlled_source
 
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
@@ -129,8 +129,8 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
 @click.option("--connect", multiple=True, help="Endpoint of another router, e.g. a fleet router; env SOILOCP_ROUTER_CONNECT.")
 def router_cmd(config_path, listen, connect) -> None:
     """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
-    from .router import router_settings, run_router
-    from .runtime import ConfigError
+    from services.router import router_settings, run_router
+    from services.runtime import ConfigError
 
     try:
         _exit_now(run_router(router_settings(config_path, listen, connect)))
@@ -160,7 +160,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
-    from .run import RunOptions, run_system
+    from services.run import RunOptions, run_system
 
     if (scenario is None) == (replay is None):
         _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")

@@ -26,7 +26,7 @@ from schemas.messages import SlipSetpoint
 from schemas.pipeline import OcpEstimate
 from soilocp.control import OcpSetPoint, SetPoint, make_policy
 
-from .runtime import Service
+from services.runtime import Service
 
 WATCH_PERIOD_S = 0.01
 

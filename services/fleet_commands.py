@@ -21,7 +21,7 @@ ENV_CONNECT = "SOILOCP_CONNECT"
 
 def _endpoints(connect: tuple[str, ...]) -> list[str]:
     """--connect (repeatable) > SOILOCP_CONNECT (comma-separated) > the default router endpoint."""
-    from .runtime import DEFAULT_ENDPOINT, check_endpoint
+    from services.runtime import DEFAULT_ENDPOINT, check_endpoint
 
     eps = list(connect) or [e.strip() for e in os.environ.get(ENV_CONNECT, "").split(",") if e.strip()] \
         or [DEFAULT_ENDPOINT]
@@ -84,8 +84,8 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
     import zenoh
     from rich.console import Console
 
-    from .fleet import FleetState, query_fleet
-    from .runtime import zenoh_config
+    from services.fleet import FleetState, query_fleet
+    from services.runtime import zenoh_config
 
     console = Console()
     if not console.is_terminal:  # piped: wide enough for the whole table, no colour codes
@@ -151,7 +151,7 @@ def fleet_status_cmd(connect, timeout, watch, as_json) -> None:
     """One row per vehicle: services alive, K ± std, soil class, mu_T, S_T, S_E, freshness, rejections.
 
     Exit status 1 when no router or no vehicle answers within --timeout."""
-    from .fleet_security import check_client_tls
+    from services.fleet_security import check_client_tls
 
     try:
         eps = _endpoints(connect)
@@ -175,9 +175,9 @@ def dashboard_cmd(port, host, connect, constants_path, poll) -> None:
     """Serve a live web page of the fleet (table, K / OCP plots, traction-slip curve) until Ctrl-C."""
     from soilocp.constants import load_constants
 
-    from .dashboard.app import DashboardHub, serve
+    from services.dashboard.app import DashboardHub, serve
 
-    from .fleet_security import check_client_tls
+    from services.fleet_security import check_client_tls
 
     try:
         eps = _endpoints(connect)

@@ -17,7 +17,7 @@ from schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
 from schemas.sensor import SensorSample
 from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
-from .runtime import Service
+from services.runtime import Service
 
 
 def _peek(payload: bytes, name: str) -> Any:

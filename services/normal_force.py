@@ -11,8 +11,8 @@ from schemas import keys
 from schemas.sensor import SensorSample
 from soilocp.pipeline import NormalForceStage
 
-from .runtime import Service
-from .stages import pipeline_config
+from services.runtime import Service
+from services.stages import pipeline_config
 
 
 class NormalForceService(Service):

@@ -19,8 +19,8 @@ from schemas.pipeline import NormalForces
 from schemas.sensor import SensorSample
 from soilocp.pipeline import ObserverStage
 
-from .runtime import Counters, Service
-from .stages import pipeline_config
+from services.runtime import Counters, Service
+from services.stages import pipeline_config
 
 
 class SeqJoiner:

@@ -21,8 +21,8 @@ from schemas.messages import OcpReply
 from schemas.pipeline import OcpEstimate, SoilEstimate
 from soilocp.pipeline import OcpStage
 
-from .runtime import Service
-from .stages import pipeline_config
+from services.runtime import Service
+from services.stages import pipeline_config
 
 
 class OcpStore:

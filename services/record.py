@@ -21,7 +21,7 @@ import click
 from schemas import keys
 from schemas.pipeline import OcpEstimate
 
-from .runtime import DEFAULT_ENDPOINT, JsonLog, open_session
+from services.runtime import DEFAULT_ENDPOINT, JsonLog, open_session
 
 QUEUE_MAX = 10_000  # records; ~100 s of one vehicle at 100 Hz
 

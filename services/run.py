@@ -27,7 +27,7 @@ from schemas import keys
 from schemas.messages import Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import OcpEstimate
 
-from .runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
+from services.runtime import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
 
 DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
 DRAIN_MAX_S = 30.0

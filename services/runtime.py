@@ -193,7 +193,7 @@ def zenoh_config(
     conf.insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
     # Links that leave a vehicle are tls/ (mutual TLS, docs/deploy.md): the certificate comes from
     # SOILOCP_TLS_CA/_CERT/_KEY; plain tcp/ endpoints of the same process ignore it.
-    from .fleet_security import apply_tls, tls_from_env
+    from services.fleet_security import apply_tls, tls_from_env
 
     if not tls_from_environment:  # the caller (the router) applies its own, file < environment
         return conf

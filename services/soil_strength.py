@@ -11,8 +11,8 @@ from schemas import keys
 from schemas.pipeline import ObserverOutput
 from soilocp.pipeline import SoilStage
 
-from .runtime import Service
-from .stages import pipeline_config
+from services.runtime import Service
+from services.stages import pipeline_config
 
 
 class SoilStrengthService(Service):

@@ -18,7 +18,7 @@ from typing import Iterator, Optional
 
 from schemas import keys
 
-from .runtime import Service
+from services.runtime import Service
 
 
 def replay_source(path: str, duration: Optional[float] = None) -> Iterator[tuple[bytes, Optional[float]]]:

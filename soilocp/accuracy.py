@@ -13,10 +13,10 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Optional
 
-from .estimate import EstimateSummary, estimate_lines
-from .evaluation import TARGETS, SegmentResult, evaluate_records
-from .pipeline import PipelineConfig
-from .simulator import simulate
+from soilocp.estimate import EstimateSummary, estimate_lines
+from soilocp.evaluation import TARGETS, SegmentResult, evaluate_records
+from soilocp.pipeline import PipelineConfig
+from soilocp.simulator import simulate
 
 DEFAULT_SCENARIOS = ("sand", "gravel", "grass", "firm", "sandy-slope", "mixed")
 

@@ -22,11 +22,11 @@ import numpy as np
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from .checks import check_count, check_index
-from .observer_bank import ObserverBank, ObserverInputs
-from .ocp import ocp_arrays
-from .pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
-from .soil_strength import SoilBank
+from soilocp.checks import check_count, check_index
+from soilocp.observer_bank import ObserverBank, ObserverInputs
+from soilocp.ocp import ocp_arrays
+from soilocp.pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
+from soilocp.soil_strength import SoilBank
 
 
 class BatchPipeline:

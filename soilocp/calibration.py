@@ -46,9 +46,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
-from .checks import as_float_array, positive_scalar
-from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import gross_traction, net_traction, tractive_efficiency
+from soilocp.checks import as_float_array, positive_scalar
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.traction import gross_traction, net_traction, tractive_efficiency
 
 #: The testbed's controlled slips (paper §2.2).
 TESTBED_SLIPS: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)

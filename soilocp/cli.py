@@ -11,7 +11,7 @@ import sys
 
 import click
 
-from . import __version__
+from soilocp import __version__
 
 # module path -> attribute holding a list of click commands
 COMMAND_MODULES = (

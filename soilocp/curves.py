@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .ocp import max_traction, optimal_slip_efficiency, optimal_slip_traction
-from .traction import net_traction, tractive_efficiency
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.ocp import max_traction, optimal_slip_efficiency, optimal_slip_traction
+from soilocp.traction import net_traction, tractive_efficiency
 
 #: The soils of the paper's Figs. 3 and 4 (sand, gravel, the "expected soil type", grass).
 PAPER_SOILS: tuple[str, ...] = ("sand", "gravel", "EST", "grass")

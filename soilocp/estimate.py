@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Callable, Iterable, Iterator, Optional
 
-from .pipeline import PipelineConfig, VehiclePipeline
-from .validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 
 @dataclass

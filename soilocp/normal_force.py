@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .checks import as_float_array, positive_scalar
-from .vehicle import VehicleParams
+from soilocp.checks import as_float_array, positive_scalar
+from soilocp.vehicle import VehicleParams
 
 STANDARD_GRAVITY = 9.80665
 

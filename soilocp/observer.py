@@ -43,8 +43,8 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .normal_force import STANDARD_GRAVITY
-from .vehicle import VehicleParams
+from soilocp.normal_force import STANDARD_GRAVITY
+from soilocp.vehicle import VehicleParams
 
 Structure = Literal["slip", "shared", "per_wheel", "none"]
 

@@ -39,10 +39,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, initial_covariance, model,
+from soilocp.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, initial_covariance, model,
                        resistance_map, travel_direction)
-from .checks import check_count, check_index
-from .vehicle import VehicleParams
+from soilocp.checks import check_count, check_index
+from soilocp.vehicle import VehicleParams
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
 LIFT_OFF_FORCE = 1.0

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from .observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
+from soilocp.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from .observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, outlier_variance, split_side_torque
-from .vehicle import VehicleParams
+from soilocp.observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, outlier_variance, split_side_torque
+from soilocp.vehicle import VehicleParams
 
 
 @dataclass

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
-from .observer import ObserverConfig
-from .observer_reference import TractionObserver
-from .vehicle import DEFAULT_VEHICLE
+from soilocp.observer import ObserverConfig
+from soilocp.observer_reference import TractionObserver
+from soilocp.vehicle import DEFAULT_VEHICLE
 
 
 def soak(steps: int, seed: int = 0, structure: str = "shared", check_every: int = 1000) -> dict:

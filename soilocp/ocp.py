@@ -8,9 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import positive, positive_scalar
-from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import curve_unchecked, tractive_efficiency_unchecked
+from soilocp.checks import positive, positive_scalar
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.traction import curve_unchecked, tractive_efficiency_unchecked
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):

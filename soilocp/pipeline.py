@@ -23,14 +23,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
 
-from .constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
-from .normal_force import NormalForceSolver
-from .observer import ObserverConfig
-from .observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
-from .ocp import ocp_arrays
-from .slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
-from .soil_strength import PaperSoilEstimator, SoilBank, SoilConfig, SoilState
-from .vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
+from soilocp.normal_force import NormalForceSolver
+from soilocp.observer import ObserverConfig
+from soilocp.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from soilocp.ocp import ocp_arrays
+from soilocp.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from soilocp.soil_strength import PaperSoilEstimator, SoilBank, SoilConfig, SoilState
+from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 __all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
 

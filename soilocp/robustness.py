@@ -29,10 +29,10 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .accuracy import RunResult, estimate_and_score
-from .evaluation import TARGETS, UNFLAGGED_ERROR_REL, SegmentResult
-from .pipeline import PipelineConfig
-from .variants import get_variant, list_variants
+from soilocp.accuracy import RunResult, estimate_and_score
+from soilocp.evaluation import TARGETS, UNFLAGGED_ERROR_REL, SegmentResult
+from soilocp.pipeline import PipelineConfig
+from soilocp.variants import get_variant, list_variants
 
 #: Targets of the robustness table (issue 10); the K and OCP numbers are soilocp.evaluation's.
 ROBUSTNESS_TARGETS = {

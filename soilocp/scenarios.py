@@ -18,7 +18,7 @@ from typing import Literal
 
 import numpy as np
 
-from .constants import REFERENCE_SOILS
+from soilocp.constants import REFERENCE_SOILS
 
 Mode = Literal["cruise", "excitation"]
 MODES: tuple[str, ...] = ("cruise", "excitation")

@@ -52,14 +52,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.sensor import VEHICLE_ID_PATTERN, SensorSample
 
-from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .normal_force import STANDARD_GRAVITY, gravity_from_attitude, normal_forces
-from .ocp import ocp_from_soil_strength
-from .scenarios import MODES, Scenario, SweepParams, get_scenario
-from .sensor_models import SensorNoise, SensorSuite
-from .slip import DEFAULT_FLOOR
-from .traction import gross_traction_with_derivatives, net_traction_with_derivatives
-from .vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.normal_force import STANDARD_GRAVITY, gravity_from_attitude, normal_forces
+from soilocp.ocp import ocp_from_soil_strength
+from soilocp.scenarios import MODES, Scenario, SweepParams, get_scenario
+from soilocp.sensor_models import SensorNoise, SensorSuite
+from soilocp.slip import DEFAULT_FLOOR
+from soilocp.traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 TRUTH_SCHEMA_ID = "soilocp.truth_record/1"
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import as_float_array, positive_scalar
+from soilocp.checks import as_float_array, positive_scalar
 
 #: Below this speed (m/s) slip is reported but flagged as not informative (docs/method.md §6):
 #: quantised encoders and a noisy ground speed make eq. 1 meaningless when both speeds are small.

@@ -33,9 +33,9 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .checks import as_float_array, check_count, check_index
-from .constants import DEFAULT_CONSTANTS, ModelConstants
-from .traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.checks import as_float_array, check_count, check_index
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
 
 Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
 

@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .constants import REFERENCE_SOILS  # noqa: E402
+from soilocp.constants import REFERENCE_SOILS  # noqa: E402
 
 WHEELS = ("1 LR", "2 LF", "3 RF", "4 RR")
 

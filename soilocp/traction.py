@@ -31,8 +31,8 @@ import math
 
 import numpy as np
 
-from .checks import as_float_array, positive
-from .constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.checks import as_float_array, positive
+from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
 
 
 def _inputs(slip, soil_strength) -> tuple[np.ndarray, np.ndarray]:

@@ -30,10 +30,10 @@ import numpy as np
 
 from schemas.sensor import SensorSample
 
-from .constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
-from .scenarios import Scenario, Segment, SweepParams
-from .simulator import DEFAULT_CONTROLLER, ControllerParams, TruthRecord, simulate
-from .vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
+from soilocp.scenarios import Scenario, Segment, SweepParams
+from soilocp.simulator import DEFAULT_CONTROLLER, ControllerParams, TruthRecord, simulate
+from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 Identifiability = Literal["yes", "limited", "no"]
 SampleMap = Callable[[SensorSample], SensorSample]

@@ -24,8 +24,8 @@ from typing import Any, Optional
 from schemas import keys
 from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
 
-from ..fleet import FleetMonitor, FleetState
-from ..runtime import JsonLog, open_session
+from services.fleet import FleetMonitor, FleetState
+from services.runtime import JsonLog, open_session
 
 STATIC_DIR = Path(__file__).with_name("static")
 #: Seconds between two server-sent events.

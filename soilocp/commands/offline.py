@@ -34,8 +34,8 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
     their line number and skipped.
     """
-    from ..pipeline import load_pipeline_config
-    from .io import estimate_source
+    from soilocp.pipeline import load_pipeline_config
+    from soilocp.commands.io import estimate_source
 
     try:
         cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants)
@@ -69,7 +69,7 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
 @click.option("--check", is_flag=True, help="Exit 1 unless every target is met on every segment")
 def evaluate(truth, estimates, settle, as_json, check):
     """Accuracy of ESTIMATES against simulator truth, per terrain segment, with the targets."""
-    from ..evaluation import TARGETS, evaluate_files, results_as_json
+    from soilocp.evaluation import TARGETS, evaluate_files, results_as_json
 
     try:
         results = evaluate_files(truth, estimates, settle)
@@ -109,7 +109,7 @@ def evaluate(truth, estimates, settle, as_json, check):
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Directory for the PNGs")
 def plot(truth, estimates, labels, out):
     """PNG time series like the paper's Figs. 8-18: normal forces, slip, mu, K, OCPs (estimate vs truth)."""
-    from ..timeseries_plots import plot_run
+    from soilocp.timeseries_plots import plot_run
 
     if labels and len(labels) != len(estimates):
         raise click.UsageError("give one --label per --estimates")
@@ -145,13 +145,13 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     nominal estimator.
     """
     if robustness:
-        from .robustness_table import run_and_print
+        from soilocp.commands.robustness_table import run_and_print
 
         return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
     if variants or seeds != 1 or markdown:
         raise click.UsageError("--variant, --seeds and --markdown need --robustness")
-    from ..accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
-    from ..evaluation import TARGETS
+    from soilocp.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
+    from soilocp.evaluation import TARGETS
 
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()

@@ -33,9 +33,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..normal_force import STANDARD_GRAVITY
-from ..slip import DEFAULT_FLOOR, slip_ratio_unchecked
-from ..vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.normal_force import STANDARD_GRAVITY
+from soilocp.slip import DEFAULT_FLOOR, slip_ratio_unchecked
+from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
 @dataclass(frozen=True)

@@ -33,13 +33,13 @@ import numpy as np
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from ..constants import REFERENCE_SOILS
-from ..normal_force import STANDARD_GRAVITY
-from ..pipeline import PipelineConfig, VehiclePipeline
-from ..scenarios import Scenario, Segment
-from ..simulator import _smoothstep, simulate
-from ..vehicle import DEFAULT_VEHICLE
-from .controllers import SlipController, make_controller
+from soilocp.constants import REFERENCE_SOILS
+from soilocp.normal_force import STANDARD_GRAVITY
+from soilocp.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.scenarios import Scenario, Segment
+from soilocp.simulator import _smoothstep, simulate
+from soilocp.vehicle import DEFAULT_VEHICLE
+from soilocp.control.controllers import SlipController, make_controller
 
 DRAWBAR_SOILS = ("sand", "gravel", "grass", "firm")
 STALL_SPEED = 0.1  #: m/s: below this for STALL_TIME the rover has stalled (or spun out)

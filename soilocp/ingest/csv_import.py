@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
+from soilocp.ingest.align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
                     write_samples)
-from .mapfile import TopicMap
+from soilocp.ingest.mapfile import TopicMap
 
 
 class CsvImportError(ValueError):
