@@ -18,7 +18,7 @@ PIPELINE_SCHEMA_VERSION = 1
 Quad = tuple[float, float, float, float]
 BoolQuad = tuple[bool, bool, bool, bool]
 
-#: Status of a soil / OCP record (see soilocp.soil_strength); ``stale`` is set by the live publisher.
+#: Status of a soil / OCP record (see soilocp.estimation.soil_strength); ``stale`` is set by the live publisher.
 EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
 _STATUS_DOC = (
     "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
@@ -41,7 +41,7 @@ class NormalForces(_Message):
 
     normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR")
     lift_off: bool = Field(
-        description="True if a wheel's normal force is at or below 1 N (soilocp.observer_bank.LIFT_OFF_FORCE): that "
+        description="True if a wheel's normal force is at or below 1 N (soilocp.estimation.observer_bank.LIFT_OFF_FORCE): that "
         "wheel gives no traction information and the observer uses 1 N for it"
     )
 

@@ -33,19 +33,19 @@ def _exit_now(code: int) -> None:
 
 def _service_class(name: str):
     if name == "gateway":
-        from services.gateway import GatewayService as cls
+        from services.stages.gateway import GatewayService as cls
     elif name == "normal-force":
-        from services.normal_force import NormalForceService as cls
+        from services.stages.normal_force import NormalForceService as cls
     elif name == "observer":
-        from services.observer import ObserverService as cls
+        from services.stages.observer import ObserverService as cls
     elif name == "soil-strength":
-        from services.soil_strength import SoilStrengthService as cls
+        from services.stages.soil_strength import SoilStrengthService as cls
     elif name == "ocp":
-        from services.ocp import OcpService as cls
+        from services.stages.ocp import OcpService as cls
     elif name == "controller":
-        from services.controller import ControllerService as cls
+        from services.control.controller import ControllerService as cls
     else:
-        from services.vehicle import VehicleService as cls
+        from services.io.sensor_source import VehicleService as cls
     return cls
 
 
@@ -73,7 +73,7 @@ def _service_class(name: str):
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
                 scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
-    from services.runtime import ConfigError, load_service_config, run_service
+    from services.runtime.service import ConfigError, load_service_config, run_service
 
     prefix = f"soilocp service {name}"
     overrides = dict(vehicle_ids=vehicle_ids, connect=connect, listen=listen, mode=mode, log_level=log_level,
@@ -83,7 +83,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
         cfg = load_service_config(name, config_path=config_path, overrides=overrides)
         if name == "vehicle":
             from schemas import keys
-            from services.vehicle import replay_source, scenario_source
+            from services.io.sensor_source import replay_source, scenario_source
 
             if (scenario is None) == (replay is None):
                 raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
@@ -95,7 +95,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                 source = replay_source(replay, duration)
                 describe = f"replay {replay}"
             elif control:
-                from services.vehicle_control import SetpointInbox, controlled_source
+                from services.control.vehicle_control import SetpointInbox, controlled_source
 
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
@@ -130,7 +130,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
 def router_cmd(config_path, listen, connect) -> None:
     """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
     from services.router import router_settings, run_router
-    from services.runtime import ConfigError
+    from services.runtime.service import ConfigError
 
     try:
         _exit_now(run_router(router_settings(config_path, listen, connect)))
@@ -160,7 +160,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
-    from services.run import RunOptions, run_system
+    from services.supervisor.run import RunOptions, run_system
 
     if (scenario is None) == (replay is None):
         _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
@@ -174,7 +174,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
             if scenario is None:
                 raise ValueError("--control needs --synthetic SCENARIO (a replayed log cannot follow set-points)")
         if scenario is not None and not (control is not None and scenario in RIG_SCENARIOS):
-            from soilocp.scenarios import get_scenario
+            from soilocp.sim.scenarios import get_scenario
 
             get_scenario(scenario)  # ValueError listing the known scenarios
         if duration is not None and duration <= 0:
@@ -228,25 +228,7 @@ def schemas_export(directory: str) -> None:
         click.echo(str(p))
 
 
-COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
-
-#: Other command modules of the services area (fleet + dashboard, bench), each with its own
-#: ``COMMANDS`` list; registered here because ``soilocp.cli`` lists only this module.
-EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench", "services.record", "services.certs_commands")
-
-
-def _register_extra() -> None:
-    import importlib
-
-    for modname in EXTRA_COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(modname)
-        except ModuleNotFoundError as exc:
-            if exc.name == modname:  # not built (yet); any other missing module is a real error
-                continue
-            raise
-        COMMANDS.extend(getattr(mod, "COMMANDS", ()))
-
-
-if not (len(sys.argv) > 1 and sys.argv[1] in ("service", "router")):  # soilocp.cli.PROCESS_COMMANDS: light
-    _register_extra()
+#: The commands of the long-running processes (the only ones ``soilocp service`` / ``soilocp router``
+#: load, see ``soilocp_cli.entry``), and the rest of the services area's own commands.
+PROCESS_COMMANDS = [service_cmd, router_cmd]
+COMMANDS = [run_cmd, schemas_group]

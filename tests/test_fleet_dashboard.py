@@ -4,7 +4,7 @@ A fleet router, two vehicles each run by ``soilocp run`` (its own router linked 
 router, five services, a synthetic vehicle), the dashboard server, and headless Chromium driven
 over the DevTools protocol on a pipe (``--remote-debugging-pipe``: no websocket client needed).
 Loopback only, ephemeral ports, multicast off; every process is reaped.  Plus fast unit tests of
-:class:`services.fleet.FleetState` with a fake clock.
+:class:`services.fleet.view.FleetState` with a fake clock.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ import pytest
 from schemas import keys
 from schemas.messages import OcpReply, ServiceHealth
 from schemas.pipeline import OcpEstimate
-from services.fleet import FleetState, traction_curve
-from soilocp.constants import DEFAULT_CONSTANTS
-from soilocp.traction import net_traction
+from services.fleet.view import FleetState, traction_curve
+from soilocp.model.constants import DEFAULT_CONSTANTS
+from soilocp.model.traction import net_traction
 
 from zenoh_helpers import Procs, client, endpoint, free_port, get_payloads, wait_for
 
@@ -206,7 +206,7 @@ def fleet(tmp_path_factory):
 
 def _fleet_start(*args: str) -> subprocess.Popen:
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.Popen([sys.executable, "-m", "soilocp.cli", "fleet", "status", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "soilocp_cli", "fleet", "status", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=e, stdin=subprocess.DEVNULL)
 
 

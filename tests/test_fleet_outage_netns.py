@@ -34,7 +34,7 @@ PROBE = ROOT / "scripts" / "ocp_probe.py"
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
 ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 FLEET = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
-SOILOCP = [sys.executable, "-m", "soilocp.cli"]
+SOILOCP = [sys.executable, "-m", "soilocp_cli"]
 
 VID = "rover1"
 FLEET_EP = "tls/10.99.2.2:7447"
@@ -64,7 +64,7 @@ def _fresh_at(recs: list[dict], after: float) -> tuple[float | None, float | Non
 #: OCPs, health) crosses the fleet link, so the link's queue is full within seconds of a cut.
 RECORDER = """
 import os, signal, sys, time, zenoh
-from services.fleet_security import apply_tls, check_client_tls
+from services.security.fleet_security import apply_tls, check_client_tls
 c = zenoh.Config()
 c.insert_json5("mode", '"client"')
 c.insert_json5("connect/endpoints", '["' + sys.argv[1] + '"]')

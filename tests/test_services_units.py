@@ -13,10 +13,10 @@ from schemas.export import MESSAGE_MODELS, export_schemas
 from schemas.messages import OcpReply, Rejection
 from schemas.pipeline import NormalForces, OcpEstimate
 from schemas.sensor import SensorSample
-from services.gateway import RawSampleChecker
-from services.observer import SeqJoiner
-from services.ocp import OcpStore, parse_parameters
-from services.runtime import ConfigError, Counters, load_service_config
+from services.stages.gateway import RawSampleChecker
+from services.stages.observer import SeqJoiner
+from services.stages.ocp import OcpStore, parse_parameters
+from services.runtime.service import ConfigError, Counters, load_service_config
 
 
 def _sample(seq: int, stamp: float, vid: str = "rover1", **kw) -> dict:
@@ -232,7 +232,7 @@ def test_schema_export_writes_one_versioned_schema_per_message(tmp_path):
 def test_schemas_export_command_and_service_help(tmp_path):
     from click.testing import CliRunner
 
-    from soilocp.cli import main
+    from soilocp_cli.main import main
 
     r = CliRunner().invoke(main, ["schemas", "export", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output

@@ -58,7 +58,7 @@ class Procs:
                 del e[k]
         e.update(env or {})
         try:
-            p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", *args], stdin=subprocess.DEVNULL,
+            p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", *args], stdin=subprocess.DEVNULL,
                                  stdout=log, stderr=subprocess.STDOUT, env=e, start_new_session=True)
         finally:
             log.close()
@@ -146,7 +146,7 @@ def start_pipeline(procs: Procs, ep: str, vid: str, extra: Iterable[str] = ()) -
 
 def write_log(path: Path, vid: str, duration: float, scenario: str = "sandy-slope", seed: int = 1) -> list[str]:
     """A sensor log from the simulator (JSON Lines, one SensorSample per line); returns the lines."""
-    from soilocp.simulator import simulate
+    from soilocp.sim.simulator import simulate
 
     lines = [s.model_dump_json() for s, _t in simulate(scenario, duration=duration, seed=seed, vehicle_id=vid)]
     path.write_text("\n".join(lines) + "\n")

@@ -34,7 +34,7 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
     their line number and skipped.
     """
-    from soilocp.pipeline import load_pipeline_config
+    from soilocp.estimation.pipeline import load_pipeline_config
     from soilocp.commands.io import estimate_source
 
     try:
@@ -69,7 +69,7 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
 @click.option("--check", is_flag=True, help="Exit 1 unless every target is met on every segment")
 def evaluate(truth, estimates, settle, as_json, check):
     """Accuracy of ESTIMATES against simulator truth, per terrain segment, with the targets."""
-    from soilocp.evaluation import TARGETS, evaluate_files, results_as_json
+    from soilocp.analysis.evaluation import TARGETS, evaluate_files, results_as_json
 
     try:
         results = evaluate_files(truth, estimates, settle)
@@ -109,7 +109,7 @@ def evaluate(truth, estimates, settle, as_json, check):
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Directory for the PNGs")
 def plot(truth, estimates, labels, out):
     """PNG time series like the paper's Figs. 8-18: normal forces, slip, mu, K, OCPs (estimate vs truth)."""
-    from soilocp.timeseries_plots import plot_run
+    from soilocp.analysis.timeseries_plots import plot_run
 
     if labels and len(labels) != len(estimates):
         raise click.UsageError("give one --label per --estimates")
@@ -130,7 +130,7 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--seed", default=0, show_default=True)
 @click.option("--jobs", default=2, show_default=True, help="Parallel processes")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the full results as JSON")
-@click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.variants)")
+@click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.sim.variants)")
 @click.option("--seeds", default=1, show_default=True, help="--robustness: seeds per variant (seed, seed+1, ...)")
 @click.option("--variant", "variants", multiple=True, help="--robustness: only these variant(s); default: all")
 @click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
@@ -150,8 +150,8 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
         return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
     if variants or seeds != 1 or markdown:
         raise click.UsageError("--variant, --seeds and --markdown need --robustness")
-    from soilocp.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
-    from soilocp.evaluation import TARGETS
+    from soilocp.analysis.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
+    from soilocp.analysis.evaluation import TARGETS
 
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()

@@ -21,8 +21,8 @@ from typing import Callable, Optional
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 from soilocp.control.loop import DEFAULT_GAINS, LoopGains, LoopOutput, WheelTorqueLoop
 from soilocp.control.setpoints import FixedSetPoint, OcpSetPoint, SetPoint
 

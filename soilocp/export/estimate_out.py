@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 from typing import IO, Optional
 
-from soilocp.estimate import EstimateSummary, estimate_lines
+from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.ingest.align import Provenance, withhold
-from soilocp.pipeline import PipelineConfig
+from soilocp.estimation.pipeline import PipelineConfig
 
 
 def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
