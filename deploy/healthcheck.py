@@ -97,11 +97,11 @@ def _client_config(connect: list[str], timeout_ms: int):
     return conf
 
 
-#: The services' default router endpoint (services.runtime.service.DEFAULT_ENDPOINT), repeated here so
+#: The services' default router endpoint (services.runtime.config.DEFAULT_ENDPOINT), repeated here so
 #: that the common case needs no pydantic import: a health check runs every few seconds in every
 #: container, and its CPU time adds up on a small vehicle computer.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-DEFAULT_VEHICLE_ID = "rover1"  # services.runtime.service.ServiceConfig's default
+DEFAULT_VEHICLE_ID = "rover1"  # services.runtime.config.ServiceConfig's default
 
 
 def alive_key(vehicle_id: str, service: str) -> str:
@@ -132,7 +132,7 @@ def settings_of(args: list[str], env: dict[str, str]) -> dict[str, list[str]]:
         return {"listen": listen}
     name = args[1] if len(args) > 1 else ""
     if config_path:
-        from services.runtime.service import load_service_config
+        from services.runtime.config import load_service_config
 
         overrides = {"vehicle_ids": opts.get("vehicle-id"), "connect": opts.get("connect")}
         cfg = load_service_config(name, config_path=config_path, overrides=overrides, env=env)

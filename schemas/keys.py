@@ -33,10 +33,8 @@ from schemas.sensor import VEHICLE_ID_PATTERN
 
 ROOT = "soilocp"
 
-#: Service names, in pipeline order.  They are key chunks, so they obey the same character rules.
-PIPELINE_SERVICES: tuple[str, ...] = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
-#: Every service that can hold a liveliness token (the synthetic vehicle is a sensor source).
-ALL_SERVICES: tuple[str, ...] = PIPELINE_SERVICES + ("vehicle", "controller")
+# Service names (key chunks, so they obey the same character rules) are declared with the pipeline,
+# in services/stages/graph.py.
 
 _VID_RE = re.compile(VEHICLE_ID_PATTERN)
 _SERVICE_RE = re.compile(r"^[a-z][a-z0-9-]{0,31}$")

@@ -10,7 +10,8 @@ import sys
 
 import click
 
-SERVICE_NAMES = ("gateway", "normal-force", "observer", "soil-strength", "ocp", "vehicle", "controller")
+from services.stages.graph import ALL_SERVICES, PIPELINE_SERVICES
+
 
 
 def _fatal(prefix: str, message: str, code: int = 2) -> None:
@@ -32,25 +33,23 @@ def _exit_now(code: int) -> None:
 
 
 def _service_class(name: str):
-    if name == "gateway":
-        from services.stages.gateway import GatewayService as cls
-    elif name == "normal-force":
-        from services.stages.normal_force import NormalForceService as cls
-    elif name == "observer":
-        from services.stages.observer import ObserverService as cls
-    elif name == "soil-strength":
-        from services.stages.soil_strength import SoilStrengthService as cls
-    elif name == "ocp":
-        from services.stages.ocp import OcpService as cls
-    elif name == "controller":
-        from services.control.controller import ControllerService as cls
-    else:
-        from services.io.sensor_source import VehicleService as cls
-    return cls
+    """The class that runs service ``name``: a pipeline row (``services.stages.graph``), or one of
+    the two other processes."""
+    if name == "controller":
+        from services.control.controller import ControllerService
+
+        return ControllerService
+    if name == "vehicle":
+        from services.io.sensor_source import VehicleService
+
+        return VehicleService
+    from services.stages.stage_service import stage_service
+
+    return stage_service(name)
 
 
 @click.command("service")
-@click.argument("name", type=click.Choice(SERVICE_NAMES))
+@click.argument("name", type=click.Choice(ALL_SERVICES))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Service config file (JSON); env SOILOCP_CONFIG.")
 @click.option("--vehicle-id", "vehicle_ids", multiple=True, help="Vehicle id (repeatable); env SOILOCP_VEHICLE_ID.")
 @click.option("--connect", multiple=True, help="Zenoh endpoint to connect to (repeatable); env SOILOCP_CONNECT.")
@@ -73,7 +72,8 @@ def _service_class(name: str):
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
                 scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
-    from services.runtime.service import ConfigError, load_service_config, run_service
+    from services.runtime.config import ConfigError, load_service_config
+    from services.runtime.service import run_service
 
     prefix = f"soilocp service {name}"
     overrides = dict(vehicle_ids=vehicle_ids, connect=connect, listen=listen, mode=mode, log_level=log_level,
@@ -82,12 +82,11 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
     try:
         cfg = load_service_config(name, config_path=config_path, overrides=overrides)
         if name == "vehicle":
-            from schemas import keys
             from services.io.sensor_source import replay_source, scenario_source
 
             if (scenario is None) == (replay is None):
                 raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
-            wait = keys.PIPELINE_SERVICES
+            wait = PIPELINE_SERVICES
             inbox = None
             if replay is not None:
                 if control:
@@ -102,7 +101,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                 inbox = SetpointInbox(cfg.vehicle_id, control, cfg.stale_timeout_s)
                 source = controlled_source(scenario, cfg.vehicle_id, inbox, duration=duration, rate=rate, seed=seed)
                 describe = f"scenario {scenario}, closed loop under {control}"
-                wait = keys.PIPELINE_SERVICES + ("controller",)
+                wait = PIPELINE_SERVICES + ("controller",)
             else:
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
@@ -130,7 +129,7 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
 def router_cmd(config_path, listen, connect) -> None:
     """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
     from services.router import router_settings, run_router
-    from services.runtime.service import ConfigError
+    from services.runtime.config import ConfigError
 
     try:
         _exit_now(run_router(router_settings(config_path, listen, connect)))

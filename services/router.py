@@ -13,8 +13,9 @@ from typing import Any, Optional
 from services.security.fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
-from services.runtime.service import (DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, ConfigError, JsonLog,
-                      _read_config_file, _split_list, check_endpoint, install_stop_handlers, watch_parent, zenoh_config)
+from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, zenoh_config
+from services.runtime.log import JsonLog
+from services.runtime.process import install_stop_handlers, watch_parent
 
 #: The router's uplink (e.g. to a fleet router).  Not SOILOCP_CONNECT: in a shared environment that
 #: names the router itself, for the services.

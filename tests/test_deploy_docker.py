@@ -386,7 +386,7 @@ def test_healthcheck_settings_match_the_services_loaders(tmp_path):
     """The health check's pydantic-free fast path resolves settings exactly as the services do."""
     from schemas import keys
     from services.router import router_settings
-    from services.runtime.service import DEFAULT_ENDPOINT, load_service_config
+    from services.runtime.config import DEFAULT_ENDPOINT, load_service_config
 
     assert healthcheck.DEFAULT_ENDPOINT == DEFAULT_ENDPOINT
     assert healthcheck.alive_key("rover9", "soil-strength") == keys.alive("rover9", "soil-strength")

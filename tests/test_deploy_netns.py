@@ -156,7 +156,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
 # ---------------------------------------------------------------------------------------------
 def test_deploy_unit_configs_load_and_env_overrides_win():
     from services.router import router_settings
-    from services.runtime.service import load_service_config
+    from services.runtime.config import load_service_config
 
     expected = {SENSING: {"gateway", "normal-force", "vehicle"}, ESTIMATION: {"observer", "soil-strength", "ocp"}}
     for path, services in expected.items():
@@ -209,7 +209,7 @@ def test_systemd_example_environments_resolve_through_the_loaders(tmp_path):
 
     from services.commands import service_cmd
     from services.router import router_settings
-    from services.runtime.service import load_service_config
+    from services.runtime.config import load_service_config
 
     # the certificates the secure units name, made where the test can read them
     certs = tmp_path / "certs"

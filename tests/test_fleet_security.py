@@ -321,7 +321,7 @@ def test_vehicle_ocps_reach_dashboard_and_fleet_cli_over_tls(fleet, tmp_path):
 
 def test_security_settings_fail_with_a_clear_message(tmp_path):
     from services.router import router_settings
-    from services.runtime.service import ConfigError
+    from services.runtime.config import ConfigError
 
     certs = tmp_path / "certs"
     _certs(certs, "init", str(certs), "--vehicle", "rover1")

@@ -9,6 +9,7 @@ import math
 import pytest
 
 from schemas import keys
+from services.stages.graph import ALL_SERVICES
 from schemas.export import MESSAGE_MODELS, export_schemas
 from schemas.messages import OcpReply, Rejection
 from schemas.pipeline import NormalForces, OcpEstimate
@@ -16,7 +17,8 @@ from schemas.sensor import SensorSample
 from services.stages.gateway import RawSampleChecker
 from services.stages.observer import SeqJoiner
 from services.stages.ocp import OcpStore, parse_parameters
-from services.runtime.service import ConfigError, Counters, load_service_config
+from services.runtime.config import ConfigError, load_service_config
+from services.runtime.worker import Counters
 
 
 def _sample(seq: int, stamp: float, vid: str = "rover1", **kw) -> dict:
@@ -95,7 +97,7 @@ def test_deploy_single_machine_config_is_valid():
     from services.router import router_settings
 
     path = Path(__file__).resolve().parents[1] / "deploy" / "single-machine.json"
-    for name in keys.ALL_SERVICES:
+    for name in ALL_SERVICES:
         cfg = load_service_config(name, config_path=str(path), env={})
         assert cfg.vehicle_ids == ["rover1"] and cfg.connect == ["tcp/127.0.0.1:7447"]
     assert router_settings(str(path), (), (), env={})["listen"] == ["tcp/127.0.0.1:7447"]

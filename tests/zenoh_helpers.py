@@ -14,7 +14,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Optional
 
-PIPELINE = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
+from services.stages.graph import PIPELINE_SERVICES
+
+PIPELINE = PIPELINE_SERVICES  # the rig starts the rows the graph declares
 
 
 def free_port() -> int:

@@ -18,7 +18,7 @@ PONG_KEY = "bench/pong"
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
-    from services.runtime.service import zenoh_config
+    from services.runtime.config import zenoh_config
 
     ap = argparse.ArgumentParser(prog="python -m services.bench.echo")
     ap.add_argument("--connect", required=True, help="router endpoint, e.g. tcp/127.0.0.1:7447")

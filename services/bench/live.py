@@ -26,11 +26,12 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 
 from services.bench.echo import PING_KEY, PONG_KEY
 from services.bench.stages import summarize
 
-PIPELINE = keys.PIPELINE_SERVICES
+PIPELINE = PIPELINE_SERVICES
 _SEQ_RE = re.compile(rb'"seq":\s*(\d+)')
 _CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -210,7 +211,7 @@ class Rig:
 def open_client(endpoint: str):
     import zenoh
 
-    from services.runtime.service import zenoh_config
+    from services.runtime.config import zenoh_config
 
     return zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000))
 

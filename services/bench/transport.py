@@ -39,7 +39,7 @@ VARIANTS = ("client-router", "client-router-express", "peer-direct", "peer-direc
 def _config(mode: str, connect: list[str], listen: list[str], lowlatency: bool = False, shm: bool = False):
     import zenoh
 
-    from services.runtime.service import zenoh_config
+    from services.runtime.config import zenoh_config
 
     conf = zenoh_config(mode, connect, listen, connect_timeout_ms=10000) if mode != "router" else zenoh.Config()
     if mode == "router":

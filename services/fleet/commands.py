@@ -21,7 +21,7 @@ ENV_CONNECT = "SOILOCP_CONNECT"
 
 def _endpoints(connect: tuple[str, ...]) -> list[str]:
     """--connect (repeatable) > SOILOCP_CONNECT (comma-separated) > the default router endpoint."""
-    from services.runtime.service import DEFAULT_ENDPOINT, check_endpoint
+    from services.runtime.config import DEFAULT_ENDPOINT, check_endpoint
 
     eps = list(connect) or [e.strip() for e in os.environ.get(ENV_CONNECT, "").split(",") if e.strip()] \
         or [DEFAULT_ENDPOINT]
@@ -85,7 +85,7 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
     from rich.console import Console
 
     from services.fleet.view import FleetState, query_fleet
-    from services.runtime.service import zenoh_config
+    from services.runtime.config import zenoh_config
 
     console = Console()
     if not console.is_terminal:  # piped: wide enough for the whole table, no colour codes

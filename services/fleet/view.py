@@ -33,6 +33,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 from schemas.messages import OcpReply, Rejection, ServiceHealth
 from schemas.pipeline import OcpEstimate
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
@@ -258,8 +259,8 @@ class FleetState:
             status = "fresh"
         else:
             status = "stale"
-        alive = [s for s in keys.PIPELINE_SERVICES if s in v.alive]
-        missing = [s for s in keys.PIPELINE_SERVICES if s not in v.alive]
+        alive = [s for s in PIPELINE_SERVICES if s in v.alive]
+        missing = [s for s in PIPELINE_SERVICES if s not in v.alive]
         gw = v.health.get("gateway")
         rejections = max(v.rejections_seen, gw.rejected if gw is not None else 0)
         if not v.alive:

@@ -21,7 +21,11 @@ import click
 from schemas import keys
 from schemas.pipeline import OcpEstimate
 
-from services.runtime.service import DEFAULT_ENDPOINT, JsonLog, open_session
+from services.runtime.config import DEFAULT_ENDPOINT
+
+from services.runtime.log import JsonLog
+
+from services.runtime.process import open_session
 
 QUEUE_MAX = 10_000  # records; ~100 s of one vehicle at 100 Hz
 

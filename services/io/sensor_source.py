@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 
 from services.runtime.service import Service
 
@@ -73,7 +74,7 @@ class VehicleService(Service):
     name = "vehicle"
 
     def __init__(self, cfg, log, *, source: Iterator[tuple[bytes, Optional[float]]], speed: float = 1.0,
-                 wait_for: tuple[str, ...] = keys.PIPELINE_SERVICES, wait_timeout_s: float = 20.0,
+                 wait_for: tuple[str, ...] = PIPELINE_SERVICES, wait_timeout_s: float = 20.0,
                  describe: str = "", inbox=None):
         super().__init__(cfg, log)
         if speed < 0 or speed != speed:

@@ -35,15 +35,17 @@ from schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.model.normal_force import normal_forces
 
-from services.stages.ocp import OcpService
+from services.runtime.worker import WorkItem
 from services.stages.config import pipeline_config
+from services.stages.graph import BATCHED_STAGES, BY_NAME
+from services.stages.ocp import OcpService
 
 #: Flush the joined samples once this many are waiting per served vehicle, even if input is queued.
 MAX_PENDING_PER_VEHICLE = 4
 
 
 class BatchOcpService(OcpService):
-    name = "ocp"
+    """The OCP row, computing the rows before it (``BATCHED_STAGES``) itself for every vehicle."""
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)
@@ -60,16 +62,18 @@ class BatchOcpService(OcpService):
 
     def declare(self, session, vehicle_id: str) -> None:
         super().declare(session, vehicle_id)  # OCP publisher, status publisher, queryable (+ an idle soil subscriber)
-        self.subscribe(session, keys.clean(vehicle_id), vehicle_id, "sample")
-        for stage in ("normal-force", "observer", "soil-strength"):  # after the subscription: inputs are ready
+        first = BY_NAME[BATCHED_STAGES[0]].inputs[0]  # the clean samples, as the normal-force row takes them
+        self.subscribe(session, first.key(vehicle_id), vehicle_id, "sample")
+        # this process implements those rows: their tokens say so to sources, `run` and the fleet
+        for stage in BATCHED_STAGES:  # after the subscription: inputs are ready
             self.keep(session.liveliness().declare_token(keys.alive(vehicle_id, stage)))
 
-    def handle(self, item) -> None:
-        vid, kind, payload, wall, _key = item
+    def handle(self, item: WorkItem) -> None:
+        vid = item.vehicle_id
         c = self.counters[vid]
-        c.last_input_wall = wall
-        if kind == "sample":
-            sample = SensorSample.model_validate_json(payload)
+        c.last_input_wall = item.wall
+        if item.kind == "sample":
+            sample = SensorSample.model_validate_json(item.payload)
             last = self.last_seq.get(vid)
             if last is not None and sample.seq <= last:
                 # only after a gateway restart: the observer must not see time run backwards
@@ -110,7 +114,9 @@ class BatchOcpService(OcpService):
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from services.runtime.service import ConfigError, load_service_config, run_service
+    from services.runtime.config import ConfigError, load_service_config
+
+    from services.runtime.service import run_service
 
     ap = argparse.ArgumentParser(prog="python -m services.stages.batch",
                                  description="Batched observer + soil strength + OCP publisher for many vehicles.")

@@ -17,7 +17,9 @@ from schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
 from schemas.sensor import SensorSample
 from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
 
-from services.runtime.service import Service
+from services.runtime.worker import WorkItem
+from services.stages.graph import BY_NAME
+from services.stages.stage_service import StageService
 
 
 def _peek(payload: bytes, name: str) -> Any:
@@ -87,25 +89,26 @@ class RawSampleChecker:
         )
 
 
-class GatewayService(Service):
-    name = "gateway"
+class GatewayService(StageService):
+    """The gateway row: raw bytes are checked here (no model parses them first); a rejection goes
+    to ``soilocp/<vid>/rejected`` with its reason."""
+
+    spec = BY_NAME["gateway"]
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)
         self.checkers = {vid: RawSampleChecker(vid, max_payload_bytes=cfg.max_payload_bytes) for vid in cfg.vehicle_ids}
-        self.pub_clean: dict[str, Any] = {}
         self.pub_rejected: dict[str, Any] = {}
 
     def declare(self, session, vehicle_id: str) -> None:
-        self.pub_clean[vehicle_id] = self.publisher(session, keys.clean(vehicle_id))
         self.pub_rejected[vehicle_id] = self.publisher(session, keys.rejected(vehicle_id))
-        self.subscribe(session, keys.raw(vehicle_id), vehicle_id, "raw")
+        super().declare(session, vehicle_id)
 
-    def handle(self, item) -> None:
-        vid, _kind, payload, wall, key = item
+    def handle(self, item: WorkItem) -> None:
+        vid = item.vehicle_id
         c = self.counters[vid]
-        c.last_input_wall = wall
-        result = self.checkers[vid].check(payload, key, wall)
+        c.last_input_wall = item.wall
+        result = self.checkers[vid].check(item.payload, item.key, item.wall)
         if isinstance(result, Rejection):
             c.rejected += 1
             c.bump(f"rejected_{result.code}")
@@ -114,7 +117,4 @@ class GatewayService(Service):
                                  message=result.message[:300], rejected_total=c.rejected)
             self.pub_rejected[vid].put(result.model_dump_json())
             return
-        self.pub_clean[vid].put(result.model_dump_json())
-        c.published += 1
-        c.last_seq = result.seq
-        c.last_stamp = result.stamp
+        self.emit(vid, result)

@@ -14,13 +14,11 @@ import time
 from collections import OrderedDict, deque
 from typing import Any, Callable, Optional
 
-from schemas import keys
 from schemas.pipeline import NormalForces
 from schemas.sensor import SensorSample
-from soilocp.estimation.pipeline import ObserverStage
-
-from services.runtime.service import Counters, Service
-from services.stages.config import pipeline_config
+from services.runtime.worker import Counters
+from services.stages.graph import BY_NAME
+from services.stages.stage_service import StageService
 
 
 class SeqJoiner:
@@ -91,41 +89,30 @@ class SeqJoiner:
         return len(self.samples)
 
 
-class ObserverService(Service):
-    name = "observer"
+class ObserverService(StageService):
+    """The observer row: its two inputs are joined by seq before the stage steps."""
+
+    spec = BY_NAME["observer"]
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)
-        pc = pipeline_config(cfg)
-        self.stages = {vid: ObserverStage(pc) for vid in cfg.vehicle_ids}
-        self.pubs: dict[str, Any] = {}
         self.joiners = {
             vid: SeqJoiner(lambda s, f, _vid=vid: self._step(_vid, s, f), self.counters[vid],
                            capacity=cfg.join_buffer, timeout_s=cfg.join_timeout_s)
             for vid in cfg.vehicle_ids
         }
 
-    def declare(self, session, vehicle_id: str) -> None:
-        self.pubs[vehicle_id] = self.publisher(session, keys.observer(vehicle_id))
-        self.subscribe(session, keys.clean(vehicle_id), vehicle_id, "sample")
-        self.subscribe(session, keys.normal_forces(vehicle_id), vehicle_id, "forces")
-
-    def handle(self, item) -> None:
-        vid, kind, payload, wall, _key = item
-        self.counters[vid].last_input_wall = wall
+    def accept(self, vehicle_id: str, kind: str, message) -> None:
         if kind == "sample":
-            self.joiners[vid].add_sample(SensorSample.model_validate_json(payload))
+            self.joiners[vehicle_id].add_sample(message)
         else:
-            self.joiners[vid].add_forces(NormalForces.model_validate_json(payload))
+            self.joiners[vehicle_id].add_forces(message)
 
     def _step(self, vid: str, sample: SensorSample, forces: NormalForces) -> None:
-        c = self.counters[vid]
         out = self.stages[vid].step(sample, forces)
         if out.reset_reason in ("non_finite_state", "state_out_of_physics"):
             self.log.warning("observer_reset", vehicle_id=vid, seq=out.seq, reason=out.reset_reason)
-        self.pubs[vid].put(out.model_dump_json())
-        c.published += 1
-        c.last_seq, c.last_stamp = out.seq, out.stamp
+        self.emit(vid, out)
 
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
         resets = {f"reset_{why}": n for why, n in self.stages[vehicle_id].bank.resets_by_reason.items() if n}

@@ -18,11 +18,9 @@ from typing import Any, Callable, Optional
 
 from schemas import keys
 from schemas.messages import OcpReply
-from schemas.pipeline import OcpEstimate, SoilEstimate
-from soilocp.estimation.pipeline import OcpStage
-
-from services.runtime.service import Service
-from services.stages.config import pipeline_config
+from schemas.pipeline import OcpEstimate
+from services.stages.graph import BY_NAME
+from services.stages.stage_service import StageService
 
 
 class OcpStore:
@@ -105,16 +103,15 @@ def parse_parameters(text: str) -> dict[str, str]:
     return out
 
 
-class OcpService(Service):
-    name = "ocp"
+class OcpService(StageService):
+    """The OCP row: every estimate also goes to a bounded store that a queryable answers from."""
+
+    spec = BY_NAME["ocp"]
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)
-        pc = pipeline_config(cfg)
-        self.stages = {vid: OcpStage(pc) for vid in cfg.vehicle_ids}
         self.stores = {vid: OcpStore(vid, capacity=cfg.history_size, stale_timeout_s=cfg.stale_timeout_s)
                        for vid in cfg.vehicle_ids}
-        self.pubs: dict[str, Any] = {}
         self.status_pubs: dict[str, Any] = {}
         self._stale: dict[str, bool] = {vid: True for vid in cfg.vehicle_ids}
         self._next_stale_report: dict[str, float] = {vid: 0.0 for vid in cfg.vehicle_ids}
@@ -122,8 +119,8 @@ class OcpService(Service):
     def declare(self, session, vehicle_id: str) -> None:
         import zenoh
 
-        key = keys.ocp(vehicle_id)
-        self.pubs[vehicle_id] = self.publisher(session, key)
+        super().declare(session, vehicle_id)
+        key = self.spec.output(vehicle_id)
         self.status_pubs[vehicle_id] = self.keep(
             session.declare_publisher(keys.status(vehicle_id, self.name), congestion_control=zenoh.CongestionControl.DROP))
         store = self.stores[vehicle_id]
@@ -142,18 +139,10 @@ class OcpService(Service):
                 log.warning("query_failed", vehicle_id=vehicle_id, error=str(exc)[:300])
 
         self.keep(session.declare_queryable(key, _query))
-        self.subscribe(session, keys.soil(vehicle_id), vehicle_id, "soil")
 
-    def handle(self, item) -> None:
-        vid, _kind, payload, wall, _key = item
-        c = self.counters[vid]
-        c.last_input_wall = wall
-        soil = SoilEstimate.model_validate_json(payload)
-        est = self.stages[vid].step(soil)
-        self.stores[vid].add(est)
-        self.pubs[vid].put(est.model_dump_json())
-        c.published += 1
-        c.last_seq, c.last_stamp = est.seq, est.stamp
+    def emit(self, vehicle_id: str, out: OcpEstimate) -> None:
+        self.stores[vehicle_id].add(out)
+        super().emit(vehicle_id, out)
 
     def tick(self, now: float) -> None:
         for vid, store in self.stores.items():

@@ -24,10 +24,15 @@ from pathlib import Path
 from typing import Any, Optional
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 from schemas.messages import Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import OcpEstimate
 
-from services.runtime.service import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT, JsonLog, open_session
+from services.runtime.config import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT
+
+from services.runtime.log import JsonLog
+
+from services.runtime.process import open_session
 
 DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
 DRAIN_MAX_S = 30.0
@@ -259,7 +264,7 @@ def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
     if source_ended and fresh == "STALE":
         fresh = "source ended"  # silence after the end of the drive is expected, not a fault
     alive = snap["alive"]
-    want = keys.PIPELINE_SERVICES
+    want = PIPELINE_SERVICES
     sp: Optional[SlipSetpoint] = snap.get("setpoint")
     n_alive = sum(1 for s in want if s in alive)
     return {
@@ -361,14 +366,14 @@ def run_system(opts: RunOptions) -> int:
         for ep in listen:
             router_args += ["--listen", ep]
         group.start("router", router_args)
-        for name in keys.PIPELINE_SERVICES:
+        for name in PIPELINE_SERVICES:
             args = ["service", name, *common]
             if name == "ocp":
                 args += ["--stale-timeout", str(opts.stale_timeout)]
             if opts.pipeline_config and name != "gateway":
                 args += ["--pipeline-config", opts.pipeline_config]
             group.start(name, args)
-        want_alive = set(keys.PIPELINE_SERVICES)
+        want_alive = set(PIPELINE_SERVICES)
         if opts.control:
             group.start("controller", ["service", "controller", *common, "--control", opts.control,
                                        "--stale-timeout", str(opts.stale_timeout)])

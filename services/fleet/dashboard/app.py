@@ -22,10 +22,12 @@ from pathlib import Path
 from typing import Any, Optional
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
 from services.fleet.view import FleetMonitor, FleetState
-from services.runtime.service import JsonLog, open_session
+from services.runtime.log import JsonLog
+from services.runtime.process import open_session
 
 STATIC_DIR = Path(__file__).with_name("static")
 #: Seconds between two server-sent events.
@@ -89,7 +91,7 @@ class DashboardHub:
 
     def constants_view(self) -> dict[str, Any]:
         c = self.constants
-        return {"soils": c.soils, "pipeline_services": list(keys.PIPELINE_SERVICES),
+        return {"soils": c.soils, "pipeline_services": list(PIPELINE_SERVICES),
                 "constants": c.model_dump(mode="json")}
 
     def fleet(self) -> dict[str, Any]:
