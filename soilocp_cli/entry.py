@@ -5,12 +5,19 @@ from __future__ import annotations
 
 import sys
 
+import click
+
 PROCESS_COMMAND_NAMES = ("service", "router")
 
 
-def run() -> None:
-    if len(sys.argv) > 1 and sys.argv[1] in PROCESS_COMMAND_NAMES:
+def command_group(args: list[str]) -> click.Group:
+    """The group that serves ``args`` (the command line without the program name)."""
+    if args and args[0] in PROCESS_COMMAND_NAMES:
         from soilocp_cli.process import main
     else:
         from soilocp_cli.main import main
-    main(prog_name="soilocp")
+    return main
+
+
+def run() -> None:
+    command_group(sys.argv[1:])(prog_name="soilocp")

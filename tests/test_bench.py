@@ -150,9 +150,10 @@ def test_process_commands_load_no_heavy_module(argv):
     """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
     register only the services area's commands, and a stage service loads no scipy / rich /
     matplotlib / filterpy (the cli with any other command still registers every area)."""
-    code = ("import sys; sys.argv = ['soilocp', *sys.argv[1:]]; import soilocp_cli.main as cli, services.stages.observer; "
+    code = ("import sys; import soilocp_cli.entry as entry; group = entry.command_group(sys.argv[1:]); "
+            "import services.stages.observer; "
             "heavy = sorted(m for m in ('scipy', 'rich', 'matplotlib', 'filterpy') if m in sys.modules); "
-            "print(heavy, sorted(cli.main.commands))")
+            "print(heavy, sorted(group.commands))")
     r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     heavy, commands = r.stdout.strip().split("] [")

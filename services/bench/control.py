@@ -15,15 +15,15 @@ from typing import Any
 
 from schemas import keys
 
-from services.bench.live import _SEQ_RE, PIPELINE, Rig, _paced, _sleep_until, _wait_all, open_client, summarize
+from services.bench.live import _SEQ_RE, Rig, _paced, _sleep_until, _wait_all, open_client, summarize
 
 CONTROL_HOPS = 8  # raw, clean, normal_forces, observer, soil, ocp, control/slip: client->router->client hops
 
 
 def control_rig(vehicle_ids: list[str]) -> Rig:
-    svc = [(name, ["-m", "soilocp_cli", "service", name]) for name in PIPELINE]
-    svc.append(("controller", ["-m", "soilocp_cli", "service", "controller", "--control", "ocp_traction"]))
-    return Rig(list(vehicle_ids), svc)
+    rig = Rig.standard(vehicle_ids)
+    rig.services = [*rig.services, ("controller", "soilocp_cli", ["service", "controller", "--control", "ocp_traction"])]
+    return rig
 
 
 def control_loop_latency(payloads: list[tuple[int, bytes]], rate: float, duration: float,

@@ -14,19 +14,18 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from schemas import keys
-from services.stages.graph import PIPELINE_SERVICES
+from services.supervisor.liveliness import wait_alive
+from services.supervisor.processes import ProcessGroup
+from services.stages.graph import BATCHED_STAGES, PIPELINE_SERVICES
 
 from services.bench.echo import PING_KEY, PONG_KEY
 from services.bench.stages import summarize
@@ -104,12 +103,13 @@ class CpuWindow:
 # ----------------------------------------------------------------------------------------------
 @dataclass
 class Rig:
-    """Router + pipeline services (+ echo) as subprocesses; always reaped by :meth:`stop`."""
+    """Router + pipeline services (+ echo) as subprocesses of one :class:`ProcessGroup`; always
+    reaped by :meth:`stop`."""
 
     vehicle_ids: list[str]
-    services: Sequence[tuple[str, list[str]]] = ()  # (name, argv after the python executable)
+    services: Sequence[tuple[str, str, list[str]]] = ()  # (name, module, args): python -m module *args
     log_dir: Optional[Path] = None
-    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+    group: Optional[ProcessGroup] = None
     endpoint: str = ""
     #: "client": every service a client of the router (each hop client -> router -> client);
     #: "peer": the services are peers that also listen on an ephemeral loopback port, so that
@@ -119,93 +119,63 @@ class Rig:
     @staticmethod
     def standard(vehicle_ids: list[str]) -> "Rig":
         """The five services of docs/services.md, each serving every vehicle id."""
-        svc = [(name, ["-m", "soilocp_cli", "service", name]) for name in PIPELINE]
-        return Rig(list(vehicle_ids), svc)
+        return Rig(list(vehicle_ids), [(name, "soilocp_cli", ["service", name]) for name in PIPELINE])
 
     @staticmethod
     def batched(vehicle_ids: list[str]) -> "Rig":
         """The gateway as deployed; normal forces + observer + soil + OCP in one batched process."""
-        svc = [("gateway", ["-m", "soilocp_cli", "service", "gateway"]), ("batch", ["-m", "services.stages.batch"])]
-        return Rig(list(vehicle_ids), svc)
-
-    def _spawn(self, name: str, argv: list[str], env: dict[str, str]) -> None:
-        assert self.log_dir is not None
-        fh = open(self.log_dir / f"{name}.log", "ab")
-        try:
-            self.procs[name] = subprocess.Popen([sys.executable, *argv], stdin=subprocess.DEVNULL, stdout=fh,
-                                                stderr=fh, env=env, start_new_session=True)
-        finally:
-            fh.close()
+        return Rig(list(vehicle_ids), [("gateway", "soilocp_cli", ["service", "gateway"]),
+                                       ("batch", "services.stages.batch", [])])
 
     def start(self) -> "Rig":
         if self.log_dir is None:
             self.log_dir = Path(tempfile.mkdtemp(prefix="soilocp-bench-"))
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-        env["PYTHONUNBUFFERED"] = "1"
+        self.group = ProcessGroup(self.log_dir, drop_env=("SOILOCP_",))
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self._spawn("router", ["-m", "soilocp_cli", "router", "--listen", self.endpoint], env)
-        senv = dict(env, SOILOCP_VEHICLE_ID=",".join(self.vehicle_ids), SOILOCP_CONNECT=self.endpoint,
+        self.group.start("router", ["router", "--listen", self.endpoint])
+        senv = dict(SOILOCP_VEHICLE_ID=",".join(self.vehicle_ids), SOILOCP_CONNECT=self.endpoint,
                     SOILOCP_LOG_LEVEL="warning")
         if self.links == "peer":
             senv.update(SOILOCP_MODE="peer", SOILOCP_LISTEN="tcp/127.0.0.1:0")
         elif self.links != "client":
             raise ValueError(f"links {self.links!r}: must be 'client' or 'peer'")
-        for name, argv in self.services:
-            self._spawn(name, argv, senv)
-        self._spawn("echo", ["-m", "services.bench.echo", "--connect", self.endpoint], env)
+        for name, module, args in self.services:
+            self.group.start(name, args, module=module, env=senv)
+        self.group.start("echo", ["--connect", self.endpoint], module="services.bench.echo")
         return self
 
     def pids(self) -> dict[str, int]:
         """Every child's pid, and the bench process itself (its publisher and subscriber)."""
-        return {**{n: p.pid for n, p in self.procs.items()}, "bench": os.getpid()}
+        assert self.group is not None
+        return {**{n: p.pid for n, p in self.group.procs.items()}, "bench": os.getpid()}
 
     def dead(self) -> list[str]:
-        return [n for n, p in self.procs.items() if p.poll() is not None]
+        return self.group.dead() if self.group is not None else []
 
     def wait_ready(self, session, timeout: float) -> None:
         """Until every service holds its liveliness token for every vehicle (and the echo its own)."""
-        want = {(vid, svc) for vid in self.vehicle_ids for svc in self._token_names()}
-        deadline = time.monotonic() + timeout
-        while True:
-            seen = set()
-            for r in session.liveliness().get(keys.any_vehicle_alive(), timeout=2.0):
-                if r.ok is not None:
-                    try:
-                        seen.add(keys.service_of_alive_key(str(r.ok.key_expr)))
-                    except ValueError:
-                        pass
-            echo = any(r.ok is not None for r in session.liveliness().get("bench/alive/echo", timeout=1.0))
-            if want <= seen and echo:
+        t0 = time.monotonic()
+        missing = wait_alive(session, self.vehicle_ids, self._token_names(), timeout, dead=self.dead)
+        while not missing and not self.dead():
+            if any(r.ok is not None for r in session.liveliness().get("bench/alive/echo", timeout=1.0)):
                 return
-            if self.dead():
-                raise RuntimeError(f"bench: process(es) {self.dead()} exited during startup; logs in {self.log_dir}")
-            if time.monotonic() > deadline:
-                missing = sorted(want - seen)[:5]
-                raise RuntimeError(f"bench: services not ready after {timeout:.0f} s (missing e.g. {missing}); "
-                                   f"logs in {self.log_dir}")
+            if time.monotonic() - t0 > timeout:
+                break
             time.sleep(0.2)
+        if self.dead():
+            raise RuntimeError(f"bench: process(es) {self.dead()} exited during startup; logs in {self.log_dir}")
+        raise RuntimeError(f"bench: services not ready after {timeout:.0f} s (missing e.g. "
+                           f"{sorted(missing)[:5] or ['echo']}); logs in {self.log_dir}")
 
     def _token_names(self) -> list[str]:
         names = []
-        for name, _argv in self.services:
-            names += ["normal-force", "observer", "soil-strength", "ocp"] if name == "batch" else [name]
+        for name, _module, _args in self.services:
+            names += [*BATCHED_STAGES, "ocp"] if name == "batch" else [name]
         return names
 
     def stop(self, timeout: float = 5.0) -> None:
-        for p in self.procs.values():
-            if p.poll() is None:
-                try:
-                    p.send_signal(signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + timeout
-        for p in self.procs.values():
-            try:
-                p.wait(max(0.05, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        if self.group is not None:
+            self.group.stop_all(timeout)
 
 
 def open_client(endpoint: str):

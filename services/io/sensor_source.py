@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 from schemas import keys
+from services.supervisor.liveliness import wait_alive
 from services.stages.graph import PIPELINE_SERVICES
 
 from services.runtime.service import Service
@@ -111,25 +112,14 @@ class VehicleService(Service):
         if not self.wait_for:
             return
         vid = self.cfg.vehicle_id
-        deadline = time.monotonic() + self.wait_timeout_s
-        missing = set(self.wait_for)
-        while not self.stop_event.is_set():
-            seen = set()
-            for reply in self.session.liveliness().get(keys.vehicle_alive_all(vid), timeout=1.0):
-                if reply.ok is not None:
-                    try:
-                        seen.add(keys.service_of_alive_key(str(reply.ok.key_expr))[1])
-                    except ValueError:
-                        pass
-            missing = set(self.wait_for) - seen
-            if not missing:
-                self.log.info("pipeline_ready", vehicle_id=vid, services=sorted(seen))
-                return
-            if time.monotonic() > deadline:
-                self.log.warning("pipeline_not_ready", vehicle_id=vid, missing=sorted(missing),
-                                 waited_s=self.wait_timeout_s)
-                return
-            self.stop_event.wait(0.2)
+        missing = wait_alive(self.session, [vid], self.wait_for, self.wait_timeout_s, stop=self.stop_event)
+        if self.stop_event.is_set():
+            return
+        if missing:
+            self.log.warning("pipeline_not_ready", vehicle_id=vid, missing=sorted(s for _v, s in missing),
+                             waited_s=self.wait_timeout_s)
+        else:
+            self.log.info("pipeline_ready", vehicle_id=vid, services=sorted(self.wait_for))
 
     def _publish_all(self) -> None:
         vid = self.cfg.vehicle_id

@@ -10,33 +10,31 @@ status is non-zero if any process died or failed to stop.
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
-import sys
 import tempfile
 import threading
 import time
-from collections import Counter as Tally
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 from schemas import keys
 from services.stages.graph import PIPELINE_SERVICES
-from schemas.messages import Rejection, ServiceHealth, SlipSetpoint
-from schemas.pipeline import OcpEstimate
+from schemas.messages import ServiceHealth
 
-from services.runtime.config import DEFAULT_ENDPOINT, ENV_EXIT_WITH_PARENT
+from services.runtime.config import DEFAULT_ENDPOINT
 
 from services.runtime.log import JsonLog
 
 from services.runtime.process import open_session
+from services.supervisor.liveliness import wait_alive
+from services.supervisor.monitor import Monitor
+from services.supervisor.processes import STOP_TIMEOUT_S, Child, ProcessGroup
+from services.supervisor.table import live_table, plain_line, summary_tables
 
 DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
 DRAIN_MAX_S = 30.0
-STOP_TIMEOUT_S = 5.0  # services stop in < 2 s; the margin is for a heavily loaded machine
 
 
 @dataclass
@@ -62,270 +60,6 @@ def client_endpoints(listen: list[str]) -> list[str]:
     for ep in listen:
         out.append(ep.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:"))
     return out
-
-
-@dataclass
-class Child:
-    name: str
-    argv: list[str]
-    log_path: Path
-    proc: Optional[subprocess.Popen] = None
-    stopping: bool = False
-    outcome: str = "running"  # running | done | died | stopped | killed
-
-    @property
-    def pid(self) -> Optional[int]:
-        return self.proc.pid if self.proc else None
-
-    def start(self, env: dict[str, str]) -> None:
-        fh = open(self.log_path, "ab")
-        try:
-            # own session: the terminal's Ctrl-C reaches only us; we stop the children in order
-            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=fh, stderr=fh, env=env,
-                                         start_new_session=True)
-        finally:
-            fh.close()
-
-    def poll(self) -> Optional[int]:
-        return None if self.proc is None else self.proc.poll()
-
-
-class ProcessGroup:
-    """Children started in order and stopped in reverse order; every one is reaped."""
-
-    def __init__(self, log_dir: Path):
-        self.log_dir = log_dir
-        self.children: list[Child] = []
-        self.env = dict(os.environ)
-        self.env.pop("SOILOCP_CONFIG", None)  # the run passes every setting explicitly
-        self.env["PYTHONUNBUFFERED"] = "1"
-        # if this process is SIGKILLed, the children notice their new parent and stop themselves
-        self.env[ENV_EXIT_WITH_PARENT] = "1"
-
-    def start(self, name: str, args: list[str]) -> Child:
-        child = Child(name, [sys.executable, "-m", "soilocp_cli", *args], self.log_dir / f"{name}.log")
-        child.start(self.env)
-        self.children.append(child)
-        return child
-
-    def stop_all(self, timeout: float = STOP_TIMEOUT_S) -> None:
-        for child in reversed(self.children):
-            if child.proc and child.proc.poll() is None:
-                child.stopping = True
-                try:
-                    child.proc.send_signal(signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + timeout
-        for child in reversed(self.children):
-            if child.proc is None:
-                continue
-            try:
-                child.proc.wait(max(0.05, deadline - time.monotonic()))
-                if child.outcome == "running":
-                    # -SIGTERM: stopped while still starting, before its handlers were installed
-                    ok = child.proc.returncode in (0, -signal.SIGTERM)
-                    child.outcome = "stopped" if ok else "died"
-            except subprocess.TimeoutExpired:
-                child.proc.kill()
-                child.proc.wait()
-                child.outcome = "killed"
-
-
-class Monitor:
-    """What the run shows, fed by Zenoh callbacks (cheap: store and count only)."""
-
-    def __init__(self, vehicle_id: str, stale_timeout: float):
-        self.vid = vehicle_id
-        self.stale_timeout = stale_timeout
-        self.lock = threading.Lock()
-        self.latest: Optional[OcpEstimate] = None
-        self.latest_wall: Optional[float] = None
-        self.ocp_count = 0
-        self.arrivals: deque[float] = deque(maxlen=5000)
-        self.rejections = 0
-        self.rejection_codes: Tally = Tally()
-        self.health: dict[str, ServiceHealth] = {}
-        self.alive: set[str] = set()
-        self.stale_reports = 0
-        self.setpoint: Optional[SlipSetpoint] = None
-        self._decls: list[Any] = []
-
-    def attach(self, session) -> None:
-        import zenoh
-
-        vid = self.vid
-
-        def on_ocp(sample) -> None:
-            try:
-                est = OcpEstimate.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
-            now = time.time()
-            with self.lock:
-                self.latest, self.latest_wall = est, now
-                self.ocp_count += 1
-                self.arrivals.append(now)
-
-        def on_rejected(sample) -> None:
-            try:
-                rej = Rejection.model_validate_json(sample.payload.to_bytes())
-                code = rej.code
-            except ValueError:
-                code = "?"
-            with self.lock:
-                self.rejections += 1
-                self.rejection_codes[code] += 1
-
-        def on_status(sample) -> None:
-            try:
-                h = ServiceHealth.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
-            with self.lock:
-                self.health[h.service] = h
-                if h.service == "ocp" and h.stale:
-                    self.stale_reports += 1
-
-        def on_setpoint(sample) -> None:
-            try:
-                sp = SlipSetpoint.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
-            with self.lock:
-                self.setpoint = sp
-
-        def on_alive(sample) -> None:
-            try:
-                _vid, service = keys.service_of_alive_key(str(sample.key_expr))
-            except ValueError:
-                return
-            with self.lock:
-                if sample.kind == zenoh.SampleKind.PUT:
-                    self.alive.add(service)
-                else:
-                    self.alive.discard(service)
-
-        self._decls = [
-            session.declare_subscriber(keys.ocp(vid), on_ocp),
-            session.declare_subscriber(keys.rejected(vid), on_rejected),
-            session.declare_subscriber(keys.vehicle_status_all(vid), on_status),
-            session.declare_subscriber(keys.control_slip(vid), on_setpoint),
-            session.liveliness().declare_subscriber(keys.vehicle_alive_all(vid), on_alive, history=True),
-        ]
-
-    def detach(self) -> None:
-        for d in self._decls:
-            try:
-                d.undeclare()
-            except Exception:
-                pass
-        self._decls = []
-
-    def snapshot(self) -> dict[str, Any]:
-        now = time.time()
-        with self.lock:
-            recent = [t for t in self.arrivals if now - t <= 2.0]
-            rate = len(recent) / 2.0 if recent else 0.0
-            est = self.latest
-            age = None if self.latest_wall is None else now - self.latest_wall
-            ocp_h = self.health.get("ocp")
-            return dict(
-                est=est,
-                age=age,
-                stale=age is None or age > self.stale_timeout,
-                rate=rate,
-                count=self.ocp_count,
-                rejections=self.rejections,
-                codes=dict(self.rejection_codes),
-                alive=set(self.alive),
-                health=dict(self.health),
-                ocp_stale_reported=bool(ocp_h and ocp_h.stale),
-                setpoint=self.setpoint,
-            )
-
-
-def _fmt(x: Optional[float], spec: str = ".3f") -> str:
-    return "-" if x is None else format(x, spec)
-
-
-def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
-    est: Optional[OcpEstimate] = snap["est"]
-    k = "-"
-    cls = "-"
-    status = "waiting"
-    if est is not None:
-        if est.soil_strength is not None:
-            k = f"{est.soil_strength:.1f} ± {_fmt(est.soil_strength_std, '.1f')}"
-        if est.soil_class:
-            cls = est.soil_class + (f" ({est.soil_class_confidence:.2f})" if est.soil_class_confidence is not None else "")
-        status = est.status
-    fresh = "STALE" if snap["stale"] and est is not None else ("fresh" if est is not None else "-")
-    if source_ended and fresh == "STALE":
-        fresh = "source ended"  # silence after the end of the drive is expected, not a fault
-    alive = snap["alive"]
-    want = PIPELINE_SERVICES
-    sp: Optional[SlipSetpoint] = snap.get("setpoint")
-    n_alive = sum(1 for s in want if s in alive)
-    return {
-        "K ± std": k,
-        "soil class": cls,
-        "mu_T": _fmt(est.mu_T if est else None),
-        "S_T": _fmt(est.S_T if est else None),
-        "S_E": _fmt(est.S_E if est else None),
-        "status": f"{status} / {fresh}",
-        "samples/s": f"{snap['rate']:.1f}",
-        "rejections": str(snap["rejections"]),
-        "services alive": f"{n_alive}/{len(want)}" + ("" if n_alive == len(want) else
-                                                      " (missing " + ",".join(s for s in want if s not in alive) + ")"),
-        **({} if sp is None else {"slip set-point": f"{_fmt(sp.slip[0] if sp.slip else None)} ({sp.source})"}),
-    }
-
-
-def live_table(vid: str, snap: dict[str, Any], elapsed: float, title_extra: str = "", *, width: int = 200,
-               source_ended: bool = False):
-    """One row per vehicle on a wide terminal; a field/value column pair on a narrow one."""
-    from rich.table import Table
-
-    row = _row(snap, source_ended)
-    title = f"soilocp run — {vid} — t={elapsed:.1f} s{title_extra}"
-    if width < 130:
-        t = Table(title=title, title_justify="left", show_header=False)
-        t.add_column("field", style="bold")
-        t.add_column("value", no_wrap=True)
-        for name, value in row.items():
-            t.add_row(name, value)
-        return t
-    t = Table(title=title, title_justify="left")
-    t.add_column("vehicle")
-    for name in row:
-        t.add_column(name, no_wrap=True,
-                     justify="right" if name not in ("soil class", "status", "services alive") else "left")
-    t.add_row(vid, *row.values())
-    return t
-
-
-def plain_line(vid: str, snap: dict[str, Any], elapsed: float) -> str:
-    row = _row(snap)
-    return f"t={elapsed:6.1f}s {vid} " + " ".join(f"{k.replace(' ', '_')}={v.replace(' ', '')}" for k, v in row.items())
-
-
-def summary_tables(vid: str, snap: dict[str, Any], group: ProcessGroup, elapsed: float, width: int = 200):
-    from rich.table import Table
-
-    ended = any(c.name == "vehicle" and c.outcome == "done" for c in group.children)
-    top = live_table(vid, snap, elapsed, " — summary", width=width, source_ended=ended)
-    t = Table(title="processes", title_justify="left")
-    # short headers: the table must fit an 80-column terminal
-    for col in ("process", "pid", "outcome", "rc", "recv", "pub", "rej", "drop", "err"):
-        t.add_column(col, no_wrap=True, justify="left" if col in ("process", "outcome") else "right",
-                     min_width={"process": 13, "pid": 7, "outcome": 7, "recv": 5, "pub": 5}.get(col))
-    for child in group.children:
-        h = snap["health"].get(child.name)
-        rc = child.proc.returncode if child.proc else None
-        t.add_row(child.name, str(child.pid), child.outcome, "-" if rc is None else str(rc),
-                  *(str(getattr(h, f)) if h else "-" for f in ("received", "published", "rejected", "dropped", "errors")))
-    return top, t
 
 
 def run_system(opts: RunOptions) -> int:
@@ -382,22 +116,16 @@ def run_system(opts: RunOptions) -> int:
         if session is not None:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
             # wait until every pipeline service holds its token (or one dies)
-            deadline = time.monotonic() + opts.startup_timeout_s
-            while not stop.is_set():
-                dead = [c.name for c in group.children if c.poll() is not None]
-                if dead:
-                    for c in group.children:
-                        if c.name in dead:
-                            c.outcome = "died"
-                            failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
-                    break
-                if want_alive <= monitor.snapshot()["alive"]:
-                    break
-                if time.monotonic() > deadline:
-                    failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
-                                    + ",".join(sorted(want_alive - monitor.snapshot()["alive"])))
-                    break
-                stop.wait(0.1)
+            missing = wait_alive(session, [opts.vehicle_id], want_alive, opts.startup_timeout_s, stop=stop,
+                                 dead=group.dead, interval=0.1)
+            dead = group.dead()
+            for c in group.children:
+                if c.name in dead:
+                    c.outcome = "died"
+                    failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
+            if missing and not dead and not stop.is_set():
+                failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
+                                + ",".join(sorted(s for _v, s in missing)))
             if not failures and not stop.is_set():
                 vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
                 if opts.scenario:
