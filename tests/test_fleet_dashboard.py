@@ -4,7 +4,7 @@ A fleet router, two vehicles each run by ``soilocp run`` (its own router linked 
 router, five services, a synthetic vehicle), the dashboard server, and headless Chromium driven
 over the DevTools protocol on a pipe (``--remote-debugging-pipe``: no websocket client needed).
 Loopback only, ephemeral ports, multicast off; every process is reaped.  Plus fast unit tests of
-:class:`services.fleet.view.FleetState` with a fake clock.
+:class:`services.fleet.state.FleetState` with a fake clock.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from schemas import keys
 from services.stages.graph import PIPELINE_SERVICES
 from schemas.messages import OcpReply, ServiceHealth
 from schemas.pipeline import OcpEstimate
-from services.fleet.view import FleetState, traction_curve
+from services.fleet.state import FleetState, traction_curve
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.traction import net_traction
 

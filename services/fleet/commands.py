@@ -84,7 +84,8 @@ def run_status(connect: list[str], timeout: float, watch: bool, as_json: bool, i
     import zenoh
     from rich.console import Console
 
-    from services.fleet.view import FleetState, query_fleet
+    from services.fleet.monitor import query_fleet
+    from services.fleet.state import FleetState
     from services.runtime.config import zenoh_config
 
     console = Console()

@@ -1,7 +1,7 @@
 """``soilocp dashboard``: a Starlette app showing the fleet live.
 
-The server process holds the only Zenoh session: a :class:`services.fleet.view.FleetMonitor` feeds a
-:class:`services.fleet.view.FleetState` (subscriptions + periodic queries); the page gets the data by
+The server process holds the only Zenoh session: a :class:`services.fleet.monitor.FleetMonitor` feeds a
+:class:`services.fleet.state.FleetState` (subscriptions + periodic queries); the page gets the data by
 server-sent events (``GET /events``, ``text/event-stream``) and never talks Zenoh.  The same data
 is available as JSON (``GET /api/vehicles``, ``GET /api/vehicles/{id}``, ``GET /api/constants``).
 The traction-slip curve is computed here, with the library's :func:`soilocp.model.traction.net_traction`,
@@ -25,7 +25,8 @@ from schemas import keys
 from services.stages.graph import PIPELINE_SERVICES
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
-from services.fleet.view import FleetMonitor, FleetState
+from services.fleet.monitor import FleetMonitor
+from services.fleet.state import FleetState
 from services.runtime.log import JsonLog
 from services.runtime.process import open_session
 
