@@ -13,7 +13,7 @@ from typing import Any, Optional
 from services.security.fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
-from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, zenoh_config
+from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
 from services.runtime.log import JsonLog
 from services.runtime.process import install_stop_handlers, watch_parent
 
@@ -40,12 +40,7 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
         out.update(section)
         if "log_level" in data and "log_level" not in section:
             out["log_level"] = data["log_level"]
-    if env.get(ENV_LISTEN):
-        out["listen"] = _split_list(env[ENV_LISTEN])
-    if env.get(ENV_ROUTER_CONNECT):
-        out["connect"] = _split_list(env[ENV_ROUTER_CONNECT])
-    if env.get(ENV_LOG_LEVEL):
-        out["log_level"] = env[ENV_LOG_LEVEL].strip().lower()
+    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"}, {ENV_LOG_LEVEL: "log_level"}))
     _security_settings(out, env)
     if listen:
         out["listen"] = list(listen)

@@ -9,10 +9,11 @@ optimisation is shown as a ratio measured by one command against a report kept i
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Optional
+
+from soilocp.model.files import read_json
 
 LOWER, HIGHER = "lower", "higher"
 #: the processes of a pipeline (the bench process and the ping-pong echo are not part of it)
@@ -87,12 +88,7 @@ def compare(base: dict[str, Any], now: dict[str, Any]) -> list[dict[str, Any]]:
 
 def load_report(path: str | Path) -> dict[str, Any]:
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError as exc:
-        raise ValueError(f"baseline {str(p)!r} does not exist") from exc
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"baseline {str(p)!r} is not a bench report (invalid JSON: {exc})") from exc
+    data = read_json(p, "baseline")
     if not isinstance(data, dict) or "stages" not in data or "machine" not in data:
         raise ValueError(f"baseline {str(p)!r} is not a bench report (no 'stages' / 'machine'): "
                          "write one with `soilocp bench --json FILE`")

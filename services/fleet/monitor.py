@@ -29,6 +29,7 @@ from typing import Any, Optional
 from pydantic import ValidationError
 
 from schemas import keys
+from services.runtime.process import undeclare_all
 from schemas.messages import OcpReply, Rejection, ServiceHealth
 from schemas.pipeline import OcpEstimate
 
@@ -59,22 +60,16 @@ def query_fleet(session, state: FleetState, timeout: float, *, misses: int = 1) 
     # No consolidation: replies on different keys must all arrive (and the status queryables answer
     # on the query's own wildcard key, which the default consolidation would fold into one reply).
     every = zenoh.ConsolidationMode.NONE
-    for r in session.get(keys.any_vehicle_ocp(), timeout=timeout, consolidation=every):
-        if r.ok is None:
-            continue
-        try:
-            state.add_reply(OcpReply.model_validate_json(r.ok.payload.to_bytes()))
-            n += 1
-        except ValidationError:
-            state.bad_payloads += 1
-    for r in session.get(keys.any_vehicle_status(), timeout=timeout, consolidation=every):
-        if r.ok is None:
-            continue
-        try:
-            state.set_health(ServiceHealth.model_validate_json(r.ok.payload.to_bytes()))
-            n += 1
-        except ValidationError:
-            state.bad_payloads += 1
+    for selector, model, apply in ((keys.any_vehicle_ocp(), OcpReply, state.add_reply),
+                                   (keys.any_vehicle_status(), ServiceHealth, state.set_health)):
+        for r in session.get(selector, timeout=timeout, consolidation=every):
+            if r.ok is None:
+                continue
+            try:
+                apply(model.model_validate_json(r.ok.payload.to_bytes()))
+                n += 1
+            except ValidationError:
+                state.bad_payloads += 1
     return n
 
 
@@ -129,12 +124,7 @@ class FleetMonitor:
 
     def stop(self) -> None:
         self._stop.set()
-        for d in self._decls:
-            try:
-                d.undeclare()
-            except Exception:
-                pass
-        self._decls = []
+        undeclare_all(self._decls)
         self._offer(None)
         for t in self._threads:
             t.join(timeout=self.query_timeout_s + 1.0)

@@ -74,6 +74,14 @@ def _split_list(text: str) -> list[str]:
     return [part.strip() for part in text.split(",") if part.strip()]
 
 
+def env_settings(env: dict[str, str], lists: dict[str, str], words: dict[str, str]) -> dict[str, Any]:
+    """Settings from the environment: ``lists`` maps a variable to a setting read as a
+    comma-separated list, ``words`` to one read as a lower-case word; unset or empty is absent."""
+    out: dict[str, Any] = {field: _split_list(env[var]) for var, field in lists.items() if env.get(var)}
+    out.update({field: env[var].strip().lower() for var, field in words.items() if env.get(var)})
+    return out
+
+
 def _read_config_file(path: str) -> dict[str, Any]:
     p = Path(path)
     try:
@@ -126,16 +134,8 @@ def load_service_config(
     path = config_path or env.get(ENV_CONFIG) or None
     if path:
         values.update(_file_section(_read_config_file(path), service, path))
-    if env.get(ENV_VEHICLE_ID):
-        values["vehicle_ids"] = _split_list(env[ENV_VEHICLE_ID])
-    if env.get(ENV_CONNECT):
-        values["connect"] = _split_list(env[ENV_CONNECT])
-    if env.get(ENV_LISTEN):
-        values["listen"] = _split_list(env[ENV_LISTEN])
-    if env.get(ENV_MODE):
-        values["mode"] = env[ENV_MODE].strip().lower()
-    if env.get(ENV_LOG_LEVEL):
-        values["log_level"] = env[ENV_LOG_LEVEL].strip().lower()
+    values.update(env_settings(env, {ENV_VEHICLE_ID: "vehicle_ids", ENV_CONNECT: "connect", ENV_LISTEN: "listen"},
+                               {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level"}))
     if env.get(ENV_STALE_TIMEOUT):
         raw = env[ENV_STALE_TIMEOUT].strip()
         try:

@@ -8,7 +8,7 @@ import os
 import signal
 import threading
 import time
-from typing import Optional
+from typing import Any, Optional
 
 from services.runtime.config import ENV_EXIT_WITH_PARENT, zenoh_config
 from services.runtime.log import JsonLog
@@ -54,6 +54,17 @@ def watch_parent(stop: threading.Event, log: Optional[JsonLog] = None, *, period
                 os._exit(0)
 
     threading.Thread(target=_watch, name="parent-watch", daemon=True).start()
+
+
+def undeclare_all(entities: list[Any]) -> None:
+    """Undeclare Zenoh entities (subscribers, publishers, queryables, tokens) newest first, and
+    forget them; one already gone with its session is not an error."""
+    for entity in reversed(entities):
+        try:
+            entity.undeclare()
+        except Exception:  # already gone with the session: nothing left to release
+            pass
+    entities.clear()
 
 
 def open_session(

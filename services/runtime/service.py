@@ -19,8 +19,8 @@ from schemas import keys
 from schemas.messages import ServiceHealth
 from services.runtime.config import ConfigError, ServiceConfig
 from services.runtime.log import JsonLog
-from services.runtime.process import install_stop_handlers, open_session, watch_parent
-from services.runtime.worker import FAILING_RATE, BoundedWorker, Counters, WorkItem
+from services.runtime.process import install_stop_handlers, open_session, undeclare_all, watch_parent
+from services.runtime.worker import FAILING_RATE, HEALTH_COUNTERS, BoundedWorker, Counters, WorkItem
 
 class Service:
     """Base of the pipeline services: per-vehicle declarations, one worker, health and liveliness."""
@@ -116,15 +116,8 @@ class Service:
             host=socket.gethostname(),
             state=state,
             uptime_s=max(0.0, now - self.started_wall),
-            received=c.received,
-            published=c.published,
-            rejected=c.rejected,
-            dropped=c.dropped,
-            errors=c.errors,
-            failure_rate=c.failure_rate,
+            **{name: getattr(c, name) for name in HEALTH_COUNTERS},
             queue_depth=self.worker.depth(),
-            last_seq=c.last_seq,
-            last_stamp=c.last_stamp,
             last_input_age_s=None if c.last_input_wall is None else max(0.0, now - c.last_input_wall),
             detail=dict(c.detail),
             time=now,
@@ -137,12 +130,7 @@ class Service:
         return ServiceHealth(**fields)
 
     def close(self) -> None:
-        for entity in reversed(self._declared):
-            try:
-                entity.undeclare()
-            except Exception:  # already gone with the session: nothing left to release
-                pass
-        self._declared.clear()
+        undeclare_all(self._declared)
 
 
 def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -> int:

@@ -18,6 +18,10 @@ class WorkItem(NamedTuple):
     key: str
 
 
+#: The :class:`Counters` fields that a ServiceHealth reports as they are.
+HEALTH_COUNTERS = ("received", "published", "rejected", "dropped", "errors", "failure_rate", "last_seq", "last_stamp")
+
+
 @dataclass
 class Counters:
     """Per-vehicle counters of one service (plain ints: updated under the GIL by one writer each)."""

@@ -12,6 +12,7 @@ from collections import deque
 from typing import Any, Optional
 
 from schemas import keys
+from services.runtime.process import undeclare_all
 from schemas.messages import Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import OcpEstimate
 
@@ -40,16 +41,25 @@ class Monitor:
 
         vid = self.vid
 
-        def on_ocp(sample) -> None:
-            try:
-                est = OcpEstimate.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
+        def parsed(model, apply):
+            """A callback that parses the payload with ``model`` and applies it under the lock
+            (an unparsable payload is the gateway's and the services' business, not the view's)."""
+
+            def on_sample(sample) -> None:
+                try:
+                    msg = model.model_validate_json(sample.payload.to_bytes())
+                except ValueError:
+                    return
+                with self.lock:
+                    apply(msg)
+
+            return on_sample
+
+        def ocp(est: OcpEstimate) -> None:
             now = time.time()
-            with self.lock:
-                self.latest, self.latest_wall = est, now
-                self.ocp_count += 1
-                self.arrivals.append(now)
+            self.latest, self.latest_wall = est, now
+            self.ocp_count += 1
+            self.arrivals.append(now)
 
         def on_rejected(sample) -> None:
             try:
@@ -61,23 +71,13 @@ class Monitor:
                 self.rejections += 1
                 self.rejection_codes[code] += 1
 
-        def on_status(sample) -> None:
-            try:
-                h = ServiceHealth.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
-            with self.lock:
-                self.health[h.service] = h
-                if h.service == "ocp" and h.stale:
-                    self.stale_reports += 1
+        def status(h: ServiceHealth) -> None:
+            self.health[h.service] = h
+            if h.service == "ocp" and h.stale:
+                self.stale_reports += 1
 
-        def on_setpoint(sample) -> None:
-            try:
-                sp = SlipSetpoint.model_validate_json(sample.payload.to_bytes())
-            except ValueError:
-                return
-            with self.lock:
-                self.setpoint = sp
+        def setpoint(sp: SlipSetpoint) -> None:
+            self.setpoint = sp
 
         def on_alive(sample) -> None:
             try:
@@ -91,20 +91,15 @@ class Monitor:
                     self.alive.discard(service)
 
         self._decls = [
-            session.declare_subscriber(keys.ocp(vid), on_ocp),
+            session.declare_subscriber(keys.ocp(vid), parsed(OcpEstimate, ocp)),
             session.declare_subscriber(keys.rejected(vid), on_rejected),
-            session.declare_subscriber(keys.vehicle_status_all(vid), on_status),
-            session.declare_subscriber(keys.control_slip(vid), on_setpoint),
+            session.declare_subscriber(keys.vehicle_status_all(vid), parsed(ServiceHealth, status)),
+            session.declare_subscriber(keys.control_slip(vid), parsed(SlipSetpoint, setpoint)),
             session.liveliness().declare_subscriber(keys.vehicle_alive_all(vid), on_alive, history=True),
         ]
 
     def detach(self) -> None:
-        for d in self._decls:
-            try:
-                d.undeclare()
-            except Exception:
-                pass
-        self._decls = []
+        undeclare_all(self._decls)
 
     def snapshot(self) -> dict[str, Any]:
         now = time.time()

@@ -67,10 +67,7 @@ def plot_traction_slip(path: Path, soils: Mapping[str, float], constants: ModelC
     ax.margins(y=0.12)  # room for the peak labels under the title
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def plot_tractive_efficiency(
@@ -107,6 +104,10 @@ def plot_tractive_efficiency(
     )
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
+    return _save(plt, fig, path)
+
+
+def _save(plt, fig, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -140,10 +141,7 @@ def plot_ocp_vs_soil_strength(
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def write_figures(

@@ -16,6 +16,13 @@ def _fmt(v, spec=".3f"):
     return "—" if v is None else format(v, spec)
 
 
+
+def _numbers_table(title: str, columns: tuple[str, ...]) -> Table:
+    t = Table(title=title)
+    for col in columns:
+        t.add_column(col, justify="right")
+    return t
+
 @click.command()
 @click.argument("sensors", type=click.Path(exists=True))
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
@@ -79,10 +86,9 @@ def evaluate(truth, estimates, settle, as_json, check):
     if as_json:
         click.echo(json.dumps({"targets": TARGETS, "segments": results_as_json(results), "all_pass": ok}, indent=2))
     else:
-        t = Table(title=f"K and OCP accuracy vs truth (settle {settle:g} s)")
-        for col in ("seg", "soil", "K true", "coverage", "K med err", "K p90 err", "conv (s)",
-                    "|mu_T| err", "|S_T| err", "|S_E| err", "class acc", "pass"):
-            t.add_column(col, justify="right")
+        t = _numbers_table(f"K and OCP accuracy vs truth (settle {settle:g} s)",
+                           ("seg", "soil", "K true", "coverage", "K med err", "K p90 err", "conv (s)",
+                            "|mu_T| err", "|S_T| err", "|S_E| err", "class acc", "pass"))
         for r in results:
             p = r.passes()
             t.add_row(
@@ -156,10 +162,9 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()
     results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs)
-    table = Table(title=f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})")
-    for col in ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
-                "conv. change", "OCP med err", "class acc", "statuses", "targets"):
-        table.add_column(col, justify="right")
+    table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})",
+                           ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
+                            "conv. change", "OCP med err", "class acc", "statuses", "targets"))
     for r in results:
         w = r.worst()
         verdict = ("met" if r.passes() else "missed") if r.mode == "excitation" else "n/a (cruise)"

@@ -11,7 +11,6 @@ kernels with N = many.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEsti
 from schemas.sensor import SensorSample
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
+from soilocp.model.files import read_json
 from soilocp.model.normal_force import NormalForceSolver
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
@@ -59,12 +59,7 @@ def load_pipeline_config(
     data: dict = {}
     if path is not None:
         p = Path(path)
-        try:
-            data = json.loads(p.read_text())
-        except FileNotFoundError as exc:
-            raise ValueError(f"config file {str(p)!r} does not exist") from exc
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"config file {str(p)!r} is not valid JSON: {exc}") from exc
+        data = read_json(p, "config file")
         if not isinstance(data, dict):
             raise ValueError(f"config file {str(p)!r} must hold a JSON object")
     try:

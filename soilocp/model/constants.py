@@ -14,6 +14,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from soilocp.model.files import read_json
+
 # Paper §2.2 and §2.2 (EST): soil strength of the testbed soils.  "firm" is ours: the paper's
 # firm-soil drive (Fig. 15a) gives no number; anything clearly above grass.
 REFERENCE_SOILS: dict[str, float] = {
@@ -77,14 +79,7 @@ def load_constants(path: str | Path | None) -> ModelConstants:
     """Load a constants file (JSON, the shape of :class:`ModelConstants`); None -> the paper's."""
     if path is None:
         return DEFAULT_CONSTANTS
-    p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError as exc:
-        raise ValueError(f"constants file {str(p)!r} does not exist") from exc
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"constants file {str(p)!r} is not valid JSON: {exc}") from exc
-    return ModelConstants.model_validate(data)
+    return ModelConstants.model_validate(read_json(path, "constants file"))
 
 
 def save_constants(constants: ModelConstants, path: str | Path) -> None:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from soilocp.model.files import read_json
 
 
 class VehicleParams(BaseModel):
@@ -62,12 +63,7 @@ def load_vehicle(path: str | Path | None) -> VehicleParams:
     if path is None:
         return DEFAULT_VEHICLE
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError as exc:
-        raise ValueError(f"vehicle file {str(p)!r} does not exist") from exc
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"vehicle file {str(p)!r} is not valid JSON: {exc}") from exc
+    data = read_json(p, "vehicle file")
     try:
         return VehicleParams.model_validate(data)
     except ValidationError as exc:
