@@ -39,11 +39,10 @@ class _Message(BaseModel):
 class NormalForces(_Message):
     """Normal force per wheel from the specific force (eqs. 16-25, zero-warp solution)."""
 
-    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR")
-    lift_off: bool = Field(
-        description="True if a wheel's normal force is at or below 1 N (soilocp.estimation.observer_bank.LIFT_OFF_FORCE): that "
-        "wheel gives no traction information and the observer uses 1 N for it"
-    )
+    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR; at or below 0 the "
+                               "wheel has lifted off (the solution is not clipped); the observer takes a wheel at or "
+                               "below 1 N (soilocp.estimation.observer_bank.LIFT_OFF_FORCE) as giving no traction "
+                               "information")
 
 
 

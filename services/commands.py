@@ -43,7 +43,7 @@ def _service_class(name: str):
         from services.io.sensor_source import VehicleService
 
         return VehicleService
-    from services.stages.stage_service import stage_service
+    from services.stages.registry import stage_service
 
     return stage_service(name)
 

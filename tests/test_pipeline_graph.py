@@ -9,7 +9,8 @@ import pytest
 import yaml
 
 from services.stages.graph import BATCHED_STAGES, BY_NAME, PIPELINE, PIPELINE_SERVICES
-from services.stages.stage_service import StageService, stage_service
+from services.stages.registry import stage_service
+from services.stages.stage_service import StageService
 from soilocp.estimation.pipeline import PipelineConfig
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -151,8 +151,7 @@ class _Clock:
 
 
 def _nf(seq: int) -> NormalForces:
-    return NormalForces(vehicle_id="rover1", seq=seq, stamp=seq * 0.01, normal_force=(10.0, 10.0, 10.0, 10.0),
-                        lift_off=False)
+    return NormalForces(vehicle_id="rover1", seq=seq, stamp=seq * 0.01, normal_force=(10.0, 10.0, 10.0, 10.0))
 
 
 def test_seq_joiner_keeps_order_and_drops_lost_samples_after_timeout():

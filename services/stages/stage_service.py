@@ -15,7 +15,7 @@ from pydantic import BaseModel
 from services.runtime.service import Service
 from services.runtime.worker import WorkItem
 from services.stages.config import pipeline_config
-from services.stages.graph import BY_NAME, StageSpec
+from services.stages.graph import StageSpec
 
 
 class StageService(Service):
@@ -54,16 +54,3 @@ class StageService(Service):
         c = self.counters[vehicle_id]
         c.published += 1
         c.last_seq, c.last_stamp = out.seq, out.stamp
-
-
-def stage_service(name: str) -> type[StageService]:
-    """The service class of row ``name``: its own subclass where the row has one, else the generic one."""
-    from services.stages.gateway import GatewayService
-    from services.stages.observer import ObserverService
-    from services.stages.ocp import OcpService
-
-    special = {cls.name: cls for cls in (GatewayService, ObserverService, OcpService)}
-    if name in special:
-        return special[name]
-    spec = BY_NAME[name]
-    return type(f"StageService[{name}]", (StageService,), {"spec": spec})

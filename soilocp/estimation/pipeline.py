@@ -92,7 +92,6 @@ class NormalForceStage:
             seq=sample.seq,
             stamp=sample.stamp,
             normal_force=_quad(fz),
-            lift_off=bool(np.any(fz <= LIFT_OFF_FORCE)),
         )
 
 
