@@ -3,8 +3,6 @@ rejections, status and liveliness, summarised in :meth:`Monitor.snapshot`."""
 
 from __future__ import annotations
 
-from __future__ import annotations
-
 import threading
 import time
 from collections import Counter as Tally

@@ -3,8 +3,6 @@ summary tables at the end."""
 
 from __future__ import annotations
 
-from __future__ import annotations
-
 from typing import Any, Optional
 
 from services.stages.graph import PIPELINE_SERVICES
