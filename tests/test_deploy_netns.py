@@ -29,22 +29,13 @@ import time
 from pathlib import Path
 
 import pytest
-from netns_rig import NETNS, Processes, vehicle_netns, wait_until  # noqa: F401 (fixture)
+from netns_rig import (ESTIMATION, FLEET_SECURE, LOCAL_EP, NETNS, PROBE, ROOT, SENSING_SECURE, SOILOCP,  # noqa: F401
+                       VEHICLE_ROUTER_EP, VID, Processes, vehicle_netns, wait_until)
 from zenoh_helpers import json_lines_so_far
 
-ROOT = Path(__file__).resolve().parents[1]
-PROBE = ROOT / "scripts" / "ocp_probe.py"
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing.json"
-ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 FLEET = ROOT / "deploy" / "fleet" / "fleet-router.json"
-SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
-FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
-SOILOCP = [sys.executable, "-m", "soilocp_cli"]
-
-VID = "rover1"
 FLEET_EP = "tcp/10.99.2.2:7447"
-VEHICLE_ROUTER_EP = "tcp/10.99.1.1:7447"  # the sensing unit's address on the link to est
-LOCAL_EP = "tcp/127.0.0.1:7447"
 STALE_TIMEOUT_S = 0.5
 CUT_S = 5.0
 RECOVERY_TARGET_S = 2.0  # the deployment's stated goal; printed, the test asserts recovery itself

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable, Iterable, Optional
+from typing import Callable, Collection, Iterable, Optional
 
 from schemas import keys
 
@@ -25,7 +25,7 @@ def alive_services(session, vehicle_id: Optional[str] = None, *, timeout: float 
 
 
 def wait_alive(session, vehicle_ids: Iterable[str], services: Iterable[str], timeout: float, *,
-               stop: Optional[threading.Event] = None, dead: Callable[[], list[str]] = list,
+               stop: Optional[threading.Event] = None, dead: Callable[[], Collection[str]] = list,
                interval: float = 0.2) -> set[tuple[str, str]]:
     """Wait until every ``(vehicle, service)`` holds its token; returns what is still missing
     (empty: ready).  Gives up early when ``stop`` is set or ``dead()`` names a process."""

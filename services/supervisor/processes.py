@@ -37,11 +37,11 @@ class Child:
     def pid(self) -> Optional[int]:
         return self.proc.pid if self.proc else None
 
-    def start(self, env: dict[str, str]) -> None:
+    def start(self, env: dict[str, str], *, cwd: Optional[Path] = None, new_session: bool = True) -> None:
         fh = open(self.log_path, "ab")
         try:
             self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=fh, stderr=fh, env=env,
-                                         start_new_session=True)
+                                         cwd=cwd, start_new_session=new_session)
         finally:
             fh.close()
 
@@ -72,8 +72,13 @@ class ProcessGroup:
               env: Optional[dict[str, str]] = None) -> Child:
         """Start ``python -m module *args`` as child ``name`` (a later child of the same name
         replaces it in :attr:`procs`; both are reaped)."""
-        child = Child(name, [sys.executable, "-m", module, *args], self.log_dir / f"{name}.log")
-        child.start({**self.env, **(env or {})})
+        return self.start_argv(name, [sys.executable, "-m", module, *args], env=env)
+
+    def start_argv(self, name: str, argv: list[str], *, env: Optional[dict[str, str]] = None,
+                   cwd: Optional[Path] = None, new_session: bool = True) -> Child:
+        """Start any command as child ``name`` (e.g. one wrapped in ``ip netns exec``)."""
+        child = Child(name, list(argv), self.log_dir / f"{name}.log")
+        child.start({**self.env, **(env or {})}, cwd=cwd, new_session=new_session)
         self.children.append(child)
         return child
 
@@ -85,17 +90,27 @@ class ProcessGroup:
     def alive(self) -> dict[str, bool]:
         return {n: p.poll() is None for n, p in self.procs.items()}
 
-    def dead(self) -> list[str]:
-        return [n for n, p in self.procs.items() if p.poll() is not None]
+    def dead(self) -> dict[str, int]:
+        """``{name: exit status}`` of the children (latest of each name) that have exited."""
+        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
 
     def log_text(self, name: str) -> str:
         path = self.log_dir / f"{name}.log"
         return path.read_text(errors="replace") if path.exists() else ""
 
+    def tail(self, name: str, n: int = 15) -> str:
+        return "\n".join(self.log_text(name).splitlines()[-n:])
+
     def stop_all(self, timeout: float = STOP_TIMEOUT_S) -> dict[str, Optional[int]]:
         """SIGTERM to every running child in reverse order, wait up to ``timeout``, then SIGKILL.
         Returns each name's exit status (the latest child of that name)."""
-        for child in reversed(self.children):
+        return self.stop(None, timeout)
+
+    def stop(self, names: Optional[Iterable[str]] = None, timeout: float = STOP_TIMEOUT_S) -> dict[str, Optional[int]]:
+        """:meth:`stop_all`, for the children named (all when None)."""
+        chosen = None if names is None else set(names)
+        children = [c for c in self.children if chosen is None or c.name in chosen]
+        for child in reversed(children):
             if child.proc and child.proc.poll() is None:
                 child.stopping = True
                 try:
@@ -103,7 +118,7 @@ class ProcessGroup:
                 except ProcessLookupError:
                     pass
         deadline = time.monotonic() + timeout
-        for child in reversed(self.children):
+        for child in reversed(children):
             if child.proc is None:
                 continue
             try:
@@ -116,6 +131,6 @@ class ProcessGroup:
                 child.proc.kill()
                 child.proc.wait()
                 child.outcome = "killed"
-        return {n: p.returncode for n, p in self.procs.items()}
+        return {n: p.returncode for n, p in self.procs.items() if chosen is None or n in chosen}
 
     close = stop_all
