@@ -24,14 +24,18 @@ import argparse
 import json
 import os
 import signal
-import subprocess
 import sys
 import threading
+import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 from services.bench.echo import PING_KEY, PONG_KEY
 from services.bench.live import free_port, ping_pong
+from services.supervisor.processes import ProcessGroup
+
+MODULE = "services.bench.transport"
 
 VARIANTS = ("client-router", "client-router-express", "peer-direct", "peer-direct-lowlatency", "peer-direct-shm")
 
@@ -80,23 +84,6 @@ def _serve(args) -> int:
     return 0
 
 
-def _spawn(argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "services.bench.transport", *argv], stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-
-
-def _stop(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(5.0)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
 def measure(variant: str, rates=(100.0, 1000.0), duration: float = 3.0, payload_size: int = 1000) -> dict[str, Any]:
     """Ping-pong statistics of one variant at each rate (ms); ``error`` if it cannot run here."""
     import zenoh
@@ -104,17 +91,17 @@ def measure(variant: str, rates=(100.0, 1000.0), duration: float = 3.0, payload_
     ep = f"tcp/127.0.0.1:{free_port()}"
     low, shm = variant.endswith("lowlatency"), variant.endswith("shm")
     express = variant.endswith("express")
-    procs: list[subprocess.Popen] = []
+    procs = ProcessGroup(Path(tempfile.mkdtemp(prefix="soilocp-transport-")), drop_env=("SOILOCP_",))
     try:
         if variant.startswith("client-router"):
-            procs.append(_spawn(["--role", "router", "--endpoint", ep]))
+            procs.start("router", ["--role", "router", "--endpoint", ep], module=MODULE)
             time.sleep(0.5)
-            procs.append(_spawn(["--role", "echo", "--mode", "client", "--endpoint", ep]
-                                + (["--express"] if express else [])))
+            procs.start("echo", ["--role", "echo", "--mode", "client", "--endpoint", ep]
+                        + (["--express"] if express else []), module=MODULE)
             conf = _config("client", [ep], [])
         else:
-            procs.append(_spawn(["--role", "echo", "--mode", "peer", "--endpoint", ep]
-                                + (["--lowlatency"] if low else []) + (["--shm"] if shm else [])))
+            procs.start("echo", ["--role", "echo", "--mode", "peer", "--endpoint", ep]
+                        + (["--lowlatency"] if low else []) + (["--shm"] if shm else []), module=MODULE)
             time.sleep(0.5)
             conf = _config("peer", [ep], [], low, shm)
         provider = None
@@ -131,7 +118,7 @@ def measure(variant: str, rates=(100.0, 1000.0), duration: float = 3.0, payload_
     except Exception as exc:  # a variant this build cannot run is reported, not fatal
         return {"variant": variant, "error": f"{type(exc).__name__}: {exc}"}
     finally:
-        _stop(procs)
+        procs.stop_all()
 
 
 def main(argv: list[str] | None = None) -> int:
