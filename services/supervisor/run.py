@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from schemas import keys
-from services.stages.graph import PIPELINE_SERVICES
+from services.stages.graph import BY_NAME, PIPELINE_SERVICES
 from schemas.messages import ServiceHealth
 
 from services.runtime.config import DEFAULT_ENDPOINT
@@ -104,7 +104,7 @@ def run_system(opts: RunOptions) -> int:
             args = ["service", name, *common]
             if name == "ocp":
                 args += ["--stale-timeout", str(opts.stale_timeout)]
-            if opts.pipeline_config and name != "gateway":
+            if opts.pipeline_config and BY_NAME[name].stage is not None:  # the rows that run physics
                 args += ["--pipeline-config", opts.pipeline_config]
             group.start(name, args)
         want_alive = set(PIPELINE_SERVICES)
