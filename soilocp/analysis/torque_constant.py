@@ -1,6 +1,6 @@
 """Calibration of the torque channel: the constant k that turns a logged motor current (or a
 torque of unknown scale) into wheel torque, from the vehicle's longitudinal force balance
-(docs/method.md, "Torque constant").
+(docs/method.md §15).
 
 Summed over the wheels, eq. 13 gives T_i / R = F_GT,i + I_w omega_dot_i / R (gross traction
 force at the rim plus the wheel's own inertia), and the body's longitudinal balance (eq. 29,

@@ -200,7 +200,7 @@ COMMANDS = [ocp, curves, calibrate]
 def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, saturation, old_scale, json_out):
     """Estimate the constant k that turns LOG's torque column (e.g. a motor current) into wheel
     torque, from the longitudinal force balance m f_x + I_w sum(omega_dot)/R = k sum(T)/R - F_MR
-    (docs/method.md, "Torque constant"), on windows where the robot drives straight, forward,
+    (docs/method.md §15), on windows where the robot drives straight, forward,
     unsaturated.  LOG is a sensor log (JSON Lines, e.g. from soilocp import).  Says
     not_determined, and why, when the log cannot fix k.
     """

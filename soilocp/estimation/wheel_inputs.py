@@ -1,4 +1,4 @@
-"""What a wheel's readings mean to the observer (docs/method.md §7, §10): the skid-steer torque
+"""What a wheel's readings mean to the observer (docs/method.md §14): the skid-steer torque
 split (one motor, one speed and one torque per side, two chained wheels) and the lag of an
 encoder speed that is a count difference over its interval.  Inputs of the observer kernel
 (:mod:`soilocp.estimation.observer_bank`) and of its filterpy reference, one implementation."""
@@ -19,7 +19,7 @@ def split_side_torque(torque: np.ndarray, fz: np.ndarray, inertia_torque: np.nda
     ``inertia_torque`` (k, 4) is I_w omega_dot per wheel (the side's mean is used); None = 0, the
     pure split by normal force, which is exact only at constant wheel speed: under a hard
     acceleration (load moved off the front) it hands the unloaded wheel a share of the inertia
-    torque in proportion to its small load, and its g comes out ~0.1-0.3 low (docs/method.md §7)."""
+    torque in proportion to its small load, and its g comes out ~0.1-0.3 low (docs/method.md §14)."""
     out = np.empty_like(torque)
     for a, b in ((0, 1), (2, 3)):
         side = torque[:, a] + torque[:, b]
@@ -53,6 +53,6 @@ def encoder_lead(interval: np.ndarray, omega_rate: np.ndarray) -> np.ndarray:
     since the previous reading is the mean speed over that interval, omega(t - tau/2) + O(tau^2),
     so it lags by omega_dot tau / 2.  At 0.01 s and the ~50 rad/s^2 of a hard skid-steer
     acceleration that is 0.23 rad/s, a slip error of ~0.02 at 1.5 m/s: enough to read firm soil
-    (K 300) as K > 1000 (docs/method.md §10).  ``omega_rate`` from :func:`wheel_acceleration` (the
+    (K 300) as K > 1000 (docs/method.md §14).  ``omega_rate`` from :func:`wheel_acceleration` (the
     readings, not the model: the model's omega_dot carries the lag of its traction states)."""
     return 0.5 * interval * omega_rate
