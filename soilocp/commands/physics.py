@@ -147,7 +147,8 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     from rich.markup import escape
     from rich.table import Table
 
-    from soilocp.analysis.calibration import fit_constants, read_testbed_csv
+    from soilocp.analysis.calibration import fit_constants
+    from soilocp.analysis.testbed import read_testbed_csv
     from soilocp.model.constants import save_constants
 
     initial = _constants(initial_file)
