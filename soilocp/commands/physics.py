@@ -206,21 +206,14 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
     not_determined, and why, when the log cannot fix k.
     """
     from soilocp.analysis.torque_constant import TorqueSelection, fit_torque_constant, summary_lines
+    from soilocp.model.files import read_jsonl
     from soilocp.model.vehicle import load_vehicle
 
     try:
         vehicle = load_vehicle(vehicle_path)
         sel = TorqueSelection(window=window, min_speed=min_speed, max_yaw_rate=max_yaw_rate, saturation=saturation,
                               accel=accel)
-        with open(log, encoding="utf-8") as f:
-            rows = []
-            for n, line in enumerate(f, 1):
-                if line.strip():
-                    try:
-                        rows.append(json.loads(line))
-                    except json.JSONDecodeError as exc:
-                        raise ValueError(f"{log}:{n}: not valid JSON: {exc}") from None
-        fit = fit_torque_constant(rows, vehicle, sel)
+        fit = fit_torque_constant(read_jsonl(log), vehicle, sel)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     for line in summary_lines(fit, old_scale):
