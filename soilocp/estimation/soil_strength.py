@@ -250,9 +250,8 @@ class SoilBank:
             k_med, _, log_stat = self.grid.summary(cdf[2 * j])
             k_fit, _, log_fit = self.grid.summary(cdf[2 * j + 1])
             # the data cannot tell a scale error from a different soil: the band must reach over the
-            # fitted-scale belief too (its distance, and the spread it has beyond the configured
-            # belief's own, which the band already holds), in quadrature
-            d_scale = math.hypot(math.log(k_med / k_fit), math.sqrt(max(log_fit**2 - log_stat**2, 0.0)))
+            # fitted-scale belief too (its distance and its own spread, in quadrature)
+            d_scale = math.hypot(math.log(k_med / k_fit), log_fit)
             evidence, nis_sum, s_kk, s_ks = stats[j]
             sys = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             log_std = math.sqrt(log_stat**2 + sys**2 + d_scale**2)
