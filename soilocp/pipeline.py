@@ -112,30 +112,42 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
     """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's inputs."""
     if len(samples) != len(normal_forces):
         raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
+    # one array for the scalars and one per quad: a handful of numpy calls whatever k is
+    sc = np.array([(s.stamp, s.specific_force[0], s.yaw_rate, s.pitch, np.nan if s.ground_speed is None
+                    else s.ground_speed) for s in samples], dtype=float).reshape(-1, 5).T
     return ObserverInputs(
-        stamp=np.array([s.stamp for s in samples], dtype=float),
-        specific_force_x=np.array([s.specific_force[0] for s in samples], dtype=float),
-        yaw_rate=np.array([s.yaw_rate for s in samples], dtype=float),
-        pitch=np.array([s.pitch for s in samples], dtype=float),
+        stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
         wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
-        ground_speed=np.array([np.nan if s.ground_speed is None else s.ground_speed for s in samples], dtype=float),
         normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
     )
 
 
+_OB_QUADS = ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age",
+             "torque_age")
+
+
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
     """The j-th vehicle of a kernel output as the ObserverOutput message."""
+    q = dict(zip(_OB_QUADS, np.stack([getattr(out, n)[j] for n in _OB_QUADS]).tolist()))
     return ObserverOutput(
-        vehicle_id=vehicle_id, seq=seq, stamp=stamp,
-        mu=_quad(out.mu[j]), mu_var=_quad(out.mu_var[j]), mu_determined=_bools(out.mu_determined[j]),
-        resistance=_quad(out.resistance[j]), gross=_quad(out.gross[j]), gross_var=_quad(out.gross_var[j]),
-        wheel_speed=_quad(out.wheel_speed[j]), ground_speed=float(out.ground_speed[j]),
-        yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
+        vehicle_id=vehicle_id, seq=seq, stamp=stamp, mu_determined=_bools(out.mu_determined[j]),
+        ground_speed=float(out.ground_speed[j]), yaw_rate=float(out.yaw_rate[j]),
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
-        speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
-        ground_speed_age=float(out.ground_speed_age[j]),
-        ground_speed_measured=bool(out.ground_speed_measured[j]),
+        ground_speed_age=float(out.ground_speed_age[j]), ground_speed_measured=bool(out.ground_speed_measured[j]),
+        **q,
+    )
+
+
+def observer_output(obs: ObserverOutput) -> ObserverBankOutput:
+    """An ObserverOutput message as the kernel's output for one vehicle (k = 1): the soil stage's input."""
+    q = np.array([getattr(obs, n) for n in _OB_QUADS], dtype=float)[:, None, :]  # (9, 1, 4): views per field
+    f = dict(zip(_OB_QUADS, q))
+    sc = np.array([[obs.ground_speed, obs.yaw_rate, obs.ground_speed_age]], dtype=float).T
+    return ObserverBankOutput(
+        mu_determined=np.array([obs.mu_determined]), ground_speed=sc[0], yaw_rate=sc[1], ground_speed_age=sc[2],
+        rejected=np.array([obs.rejected_measurements]), reset=np.array([obs.reset]), reset_reason=[obs.reset_reason],
+        ground_speed_measured=np.array([obs.ground_speed_measured]), **f,
     )
 
 
@@ -151,7 +163,7 @@ class ObserverStage:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        out = self.bank.step(_ZERO, observer_inputs([sample], [forces.normal_force]))
+        out = self.bank.step(None, observer_inputs([sample], [forces.normal_force]))  # N = 1: every vehicle
         return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
 
 
@@ -245,16 +257,7 @@ class SoilStage:
         self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
 
     def step(self, obs: ObserverOutput) -> SoilEstimate:
-        ob = ObserverBankOutput(
-            mu=np.array([obs.mu]), mu_var=np.array([obs.mu_var]), mu_determined=np.array([obs.mu_determined]),
-            resistance=np.array([obs.resistance]), gross=np.array([obs.gross]), gross_var=np.array([obs.gross_var]),
-            wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
-            yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
-            reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
-            speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
-            ground_speed_age=np.array([obs.ground_speed_age]),
-            ground_speed_measured=np.array([obs.ground_speed_measured]),
-        )
+        ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
