@@ -214,13 +214,16 @@ class SlipGate:
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         tau = cfg.soil.gate_smoothing
         last = self._lp_stamp[ix]
-        with np.errstate(invalid="ignore"):
-            dt = np.where(np.isnan(last), 0.0, stamp - last)
-        restart = np.isnan(last) | ob.reset | (tau <= 0) | (dt <= 0) | (dt > 1.0)
-        alpha = np.ones(ix.size)
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
         if tau > 0:
             alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
-        lp = np.where(restart[:, None], slip, self._lp[ix] + alpha[:, None] * (slip - self._lp[ix]))
+        else:
+            alpha = np.ones(ix.size)
+            restart[:] = True
+        prev = self._lp[ix]
+        lp = np.where(restart[:, None], slip, prev + alpha[:, None] * (slip - prev))
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
