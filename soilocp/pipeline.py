@@ -105,7 +105,7 @@ _ZERO = np.zeros(1, dtype=int)
 
 
 def _bools(a) -> tuple[bool, bool, bool, bool]:
-    return tuple(bool(v) for v in a)  # type: ignore[return-value]
+    return tuple(np.asarray(a, dtype=bool).tolist())  # type: ignore[return-value]
 
 
 def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
