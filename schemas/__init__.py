@@ -3,6 +3,6 @@
 Consumers in other languages use the JSON Schema files written by ``soilocp schemas export DIR``.
 """
 
-from .sensor import SensorSample, VEHICLE_ID_PATTERN, parse_sensor_line  # noqa: F401
-from .pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate  # noqa: F401
-from .messages import OcpReply, Rejection, ServiceHealth  # noqa: F401
+from schemas.sensor import SensorSample, VEHICLE_ID_PATTERN, parse_sensor_line  # noqa: F401
+from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate  # noqa: F401
+from schemas.messages import OcpReply, Rejection, ServiceHealth  # noqa: F401

@@ -13,9 +13,9 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from .messages import OcpReply, Rejection, ServiceHealth, SlipSetpoint
-from .pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
-from .sensor import SENSOR_SCHEMA_ID, SensorSample
+from schemas.messages import OcpReply, Rejection, ServiceHealth, SlipSetpoint
+from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
+from schemas.sensor import SENSOR_SCHEMA_ID, SensorSample
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 

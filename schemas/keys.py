@@ -28,15 +28,14 @@ Internal keys (between the services of one vehicle; stable, documented, but not 
 from __future__ import annotations
 
 import re
+from typing import Callable
 
-from .sensor import VEHICLE_ID_PATTERN
+from schemas.sensor import VEHICLE_ID_PATTERN
 
 ROOT = "soilocp"
 
-#: Service names, in pipeline order.  They are key chunks, so they obey the same character rules.
-PIPELINE_SERVICES: tuple[str, ...] = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
-#: Every service that can hold a liveliness token (the synthetic vehicle is a sensor source).
-ALL_SERVICES: tuple[str, ...] = PIPELINE_SERVICES + ("vehicle", "controller")
+# Service names (key chunks, so they obey the same character rules) are declared with the pipeline,
+# in services/stages/graph.py.
 
 _VID_RE = re.compile(VEHICLE_ID_PATTERN)
 _SERVICE_RE = re.compile(r"^[a-z][a-z0-9-]{0,31}$")
@@ -68,87 +67,58 @@ def _vid(vehicle_id: str) -> str:
     return check_vehicle_id(vehicle_id)
 
 
+def _vehicle_key(tail: str, what: str) -> Callable[[str], str]:
+    """A builder ``f(vehicle_id) -> "soilocp/<vid>/<tail>"``, the id checked."""
+
+    def build(vehicle_id: str) -> str:
+        return f"{ROOT}/{_vid(vehicle_id)}/{tail}"
+
+    build.__doc__ = f"{what}: ``{ROOT}/<vid>/{tail}``."
+    return build
+
+
+def _service_key(tail: str, what: str) -> Callable[[str, str], str]:
+    """A builder ``f(vehicle_id, service) -> "soilocp/<vid>/<tail>/<service>"``, both checked."""
+
+    def build(vehicle_id: str, service: str) -> str:
+        return f"{ROOT}/{_vid(vehicle_id)}/{tail}/{check_service(service)}"
+
+    build.__doc__ = f"{what}: ``{ROOT}/<vid>/{tail}/<service>``."
+    return build
+
+
+def _fleet_selector(tail: str, what: str) -> Callable[[], str]:
+    """A wildcard selector over every vehicle: ``soilocp/*/<tail>`` (for subscribers and gets only,
+    never for puts)."""
+
+    def build() -> str:
+        return f"{ROOT}/*/{tail}"
+
+    build.__doc__ = f"{what}: ``{ROOT}/*/{tail}``."
+    return build
+
+
 # --- public -----------------------------------------------------------------------------------
-def raw(vehicle_id: str) -> str:
-    """Raw sensor input: ``soilocp/<vid>/sensors/raw``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/sensors/raw"
-
-
-def ocp(vehicle_id: str) -> str:
-    """OCP output (publication and queryable): ``soilocp/<vid>/ocp``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/ocp"
-
-
-def control_slip(vehicle_id: str) -> str:
-    """Wheel slip set-points of the controller service: ``soilocp/<vid>/control/slip``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/control/slip"
-
-
-def rejected(vehicle_id: str) -> str:
-    """Rejections of the gateway: ``soilocp/<vid>/rejected``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/rejected"
-
-
-def alive(vehicle_id: str, service: str) -> str:
-    """Liveliness token of one service: ``soilocp/<vid>/alive/<service>``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/alive/{check_service(service)}"
-
+raw = _vehicle_key("sensors/raw", "Raw sensor input")
+ocp = _vehicle_key("ocp", "OCP output (publication and queryable)")
+control_slip = _vehicle_key("control/slip", "Wheel slip set-points of the controller service")
+rejected = _vehicle_key("rejected", "Rejections of the gateway")
+alive = _service_key("alive", "Liveliness token of one service")
 
 # --- internal ---------------------------------------------------------------------------------
-def clean(vehicle_id: str) -> str:
-    """Validated samples from the gateway: ``soilocp/<vid>/sensors/clean``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/sensors/clean"
+clean = _vehicle_key("sensors/clean", "Validated samples from the gateway")
+normal_forces = _vehicle_key("normal_forces", "Normal forces per wheel")
+observer = _vehicle_key("observer", "Observer output")
+soil = _vehicle_key("soil", "Soil-strength estimate")
+status = _service_key("status", "Health/status of one service")
 
-
-def normal_forces(vehicle_id: str) -> str:
-    """Normal forces per wheel: ``soilocp/<vid>/normal_forces``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/normal_forces"
-
-
-def observer(vehicle_id: str) -> str:
-    """Observer output: ``soilocp/<vid>/observer``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/observer"
-
-
-def soil(vehicle_id: str) -> str:
-    """Soil-strength estimate: ``soilocp/<vid>/soil``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/soil"
-
-
-def status(vehicle_id: str, service: str) -> str:
-    """Health/status of one service: ``soilocp/<vid>/status/<service>``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/status/{check_service(service)}"
-
-
-# --- fleet-wide selectors (wildcards; for subscribers and gets only, never for puts) -----------
-def any_vehicle_ocp() -> str:
-    """Every vehicle's OCP: ``soilocp/*/ocp``."""
-    return f"{ROOT}/*/ocp"
-
-
-def vehicle_alive_all(vehicle_id: str) -> str:
-    """Every liveliness token of one vehicle: ``soilocp/<vid>/alive/*``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/alive/*"
-
-
-def any_vehicle_alive() -> str:
-    """Every liveliness token of the fleet: ``soilocp/*/alive/*``."""
-    return f"{ROOT}/*/alive/*"
-
-
-def vehicle_status_all(vehicle_id: str) -> str:
-    """Every status key of one vehicle: ``soilocp/<vid>/status/*``."""
-    return f"{ROOT}/{_vid(vehicle_id)}/status/*"
-
-
-def any_vehicle_status() -> str:
-    """Every status key of the fleet: ``soilocp/*/status/*``."""
-    return f"{ROOT}/*/status/*"
-
-
-def any_vehicle_rejected() -> str:
-    """Every vehicle's rejections: ``soilocp/*/rejected``."""
-    return f"{ROOT}/*/rejected"
+# --- selectors (wildcards; for subscribers and gets only, never for puts) ---------------------
+vehicle_alive_all = _vehicle_key("alive/*", "Every liveliness token of one vehicle")
+vehicle_status_all = _vehicle_key("status/*", "Every status key of one vehicle")
+any_vehicle_ocp = _fleet_selector("ocp", "Every vehicle's OCP")
+any_vehicle_alive = _fleet_selector("alive/*", "Every liveliness token of the fleet")
+any_vehicle_status = _fleet_selector("status/*", "Every status key of the fleet")
+any_vehicle_rejected = _fleet_selector("rejected", "Every vehicle's rejections")
 
 
 # --- parsing ----------------------------------------------------------------------------------

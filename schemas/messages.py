@@ -10,8 +10,8 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from .pipeline import OcpEstimate
-from .sensor import VehicleId
+from schemas.pipeline import OcpEstimate
+from schemas.sensor import VehicleId
 
 SERVICE_SCHEMA_VERSION = 1
 

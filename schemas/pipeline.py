@@ -11,14 +11,14 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from .sensor import VehicleId
+from schemas.sensor import VehicleId
 
 PIPELINE_SCHEMA_VERSION = 1
 
 Quad = tuple[float, float, float, float]
 BoolQuad = tuple[bool, bool, bool, bool]
 
-#: Status of a soil / OCP record (see soilocp.soil_strength); ``stale`` is set by the live publisher.
+#: Status of a soil / OCP record (see soilocp.estimation.soil_strength); ``stale`` is set by the live publisher.
 EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
 _STATUS_DOC = (
     "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
@@ -39,11 +39,10 @@ class _Message(BaseModel):
 class NormalForces(_Message):
     """Normal force per wheel from the specific force (eqs. 16-25, zero-warp solution)."""
 
-    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR")
-    lift_off: bool = Field(
-        description="True if a wheel's normal force is at or below 1 N (soilocp.observer_bank.LIFT_OFF_FORCE): that "
-        "wheel gives no traction information and the observer uses 1 N for it"
-    )
+    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR; at or below 0 the "
+                               "wheel has lifted off (the solution is not clipped); the observer takes a wheel at or "
+                               "below 1 N (soilocp.estimation.observer_bank.LIFT_OFF_FORCE) as giving no traction "
+                               "information")
 
 
 

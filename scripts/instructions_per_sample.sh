@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Instructions per sample of the offline chain (soilocp.estimate.estimate_lines), counted by
+# Instructions per sample of the offline chain (soilocp.estimation.estimate.estimate_lines), counted by
 # valgrind's callgrind: a figure that does not depend on how busy the machine is (issue 11).
 # Ir(n = N2 samples) - Ir(n = N1 samples), divided by N2 - N1: start-up and imports cancel out.
 #   scripts/instructions_per_sample.sh [PYTHON] [N1] [N2]      (default .venv/bin/python 200 300)
@@ -9,7 +9,7 @@ DRIVE=$(mktemp --suffix=.jsonl)
 trap 'rm -f "$DRIVE"' EXIT
 "$PY" - "$DRIVE" "$N2" <<'PYEOF'
 import sys
-from services.bench_stages import simulate_drive
+from services.bench.stages import simulate_drive
 n = int(sys.argv[2])
 with open(sys.argv[1], "w") as fh:
     fh.write("\n".join(s.model_dump_json() for s in simulate_drive("bench", n / 100.0 + 1.0)[:n]))
@@ -17,8 +17,8 @@ PYEOF
 ir() {
   valgrind --tool=callgrind --callgrind-out-file=/dev/null "$PY" -c "
 import sys
-from soilocp.estimate import estimate_lines
-from soilocp.pipeline import PipelineConfig
+from soilocp.estimation.estimate import estimate_lines
+from soilocp.estimation.pipeline import PipelineConfig
 lines = open('$DRIVE').read().splitlines()[:$1]
 sum(1 for _ in estimate_lines(lines, PipelineConfig()))" 2>&1 | grep -o "Collected : [0-9]*" | awk '{print $3}'
 }

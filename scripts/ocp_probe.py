@@ -45,7 +45,7 @@ def _config(connect: list[str]):
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router rather than fail
     conf.insert_json5("scouting/multicast/enabled", "false")
     # a secure fleet router (tls/ endpoint) admits only certified tools: SOILOCP_TLS_CA/_CERT/_KEY
-    from services.fleet_security import apply_tls, check_client_tls
+    from services.security.fleet_security import apply_tls, check_client_tls
 
     tls = check_client_tls(connect)
     if tls is not None:

@@ -10,7 +10,8 @@ import sys
 
 import click
 
-SERVICE_NAMES = ("gateway", "normal-force", "observer", "soil-strength", "ocp", "vehicle", "controller")
+from services.stages.graph import ALL_SERVICES, PIPELINE_SERVICES
+
 
 
 def _fatal(prefix: str, message: str, code: int = 2) -> None:
@@ -32,25 +33,23 @@ def _exit_now(code: int) -> None:
 
 
 def _service_class(name: str):
-    if name == "gateway":
-        from .gateway import GatewayService as cls
-    elif name == "normal-force":
-        from .normal_force import NormalForceService as cls
-    elif name == "observer":
-        from .observer import ObserverService as cls
-    elif name == "soil-strength":
-        from .soil_strength import SoilStrengthService as cls
-    elif name == "ocp":
-        from .ocp import OcpService as cls
-    elif name == "controller":
-        from .controller import ControllerService as cls
-    else:
-        from .vehicle import VehicleService as cls
-    return cls
+    """The class that runs service ``name``: a pipeline row (``services.stages.graph``), or one of
+    the two other processes."""
+    if name == "controller":
+        from services.control.controller import ControllerService
+
+        return ControllerService
+    if name == "vehicle":
+        from services.io.sensor_source import VehicleService
+
+        return VehicleService
+    from services.stages.registry import stage_service
+
+    return stage_service(name)
 
 
 @click.command("service")
-@click.argument("name", type=click.Choice(SERVICE_NAMES))
+@click.argument("name", type=click.Choice(ALL_SERVICES))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Service config file (JSON); env SOILOCP_CONFIG.")
 @click.option("--vehicle-id", "vehicle_ids", multiple=True, help="Vehicle id (repeatable); env SOILOCP_VEHICLE_ID.")
 @click.option("--connect", multiple=True, help="Zenoh endpoint to connect to (repeatable); env SOILOCP_CONNECT.")
@@ -73,7 +72,8 @@ def _service_class(name: str):
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
                 scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
-    from .runtime import ConfigError, load_service_config, run_service
+    from services.runtime.config import ConfigError, load_service_config
+    from services.runtime.service import run_service
 
     prefix = f"soilocp service {name}"
     overrides = dict(vehicle_ids=vehicle_ids, connect=connect, listen=listen, mode=mode, log_level=log_level,
@@ -82,12 +82,11 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
     try:
         cfg = load_service_config(name, config_path=config_path, overrides=overrides)
         if name == "vehicle":
-            from schemas import keys
-            from .vehicle import replay_source, scenario_source
+            from services.io.sensor_source import replay_source, scenario_source
 
             if (scenario is None) == (replay is None):
                 raise ConfigError("give exactly one of --scenario NAME or --replay FILE")
-            wait = keys.PIPELINE_SERVICES
+            wait = PIPELINE_SERVICES
             inbox = None
             if replay is not None:
                 if control:
@@ -95,14 +94,14 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                 source = replay_source(replay, duration)
                 describe = f"replay {replay}"
             elif control:
-                from .vehicle_control import SetpointInbox, controlled_source
+                from services.control.vehicle_control import SetpointInbox, controlled_source
 
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
                 inbox = SetpointInbox(cfg.vehicle_id, control, cfg.stale_timeout_s)
                 source = controlled_source(scenario, cfg.vehicle_id, inbox, duration=duration, rate=rate, seed=seed)
                 describe = f"scenario {scenario}, closed loop under {control}"
-                wait = keys.PIPELINE_SERVICES + ("controller",)
+                wait = PIPELINE_SERVICES + ("controller",)
             else:
                 if rate <= 0:
                     raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
@@ -129,8 +128,8 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
 @click.option("--connect", multiple=True, help="Endpoint of another router, e.g. a fleet router; env SOILOCP_ROUTER_CONNECT.")
 def router_cmd(config_path, listen, connect) -> None:
     """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
-    from .router import router_settings, run_router
-    from .runtime import ConfigError
+    from services.router import router_settings, run_router
+    from services.runtime.config import ConfigError
 
     try:
         _exit_now(run_router(router_settings(config_path, listen, connect)))
@@ -160,7 +159,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
-    from .run import RunOptions, run_system
+    from services.supervisor.run import RunOptions, run_system
 
     if (scenario is None) == (replay is None):
         _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
@@ -174,7 +173,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
             if scenario is None:
                 raise ValueError("--control needs --synthetic SCENARIO (a replayed log cannot follow set-points)")
         if scenario is not None and not (control is not None and scenario in RIG_SCENARIOS):
-            from soilocp.scenarios import get_scenario
+            from soilocp.sim.scenarios import get_scenario
 
             get_scenario(scenario)  # ValueError listing the known scenarios
         if duration is not None and duration <= 0:
@@ -228,25 +227,7 @@ def schemas_export(directory: str) -> None:
         click.echo(str(p))
 
 
-COMMANDS = [service_cmd, router_cmd, run_cmd, schemas_group]
-
-#: Other command modules of the services area (fleet + dashboard, bench), each with its own
-#: ``COMMANDS`` list; registered here because ``soilocp.cli`` lists only this module.
-EXTRA_COMMAND_MODULES = ("services.fleet_commands", "services.bench", "services.record", "services.certs_commands")
-
-
-def _register_extra() -> None:
-    import importlib
-
-    for modname in EXTRA_COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(modname)
-        except ModuleNotFoundError as exc:
-            if exc.name == modname:  # not built (yet); any other missing module is a real error
-                continue
-            raise
-        COMMANDS.extend(getattr(mod, "COMMANDS", ()))
-
-
-if not (len(sys.argv) > 1 and sys.argv[1] in ("service", "router")):  # soilocp.cli.PROCESS_COMMANDS: light
-    _register_extra()
+#: The commands of the long-running processes (the only ones ``soilocp service`` / ``soilocp router``
+#: load, see ``soilocp_cli.entry``), and the rest of the services area's own commands.
+PROCESS_COMMANDS = [service_cmd, router_cmd]
+COMMANDS = [run_cmd, schemas_group]

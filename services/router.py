@@ -10,11 +10,12 @@ import os
 import threading
 from typing import Any, Optional
 
-from .fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
+from services.security.fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
-from .runtime import (DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, ConfigError, JsonLog,
-                      _read_config_file, _split_list, check_endpoint, install_stop_handlers, watch_parent, zenoh_config)
+from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
+from services.runtime.log import JsonLog
+from services.runtime.process import install_stop_handlers, watch_parent
 
 #: The router's uplink (e.g. to a fleet router).  Not SOILOCP_CONNECT: in a shared environment that
 #: names the router itself, for the services.
@@ -39,12 +40,7 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
         out.update(section)
         if "log_level" in data and "log_level" not in section:
             out["log_level"] = data["log_level"]
-    if env.get(ENV_LISTEN):
-        out["listen"] = _split_list(env[ENV_LISTEN])
-    if env.get(ENV_ROUTER_CONNECT):
-        out["connect"] = _split_list(env[ENV_ROUTER_CONNECT])
-    if env.get(ENV_LOG_LEVEL):
-        out["log_level"] = env[ENV_LOG_LEVEL].strip().lower()
+    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"}, {ENV_LOG_LEVEL: "log_level"}))
     _security_settings(out, env)
     if listen:
         out["listen"] = list(listen)

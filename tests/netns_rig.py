@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -17,8 +16,20 @@ from typing import Callable, Optional
 
 import pytest
 
+from services.supervisor.processes import ProcessGroup
+
 ROOT = Path(__file__).resolve().parents[1]
 NETNS = ROOT / "scripts" / "netns-vehicle.sh"
+PROBE = ROOT / "scripts" / "ocp_probe.py"
+ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
+SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
+FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
+SOILOCP = [sys.executable, "-m", "soilocp_cli"]
+#: The run's addresses (scripts/netns-vehicle.sh): the fleet router, the sensing unit's router on
+#: the link to the estimation unit, and each unit's own loopback router.
+VID = "rover1"
+VEHICLE_ROUTER_EP = "tcp/10.99.1.1:7447"
+LOCAL_EP = "tcp/127.0.0.1:7447"
 
 
 def netns_unavailable() -> Optional[str]:
@@ -36,56 +47,20 @@ def netns_unavailable() -> Optional[str]:
     return None
 
 
-class Processes:
-    """Processes started inside the run's namespaces; stopped by id (SIGTERM, then SIGKILL)."""
+class Processes(ProcessGroup):
+    """Processes started inside the run's namespaces by the product's supervisor; stopped by
+    name (SIGTERM in reverse order, then SIGKILL)."""
 
     def __init__(self, run_id: str, logdir: Path):
+        # never inherit endpoint settings from the caller's shell
+        super().__init__(logdir, drop_env=("SOILOCP_CONNECT", "SOILOCP_LISTEN", "SOILOCP_ROUTER_CONNECT", "SOILOCP_CONFIG"),
+                         exit_with_parent=False)
         self.run_id = run_id
-        self.logdir = logdir
-        self.procs: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, unit: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen:
-        full_env = dict(os.environ, PYTHONUNBUFFERED="1", **env)
-        # never inherit endpoint settings from the caller's shell
-        for k in ("SOILOCP_CONNECT", "SOILOCP_LISTEN", "SOILOCP_ROUTER_CONNECT", "SOILOCP_CONFIG"):
-            if k not in env:
-                full_env.pop(k, None)
-        log = open(self.logdir / f"{name}.log", "wb")
         # netns-vehicle.sh execs `ip netns exec`, which execs argv: the pid is the process itself
-        proc = subprocess.Popen([str(NETNS), "exec", self.run_id, unit, *argv], stdout=log,
-                                stderr=subprocess.STDOUT, env=full_env, cwd=str(self.logdir))
-        log.close()
-        self.procs[name] = proc
-        return proc
-
-    def dead(self) -> dict[str, int]:
-        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
-
-    def stop(self, names: Optional[list[str]] = None, timeout: float = 8.0) -> dict[str, int]:
-        names = list(self.procs) if names is None else names
-        for n in reversed(names):
-            if self.procs[n].poll() is None:
-                self.procs[n].send_signal(signal.SIGTERM)
-        deadline = time.time() + timeout
-        codes = {}
-        for n in names:
-            p = self.procs[n]
-            try:
-                codes[n] = p.wait(max(0.1, deadline - time.time()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                codes[n] = p.wait()
-                codes[n] = -9 if codes[n] is None else codes[n]
-        return codes
-
-    def tail(self, name: str, n: int = 15) -> str:
-        try:
-            lines = (self.logdir / f"{name}.log").read_text(errors="replace").splitlines()
-        except OSError:
-            return ""
-        return "\n".join(lines[-n:])
-
-
+        return self.start_argv(name, [str(NETNS), "exec", self.run_id, unit, *argv], env=env, cwd=self.log_dir,
+                               new_session=False).proc
 
 
 def wait_until(what: str, cond: Callable[[], bool], timeout: float, procs: Processes) -> float:

@@ -1,4 +1,4 @@
-"""One kernel, two callers: the batched chain (soilocp.batch, N vehicles) against the single-vehicle
+"""One kernel, two callers: the batched chain (soilocp.estimation.batch, N vehicles) against the single-vehicle
 pipeline (the same kernels with N = 1) in every output field, and the observer kernel against the
 filterpy reference, step by step, on real simulated drives."""
 
@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from soilocp.batch import BatchPipeline
-from soilocp.ocp import ocp_arrays, ocp_from_soil_strength
-from soilocp.pipeline import PipelineConfig, VehiclePipeline
-from soilocp.simulator import simulate
+from soilocp.estimation.batch import BatchPipeline
+from soilocp.model.ocp import ocp_arrays, ocp_from_soil_strength
+from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.sim.simulator import simulate
 
 TOL = 1e-9
 
@@ -87,10 +87,10 @@ def test_batched_equals_single_vehicle_pipeline_in_every_field(drives):
 @pytest.mark.parametrize("structure", ["slip", "shared", "none"])
 def test_observer_kernel_equals_filterpy_reference_step_by_step(drives, structure):
     """The kernel's own predict / gated update (N = 1) against filterpy's KalmanFilter on the same model."""
-    from soilocp.observer import ObserverConfig
-    from soilocp.observer_bank import ObserverBank
-    from soilocp.observer_reference import TractionObserver
-    from soilocp.pipeline import NormalForceStage, observer_inputs
+    from soilocp.estimation.observer import ObserverConfig
+    from soilocp.estimation.observer_bank import ObserverBank
+    from soilocp.estimation.observer_reference import TractionObserver
+    from soilocp.estimation.pipeline import NormalForceStage, observer_inputs
 
     cfg = PipelineConfig(observer=ObserverConfig(structure=structure))
     nfs = NormalForceStage(cfg)
@@ -137,7 +137,7 @@ def test_bad_arguments_are_named(drives):
 
 @pytest.mark.timeout(300)
 def test_batch_service_stream_equals_offline_estimate():
-    """gateway + the batched normal-force/observer/soil/OCP service (services.batch_services), real processes
+    """gateway + the batched normal-force/observer/soil/OCP service (services.stages.batch), real processes
     behind a real router: two vehicles' live OCP streams equal ``estimate_lines`` offline."""
     import json
     import threading
@@ -146,8 +146,8 @@ def test_batch_service_stream_equals_offline_estimate():
     import zenoh
 
     from schemas import keys
-    from services.bench_live import Rig, open_client
-    from soilocp.estimate import estimate_lines
+    from services.bench.live import Rig, open_client
+    from soilocp.estimation.estimate import estimate_lines
 
     vids = ["bx1", "bx2"]
     logs = {v: [s.model_dump_json() for s, _t in simulate(sc, duration=3.0, seed=i, vehicle_id=v)]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from soilocp.calibration import (
+from soilocp.analysis.calibration import (
     PARAMETER_BOUNDS,
     TESTBED_SLIPS,
     efficiency_peak,
@@ -18,9 +18,9 @@ from soilocp.calibration import (
     build_testbed,
     write_testbed_csv,
 )
-from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
-from soilocp.ocp import max_traction, optimal_slip_efficiency, optimal_slip_traction
-from soilocp.traction import gross_traction, net_traction, tractive_efficiency
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
+from soilocp.model.ocp import max_traction, optimal_slip_efficiency, optimal_slip_traction
+from soilocp.model.traction import gross_traction, net_traction, tractive_efficiency
 
 SOILS = {"sand": 50.0, "gravel": 80.0, "grass": 200.0}
 # "truth" deliberately away from the paper's constants (the start values), C4 = 0.04 so that a

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from soilocp.calibration import synthetic_testbed, write_testbed_csv
-from soilocp.cli import main
-from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
-from soilocp.curves import FIGURE_FILES
+from soilocp.analysis.calibration import synthetic_testbed, write_testbed_csv
+from soilocp_cli.main import main
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
+from soilocp.analysis.curves import FIGURE_FILES
 
 KEYS = {"soil_strength", "mu_T", "S_T", "S_E"}
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -85,7 +85,7 @@ def test_ocp_bad_constants_file(tmp_path, content):
 
 def test_ocp_bad_k_in_a_real_process_exits_cleanly():
     p = subprocess.run(
-        [sys.executable, "-m", "soilocp.cli", "ocp", "--soil-strength", "nan"],
+        [sys.executable, "-m", "soilocp_cli", "ocp", "--soil-strength", "nan"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -13,7 +13,7 @@ from schemas import keys
 from schemas.messages import ServiceHealth, SlipSetpoint
 from schemas.pipeline import OcpEstimate
 from soilocp.control import fallback_slip
-from soilocp.ocp import ocp_from_soil_strength
+from soilocp.model.ocp import ocp_from_soil_strength
 
 from zenoh_helpers import PIPELINE, Procs, client, endpoint, free_port, get_payloads, start_pipeline, wait_alive, wait_for
 

@@ -29,22 +29,13 @@ import time
 from pathlib import Path
 
 import pytest
-from netns_rig import NETNS, Processes, vehicle_netns, wait_until  # noqa: F401 (fixture)
+from netns_rig import (ESTIMATION, FLEET_SECURE, LOCAL_EP, NETNS, PROBE, ROOT, SENSING_SECURE, SOILOCP,  # noqa: F401
+                       VEHICLE_ROUTER_EP, VID, Processes, vehicle_netns, wait_until)
 from zenoh_helpers import json_lines_so_far
 
-ROOT = Path(__file__).resolve().parents[1]
-PROBE = ROOT / "scripts" / "ocp_probe.py"
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing.json"
-ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 FLEET = ROOT / "deploy" / "fleet" / "fleet-router.json"
-SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
-FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
-SOILOCP = [sys.executable, "-m", "soilocp.cli"]
-
-VID = "rover1"
 FLEET_EP = "tcp/10.99.2.2:7447"
-VEHICLE_ROUTER_EP = "tcp/10.99.1.1:7447"  # the sensing unit's address on the link to est
-LOCAL_EP = "tcp/127.0.0.1:7447"
 STALE_TIMEOUT_S = 0.5
 CUT_S = 5.0
 RECOVERY_TARGET_S = 2.0  # the deployment's stated goal; printed, the test asserts recovery itself
@@ -156,7 +147,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
 # ---------------------------------------------------------------------------------------------
 def test_deploy_unit_configs_load_and_env_overrides_win():
     from services.router import router_settings
-    from services.runtime import load_service_config
+    from services.runtime.config import load_service_config
 
     expected = {SENSING: {"gateway", "normal-force", "vehicle"}, ESTIMATION: {"observer", "soil-strength", "ocp"}}
     for path, services in expected.items():
@@ -209,7 +200,7 @@ def test_systemd_example_environments_resolve_through_the_loaders(tmp_path):
 
     from services.commands import service_cmd
     from services.router import router_settings
-    from services.runtime import load_service_config
+    from services.runtime.config import load_service_config
 
     # the certificates the secure units name, made where the test can read them
     certs = tmp_path / "certs"

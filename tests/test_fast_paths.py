@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soilocp.normal_force import NormalForceSolver, normal_forces
-from soilocp.traction import tractive_efficiency, tractive_efficiency_scalar
-from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.model.normal_force import NormalForceSolver, normal_forces
+from soilocp.model.traction import tractive_efficiency, tractive_efficiency_scalar
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
 @settings(max_examples=50, deadline=None)
@@ -35,8 +35,8 @@ def test_scalar_tractive_efficiency_equals_eq9(s, k):
 def test_ocp_stage_with_the_printed_model_on_very_firm_soil():
     """bridge_slip = 0 (eq. 6 as printed) and K above alpha (S_E clamped to 0): no TE, no error."""
     from schemas.pipeline import SoilEstimate
-    from soilocp.constants import ModelConstants
-    from soilocp.pipeline import OcpStage, PipelineConfig
+    from soilocp.model.constants import ModelConstants
+    from soilocp.estimation.pipeline import OcpStage, PipelineConfig
 
     stage = OcpStage(PipelineConfig(constants=ModelConstants(bridge_slip=0.0)))
     soil = SoilEstimate(vehicle_id="r1", seq=1, stamp=0.0, slip=(0.1,) * 4, informative=(True,) * 4,

@@ -4,7 +4,7 @@ A fleet router, two vehicles each run by ``soilocp run`` (its own router linked 
 router, five services, a synthetic vehicle), the dashboard server, and headless Chromium driven
 over the DevTools protocol on a pipe (``--remote-debugging-pipe``: no websocket client needed).
 Loopback only, ephemeral ports, multicast off; every process is reaped.  Plus fast unit tests of
-:class:`services.fleet.FleetState` with a fake clock.
+:class:`services.fleet.state.FleetState` with a fake clock.
 """
 
 from __future__ import annotations
@@ -30,11 +30,12 @@ import numpy as np
 import pytest
 
 from schemas import keys
+from services.stages.graph import PIPELINE_SERVICES
 from schemas.messages import OcpReply, ServiceHealth
 from schemas.pipeline import OcpEstimate
-from services.fleet import FleetState, traction_curve
-from soilocp.constants import DEFAULT_CONSTANTS
-from soilocp.traction import net_traction
+from services.fleet.state import FleetState, traction_curve
+from soilocp.model.constants import DEFAULT_CONSTANTS
+from soilocp.model.traction import net_traction
 
 from zenoh_helpers import Procs, client, endpoint, free_port, get_payloads, wait_for
 
@@ -64,7 +65,7 @@ def _est(vid: str, seq: int, k: Optional[float] = 120.0, status: str = "ok") -> 
 def test_state_fresh_stale_offline_and_rejections_from_gateway_health():
     clock = Clock()
     st = FleetState(clock=clock)
-    for s in keys.PIPELINE_SERVICES:
+    for s in PIPELINE_SERVICES:
         st.set_alive("rover1", s, True)
     (row,) = st.rows()
     assert (row["state"], row["status"], row["K"]) == ("online", "no estimate", None)
@@ -77,7 +78,7 @@ def test_state_fresh_stale_offline_and_rejections_from_gateway_health():
     st.set_alive("rover1", "observer", False)
     row = st.rows()[0]
     assert row["state"] == "degraded" and row["services_missing"] == ["observer"]
-    for s in keys.PIPELINE_SERVICES:
+    for s in PIPELINE_SERVICES:
         st.set_alive("rover1", s, False)
     row = st.rows()[0]
     assert row["state"] == "offline" and row["offline_since"] == clock.t
@@ -91,9 +92,9 @@ def test_state_fresh_stale_offline_and_rejections_from_gateway_health():
 
 def test_state_reconcile_removes_a_service_only_after_consecutive_misses():
     st = FleetState(clock=Clock())
-    st.reconcile_alive([("v1", s) for s in keys.PIPELINE_SERVICES], misses=2)
+    st.reconcile_alive([("v1", s) for s in PIPELINE_SERVICES], misses=2)
     assert st.rows()[0]["state"] == "online"
-    without_ocp = [("v1", s) for s in keys.PIPELINE_SERVICES if s != "ocp"]
+    without_ocp = [("v1", s) for s in PIPELINE_SERVICES if s != "ocp"]
     st.reconcile_alive(without_ocp, misses=2)
     assert st.rows()[0]["state"] == "online"  # one miss: could be a get racing a new token
     st.reconcile_alive(without_ocp, misses=2)
@@ -206,7 +207,7 @@ def fleet(tmp_path_factory):
 
 def _fleet_start(*args: str) -> subprocess.Popen:
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.Popen([sys.executable, "-m", "soilocp.cli", "fleet", "status", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "soilocp_cli", "fleet", "status", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=e, stdin=subprocess.DEVNULL)
 
 
@@ -224,7 +225,7 @@ def _fleet_cmd(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess
 
 
 def _check_row(r: dict[str, Any]) -> None:
-    assert r["services_alive"] == list(keys.PIPELINE_SERVICES) and r["services_missing"] == []
+    assert r["services_alive"] == list(PIPELINE_SERVICES) and r["services_missing"] == []
     assert r["state"] == "online" and r["source_alive"] is True
     assert r["status"] == "fresh" and r["age_s"] < 5.0
     assert math.isfinite(r["K"]) and r["K"] > 0 and r["K_std"] >= 0

@@ -26,20 +26,13 @@ import time
 from pathlib import Path
 
 import pytest
-from netns_rig import NETNS, Processes, vehicle_netns, wait_until  # noqa: F401 (fixture)
+from netns_rig import (ESTIMATION, LOCAL_EP, NETNS, PROBE, SOILOCP, VEHICLE_ROUTER_EP, VID, Processes,  # noqa: F401
+                       vehicle_netns, wait_until)
+from netns_rig import FLEET_SECURE as FLEET
+from netns_rig import SENSING_SECURE as SENSING
 from zenoh_helpers import json_lines_so_far
 
-ROOT = Path(__file__).resolve().parents[1]
-PROBE = ROOT / "scripts" / "ocp_probe.py"
-SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
-ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
-FLEET = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
-SOILOCP = [sys.executable, "-m", "soilocp.cli"]
-
-VID = "rover1"
 FLEET_EP = "tls/10.99.2.2:7447"
-VEHICLE_ROUTER_EP = "tcp/10.99.1.1:7447"
-LOCAL_EP = "tcp/127.0.0.1:7447"
 OUTAGE_S = (15.0, 30.0)
 RECOVERY_LIMIT_S = 5.0
 LEASE_S = 10.0
@@ -64,7 +57,7 @@ def _fresh_at(recs: list[dict], after: float) -> tuple[float | None, float | Non
 #: OCPs, health) crosses the fleet link, so the link's queue is full within seconds of a cut.
 RECORDER = """
 import os, signal, sys, time, zenoh
-from services.fleet_security import apply_tls, check_client_tls
+from services.security.fleet_security import apply_tls, check_client_tls
 c = zenoh.Config()
 c.insert_json5("mode", '"client"')
 c.insert_json5("connect/endpoints", '["' + sys.argv[1] + '"]')

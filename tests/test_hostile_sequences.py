@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from schemas.sensor import SensorSample
-from soilocp.batch import BatchPipeline
-from soilocp.pipeline import NormalForceStage, PipelineConfig, VehiclePipeline
+from soilocp.estimation.batch import BatchPipeline
+from soilocp.estimation.pipeline import NormalForceStage, PipelineConfig, VehiclePipeline
 
 N_VEHICLES = 16
 STEPS = 1600

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from soilocp.cli import main
+from soilocp_cli.main import main
 from soilocp.ingest import load_map
 from soilocp.ingest.csv_import import CsvImportError, import_csv
 
@@ -49,8 +49,8 @@ def test_borealtc_imports_and_runs_with_honest_statuses(tmp_path, run):
     assert prov["identifiable"] is False and prov["drive"] == "per_side" and prov["ground_speed"] == "absent"
     assert all(x["ground_speed"] is None for x in samples)  # no stand-in: the log says there is none
     # the chain itself (as live, without the provenance file) says K is not identifiable and prints no number
-    from soilocp.estimate import estimate_lines
-    from soilocp.pipeline import load_pipeline_config
+    from soilocp.estimation.estimate import estimate_lines
+    from soilocp.estimation.pipeline import load_pipeline_config
 
     own = list(estimate_lines(log.read_text().splitlines(), load_pipeline_config(vehicle=VEHICLE)))
     assert len(own) == len(samples)

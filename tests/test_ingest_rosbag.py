@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from soilocp.cli import main
-from soilocp.estimate import estimate_lines
-from soilocp.evaluation import evaluate_records
+from soilocp_cli.main import main
+from soilocp.estimation.estimate import estimate_lines
+from soilocp.analysis.evaluation import evaluate_records
 from soilocp.ingest import load_map
 from soilocp.ingest.bag_writer import UNIX_BASE, write_bag
 from soilocp.ingest.rosbag_import import BagImportError, import_bag
-from soilocp.pipeline import PipelineConfig
-from soilocp.simulator import simulate
+from soilocp.estimation.pipeline import PipelineConfig
+from soilocp.sim.simulator import simulate
 
 MAP = """\
 vehicle_id: rover1

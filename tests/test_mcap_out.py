@@ -9,9 +9,9 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
-from soilocp.cli import main
+from soilocp_cli.main import main
 from soilocp.export.mcap_out import CHANNEL_SCHEMAS, RotatingMcapWriter
-from soilocp.simulator import simulate
+from soilocp.sim.simulator import simulate
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soilocp.normal_force import (
+from soilocp.model.normal_force import (
     STANDARD_GRAVITY,
     gravity_from_attitude,
     load_vector,
@@ -23,7 +23,7 @@ from soilocp.normal_force import (
     static_normal_forces,
     system_matrix,
 )
-from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 G = STANDARD_GRAVITY
 V = DEFAULT_VEHICLE

@@ -4,8 +4,8 @@ data generated from the observer's own equations, and covariance health over lon
 import numpy as np
 import pytest
 
-from soilocp.normal_force import STANDARD_GRAVITY, normal_forces
-from soilocp.observer import (
+from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces
+from soilocp.estimation.observer import (
     ObserverConfig,
     StateLayout,
     continuous_model,
@@ -13,8 +13,8 @@ from soilocp.observer import (
     discretize,
     observability_rank,
 )
-from soilocp.observer_reference import TractionObserver
-from soilocp.vehicle import DEFAULT_VEHICLE as V
+from soilocp.estimation.observer_reference import TractionObserver
+from soilocp.model.vehicle import DEFAULT_VEHICLE as V
 
 
 def test_paper_state_is_not_observable_but_ours_is():
@@ -124,8 +124,8 @@ def test_time_gap_reinitialises():
 
 def test_covariance_stays_symmetric_positive_definite_over_long_runs():
     """2e4 steps with hostile conditions (varying dt, near lift-off, torque saturation, stand-still).
-    The 1e6-step soak is `python -m soilocp.observer_soak` (quoted in the README)."""
-    from soilocp.observer_soak import soak
+    The 1e6-step soak is `python -m soilocp.analysis.observer_soak` (quoted in the README)."""
+    from soilocp.analysis.observer_soak import soak
 
     worst = soak(20_000, seed=1)
     assert worst["min_eigenvalue"] > 0
@@ -137,8 +137,8 @@ def test_slip_structure_tracks_per_wheel_traction_on_a_traction_test():
     """On the simulator's traction test (rear wheels sweep slip, front wheels brake) the wheels'
     motion resistance differs a lot (eq. 4 grows with slip): the 'slip' structure follows each
     wheel's net traction better than one shared coefficient."""
-    from soilocp.pipeline import PipelineConfig, VehiclePipeline
-    from soilocp.simulator import simulate
+    from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+    from soilocp.sim.simulator import simulate
 
     errs = {}
     for structure in ("slip", "shared"):

@@ -11,14 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.ocp import (
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.ocp import (
     max_traction,
     ocp_from_soil_strength,
     optimal_slip_efficiency,
     optimal_slip_traction,
 )
-from soilocp.traction import net_traction
+from soilocp.model.traction import net_traction
 
 # docs/method.md, "Constants and reference values": K, S_T, mu_T, S_E
 TABLE = [

@@ -7,10 +7,10 @@ import sys
 
 import pytest
 
-from soilocp.estimate import estimate_lines
-from soilocp.pipeline import PipelineConfig, VehiclePipeline, load_pipeline_config
+from soilocp.estimation.estimate import estimate_lines
+from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline, load_pipeline_config
 
-CLI = [sys.executable, "-m", "soilocp.cli"]
+CLI = [sys.executable, "-m", "soilocp_cli"]
 
 
 def run(*args, check=True):
@@ -89,8 +89,8 @@ def test_pipeline_config_errors_name_the_file_and_field(tmp_path):
 
 
 def test_stage_composition_equals_pipeline(mixed_drive):
-    from soilocp.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
-    from soilocp.validation import parse_sample
+    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
+    from soilocp.estimation.validation import parse_sample
 
     cfg = PipelineConfig()
     stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpStage(cfg)

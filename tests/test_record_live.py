@@ -87,14 +87,14 @@ def test_soilocp_run_replays_a_bag_with_its_map(tmp_path):
     import sys
 
     from soilocp.ingest.bag_writer import write_bag
-    from soilocp.simulator import simulate
+    from soilocp.sim.simulator import simulate
 
     bag = write_bag([s for s, _ in simulate("sand", duration=4.0, seed=2, vehicle_id="bagrover")], tmp_path / "bag")
     m = tmp_path / "map.yaml"
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     m.write_text(open(os.path.join(root, "docs", "maps", "ros2-robot.yaml")).read().replace("rover1", "bagrover"))
     ep = endpoint(free_port())
-    p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--replay", str(bag), "--map", str(m), "--speed", "2",
+    p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--replay", str(bag), "--map", str(m), "--speed", "2",
                           "--listen", ep, "--log-dir", str(tmp_path / "logs")],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:

@@ -1,5 +1,5 @@
 """``soilocp accuracy --robustness`` on a tiny case, and the band / confidently-wrong scores it
-adds to soilocp.evaluation.  No accuracy thresholds on the estimator here: the table is the
+adds to soilocp.analysis.evaluation.  No accuracy thresholds on the estimator here: the table is the
 measurement."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from soilocp.cli import main
+from soilocp_cli.main import main
 from soilocp.commands.robustness_table import COLUMNS
-from soilocp.evaluation import evaluate_records, results_as_json
-from soilocp.robustness import run_variant, summarize
+from soilocp.analysis.evaluation import evaluate_records, results_as_json
+from soilocp.analysis.robustness import run_variant, summarize
 
 
 def _truth(seq, k, stamp):
@@ -81,7 +81,7 @@ def test_robustness_options_are_checked():
 
 
 def test_seeds_pool_into_one_row_per_variant():
-    from soilocp.robustness import run_robustness
+    from soilocp.analysis.robustness import run_robustness
 
     runs = run_robustness(["cruise"], seeds=(0, 1), duration=1.0, jobs=1)
     assert [(r.variant, r.seed) for r in runs] == [("cruise", 0), ("cruise", 1)]

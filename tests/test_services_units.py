@@ -9,14 +9,16 @@ import math
 import pytest
 
 from schemas import keys
+from services.stages.graph import ALL_SERVICES
 from schemas.export import MESSAGE_MODELS, export_schemas
 from schemas.messages import OcpReply, Rejection
 from schemas.pipeline import NormalForces, OcpEstimate
 from schemas.sensor import SensorSample
-from services.gateway import RawSampleChecker
-from services.observer import SeqJoiner
-from services.ocp import OcpStore, parse_parameters
-from services.runtime import ConfigError, Counters, load_service_config
+from services.stages.gateway import RawSampleChecker
+from services.stages.observer import SeqJoiner
+from services.stages.ocp import OcpStore, parse_parameters
+from services.runtime.config import ConfigError, load_service_config
+from services.runtime.worker import Counters
 
 
 def _sample(seq: int, stamp: float, vid: str = "rover1", **kw) -> dict:
@@ -95,7 +97,7 @@ def test_deploy_single_machine_config_is_valid():
     from services.router import router_settings
 
     path = Path(__file__).resolve().parents[1] / "deploy" / "single-machine.json"
-    for name in keys.ALL_SERVICES:
+    for name in ALL_SERVICES:
         cfg = load_service_config(name, config_path=str(path), env={})
         assert cfg.vehicle_ids == ["rover1"] and cfg.connect == ["tcp/127.0.0.1:7447"]
     assert router_settings(str(path), (), (), env={})["listen"] == ["tcp/127.0.0.1:7447"]
@@ -149,8 +151,7 @@ class _Clock:
 
 
 def _nf(seq: int) -> NormalForces:
-    return NormalForces(vehicle_id="rover1", seq=seq, stamp=seq * 0.01, normal_force=(10.0, 10.0, 10.0, 10.0),
-                        lift_off=False)
+    return NormalForces(vehicle_id="rover1", seq=seq, stamp=seq * 0.01, normal_force=(10.0, 10.0, 10.0, 10.0))
 
 
 def test_seq_joiner_keeps_order_and_drops_lost_samples_after_timeout():
@@ -232,7 +233,7 @@ def test_schema_export_writes_one_versioned_schema_per_message(tmp_path):
 def test_schemas_export_command_and_service_help(tmp_path):
     from click.testing import CliRunner
 
-    from soilocp.cli import main
+    from soilocp_cli.main import main
 
     r = CliRunner().invoke(main, ["schemas", "export", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output

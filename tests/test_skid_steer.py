@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from soilocp.sensor_models import SensorNoise
-from soilocp.simulator import simulate
-from soilocp.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
+from soilocp.sim.sensor_models import SensorNoise
+from soilocp.sim.simulator import simulate
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 
 def test_drive_option_default_and_file(tmp_path):

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soilocp.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
+from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio
 
 R = 0.15
 

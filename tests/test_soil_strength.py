@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soilocp.constants import DEFAULT_CONSTANTS
-from soilocp.soil_strength import BayesSoilEstimator, PaperSoilEstimator, SoilConfig, classify
-from soilocp.traction import gross_traction, net_traction
+from soilocp.model.constants import DEFAULT_CONSTANTS
+from soilocp.estimation.soil_strength import BayesSoilEstimator, PaperSoilEstimator, SoilConfig, classify
+from soilocp.model.traction import gross_traction, net_traction
 
 INFO = np.ones(4, dtype=bool)
 
@@ -172,7 +172,7 @@ def test_classify_by_log_k_with_confidence():
 
 @pytest.mark.parametrize("measurement", ["gross", "net"])
 def test_factorised_grid_curve_equals_the_traction_model(measurement):
-    from soilocp.traction import curve_unchecked
+    from soilocp.model.traction import curve_unchecked
 
     est = BayesSoilEstimator(DEFAULT_CONSTANTS, SoilConfig(measurement=measurement))
     s = np.array([[0.05], [-0.3], [0.9], [0.002]])

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soilocp.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.traction import (
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.traction import (
     gross_traction,
     gross_traction_with_derivatives,
     motion_resistance,

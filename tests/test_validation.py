@@ -3,7 +3,7 @@
 import pytest
 
 from schemas.sensor import SensorSample
-from soilocp.validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
 
 
 def sample(seq, stamp):
@@ -63,8 +63,8 @@ def test_deeply_nested_payload_is_a_rejection_not_a_recursion_error(payload):
 
 
 def test_deep_line_in_a_log_loses_no_good_line_around_it():
-    from soilocp.estimate import EstimateSummary, estimate_lines
-    from soilocp.pipeline import PipelineConfig
+    from soilocp.estimation.estimate import EstimateSummary, estimate_lines
+    from soilocp.estimation.pipeline import PipelineConfig
 
     good = [sample(i, i * 0.01).model_dump_json() for i in range(6)]
     lines = good[:3] + ["[" * 5000 + "]" * 5000] + good[3:]

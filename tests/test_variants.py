@@ -1,4 +1,4 @@
-"""The robustness variants do what their descriptions say (soilocp.variants), measured on the
+"""The robustness variants do what their descriptions say (soilocp.sim.variants), measured on the
 simulated streams against the nominal drive with the same seed."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from soilocp.variants import VARIANTS, get_variant, list_variants
-from soilocp.vehicle import DEFAULT_VEHICLE
+from soilocp.sim.variants import VARIANTS, get_variant, list_variants
+from soilocp.model.vehicle import DEFAULT_VEHICLE
 
 
 def _run(name: str, duration: float, seed: int = 0):

@@ -4,17 +4,18 @@ client sessions with explicit endpoints (multicast scouting off) and bounded wai
 from __future__ import annotations
 
 import json
-import os
-import signal
 import socket
 import subprocess
-import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Optional
 
-PIPELINE = ("gateway", "normal-force", "observer", "soil-strength", "ocp")
+from services.stages.graph import PIPELINE_SERVICES
+from services.supervisor import liveliness
+from services.supervisor.processes import ProcessGroup
+
+PIPELINE = PIPELINE_SERVICES  # the rig starts the rows the graph declares
 
 
 def free_port() -> int:
@@ -40,55 +41,15 @@ def wait_for(pred: Callable[[], object], timeout: float, interval: float = 0.05)
         time.sleep(interval)
 
 
-class Procs:
-    """Child processes of one test; :meth:`close` stops and reaps every one (SIGTERM, then SIGKILL)."""
+class Procs(ProcessGroup):
+    """Child processes of one test (the product's supervisor, with no SOILOCP_* setting inherited);
+    :meth:`close` stops and reaps every one (SIGTERM, then SIGKILL)."""
 
     def __init__(self, log_dir: Path):
-        self.log_dir = Path(log_dir)
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        self.procs: dict[str, subprocess.Popen] = {}
-        self._n = 0
+        super().__init__(log_dir, drop_env=("SOILOCP_",), exit_with_parent=False)
 
     def spawn(self, name: str, args: Iterable[str], env: Optional[dict] = None) -> subprocess.Popen:
-        self._n += 1
-        log = open(self.log_dir / f"{name}.{self._n}.log", "wb")
-        e = dict(os.environ)
-        for k in list(e):
-            if k.startswith("SOILOCP_"):
-                del e[k]
-        e.update(env or {})
-        try:
-            p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", *args], stdin=subprocess.DEVNULL,
-                                 stdout=log, stderr=subprocess.STDOUT, env=e, start_new_session=True)
-        finally:
-            log.close()
-        self.procs[name] = p
-        self._last_log = self.log_dir / f"{name}.{self._n}.log"
-        return p
-
-    def log_text(self, name: str) -> str:
-        return "\n".join(p.read_text(errors="replace") for p in sorted(self.log_dir.glob(f"{name}.*.log")))
-
-    def alive(self) -> dict[str, bool]:
-        return {n: p.poll() is None for n, p in self.procs.items()}
-
-    def close(self, timeout: float = 5.0) -> dict[str, Optional[int]]:
-        for p in self.procs.values():
-            if p.poll() is None:
-                try:
-                    p.send_signal(signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + timeout
-        codes = {}
-        for n, p in self.procs.items():
-            try:
-                p.wait(max(0.05, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-            codes[n] = p.returncode
-        return codes
+        return self.start(name, args, env=env).proc
 
 
 def client_config(ep: str):
@@ -123,16 +84,11 @@ def client(ep: str):
 
 
 def alive_services(session, vid: str) -> set[str]:
-    out = set()
-    for r in session.liveliness().get(f"soilocp/{vid}/alive/*", timeout=1.0):
-        if r.ok is not None:
-            out.add(str(r.ok.key_expr).rsplit("/", 1)[-1])
-    return out
+    return {s for _v, s in liveliness.alive_services(session, vid)}
 
 
 def wait_alive(session, vid: str, services: Iterable[str] = PIPELINE, timeout: float = 120.0) -> bool:
-    want = set(services)
-    return bool(wait_for(lambda: want <= alive_services(session, vid), timeout, interval=0.2))
+    return not liveliness.wait_alive(session, [vid], services, timeout)
 
 
 def get_payloads(session, selector: str, timeout: float = 3.0) -> list[bytes]:
@@ -146,7 +102,7 @@ def start_pipeline(procs: Procs, ep: str, vid: str, extra: Iterable[str] = ()) -
 
 def write_log(path: Path, vid: str, duration: float, scenario: str = "sandy-slope", seed: int = 1) -> list[str]:
     """A sensor log from the simulator (JSON Lines, one SensorSample per line); returns the lines."""
-    from soilocp.simulator import simulate
+    from soilocp.sim.simulator import simulate
 
     lines = [s.model_dump_json() for s, _t in simulate(scenario, duration=duration, seed=seed, vehicle_id=vid)]
     path.write_text("\n".join(lines) + "\n")

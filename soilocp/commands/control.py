@@ -27,9 +27,9 @@ def control_group() -> None:
 @click.option("--markdown", is_flag=True, help="Print the table as Markdown (for the README).")
 def compare_cmd(scenarios, controllers, list_only, json_out, plots_dir, duration, seed, markdown) -> None:
     """Drive each scenario with each controller, the estimation chain in the loop; print a table."""
-    from ..control.compare import TABLE_HEADER, compare, gains_over_fixed, markdown_table, plot_traces, table_rows
-    from ..control.controllers import CONTROLLER_NAMES, make_policy
-    from ..control.rig import RIG_SCENARIOS
+    from soilocp.control.compare import TABLE_HEADER, compare, gains_over_fixed, markdown_table, plot_traces, table_rows
+    from soilocp.control.controllers import CONTROLLER_NAMES, make_policy
+    from soilocp.control.rig import RIG_SCENARIOS
 
     if list_only:
         for r in RIG_SCENARIOS.values():

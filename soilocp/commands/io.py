@@ -12,7 +12,7 @@ import click
 
 
 def _map_or_fail(map_path: str):
-    from ..ingest import load_map
+    from soilocp.ingest import load_map
 
     try:
         return load_map(map_path)
@@ -36,7 +36,7 @@ def _report(prov, issues: list[str], out) -> None:
 def run_import(bag: Optional[str], csv_specs: tuple[str, ...], map_path: str, out: str, *, strict: bool = False,
                progress: bool = True, quiet: bool = False):
     """Import and report; click errors on bad input (used by import, estimate --map, run --map)."""
-    from ..ingest import import_source
+    from soilocp.ingest import import_source
 
     tmap = _map_or_fail(map_path)
     files = {}
@@ -77,8 +77,8 @@ def import_cmd(bag, csv_specs, map_path, out, strict, no_progress):
 
 def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, full: bool = False):
     """``soilocp estimate``: a sensor log (with its provenance file, if any) or, with ``map_path``, a bag."""
-    from ..export.estimate_out import estimate_to
-    from ..ingest import read_provenance
+    from soilocp.export.estimate_out import estimate_to
+    from soilocp.ingest import read_provenance
 
     if map_path is None:
         if Path(sensors).is_dir() or Path(sensors).suffix in (".mcap", ".db3"):

@@ -16,6 +16,13 @@ def _fmt(v, spec=".3f"):
     return "—" if v is None else format(v, spec)
 
 
+
+def _numbers_table(title: str, columns: tuple[str, ...]) -> Table:
+    t = Table(title=title)
+    for col in columns:
+        t.add_column(col, justify="right")
+    return t
+
 @click.command()
 @click.argument("sensors", type=click.Path(exists=True))
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
@@ -34,8 +41,8 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
     their line number and skipped.
     """
-    from ..pipeline import load_pipeline_config
-    from .io import estimate_source
+    from soilocp.estimation.pipeline import load_pipeline_config
+    from soilocp.commands.io import estimate_source
 
     try:
         cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants)
@@ -69,7 +76,7 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
 @click.option("--check", is_flag=True, help="Exit 1 unless every target is met on every segment")
 def evaluate(truth, estimates, settle, as_json, check):
     """Accuracy of ESTIMATES against simulator truth, per terrain segment, with the targets."""
-    from ..evaluation import TARGETS, evaluate_files, results_as_json
+    from soilocp.analysis.evaluation import TARGETS, evaluate_files, results_as_json
 
     try:
         results = evaluate_files(truth, estimates, settle)
@@ -79,10 +86,9 @@ def evaluate(truth, estimates, settle, as_json, check):
     if as_json:
         click.echo(json.dumps({"targets": TARGETS, "segments": results_as_json(results), "all_pass": ok}, indent=2))
     else:
-        t = Table(title=f"K and OCP accuracy vs truth (settle {settle:g} s)")
-        for col in ("seg", "soil", "K true", "coverage", "K med err", "K p90 err", "conv (s)",
-                    "|mu_T| err", "|S_T| err", "|S_E| err", "class acc", "pass"):
-            t.add_column(col, justify="right")
+        t = _numbers_table(f"K and OCP accuracy vs truth (settle {settle:g} s)",
+                           ("seg", "soil", "K true", "coverage", "K med err", "K p90 err", "conv (s)",
+                            "|mu_T| err", "|S_T| err", "|S_E| err", "class acc", "pass"))
         for r in results:
             p = r.passes()
             t.add_row(
@@ -109,7 +115,7 @@ def evaluate(truth, estimates, settle, as_json, check):
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Directory for the PNGs")
 def plot(truth, estimates, labels, out):
     """PNG time series like the paper's Figs. 8-18: normal forces, slip, mu, K, OCPs (estimate vs truth)."""
-    from ..timeseries_plots import plot_run
+    from soilocp.analysis.timeseries_plots import plot_run
 
     if labels and len(labels) != len(estimates):
         raise click.UsageError("give one --label per --estimates")
@@ -130,7 +136,7 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--seed", default=0, show_default=True)
 @click.option("--jobs", default=2, show_default=True, help="Parallel processes")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the full results as JSON")
-@click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.variants)")
+@click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.sim.variants)")
 @click.option("--seeds", default=1, show_default=True, help="--robustness: seeds per variant (seed, seed+1, ...)")
 @click.option("--variant", "variants", multiple=True, help="--robustness: only these variant(s); default: all")
 @click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
@@ -145,21 +151,20 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     nominal estimator.
     """
     if robustness:
-        from .robustness_table import run_and_print
+        from soilocp.commands.robustness_table import run_and_print
 
         return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
     if variants or seeds != 1 or markdown:
         raise click.UsageError("--variant, --seeds and --markdown need --robustness")
-    from ..accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
-    from ..evaluation import TARGETS
+    from soilocp.analysis.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
+    from soilocp.analysis.evaluation import TARGETS
 
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()
     results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs)
-    table = Table(title=f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})")
-    for col in ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
-                "conv. change", "OCP med err", "class acc", "statuses", "targets"):
-        table.add_column(col, justify="right")
+    table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})",
+                           ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
+                            "conv. change", "OCP med err", "class acc", "statuses", "targets"))
     for r in results:
         w = r.worst()
         verdict = ("met" if r.passes() else "missed") if r.mode == "excitation" else "n/a (cruise)"

@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import click
 
-from ..constants import ModelConstants, load_constants
+from soilocp.model.constants import ModelConstants, load_constants
 
 
 def _constants(path: str | None) -> ModelConstants:
@@ -67,7 +66,7 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
     from rich.markup import escape
     from rich.table import Table
 
-    from ..ocp import ocp_from_soil_strength
+    from soilocp.model.ocp import ocp_from_soil_strength
 
     for k in soil_strength:
         if not (math.isfinite(k) and k > 0):
@@ -111,7 +110,7 @@ def ocp(soil_strength: tuple[float, ...], table: bool, constants_file: str | Non
 @click.option("--soil", "soils", multiple=True, help="Soil of the constants to draw (repeat); default: sand, gravel, EST, grass.")
 def curves(out_dir: str, constants_file: str | None, soils: tuple[str, ...]) -> None:
     """Write the paper's Figs. 3 (traction-slip), 4 (tractive efficiency) and 5 (OCPs vs K) as PNGs."""
-    from ..curves import write_figures
+    from soilocp.analysis.curves import write_figures
 
     c = _constants(constants_file)
     try:
@@ -147,8 +146,8 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     from rich.markup import escape
     from rich.table import Table
 
-    from ..calibration import fit_constants, read_testbed_csv
-    from ..constants import save_constants
+    from soilocp.analysis.calibration import fit_constants, read_testbed_csv
+    from soilocp.model.constants import save_constants
 
     initial = _constants(initial_file)
     anchor_kv = _soil_k(anchor, "'--anchor'") if anchor else None

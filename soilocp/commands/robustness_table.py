@@ -31,8 +31,8 @@ def _cells(r, shown) -> list[str]:
 
 
 def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out, markdown: bool = False) -> None:
-    from ..robustness import ROBUSTNESS_TARGETS, SHOWN_STATUSES, rows_json, run_robustness, summarize
-    from ..variants import list_variants
+    from soilocp.analysis.robustness import ROBUSTNESS_TARGETS, SHOWN_STATUSES, rows_json, run_robustness, summarize
+    from soilocp.sim.variants import list_variants
 
     if seeds < 1:
         raise click.UsageError(f"--seeds must be >= 1, got {seeds}")

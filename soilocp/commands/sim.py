@@ -9,10 +9,10 @@ from pathlib import Path
 
 import click
 
-from ..constants import load_constants
-from ..scenarios import MODES, SweepParams, get_scenario, list_scenarios
-from ..sensor_models import SensorNoise
-from ..vehicle import load_vehicle
+from soilocp.model.constants import load_constants
+from soilocp.sim.scenarios import MODES, SweepParams, get_scenario, list_scenarios
+from soilocp.sim.sensor_models import SensorNoise
+from soilocp.model.vehicle import load_vehicle
 
 
 def _print_scenarios() -> None:
@@ -53,7 +53,7 @@ def simulate(
     sweep_min, sweep_max, sweep_period, sweep_dwell, vehicle_id, noiseless, out_path, truth_path,
 ):  # fmt: skip
     """Drive the simulated rover over a scenario; write the sensor log (and the ground truth)."""
-    from ..simulator import simulate as run_simulation
+    from soilocp.sim.simulator import simulate as run_simulation
 
     if list_only:
         _print_scenarios()

@@ -5,9 +5,9 @@ with their safe fallback, :mod:`.controllers` the five named controllers, :mod:`
 closed-loop test scenarios on the simulator and :mod:`.compare` the comparison.
 """
 
-from .controllers import CONTROLLER_NAMES, ControlStep, SlipController, make_controller, make_policy
-from .loop import DEFAULT_GAINS, LoopGains, LoopOutput, WheelTorqueLoop
-from .setpoints import USABLE_STATUSES, FixedSetPoint, OcpSetPoint, SetPoint, fallback_slip
+from soilocp.control.controllers import CONTROLLER_NAMES, ControlStep, SlipController, make_controller, make_policy
+from soilocp.control.loop import DEFAULT_GAINS, LoopGains, LoopOutput, WheelTorqueLoop
+from soilocp.control.setpoints import USABLE_STATUSES, FixedSetPoint, OcpSetPoint, SetPoint, fallback_slip
 
 __all__ = [
     "CONTROLLER_NAMES", "ControlStep", "SlipController", "make_controller", "make_policy",

@@ -18,10 +18,10 @@ import math
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
-from .controllers import CONTROLLER_NAMES
-from .loop import DEFAULT_GAINS
-from .rig import RIG_SCENARIOS, Trace, get_rig_scenario, run_closed_loop
-from .setpoints import fallback_slip
+from soilocp.control.controllers import CONTROLLER_NAMES
+from soilocp.control.loop import DEFAULT_GAINS
+from soilocp.control.rig import RIG_SCENARIOS, Trace, get_rig_scenario, run_closed_loop
+from soilocp.control.setpoints import fallback_slip
 
 METRICS = ("drawbar_pull_n", "energy_per_m_j", "max_grade_deg", "distance_m")
 

@@ -21,10 +21,10 @@ from typing import Callable, Optional
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from ..constants import DEFAULT_CONSTANTS, ModelConstants
-from ..vehicle import DEFAULT_VEHICLE, VehicleParams
-from .loop import DEFAULT_GAINS, LoopGains, LoopOutput, WheelTorqueLoop
-from .setpoints import FixedSetPoint, OcpSetPoint, SetPoint
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.control.loop import DEFAULT_GAINS, LoopGains, LoopOutput, WheelTorqueLoop
+from soilocp.control.setpoints import FixedSetPoint, OcpSetPoint, SetPoint
 
 CONTROLLER_NAMES: tuple[str, ...] = ("speed", "fixed_0.15", "fixed_0.20", "ocp_traction", "ocp_efficiency")
 

@@ -5,7 +5,7 @@ Each wheel has two PI channels that both produce a motor torque:
 * **speed**: tracks the rim speed ``omega R_w`` to the commanded vehicle speed (the simulator's
   cruise mode, here at the sensor rate with the torque held over each interval);
 * **slip**: tracks the slip set-point ``S*`` with eq. 1's slip measured from the same sample
-  (:func:`soilocp.slip.slip_ratio_unchecked`, ground speed at the wheel V - psi_dot y_i).
+  (:func:`soilocp.model.slip.slip_ratio_unchecked`, ground speed at the wheel V - psi_dot y_i).
 
 The applied torque is ``min(speed, slip)`` (a limiter: the slip loop only takes over when the
 speed loop would drive the wheel past ``S*``), saturated at +-``torque_limit``.  Both
@@ -33,9 +33,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..normal_force import STANDARD_GRAVITY
-from ..slip import DEFAULT_FLOOR, slip_ratio_unchecked
-from ..vehicle import DEFAULT_VEHICLE, VehicleParams
+from soilocp.model.normal_force import STANDARD_GRAVITY
+from soilocp.model.slip import DEFAULT_FLOOR, slip_ratio_unchecked
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Closed-loop test scenarios on the simulator, with the whole estimation chain in the loop.
 
-Each sample goes sensor -> :class:`soilocp.pipeline.VehiclePipeline` (normal forces, observer,
+Each sample goes sensor -> :class:`soilocp.estimation.pipeline.VehiclePipeline` (normal forces, observer,
 slip + K, OCPs) -> controller -> wheel torques held over the next interval
 (``simulate(..., wheel_torque_command=...)``).  The controller sees only the sample and the
 pipeline's estimate; the truth is used only to score the run.
@@ -33,13 +33,13 @@ import numpy as np
 from schemas.pipeline import OcpEstimate
 from schemas.sensor import SensorSample
 
-from ..constants import REFERENCE_SOILS
-from ..normal_force import STANDARD_GRAVITY
-from ..pipeline import PipelineConfig, VehiclePipeline
-from ..scenarios import Scenario, Segment
-from ..simulator import _smoothstep, simulate
-from ..vehicle import DEFAULT_VEHICLE
-from .controllers import SlipController, make_controller
+from soilocp.model.constants import REFERENCE_SOILS
+from soilocp.model.normal_force import STANDARD_GRAVITY
+from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.sim.scenarios import Scenario, Segment
+from soilocp.sim.simulator import _smoothstep, simulate
+from soilocp.model.vehicle import DEFAULT_VEHICLE
+from soilocp.control.controllers import SlipController, make_controller
 
 DRAWBAR_SOILS = ("sand", "gravel", "grass", "firm")
 STALL_SPEED = 0.1  #: m/s: below this for STALL_TIME the rover has stalled (or spun out)

@@ -27,8 +27,8 @@ from typing import Literal, Optional
 
 from schemas.pipeline import OcpEstimate
 
-from ..constants import DEFAULT_CONSTANTS, ModelConstants
-from ..ocp import ocp_from_soil_strength
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.ocp import ocp_from_soil_strength
 
 #: Estimate statuses a set-point may be taken from (see the module docstring).
 USABLE_STATUSES = frozenset({"ok", "uncertain", "holding"})

@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 from typing import IO, Optional
 
-from ..estimate import EstimateSummary, estimate_lines
-from ..ingest.align import Provenance, withhold
-from ..pipeline import PipelineConfig
+from soilocp.estimation.estimate import EstimateSummary, estimate_lines
+from soilocp.ingest.align import Provenance, withhold
+from soilocp.estimation.pipeline import PipelineConfig
 
 
 def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
@@ -29,7 +29,7 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
 
     mcap = str(out).endswith(".mcap")
     if mcap:
-        from .mcap_out import EstimateMcapWriter
+        from soilocp.export.mcap_out import EstimateMcapWriter
 
         sink = EstimateMcapWriter(out)
         put = sink.write

@@ -9,8 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-from .align import Provenance, read_provenance, withhold  # noqa: F401
-from .mapfile import TopicMap, load_map  # noqa: F401
+from soilocp.ingest.align import Provenance, read_provenance, withhold  # noqa: F401
+from soilocp.ingest.mapfile import TopicMap, load_map  # noqa: F401
 
 
 def import_source(bag: Optional[str | Path], csv_files: Optional[dict[str, str]], tmap: TopicMap, out: str | Path, *,
@@ -19,9 +19,9 @@ def import_source(bag: Optional[str | Path], csv_files: Optional[dict[str, str]]
     if (bag is None) == (not csv_files):
         raise ValueError("give a bag or --csv ROLE=FILE files, not both and not neither")
     if bag is not None:
-        from .rosbag_import import import_bag
+        from soilocp.ingest.rosbag_import import import_bag
 
         return import_bag(bag, tmap, out, strict=strict, progress=progress)
-    from .csv_import import import_csv
+    from soilocp.ingest.csv_import import import_csv
 
     return import_csv(csv_files, tmap, out)

@@ -231,6 +231,24 @@ def write_samples(samples, out: str | Path) -> int:
     return n
 
 
+def align_and_write(streams: list[Stream], tmap, prov: Provenance, out: str | Path, dropped: dict,
+                    error: type[Exception]) -> Provenance:
+    """Align ``streams`` on the map's clock (``tmap.rate_hz``), write the samples to ``out`` and
+    the provenance beside it, with the counts of skipped ticks and dropped messages.  An alignment
+    that cannot be done raises ``error`` (the importer's own error type)."""
+    try:
+        al = align(streams, tmap.rate_hz)
+    except ValueError as exc:
+        raise error(str(exc)) from None
+    skipped = Counter(al.skipped)
+    prov.samples = write_samples(samples_from_aligned(al, tmap.vehicle_id, skipped), out)
+    prov.ticks = al.ticks
+    prov.skipped = dict(skipped)
+    prov.dropped_messages = dict(dropped)
+    prov.write(out)
+    return prov
+
+
 WITHHELD_FIELDS = ("soil_strength", "soil_strength_std", "soil_class", "soil_class_confidence", "mu_T", "S_T", "S_E",
                    "te_at_S_E")
 

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
-                    write_samples)
-from .mapfile import TopicMap
+from soilocp.ingest.align import (NS, Provenance, Stream, align_and_write, complementary_tilt, in_time_order,
+                                  order_reason)
+from soilocp.ingest.mapfile import TopicMap
 
 
 class CsvImportError(ValueError):
@@ -130,14 +130,5 @@ def import_csv(files: dict[str, str | Path], tmap: TopicMap, out: str | Path) ->
         st, a = _read_columns(Path(files["ground_speed"]), g.time, [g.column], dropped)
         streams.append(Stream(f"ground_speed ({Path(files['ground_speed']).name})", st, {"ground_speed": a[:, 0]}, g.max_age))
 
-    try:
-        al = align(streams, tmap.rate_hz)
-    except ValueError as exc:
-        raise CsvImportError(str(exc)) from None
-    skipped = Counter(al.skipped)
-    prov.samples = write_samples(samples_from_aligned(al, tmap.vehicle_id, skipped), out)
-    prov.ticks = al.ticks
-    prov.skipped = dict(skipped)
-    prov.dropped_messages = dict(dropped)
-    prov.write(out)
+    align_and_write(streams, tmap, prov, out, dropped, CsvImportError)
     return prov, [f"{k} ({n} row{'s' if n != 1 else ''} dropped)" for k, n in sorted(dropped.items())]

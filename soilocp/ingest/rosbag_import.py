@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .align import (NS, Provenance, Stream, align, complementary_tilt, in_time_order, order_reason, samples_from_aligned,
-                    write_samples)
-from .mapfile import TopicMap
+from soilocp.ingest.align import (NS, Provenance, Stream, align_and_write, complementary_tilt, in_time_order,
+                                  order_reason)
+from soilocp.ingest.mapfile import TopicMap
 
 EXPECTED_TYPES = {
     "imu": ("sensor_msgs/msg/Imu",),
@@ -297,15 +297,7 @@ def import_bag(path: str | Path, tmap: TopicMap, out: str | Path, *, strict: boo
         streams, prov = _streams(readers, tmap)
     except BagImportError as exc:  # e.g. every message of a topic dropped: say why
         raise BagImportError("; ".join([str(exc), *issues.lines()])) from None
-    try:
-        al = align(streams, tmap.rate_hz)
-    except ValueError as exc:
-        raise BagImportError(str(exc)) from None
-    skipped = Counter(al.skipped)
-    prov.samples = write_samples(samples_from_aligned(al, tmap.vehicle_id, skipped), out)
     prov.source = f"rosbag2 {Path(path).name}"
-    prov.ticks = al.ticks
-    prov.skipped = dict(skipped)
-    prov.dropped_messages = {f"{t}: {f}: {r}": n for (t, f, r), n in issues.counts.items()}
-    prov.write(out)
+    dropped = {f"{t}: {f}: {r}": n for (t, f, r), n in issues.counts.items()}
+    align_and_write(streams, tmap, prov, out, dropped, BagImportError)
     return prov, issues.lines()

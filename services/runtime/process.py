@@ -1,0 +1,104 @@
+"""What a long-running process needs around its Zenoh session: stop on SIGINT/SIGTERM (also as
+PID 1 in a container), stop when the supervising parent is gone, and a session that waits for
+its router."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from typing import Any, Optional
+
+from services.runtime.config import ENV_EXIT_WITH_PARENT, zenoh_config
+from services.runtime.log import JsonLog
+
+def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, *, grace_s: float = 1.8) -> None:
+    """SIGINT/SIGTERM set ``stop``; a second signal, or a shutdown hanging past ``grace_s``, exits at once.
+
+    SIGTERM is handled explicitly: as PID 1 in a container the default action is ignored.
+    """
+
+    def _force_exit_later() -> None:
+        time.sleep(grace_s)
+        if log:
+            log.error("forced_exit", reason=f"shutdown took longer than {grace_s} s")
+        os._exit(0)
+
+    def _handler(signum, _frame) -> None:
+        if stop.is_set():
+            os._exit(130 if signum == signal.SIGINT else 143)
+        if log:
+            log.info("signal", signal=signal.Signals(signum).name)
+        stop.set()
+        threading.Thread(target=_force_exit_later, name="shutdown-watchdog", daemon=True).start()
+
+    signal.signal(signal.SIGINT, _handler)
+    signal.signal(signal.SIGTERM, _handler)
+
+
+def watch_parent(stop: threading.Event, log: Optional[JsonLog] = None, *, period_s: float = 0.5) -> None:
+    """If ``$SOILOCP_EXIT_WITH_PARENT`` is 1, set ``stop`` once the parent process is gone
+    (the process is re-parented), so that children of a killed ``soilocp run`` never linger."""
+    if os.environ.get(ENV_EXIT_WITH_PARENT) != "1":
+        return
+    parent = os.getppid()
+
+    def _watch() -> None:
+        while not stop.wait(period_s):
+            if os.getppid() != parent:
+                if log:
+                    log.warning("parent_gone", parent_pid=parent)
+                stop.set()
+                time.sleep(1.8)  # same grace as a signal, then go
+                os._exit(0)
+
+    threading.Thread(target=_watch, name="parent-watch", daemon=True).start()
+
+
+def undeclare_all(entities: list[Any]) -> None:
+    """Undeclare Zenoh entities (subscribers, publishers, queryables, tokens) newest first, and
+    forget them; one already gone with its session is not an error."""
+    for entity in reversed(entities):
+        try:
+            entity.undeclare()
+        except Exception:  # already gone with the session: nothing left to release
+            pass
+    entities.clear()
+
+
+def open_session(
+    mode: str,
+    connect: list[str],
+    listen: list[str],
+    *,
+    multicast: bool,
+    stop: threading.Event,
+    log: JsonLog,
+    retry_s: float = 1.0,
+):
+    """Open a Zenoh session; in client mode, retry until a router answers or ``stop`` is set.
+
+    Each attempt waits ``retry_s`` for the router (``connect/timeout_ms``), so a service started
+    before its router waits for it and still reacts to SIGTERM within ~``retry_s``.  Returns None
+    if stopped before connecting.
+    """
+    import zenoh
+
+    attempt = 0
+    while not stop.is_set():
+        attempt += 1
+        timeout_ms = int(retry_s * 1000) if mode == "client" else None
+        conf = zenoh_config(mode, connect, listen, multicast=multicast, connect_timeout_ms=timeout_ms)
+        try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            if mode != "client":
+                raise
+            if attempt == 1 or attempt % 10 == 0:
+                log.warning("waiting_for_router", connect=connect, attempt=attempt, error=str(exc)[:200])
+            stop.wait(0.1)
+            continue
+        log.info("session_open", mode=mode, connect=connect, listen=listen, zid=str(session.zid()), attempts=attempt)
+        return session
+    return None

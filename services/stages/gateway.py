@@ -1,0 +1,120 @@
+"""Sensor gateway: validates raw samples, publishes clean ones, rejects the rest with a reason.
+
+Input ``soilocp/<vid>/sensors/raw``; output ``soilocp/<vid>/sensors/clean`` (SensorSample JSON)
+and ``soilocp/<vid>/rejected`` (Rejection JSON).  The checks are the library's
+(:func:`soilocp.estimation.validation.parse_sample`, :class:`soilocp.estimation.validation.SampleValidator`), the same
+that ``soilocp estimate`` applies offline, plus two transport checks: payload size and key.
+Nothing a sender puts on the raw key can crash it: every failure becomes a Rejection.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Optional, Union
+
+from schemas import keys
+from schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
+from schemas.sensor import SensorSample
+from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
+
+from services.runtime.worker import WorkItem
+from services.stages.graph import BY_NAME
+from services.stages.stage_service import StageService
+
+
+def _peek(payload: bytes, name: str) -> Any:
+    """Best-effort read of one top-level field of a rejected payload (for the Rejection)."""
+    import json
+
+    try:
+        obj = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    return obj.get(name) if isinstance(obj, dict) else None
+
+
+class RawSampleChecker:
+    """The gateway's decision for one vehicle, without any transport: sample or Rejection."""
+
+    def __init__(self, vehicle_id: str, *, max_payload_bytes: int = 65536):
+        self.vehicle_id = keys.check_vehicle_id(vehicle_id)
+        self.raw_key = keys.raw(vehicle_id)
+        self.max_payload_bytes = int(max_payload_bytes)
+        self.validator = SampleValidator()
+
+    def check(self, payload: bytes, key: Optional[str] = None, received_at: Optional[float] = None
+              ) -> Union[SensorSample, Rejection]:
+        key = self.raw_key if key is None else key
+        received_at = time.time() if received_at is None else received_at
+        try:
+            if key != self.raw_key:
+                raise SampleRejected("bad_key", f"key: sample arrived on {key!r}, expected exactly {self.raw_key!r}")
+            if len(payload) > self.max_payload_bytes:
+                raise SampleRejected(
+                    "too_large", f"payload: {len(payload)} bytes exceeds the limit of {self.max_payload_bytes} bytes"
+                )
+            sample = parse_sample(payload, expected_vehicle_id=self.vehicle_id)
+            self.validator.check(sample)  # updates the ordering state only when accepted
+            return sample
+        except SampleRejected as rej:
+            return self._rejection(rej.code, rej.message, rej.seq, payload, key, received_at)
+        except (ValueError, TypeError, OverflowError) as exc:
+            # what the parser itself refuses beyond JSON syntax, e.g. an integer of 5000 digits
+            return self._rejection("malformed_json", f"payload: cannot be parsed: {exc}"[:300], None, payload, key,
+                                   received_at)
+
+    def _rejection(self, code: str, message: str, seq, payload: bytes, key: str, received_at: float) -> Rejection:
+        if seq is None and len(payload) <= self.max_payload_bytes:
+            s = _peek(payload, "seq")
+            seq = s if isinstance(s, int) and not isinstance(s, bool) and s >= 0 else None
+        stamp = _peek(payload, "stamp") if len(payload) <= self.max_payload_bytes else None
+        stamp = float(stamp) if isinstance(stamp, (int, float)) and not isinstance(stamp, bool) else None
+        if stamp is not None and not (stamp == stamp and abs(stamp) < float("inf")):
+            stamp = None
+        field = message.split(":", 1)[0] if ":" in message else None
+        if field is not None and (" " in field or len(field) > 80):
+            field = None
+        text = payload[: REJECTION_PAYLOAD_MAX * 4].decode("utf-8", errors="replace")[:REJECTION_PAYLOAD_MAX]
+        return Rejection(
+            vehicle_id=self.vehicle_id,
+            seq=seq,
+            stamp=stamp,
+            code=code,
+            field=field,
+            message=message[:1000],
+            payload=text,
+            payload_size=len(payload),
+            key=key[:300],
+            received_at=received_at,
+        )
+
+
+class GatewayService(StageService):
+    """The gateway row: raw bytes are checked here (no model parses them first); a rejection goes
+    to ``soilocp/<vid>/rejected`` with its reason."""
+
+    spec = BY_NAME["gateway"]
+
+    def __init__(self, cfg, log):
+        super().__init__(cfg, log)
+        self.checkers = {vid: RawSampleChecker(vid, max_payload_bytes=cfg.max_payload_bytes) for vid in cfg.vehicle_ids}
+        self.pub_rejected: dict[str, Any] = {}
+
+    def declare(self, session, vehicle_id: str) -> None:
+        self.pub_rejected[vehicle_id] = self.publisher(session, keys.rejected(vehicle_id))
+        super().declare(session, vehicle_id)
+
+    def handle(self, item: WorkItem) -> None:
+        vid = item.vehicle_id
+        c = self.counters[vid]
+        c.last_input_wall = item.wall
+        result = self.checkers[vid].check(item.payload, item.key, item.wall)
+        if isinstance(result, Rejection):
+            c.rejected += 1
+            c.bump(f"rejected_{result.code}")
+            if c.rejected <= 50 or c.rejected % 100 == 0:  # a flood of garbage must not flood the log
+                self.log.warning("rejected", vehicle_id=vid, code=result.code, seq=result.seq,
+                                 message=result.message[:300], rejected_total=c.rejected)
+            self.pub_rejected[vid].put(result.model_dump_json())
+            return
+        self.emit(vid, result)

@@ -1,0 +1,19 @@
+"""Which class runs each row of the pipeline: the row's own subclass where it has more to do
+than step and publish, else the generic :class:`~services.stages.stage_service.StageService`."""
+
+from __future__ import annotations
+
+from services.stages.gateway import GatewayService
+from services.stages.graph import BY_NAME
+from services.stages.observer import ObserverService
+from services.stages.ocp import OcpService
+from services.stages.stage_service import StageService
+
+SPECIAL: dict[str, type[StageService]] = {cls.name: cls for cls in (GatewayService, ObserverService, OcpService)}
+
+
+def stage_service(name: str) -> type[StageService]:
+    """The service class of row ``name`` (KeyError for a name that is not a row)."""
+    if name in SPECIAL:
+        return SPECIAL[name]
+    return type(f"StageService[{name}]", (StageService,), {"spec": BY_NAME[name]})

@@ -1,0 +1,285 @@
+"""``soilocp run``: the whole system on one machine, as separate OS processes, with a live view.
+
+Starts ``soilocp router``, the five pipeline services and the source (synthetic vehicle or a log
+replay), each as ``python -m soilocp_cli ...`` with its own log file, watches the vehicle's keys
+from a client session of its own (OCPs, rejections, status, liveliness) and shows a live table
+(rich) on a terminal, or a plain line every few seconds without one.  Ctrl-C / SIGTERM stop
+everything: SIGTERM to each child in reverse order, wait, SIGKILL after a timeout.  The exit
+status is non-zero if any process died or failed to stop.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+from schemas import keys
+from services.stages.graph import BY_NAME, PIPELINE_SERVICES
+from schemas.messages import ServiceHealth
+
+from services.runtime.config import DEFAULT_ENDPOINT
+
+from services.runtime.log import JsonLog
+
+from services.runtime.process import open_session
+from services.supervisor.liveliness import wait_alive
+from services.supervisor.monitor import Monitor
+from services.supervisor.processes import STOP_TIMEOUT_S, Child, ProcessGroup
+from services.supervisor.table import live_table, plain_line, summary_tables
+
+DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
+DRAIN_MAX_S = 30.0
+
+
+@dataclass
+class RunOptions:
+    scenario: Optional[str] = None
+    replay: Optional[str] = None
+    speed: float = 1.0
+    vehicle_id: str = "rover1"
+    duration: Optional[float] = None
+    listen: Optional[list[str]] = None
+    pipeline_config: Optional[str] = None
+    stale_timeout: float = 0.5
+    seed: int = 0
+    log_dir: Optional[str] = None
+    plain: bool = False
+    startup_timeout_s: float = 90.0
+    control: Optional[str] = None  # closed loop: the controller service's policy, the vehicle follows it
+
+
+def client_endpoints(listen: list[str]) -> list[str]:
+    """Where local clients connect for a router listening on ``listen`` (0.0.0.0 / [::] -> loopback)."""
+    out = []
+    for ep in listen:
+        out.append(ep.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:"))
+    return out
+
+
+def run_system(opts: RunOptions) -> int:
+    """Run everything until the duration, the end of the source, a death or a signal; 0 if all went well."""
+    from rich.console import Console
+
+    import shutil
+
+    console = Console()
+    if not console.is_terminal:  # piped / CI: wide enough for the table, no colours or cursor tricks
+        console = Console(width=max(shutil.get_terminal_size((160, 24)).columns, 160), no_color=True)
+    listen = opts.listen or [DEFAULT_ENDPOINT]
+    connect = client_endpoints(listen)
+    log_dir = Path(opts.log_dir) if opts.log_dir else Path(tempfile.mkdtemp(prefix="soilocp-run-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    interactive = console.is_terminal and not opts.plain
+    stop = threading.Event()
+    interrupted = {"sig": None}
+
+    def _on_signal(signum, _frame):
+        interrupted["sig"] = signum
+        stop.set()
+
+    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    group = ProcessGroup(log_dir)
+    monitor = Monitor(opts.vehicle_id, opts.stale_timeout)
+    session = None
+    failures: list[str] = []
+    t_start = time.monotonic()
+    t_drive: Optional[float] = None
+    vehicle: Optional[Child] = None
+    console.print(f"soilocp run: logs in {log_dir}; router {', '.join(listen)}; vehicle {opts.vehicle_id}")
+    try:
+        common = ["--vehicle-id", opts.vehicle_id, "--log-level", "info"]
+        for ep in connect:
+            common += ["--connect", ep]
+        router_args = ["router"]
+        for ep in listen:
+            router_args += ["--listen", ep]
+        group.start("router", router_args)
+        for name in PIPELINE_SERVICES:
+            args = ["service", name, *common]
+            if name == "ocp":
+                args += ["--stale-timeout", str(opts.stale_timeout)]
+            if opts.pipeline_config and BY_NAME[name].stage is not None:  # the rows that run physics
+                args += ["--pipeline-config", opts.pipeline_config]
+            group.start(name, args)
+        want_alive = set(PIPELINE_SERVICES)
+        if opts.control:
+            group.start("controller", ["service", "controller", *common, "--control", opts.control,
+                                       "--stale-timeout", str(opts.stale_timeout)])
+            want_alive.add("controller")
+        session = _open_monitor_session(connect, group, stop, failures)
+        if session is not None:  # None: interrupted, or a process died while connecting
+            monitor.attach(session)
+            # wait until every pipeline service holds its token (or one dies)
+            missing = wait_alive(session, [opts.vehicle_id], want_alive, opts.startup_timeout_s, stop=stop,
+                                 dead=group.dead, interval=0.1)
+            dead = group.dead()
+            for c in group.children:
+                if c.name in dead:
+                    c.outcome = "died"
+                    failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
+            if missing and not dead and not stop.is_set():
+                failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
+                                + ",".join(sorted(s for _v, s in missing)))
+            if not failures and not stop.is_set():
+                vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
+                if opts.scenario:
+                    vargs += ["--scenario", opts.scenario, "--seed", str(opts.seed)]
+                    if opts.control:
+                        vargs += ["--control", opts.control, "--stale-timeout", str(opts.stale_timeout)]
+                else:
+                    vargs += ["--replay", str(opts.replay)]
+                if opts.duration is not None:
+                    vargs += ["--duration", str(opts.duration)]
+                vehicle = group.start("vehicle", vargs)
+                t_drive = time.monotonic()
+                console.print(f"soilocp run: all services alive after {t_drive - t_start:.1f} s; driving "
+                              + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"))
+                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
+    finally:
+        snap_running = monitor.snapshot()  # what the table showed last, before anything stops
+        if session is not None and not failures:
+            _final_health(session, group, vehicle, monitor, opts.vehicle_id)
+        group.stop_all()
+        for child in group.children:
+            if child.outcome in ("died", "killed"):
+                if not any(f.startswith(child.name + " ") for f in failures):
+                    failures.append(f"{child.name} {child.outcome} (exit {child.proc.returncode if child.proc else '-'})")
+        snap = monitor.snapshot()  # final counters: the services' "stopping" health reports
+        snap.update({k: snap_running[k] for k in ("est", "age", "stale", "rate", "alive")})
+        monitor.detach()
+        if session is not None:
+            session.close()
+        for s, h in old.items():
+            signal.signal(s, h)
+    elapsed = time.monotonic() - (t_drive or t_start)
+    for table in summary_tables(opts.vehicle_id, snap, group, elapsed, width=console.width):
+        console.print(table)
+    if snap["codes"]:
+        console.print("rejections by code: " + ", ".join(f"{k}={v}" for k, v in sorted(snap["codes"].items())))
+    console.print(f"OCP records received: {snap['count']}; logs in {log_dir}")
+    if failures:
+        for f in failures:
+            console.print(f"[red]FAILED[/red]: {f}")
+        for child in group.children:  # the last words of what died, so nobody has to dig for the log
+            if child.outcome in ("died", "killed") or (child.proc and child.proc.returncode not in (0, None)):
+                for line in _tail(child.log_path, 3):
+                    console.print(f"  {child.name}: {line}", markup=False, highlight=False)
+        return 1
+    if interrupted["sig"] is not None:
+        console.print("interrupted: everything stopped")
+        return 130 if interrupted["sig"] == signal.SIGINT else 143
+    return 0
+
+
+def _open_monitor_session(connect: list[str], group: ProcessGroup, stop: threading.Event, failures: list[str]):
+    """The run's own client session, opened on a thread so that a router that dies at startup
+    (port taken) or a Ctrl-C is noticed while the connection is still being attempted."""
+    box: dict[str, Any] = {}
+    give_up = threading.Event()
+
+    def _open() -> None:
+        box["session"] = open_session("client", connect, [], multicast=False, stop=give_up, log=JsonLog("run", "error"))
+        if give_up.is_set() and box["session"] is not None:
+            box["session"].close()
+            box["session"] = None
+
+    th = threading.Thread(target=_open, name="monitor-open", daemon=True)
+    th.start()
+    while th.is_alive():
+        dead = [c for c in group.children if c.poll() is not None]
+        if dead or stop.is_set():
+            for c in dead:
+                c.outcome = "died"
+                failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
+            give_up.set()
+            th.join(3.0)  # let a connection attempt in progress end (it is bounded) before we go on
+            return None
+        th.join(0.1)
+    return box.get("session")
+
+
+def _tail(path: Path, n: int) -> list[str]:
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return []
+    return [x[:300] for x in lines[-n:]]
+
+
+def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monitor: Monitor, vid: str) -> None:
+    """Stop the source first, let the pipeline drain, then ask every service for its counters,
+    so that the summary's counts are consistent with each other."""
+    if vehicle is not None and vehicle.proc is not None and vehicle.proc.poll() is None:
+        vehicle.stopping = True
+        vehicle.proc.send_signal(signal.SIGTERM)
+        try:
+            vehicle.proc.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            pass
+    time.sleep(0.5)
+    try:
+        for reply in session.get(keys.vehicle_status_all(vid), timeout=2.0):
+            if reply.ok is None:
+                continue
+            try:
+                h = ServiceHealth.model_validate_json(reply.ok.payload.to_bytes())
+            except ValueError:
+                continue
+            with monitor.lock:
+                monitor.health[h.service] = h
+    except Exception:  # the summary falls back to the last periodic reports
+        pass
+
+
+def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monitor, stop: threading.Event,
+           t_drive: float, console, interactive: bool) -> list[str]:
+    """The live loop; returns failures (processes that died)."""
+    from rich.live import Live
+
+    failures: list[str] = []
+    source_done_at: Optional[float] = None
+    next_plain = 0.0
+    live = Live(console=console, refresh_per_second=4, transient=False) if interactive else None
+    if live:
+        live.start()
+    try:
+        while not stop.wait(0.25):
+            now = time.monotonic()
+            elapsed = now - t_drive
+            for child in group.children:
+                rc = child.poll()
+                if rc is None or child.outcome != "running":
+                    continue
+                if child is vehicle and rc == 0:
+                    child.outcome = "done"
+                    source_done_at = now
+                else:
+                    child.outcome = "died"
+                    failures.append(f"{child.name} died (exit {rc}); see {child.log_path}")
+            snap = monitor.snapshot()
+            if live:
+                live.update(live_table(opts.vehicle_id, snap, elapsed, width=console.width))
+            elif now >= next_plain:
+                next_plain = now + 2.0
+                print(plain_line(opts.vehicle_id, snap, elapsed), flush=True)
+            if failures:
+                break
+            # the source stops itself after the duration; this is only the safety net (slow start)
+            if opts.duration is not None and elapsed >= opts.duration + 15.0:
+                break
+            if source_done_at is not None and now - source_done_at > 1.0:
+                # drained: the OCP stream has gone quiet (a loaded machine may lag the source by
+                # seconds), or a bound in case nothing comes out at all
+                quiet = snap["age"] is None or snap["age"] > DRAIN_QUIET_S
+                if quiet or now - source_done_at > DRAIN_MAX_S:
+                    break
+    finally:
+        if live:
+            live.stop()
+    return failures

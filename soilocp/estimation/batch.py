@@ -1,0 +1,64 @@
+"""Many vehicles at once: the estimation chain for N vehicles in one process.
+
+The batched service steps N vehicles through the same array kernels that the single-vehicle
+stages of :mod:`soilocp.estimation.pipeline` run with N = 1: the observer
+(:class:`soilocp.estimation.observer_bank.ObserverBank`), the slip and its gate (:class:`soilocp.estimation.pipeline.SlipGate`),
+the soil strength (:class:`soilocp.estimation.soil_strength.SoilBank`) and the OCPs
+(:func:`soilocp.model.ocp.ocp_arrays`), one numpy call per operation for the whole fleet.  Its records
+are built by the same message functions, so every field (statuses, reasons, classes, te_at_S_E)
+is the single path's (``tests/test_batch.py`` checks them all on real drives).
+
+Every step takes the indices of the vehicles that have a sample now (any subset, each at most
+once): vehicles are independent and need not be in step.  Only the default ``bayes`` soil method
+is batched.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from schemas.pipeline import OcpEstimate
+from schemas.sensor import SensorSample
+
+from soilocp.model.checks import check_count, check_index
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
+from soilocp.model.ocp import ocp_arrays
+from soilocp.estimation.pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
+from soilocp.estimation.soil_strength import SoilBank
+
+
+class BatchPipeline:
+    """Observer -> slip + soil strength -> OCPs for N vehicles (normal forces come from outside,
+    as in the services: the normal-force stage is cheap and per sample)."""
+
+    def __init__(self, config: PipelineConfig | None, n_vehicles: int):
+        self.config = cfg = config or PipelineConfig()
+        self.n_vehicles = check_count(n_vehicles)
+        if cfg.soil.method != "bayes":
+            raise ValueError(f"soil method {cfg.soil.method!r}: the batched pipeline implements 'bayes' only")
+        self.observer = ObserverBank(cfg.vehicle, cfg.observer, self.n_vehicles)
+        self.gate = SlipGate(cfg, self.n_vehicles)
+        self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
+
+    @staticmethod
+    def inputs_from_samples(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
+        """Stack ``SensorSample``s and their normal forces (each a 4-sequence) into the kernel's inputs."""
+        return observer_inputs(samples, normal_forces)
+
+    def step(self, idx, samples: Sequence[SensorSample], normal_forces: Sequence) -> list[OcpEstimate]:
+        """One sample per vehicle in ``idx`` (same order): the OCP record of each."""
+        ix = check_index(idx, self.n_vehicles)
+        inputs = observer_inputs(samples, normal_forces)
+        ob = self.observer.step(ix, inputs)
+        inp = self.gate.step(ix, inputs.stamp, ob)
+        states = self.soil.update(ix, inputs.stamp, inp.slip, inp.observed, inp.variance, inp.informative,
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable)
+        ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
+        ocp = ocp_arrays(ks, self.config.constants)
+        out = []
+        for j, (sample, st) in enumerate(zip(samples, states)):
+            soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
+            out.append(ocp_message(soil, ocp, j))
+        return out

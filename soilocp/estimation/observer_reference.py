@@ -1,0 +1,139 @@
+"""The filterpy reference of the traction observer, for one vehicle.
+
+The product's observer is the array kernel :mod:`soilocp.estimation.observer_bank` (N = 1 for one vehicle,
+N = many in the batched service).  This class runs the same model (:func:`soilocp.estimation.observer.model`),
+the same gating rule and the same conditioning (:func:`soilocp.estimation.observer_bank.condition`) on
+filterpy's ``KalmanFilter`` (its ``predict`` and its ``update`` on the kept rows), so that the
+tests can check the kernel's own predict / update against a well-kept implementation, step by
+step, on real drives (``tests/test_batch.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
+                       model, resistance_map, travel_direction)
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, outlier_variance, split_side_torque
+from soilocp.model.vehicle import VehicleParams
+
+
+@dataclass
+class ObserverEstimate:
+    """One vehicle's estimate: arrays (4,) per wheel."""
+
+    mu: np.ndarray
+    mu_var: np.ndarray
+    resistance: np.ndarray
+    gross: np.ndarray
+    gross_var: np.ndarray
+    wheel_speed: np.ndarray
+    ground_speed: float
+    yaw_rate: float
+    rejected: int
+    reset: bool
+
+
+class TractionObserver:
+    """One vehicle's traction observer on filterpy's KalmanFilter (the kernel's reference)."""
+
+    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None = None):
+        self.vehicle = vehicle
+        self.cfg = cfg = config or ObserverConfig()
+        self.layout = L = StateLayout.of(cfg.structure)
+        self._Qc = continuous_process_noise(L, cfg)
+        r_speed = cfg.r_wheel_speed**2 * (2.0 if vehicle.drive == "per_side" else 1.0)
+        self._R_diag = np.array([cfg.r_specific_force**2, cfg.r_yaw_rate**2, *([r_speed] * 4), cfg.r_ground_speed**2])
+        self._R = np.diag(self._R_diag)
+        self.kf = KalmanFilter(dim_x=L.n, dim_z=N_MEAS)
+        self._last_stamp: float | None = None
+        self._rejections = np.zeros(N_MEAS, dtype=int)
+        self._prev = np.full(5, np.nan)
+        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
+        self._lower, self._upper = L.bounds(cfg)
+        self.steps = 0
+
+    def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
+        L = self.layout
+        x = np.zeros(L.n)
+        x[L.omega] = wheel_speed
+        x[L.v] = ground_speed if not np.isnan(ground_speed) else float(np.mean(wheel_speed)) * self.vehicle.wheel_radius
+        x[L.psi] = yaw_rate
+        self.kf.x = np.clip(x, self._lower, self._upper)
+        self.kf.P = initial_covariance(L, self.cfg)
+        self._rejections[:] = 0
+
+    def _map(self) -> np.ndarray:
+        L, x, v = self.layout, self.kf.x, self.vehicle
+        rim = x[L.omega] * v.wheel_radius
+        ground = x[L.v] - x[L.psi] * self._wheel_y
+        slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
+        return resistance_map(L, slip, travel_direction(ground, self.cfg.travel_speed), self.cfg.bridge_slip)
+
+    def step(self, stamp: float, specific_force_x: float, yaw_rate: float, pitch: float,
+             wheel_speed, wheel_torque, ground_speed: float, normal_force) -> ObserverEstimate:
+        """One predict/update cycle (eq. 35, standard form) for a sample at ``stamp``."""
+        fz = np.maximum(np.asarray(normal_force, dtype=float), LIFT_OFF_FORCE)
+        torque = np.asarray(wheel_torque, dtype=float)
+        if self.vehicle.drive == "per_side":
+            torque = split_side_torque(torque[None], fz[None])[0]
+        omega = np.asarray(wheel_speed, dtype=float)
+        ground_speed = float("nan") if ground_speed is None else float(ground_speed)
+        dt = None if self._last_stamp is None else stamp - self._last_stamp
+        reset = dt is None or dt < 0 or dt > self.cfg.max_gap
+        speeds = np.array([*omega, ground_speed])
+        fresh = fresh_readings(self._prev[None], speeds[None], np.array([dt is None or dt < 0]))[0]
+        self._prev = speeds
+        if reset:
+            self._initialise(omega, ground_speed, yaw_rate)
+        A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
+                                       self._map()[None], self.cfg.gravity))
+        if not reset and dt > 0:  # a repeated stamp (dt == 0) is a second measurement of the same instant
+            F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
+            self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
+        self._last_stamp = stamp
+        z = np.array([specific_force_x, yaw_rate, *omega, np.nan_to_num(ground_speed)])
+        rejected = 0
+        if not reset:
+            innov = z - H @ self.kf.x
+            hph = np.einsum("ij,jk,ik->i", H, self.kf.P, H)
+            keep = (innov**2 <= (self.cfg.gate_sigma**2) * (hph + self._R_diag)) | (self._rejections >= self.cfg.gate_patience)
+            available = np.ones(N_MEAS, dtype=bool)
+            available[2:7] = fresh  # held wheel / ground speeds are no new measurement
+            available[6] &= not np.isnan(ground_speed)
+            self._rejections = np.where(available, np.where(keep, 0, self._rejections + 1), self._rejections)
+            keep &= available
+            rejected = int(np.count_nonzero(available & ~keep))
+            idx = np.flatnonzero(available)
+            r = outlier_variance(innov, hph, self._R_diag, self.cfg.gate_sigma, keep)
+            self.kf.update(z[idx], R=np.diag(r[idx]), H=H[idx])
+            x, P = condition(self.kf.x[None], self.kf.P[None], self._lower, self._upper,
+                             self.cfg.variance_floor, self.cfg.variance_ceiling)
+            self.kf.x, self.kf.P = x[0], P[0]
+        self.steps += 1
+        return self.estimate(rejected, reset)
+
+    def estimate(self, rejected: int = 0, reset: bool = False) -> ObserverEstimate:
+        L = self.layout
+        x, P = self.kf.x, self.kf.P
+        M = self._map()
+        res = M @ x[L.res] if L.n_res else np.zeros(4)
+        J = np.zeros((4, L.n))
+        J[:, L.mu] = np.eye(4)
+        if L.n_res:
+            J[:, L.res] = M
+        return ObserverEstimate(
+            mu=x[L.mu].copy(),
+            mu_var=np.diag(P)[L.mu].copy(),
+            resistance=res,
+            gross=x[L.mu] + res,
+            gross_var=np.maximum(np.einsum("ij,jk,ik->i", J, P, J), self.cfg.variance_floor),
+            wheel_speed=x[L.omega].copy(),
+            ground_speed=float(x[L.v]),
+            yaw_rate=float(x[L.psi]),
+            rejected=rejected,
+            reset=reset,
+        )

@@ -1,0 +1,313 @@
+"""The estimation chain as stages: normal forces -> observer -> slip + soil strength -> OCPs.
+
+Each stage is a small deterministic object with a ``step`` method that takes and returns the
+message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
+process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
+messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
+(:mod:`soilocp.estimation.observer_bank`, :class:`SlipGate`, :class:`soilocp.estimation.soil_strength.SoilBank`,
+:func:`soilocp.model.ocp.ocp_arrays`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same
+kernels with N = many.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
+from schemas.sensor import SensorSample
+
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
+from soilocp.model.files import read_json
+from soilocp.model.normal_force import NormalForceSolver
+from soilocp.estimation.observer import ObserverConfig
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from soilocp.model.ocp import ocp_arrays
+from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank, SoilConfig, SoilState
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
+
+__all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
+
+
+class PipelineConfig(BaseModel):
+    """Everything the estimation chain needs: vehicle, model constants, observer and soil settings."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    vehicle: VehicleParams = DEFAULT_VEHICLE
+    constants: ModelConstants = DEFAULT_CONSTANTS
+    observer: ObserverConfig = Field(default_factory=ObserverConfig)
+    soil: SoilConfig = Field(default_factory=SoilConfig)
+    slip_deadband: float = Field(DEFAULT_DEADBAND, ge=0, description="m/s below which slip is not informative (eq. 1)")
+    slip_floor: float = Field(DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s")
+
+
+def load_pipeline_config(
+    path: str | Path | None = None,
+    *,
+    vehicle: str | Path | None = None,
+    constants: str | Path | None = None,
+) -> PipelineConfig:
+    """Read a pipeline config (JSON, shape of PipelineConfig; every key optional) and apply
+    separate vehicle / constants files on top.  Errors name the file and the field."""
+    data: dict = {}
+    if path is not None:
+        p = Path(path)
+        data = read_json(p, "config file")
+        if not isinstance(data, dict):
+            raise ValueError(f"config file {str(p)!r} must hold a JSON object")
+    try:
+        cfg = PipelineConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"config {str(path)!r}: {exc}") from exc
+    update = {}
+    if vehicle is not None:
+        update["vehicle"] = load_vehicle(vehicle)
+    if constants is not None:
+        update["constants"] = load_constants(constants)
+    return cfg.model_copy(update=update) if update else cfg
+
+
+def _quad(a) -> tuple[float, float, float, float]:
+    return tuple(np.asarray(a, dtype=float).tolist())  # type: ignore[return-value]
+
+
+class NormalForceStage:
+    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, docs/method.md §2-3)."""
+
+    def __init__(self, config: PipelineConfig):
+        self.vehicle = config.vehicle
+        self._solve = NormalForceSolver(config.vehicle)
+
+    def step(self, sample: SensorSample) -> NormalForces:
+        fz = self._solve(sample.specific_force)
+        return NormalForces(
+            vehicle_id=sample.vehicle_id,
+            seq=sample.seq,
+            stamp=sample.stamp,
+            normal_force=_quad(fz),
+        )
+
+
+_ZERO = np.zeros(1, dtype=int)
+
+
+def _bools(a) -> tuple[bool, bool, bool, bool]:
+    return tuple(np.asarray(a, dtype=bool).tolist())  # type: ignore[return-value]
+
+
+def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
+    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's inputs."""
+    if len(samples) != len(normal_forces):
+        raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
+    # one array for the scalars and one per quad: a handful of numpy calls whatever k is
+    sc = np.array([(s.stamp, s.specific_force[0], s.yaw_rate, s.pitch, np.nan if s.ground_speed is None
+                    else s.ground_speed) for s in samples], dtype=float).reshape(-1, 5).T
+    return ObserverInputs(
+        stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
+        wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
+        wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
+        normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
+    )
+
+
+_OB_QUADS = ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age",
+             "torque_age")
+
+
+def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
+    """The j-th vehicle of a kernel output as the ObserverOutput message."""
+    q = dict(zip(_OB_QUADS, np.stack([getattr(out, n)[j] for n in _OB_QUADS]).tolist()))
+    return ObserverOutput(
+        vehicle_id=vehicle_id, seq=seq, stamp=stamp, mu_determined=_bools(out.mu_determined[j]),
+        ground_speed=float(out.ground_speed[j]), yaw_rate=float(out.yaw_rate[j]),
+        rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
+        ground_speed_age=float(out.ground_speed_age[j]), ground_speed_measured=bool(out.ground_speed_measured[j]),
+        **q,
+    )
+
+
+def observer_output(obs: ObserverOutput) -> ObserverBankOutput:
+    """An ObserverOutput message as the kernel's output for one vehicle (k = 1): the soil stage's input."""
+    q = np.array([getattr(obs, n) for n in _OB_QUADS], dtype=float)[:, None, :]  # (9, 1, 4): views per field
+    f = dict(zip(_OB_QUADS, q))
+    sc = np.array([[obs.ground_speed, obs.yaw_rate, obs.ground_speed_age]], dtype=float).T
+    return ObserverBankOutput(
+        mu_determined=np.array([obs.mu_determined]), ground_speed=sc[0], yaw_rate=sc[1], ground_speed_age=sc[2],
+        rejected=np.array([obs.rejected_measurements]), reset=np.array([obs.reset]), reset_reason=[obs.reset_reason],
+        ground_speed_measured=np.array([obs.ground_speed_measured]), **f,
+    )
+
+
+class ObserverStage:
+    """Per-wheel traction observer (eqs. 26-35; state chosen observable, §7; §11-12 resistance and
+    bounds): the kernel :class:`soilocp.estimation.observer_bank.ObserverBank` with N = 1."""
+
+    def __init__(self, config: PipelineConfig):
+        self.bank = ObserverBank(config.vehicle, config.observer, 1)
+
+    def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
+        if forces.seq != sample.seq or forces.vehicle_id != sample.vehicle_id:
+            raise ValueError(
+                f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
+            )
+        out = self.bank.step(None, observer_inputs([sample], [forces.normal_force]))  # N = 1: every vehicle
+        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+
+
+@dataclass
+class SoilInputs:
+    """What the soil kernel takes for k vehicles, from the observer's outputs: arrays (k, 4)."""
+
+    slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i
+    informative: np.ndarray
+    observed: np.ndarray
+    variance: np.ndarray
+    slip_sigma: np.ndarray
+    gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
+    gate_sigma: np.ndarray
+    held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
+    identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
+
+
+class SlipGate:
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10) from the filtered
+    speeds, its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
+    gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
+    docs/method.md §9), for N vehicles."""
+
+    def __init__(self, config: PipelineConfig, n_vehicles: int):
+        self.cfg = config
+        self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
+        self._lp = np.zeros((n_vehicles, 4))
+        self._lp_stamp = np.full(n_vehicles, np.nan)
+        # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
+        self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
+
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
+        cfg = self.cfg
+        r = cfg.vehicle.wheel_radius
+        v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
+        rim = ob.wheel_speed * r
+        scale = np.maximum(np.abs(rim), np.abs(v_wheel))
+        slip = (rim - v_wheel) / np.maximum(scale, cfg.slip_floor)  # eq. 1, floored
+        informative = (scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+        if cfg.soil.measurement == "gross":
+            observed, var = ob.gross, ob.gross_var * self._shared
+        else:
+            observed, var = ob.mu, ob.mu_var * self._shared
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
+        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
+        tau = cfg.soil.gate_smoothing
+        last = self._lp_stamp[ix]
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
+        if tau > 0:
+            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
+        else:
+            alpha = np.ones(ix.size)
+            restart[:] = True
+        prev = self._lp[ix]
+        lp = np.where(restart[:, None], slip, prev + alpha[:, None] * (slip - prev))
+        self._lp[ix] = lp
+        self._lp_stamp[ix] = stamp
+        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
+        held = ((ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+                | (ob.ground_speed_age > cfg.soil.max_input_age)[:, None])
+        measured = ob.ground_speed_measured
+        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
+        # samples repeat one measurement: K learns from the samples that bring a new one
+        fresh = ob.speed_age <= cfg.soil.fresh_age
+        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        return SoilInputs(slip, informative & measured[:, None] & fresh & loaded, observed, var, s_sig, lp, g_sig, held,
+                          measured)
+
+
+def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
+                 j: int) -> SoilEstimate:
+    return SoilEstimate(
+        vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
+        soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
+        soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
+        reason=st.reason, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
+    )
+
+
+class SoilStage:
+    """Slip per wheel (eq. 1) and soil strength K (eqs. 36-37 corrected: a grid Bayes filter over
+    ln K on gross traction, docs/method.md §4, §9, §11-12): :class:`SlipGate` and
+    :class:`soilocp.estimation.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
+
+    def __init__(self, config: PipelineConfig):
+        self.cfg = config
+        self.gate = SlipGate(config, 1)
+        self.bank = SoilBank(config.constants, config.soil, 1) if config.soil.method == "bayes" else None
+        self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
+
+    def step(self, obs: ObserverOutput) -> SoilEstimate:
+        ob = observer_output(obs)
+        stamp = np.array([obs.stamp])
+        inp = self.gate.step(_ZERO, stamp, ob)
+        if self.bank is not None:
+            st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable)[0]
+        else:
+            st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
+                                   inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])
+        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+
+
+def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:
+    """An OcpEstimate from a soil estimate and the j-th entry of :func:`soilocp.model.ocp.ocp_arrays`."""
+    have = soil.soil_strength is not None
+    val = (lambda name: None if not have or math.isnan(ocp[name][j]) else float(ocp[name][j]))
+    return OcpEstimate(
+        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
+        soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
+        soil_class_confidence=soil.soil_class_confidence, status=soil.status, reason=soil.reason, mu=soil.mu,
+        mu_determined=soil.mu_determined, slip=soil.slip,
+        mu_T=val("mu_T"), S_T=val("S_T"), S_E=val("S_E"), te_at_S_E=val("te_at_S_E"),
+    )
+
+
+class OcpStage:
+    """mu_T, S_T, S_E from K: eqs. 8, 7 (sign corrected), 10; TE (eq. 9) at S_E (:func:`ocp_arrays`)."""
+
+    def __init__(self, config: PipelineConfig):
+        self.constants: ModelConstants = config.constants
+        self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
+
+    def step(self, soil: SoilEstimate) -> OcpEstimate:
+        k = soil.soil_strength
+        if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
+            self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
+        return ocp_message(soil, self._last[1], 0)
+
+
+class VehiclePipeline:
+    """The four stages composed, for one vehicle: the offline path (``soilocp estimate``)."""
+
+    def __init__(self, config: PipelineConfig | None = None):
+        self.config = config or PipelineConfig()
+        self.normal = NormalForceStage(self.config)
+        self.observer = ObserverStage(self.config)
+        self.soil = SoilStage(self.config)
+        self.ocp = OcpStage(self.config)
+
+    def process_all(self, sample: SensorSample) -> tuple[NormalForces, ObserverOutput, SoilEstimate, OcpEstimate]:
+        nf = self.normal.step(sample)
+        ob = self.observer.step(sample, nf)
+        so = self.soil.step(ob)
+        return nf, ob, so, self.ocp.step(so)
+
+    def process(self, sample: SensorSample) -> OcpEstimate:
+        return self.process_all(sample)[3]

@@ -1,0 +1,511 @@
+"""Soil strength K from per-wheel slip and observed traction (paper §3.2, eqs. 36-37, corrected).
+
+Two estimators share one interface (``update(stamp, slip, observed, variance, informative)``):
+
+* :class:`PaperSoilEstimator` — the paper's numerical rule, kept for reproduction:
+  K_n+1 = K_n + lambda * eta_E (eq. 36), eta_E = E / S_a with E = mu_e - mu_ref(S_a, K_n)
+  (eq. 37).  Corrections (docs/method.md §4): the printed absolute value |E/S_a| can only increase
+  K, so the sign is kept (K grows when the observed traction exceeds the curve's prediction); and
+  the update is gated on informative slip (|S| in [s_min, s_max], so that dividing by S_a cannot
+  blow up) and on d mu/dK > 0 at the current K (at small slip mu is not monotone in K).
+* :class:`BayesSoilEstimator` — the default.  A grid (histogram) Bayes filter over ln K fuses all
+  four wheels over time: each informative wheel contributes a robust likelihood of its observed
+  coefficient given the model at its slip; between samples the belief diffuses (random walk in
+  ln K) and mixes with a small uniform hazard, so abrupt terrain changes are picked up within a
+  fraction of a second.  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone
+  in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
+  wide posterior (status ``uncertain``), not false precision.  When slip carries no information
+  (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
+  ``holding``, and after ``expire_after`` seconds it is withdrawn (``no_estimate``) — never a
+  drifting number.
+
+The observed coefficient is by default the gross traction mu + mu_xR (what the wheel torque
+balance, eq. 13, measures; monotone in K) against eq. 3; ``measurement="net"`` uses the net mu
+against eq. 6, as the paper does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from soilocp.model.checks import as_float_array, check_count, check_index
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
+
+Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
+
+
+class SoilConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    method: Literal["bayes", "paper"] = Field("bayes", description="bayes (default) or paper (eqs. 36-37, sign fixed)")
+    measurement: Literal["gross", "net"] = Field("gross", description="Compare gross (eq. 3) or net (eq. 6) traction")
+    slip_min: float = Field(0.04, gt=0, lt=1, description="|S| below this carries no usable information")
+    slip_max: float = Field(0.95, gt=0, le=1, description="|S| above this is wheel spin / lock")
+    k_min: float = Field(5.0, gt=0, description="Lower end of the K grid")
+    k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
+    grid_points: int = Field(241, ge=20, le=5000)
+    q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
+    change_rate: float = Field(0.5, ge=0, description="Hazard of an abrupt terrain change, 1/s (mixing with uniform)")
+    model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
+    slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
+    speed_sigma: float = Field(
+        0.008, ge=0, description="Error of the filtered speeds, m/s: slip error grows as speed_sigma / speed at low speed"
+    )
+    slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
+    gate_smoothing: float = Field(
+        0.15, ge=0, description="Time constant (s) of the low-pass slip the gate looks at: gating on the raw, noisy "
+        "slip keeps the samples whose noise pushed |S| up and biases K low (docs/method.md §9)"
+    )
+    outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
+    temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
+    uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
+    hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
+    expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
+    gross_scale_sigma: float = Field(
+        0.05, ge=0, description="1-sigma relative error of the gross traction common to all samples (torque constant, "
+        "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
+    )
+    radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
+    max_input_age: float = Field(
+        0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
+        "(a held reading from a slow driver is not a measurement, docs/method.md §13)"
+    )
+    min_load_fraction: float = Field(
+        0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
+        "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
+    )
+    fresh_age: float = Field(
+        0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
+    )
+    evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
+    mismatch_nis: float = Field(
+        4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
+        "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
+    )
+    mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
+    observable_max_gross_sigma: float = Field(
+        0.4, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
+    )
+    learning_rate: float = Field(0.5, gt=0, le=1, description="lambda of eq. 36 (paper method)")
+    k_initial: float = Field(120.0, gt=0, description="K_0 of the paper method")
+
+
+@dataclass(frozen=True)
+class SoilState:
+    """What an estimator reports after each step: K is the belief's median, soil_strength_std
+    and log_k_std half its 16-84 % interval (in K and in ln K)."""
+
+    soil_strength: Optional[float]
+    soil_strength_std: Optional[float]
+    log_k_std: Optional[float]
+    soil_class: Optional[str]
+    soil_class_confidence: Optional[float]
+    status: Status
+    reason: str
+    last_update_stamp: Optional[float]
+    used: tuple[bool, bool, bool, bool]
+
+
+_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
+
+
+def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
+    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
+
+    The weakest class starts at half its reference K: below that no class applies (the traction
+    constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
+    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
+    table (``classify`` runs on every sample)."""
+    key = tuple(constants.soils.items())
+    hit = _CLASS_BOUNDS.get(key)
+    if hit is None:
+        names = sorted(constants.soils, key=constants.soils.get)
+        logs = np.log([constants.soils[n] for n in names])
+        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges.flags.writeable = False
+        hit = _CLASS_BOUNDS[key] = (names, edges)
+    return list(hit[0]), hit[1]
+
+
+def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
+    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability."""
+    names, edges = class_bounds(constants)
+    mu = math.log(soil_strength)
+    sig = max(log_k_std, 1e-6)
+    cdf = [0.5 * (1 + math.erf((e - mu) / (sig * math.sqrt(2)))) if np.isfinite(e) else (0.0 if e < 0 else 1.0)
+           for e in edges]
+    probs = np.diff(cdf)
+    i = int(np.argmax(probs))
+    return names[i], float(probs[i])
+
+
+def _checked_quads(**arrays) -> list[np.ndarray]:
+    """Per-wheel float arrays of shape (4,), finite; one vectorised check on the happy path."""
+    out = [np.asarray(v, dtype=float) for v in arrays.values()]
+    if all(a.shape == (4,) for a in out) and np.isfinite(np.concatenate(out)).all():
+        return out
+    return [as_float_array(name, v, shape=(4,)) for name, v in arrays.items()]  # raises, naming the argument
+
+
+def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
+    """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
+    dS ~ dV / V, which dominates at low speed (docs/method.md §6, §9)."""
+    v = np.maximum(np.abs(np.asarray(speed, dtype=float)), 1e-3)
+    return np.hypot(cfg.slip_sigma, cfg.speed_sigma / v)
+
+
+def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma=None) -> np.ndarray:
+    a = np.abs(slip)
+    ok = informative & (a >= cfg.slip_min) & (a <= cfg.slip_max)
+    if slip_sigma is not None:
+        ok &= a >= cfg.slip_snr * slip_sigma
+    return ok
+
+
+class _HoldLogic:
+    """Shared 'holding' / expiry bookkeeping (docs/method.md §9: hold, flagged; never drift)."""
+
+    def __init__(self, cfg: SoilConfig):
+        self.cfg = cfg
+        self.last_update: Optional[float] = None
+        self.held: Optional[tuple[float, float | None, float | None]] = None
+
+    def status(self, stamp: float, k: float, k_std, log_std) -> tuple[Status, str, tuple]:
+        cfg = self.cfg
+        if self.last_update is None:
+            return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, (None, None, None)
+        age = stamp - self.last_update
+        if age < 0:  # stamps went backwards (a restarted source): the old update time means nothing
+            self.last_update = self.held = None
+            return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", (None, None, None)
+        if age > cfg.hold_after + cfg.expire_after:
+            return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", (None, None, None)
+        if age == 0.0 or self.held is None:
+            self.held = (k, k_std, log_std)  # fresh: this sample updated the belief
+        else:
+            # no information this sample: report the last informed estimate, not the belief
+            # that is diffusing towards the change prior (docs/method.md §9: never drift)
+            k, _, _ = self.held
+            k_std, log_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0), log_std
+        if age > cfg.hold_after:
+            return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (k, k_std, log_std)
+        if log_std is not None and log_std > cfg.uncertain_log_sigma:
+            return "uncertain", f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: K poorly determined", (k, k_std, log_std)
+        return "ok", "", (k, k_std, log_std)
+
+
+class LogKGrid:
+    """The ln K grid of the Bayes estimator and what is computed on it: the observation curve
+    (eq. 3 or 6, factorised), the belief's prediction (random walk + change prior) and its robust
+    summaries.  One object serves :class:`BayesSoilEstimator` and the batched ``soilocp.estimation.batch``."""
+
+    def __init__(self, constants: ModelConstants, cfg: SoilConfig):
+        if cfg.k_max <= cfg.k_min:
+            raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
+        self.c, self.cfg, self.kind = constants, cfg, cfg.measurement
+        self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
+        self.k_grid = np.exp(self.theta)
+        self.dtheta = self.theta[1] - self.theta[0]
+        self.span = self.theta[-1] - self.theta[0]
+        self.names, edges = class_bounds(constants)
+        self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
+        # Slip-independent factors of the curve on the grid, per side of S = 0, so an update costs
+        # one exp per wheel: h = sign (amp (1 - e^{-C3 |S|})) + offset_side + slope_side |S|
+        c = constants
+        k = self.k_grid
+        self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
+        if self.kind == "gross":
+            # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
+            self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
+            self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
+        else:  # eq. 6, odd
+            self._offset = (-c.C5 / k, c.C5 / k)
+            self._slope = (-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k))
+
+    def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
+        docs/method.md §11 for S < 0) or net traction (eq. 6).
+
+        Equal to :func:`soilocp.model.traction.curve_unchecked` (tested); outside the zero-slip bridge
+        the curve factorises into grid constants and one exp per wheel.
+        """
+        a = np.abs(s)
+        if np.any(a < self.c.bridge_slip):
+            h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
+            return h, d
+        e = np.exp(-self.c.C3 * a)
+        neg = s < 0
+        rise = self._amp * (1.0 - e)
+        off = np.where(neg, self._offset[1], self._offset[0])
+        slope = np.where(neg, self._slope[1], self._slope[0])
+        h = np.where(neg, -rise, rise) + off + slope * a
+        d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
+        return h, d
+
+    def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Beliefs p (k, G) after dt (k,) > 0 seconds: diffusion of ln K (random walk) and mixing
+        with the uniform change prior.  After a long gap nothing survives: uniform at once."""
+        cfg = self.cfg
+        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
+        if lost.any():
+            p = p.copy()
+            p[lost] = 1.0 / p.shape[1]
+        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
+        while np.any(eps > 0):
+            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
+            q = (1 - 2 * e) * p
+            q[:, 1:] += e * p[:, :-1]
+            q[:, :-1] += e * p[:, 1:]
+            q[:, :1] += e * p[:, :1]  # reflecting ends keep the mass
+            q[:, -1:] += e * p[:, -1:]
+            p = q
+            eps = eps - e[:, 0]
+        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
+        return (1 - h) * p + h / p.shape[1]
+
+    def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:
+        """(K, K 1-sigma, ln K 1-sigma) from a belief's mid-point CDF: the median and half the
+        16-84 % interval.  Moments would be dominated by the small uniform "terrain may change"
+        mass spread over K = 5..5000."""
+        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf_row, self.theta)
+        return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
+
+
+class SoilBank:
+    """N grid Bayes filters over ln K (the soil kernel; module doc), stepped together.
+
+    Per vehicle it also keeps, over ``evidence_window`` seconds of informative samples:
+
+    * the mean normalised residual (NIS) of the used wheels at the posterior median: when the
+      traction curve cannot explain the (slip, traction) pairs at any K, the status is
+      ``model_mismatch`` rather than a confident class;
+    * the systematic part of K's error budget: a gross-traction scale error eps (1-sigma
+      ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to every
+      sample, so they do not average out like noise.  Their effect on ln K is the weighted
+      least-squares shift  d lnK = eps sum(w h_K h) / sum(w h_K^2)  (and likewise with
+      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread.
+    """
+
+    def __init__(self, constants: ModelConstants, config: SoilConfig | None, n_vehicles: int):
+        self.c = constants
+        self.cfg = cfg = config or SoilConfig()
+        if cfg.method != "bayes":
+            raise ValueError(f"soil method {cfg.method!r}: the soil kernel implements 'bayes' only")
+        self.n_vehicles = n = check_count(n_vehicles)
+        self.grid = LogKGrid(constants, cfg)
+        self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
+        self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
+        self._holds = [_HoldLogic(cfg) for _ in range(n)]
+        # half the weakest reference soil's K: the traction constants were fitted on soils from there
+        # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
+        self.k_floor = math.exp(class_bounds(constants)[1][0])
+        self._floor_idx = int(np.searchsorted(self.k_grid, self.k_floor))
+        self.last_stamp = np.full(n, np.nan)
+        # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
+        # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
+        self.stats = np.zeros((n, 5))
+
+
+    def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
+               gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
+        """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
+        coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
+        informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
+        ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw);
+        ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now);
+        ``identifiable`` (k,) bool: False when the sample has no independent ground speed."""
+        cfg = self.cfg
+        ix = check_index(idx, self.n_vehicles)
+        k = ix.size
+        stamp = np.asarray(stamp, dtype=float).reshape(k)
+        slip, obs, var, s_sig = (np.asarray(a, dtype=float) for a in (slip, observed, variance, slip_sigma))
+        for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
+            if a.shape != (k, 4) or not np.isfinite(a).all():
+                raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
+        g_slip = slip if gate_slip is None else np.asarray(gate_slip, dtype=float)
+        g_sig = s_sig if gate_sigma is None else np.asarray(gate_sigma, dtype=float)
+        # the gate decides on the smoothed slip (no selection bias from noise), but the slip the curve
+        # is evaluated at must itself be away from zero: a fast reversal leaves the smoothed slip behind
+        gated = (_gate(g_slip, np.asarray(informative, dtype=bool), cfg, g_sig) & (np.sign(g_slip) == np.sign(slip))
+                 & (np.abs(slip) >= 0.5 * cfg.slip_min))
+        # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
+        determined = var <= cfg.observable_max_gross_sigma**2
+        held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
+        ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
+        use = gated & determined & ~held & ident[:, None]
+        p = self.p[ix]
+        last = self.last_stamp[ix]
+        with np.errstate(invalid="ignore"):
+            dt = stamp - last
+            pred = ~np.isnan(last) & (dt > 0)
+        if pred.any():
+            p[pred] = self.grid.predict(p[pred], dt[pred])
+        self.last_stamp[ix] = stamp
+        stats = self.stats[ix]
+        decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
+        stats *= decay[:, None]
+        info = np.zeros(k, dtype=bool)
+        upd = use.any(axis=1)
+        if upd.any():
+            u = use[upd]
+            # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
+            s_used = slip[upd][u][:, None]
+            h, dh_ds = self.grid.curve(s_used)
+            sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
+            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
+            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
+            like = np.ones(u.shape + (self.theta.size,))
+            like[u] = like_used
+            loglike = np.log(np.prod(like, axis=1)) * cfg.temper
+            post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
+            total = post.sum(axis=1)
+            ok = (total > 0) & np.isfinite(total)
+            rows = np.flatnonzero(upd)[ok]
+            p[rows] = post[ok] / total[ok][:, None]
+            info[rows] = True
+            self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+        self.p[ix] = p
+        self.stats[ix] = stats
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
+
+    def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
+        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
+        G = self.theta.size
+        which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
+        cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
+        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
+        w = np.arange(which.size)
+        nis = r2[w, j]
+        h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
+        wt = 1.0 / sig2[w, j]
+        ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
+        step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
+        rows_w = rows[which]
+        np.add.at(stats[:, 0], rows, step)
+        np.add.at(stats[:, 1], rows_w, step[which] * nis / u.sum(axis=1)[which])
+        np.add.at(stats[:, 2], rows_w, step[which] * wt * h_k**2)
+        np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
+        np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
+
+    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+        cfg, k = self.cfg, ix.size
+        cdf = np.cumsum(p, axis=1) - 0.5 * p
+        out = []
+        for j in range(k):
+            hold = self._holds[int(ix[j])]
+            st = float(stamp[j])
+            if info[j]:
+                hold.last_update = st
+            k_med, _, log_stat = self.grid.summary(cdf[j])
+            evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
+            sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
+            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
+            sys = math.hypot(sys_scale, sys_radius)
+            log_std = math.hypot(log_stat, sys)
+            k_std = k_med * math.sinh(log_std)
+            status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
+            if status == "uncertain" and sys > log_stat:
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
+                          "torque-scale / mass uncertainty moves K this much where the traction curve saturates")
+            nis = nis_sum / evidence if evidence > 0 else 0.0
+            if not ident[j]:
+                status = "not_observable"
+                reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
+                          "with it; wheel odometry cannot stand in)")
+            elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
+                status = "model_mismatch"
+                reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
+                          f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
+            elif rk is not None and cdf[j][self._floor_idx] > 0.5:
+                status = "model_mismatch"
+                reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
+                          f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
+            elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
+                status = "not_observable"
+                reason = (f"slip is informative but the wheel speed / torque readings are held longer than "
+                          f"{cfg.max_input_age:g} s (sensor refresh too slow to measure traction)")
+            elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
+                status = "not_observable"
+                reason = "slip is informative but the wheel torque balance does not determine gross traction"
+            if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
+                rk = rs = rl = None
+            cls = conf = None
+            if rk is not None and status != "model_mismatch":
+                # the class from the whole band (statistical and systematic), as reported
+                cls, conf = classify(rk, rl, self.c)
+            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
+                                 tuple(bool(v) for v in use[j])))
+        return out
+
+
+class BayesSoilEstimator:
+    """One vehicle's grid Bayes soil estimator: the kernel :class:`SoilBank` with N = 1."""
+
+    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
+        self.bank = SoilBank(constants, config, 1)
+        self.c, self.cfg, self.grid = constants, self.bank.cfg, self.bank.grid
+        self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
+
+    @property
+    def p(self) -> np.ndarray:
+        return self.bank.p[0]
+
+    def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
+               gate_slip=None, gate_sigma=None, held=None) -> SoilState:
+        """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
+        ``cfg.slip_sigma``)."""
+        slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
+        s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
+        one = (lambda a: None if a is None else np.asarray(a, dtype=float)[None])
+        return self.bank.update(np.zeros(1, dtype=int), [stamp], slip[None], obs[None], var[None],
+                                np.asarray(informative, dtype=bool)[None], s_sig[None], one(gate_slip), one(gate_sigma),
+                                None if held is None else np.asarray(held, dtype=bool)[None])[0]
+
+
+class PaperSoilEstimator:
+    """The paper's update rule, eqs. 36-37, with the sign of eq. 37 restored and gated (module doc)."""
+
+    def __init__(self, constants: ModelConstants = DEFAULT_CONSTANTS, config: SoilConfig | None = None):
+        self.c = constants
+        self.cfg = config or SoilConfig(method="paper", measurement="net")
+        self.k = float(self.cfg.k_initial)
+        self._hold = _HoldLogic(self.cfg)
+
+    def update(self, stamp: float, slip, observed, variance=None, informative=(True,) * 4, slip_sigma=None) -> SoilState:
+        cfg = self.cfg
+        slip = as_float_array("slip", slip, shape=(4,))
+        obs = as_float_array("observed", observed, shape=(4,))
+        use = _gate(slip, np.asarray(informative, dtype=bool), cfg,
+                    None if slip_sigma is None else as_float_array("slip_sigma", slip_sigma, shape=(4,)))
+        model = gross_traction_with_derivatives if cfg.measurement == "gross" else net_traction_with_derivatives
+        used = np.zeros(4, dtype=bool)
+        for i in np.flatnonzero(use):
+            ref, _, dk = model(slip[i], self.k, self.c)
+            # eq. 37 assumes |mu| grows with K: not so at small slip (docs/method.md §4); the curve is
+            # odd in S, so for a braking wheel d mu/dK < 0 is the normal, monotone case
+            if float(dk) * np.sign(slip[i]) <= 0:
+                continue
+            # eq. 37 without |.|: E / S_a keeps the sign of the error (eq. 6 is odd in S, so a
+            # braking wheel's E and S_a are both negated and the ratio is unchanged)
+            eta = (obs[i] - float(ref)) / slip[i]
+            self.k = float(np.clip(self.k + cfg.learning_rate * eta, cfg.k_min, cfg.k_max))  # eq. 36
+            used[i] = True
+        if used.any():
+            self._hold.last_update = stamp
+        status, reason, (rk, _, _) = self._hold.status(stamp, self.k, None, None)
+        cls = conf = None
+        if rk is not None:
+            cls, conf = classify(rk, 0.1, self.c)
+        return SoilState(rk, None, None, cls, conf, status, reason, self._hold.last_update, tuple(bool(u) for u in used))
+
+
+def make_soil_estimator(constants: ModelConstants, config: SoilConfig):
+    if config.method == "paper":
+        return PaperSoilEstimator(constants, config)
+    return BayesSoilEstimator(constants, config)

@@ -1,0 +1,86 @@
+"""Model constants: the improved Brixius constants (paper §2.2), the S_E line (eq. 10) and the
+reference soil strengths, in one configuration object that a calibration can replace.
+
+The defaults are the paper's: C1=1.3, C2=0.01, C3=7.058, C4=0.04, C5=-5, C6=4,
+alpha=677.4, beta=-5242.9.  ``soilocp calibrate`` writes a file of the same shape, and every
+command that takes ``--constants FILE`` loads it with :func:`load_constants`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from soilocp.model.files import read_json
+
+# Paper §2.2 and §2.2 (EST): soil strength of the testbed soils.  "firm" is ours: the paper's
+# firm-soil drive (Fig. 15a) gives no number; anything clearly above grass.
+REFERENCE_SOILS: dict[str, float] = {
+    "sand": 50.0,
+    "gravel": 80.0,
+    "EST": 120.0,
+    "grass": 200.0,
+    "firm": 300.0,
+}
+
+
+class ModelConstants(BaseModel):
+    """Improved Brixius constants C1..C6 (eqs. 3-6), the S_E line (eq. 10) and model options."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    C1: float = Field(1.3, gt=0, description="Gross-traction amplitude (eq. 3)")
+    C2: float = Field(0.01, gt=0, description="Soil-strength saturation rate, 1/K (eq. 3)")
+    C3: float = Field(7.058, gt=0, description="Slip rate of the traction rise (eq. 3)")
+    C4: float = Field(0.04, description="Constant of gross traction and motion resistance (eqs. 3-4)")
+    C5: float = Field(-5.0, description="K-inverse motion-resistance term (eq. 4)")
+    C6: float = Field(4.0, gt=0, description="Slip-proportional motion resistance over sqrt(K) (eq. 4)")
+    alpha: float = Field(677.4, description="S_E = (K - alpha) / beta (eq. 10)")
+    beta: float = Field(-5242.9, description="S_E = (K - alpha) / beta (eq. 10)")
+    bridge_slip: float = Field(
+        0.005,
+        ge=0,
+        lt=0.1,
+        description=(
+            "Half-width of the linear bridge through S=0 (docs/method.md §8): eq. 6 jumps from -C5/K "
+            "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear. 0 = as printed."
+        ),
+    )
+    soils: dict[str, float] = Field(
+        default_factory=lambda: dict(REFERENCE_SOILS),
+        description="Soil class -> reference soil strength K (calibrated per soil)",
+    )
+
+    @field_validator("soils")
+    @classmethod
+    def _soils_positive(cls, v: dict[str, float]) -> dict[str, float]:
+        if not v:
+            raise ValueError("soils must name at least one soil class")
+        for name, k in v.items():
+            if not (math.isfinite(k) and k > 0):
+                raise ValueError(f"soils[{name!r}] must be a finite K > 0, got {k!r}")
+        return dict(sorted(v.items(), key=lambda kv: kv[1]))
+
+    @field_validator("beta")
+    @classmethod
+    def _beta_nonzero(cls, v: float) -> float:
+        if v == 0 or not math.isfinite(v):
+            raise ValueError(f"beta must be finite and non-zero (it divides eq. 10), got {v!r}")
+        return v
+
+
+DEFAULT_CONSTANTS = ModelConstants()
+
+
+def load_constants(path: str | Path | None) -> ModelConstants:
+    """Load a constants file (JSON, the shape of :class:`ModelConstants`); None -> the paper's."""
+    if path is None:
+        return DEFAULT_CONSTANTS
+    return ModelConstants.model_validate(read_json(path, "constants file"))
+
+
+def save_constants(constants: ModelConstants, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(constants.model_dump(), indent=2) + "\n")

@@ -1,0 +1,273 @@
+"""Robustness variants: drives the estimator was not tuned to (issue 10, "A robustness evaluation
+you did not tune to"; docs/method.md §11-13).
+
+A :class:`Variant` changes what the simulator does or what the sensors report while the
+estimator keeps its NOMINAL vehicle and default configuration:
+
+* the drive itself: controller mode, slip sweep, rear axle mirroring the front's slip (§12),
+  S-turns, sample rate;
+* the true vehicle (:class:`VehicleChange`): wheel radius, mass and CoM differ from the nominal
+  ones the estimator uses;
+* the sensor stream (stream transforms): Unix-epoch stamps, torque scale, IMU bias, channels
+  refreshed at a lower rate and held in between, a lagging ground speed (§13).
+
+Every variant has a name, a one-line description, and whether K is identifiable from its data
+("yes"; "limited": a scale error no estimator can see bounds the precision; "no").  Runs are
+reproducible: the simulator's noise comes from ``seed``, and any random draw of a variant (the
+IMU bias's signs) from a generator seeded by ``(seed, crc32(name))``.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Literal, Optional
+
+import numpy as np
+
+from schemas.sensor import SensorSample
+
+from soilocp.model.constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
+from soilocp.sim.scenarios import Scenario, Segment, SweepParams
+from soilocp.sim.simulator import DEFAULT_CONTROLLER, ControllerParams, TruthRecord, simulate
+from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+Identifiability = Literal["yes", "limited", "no"]
+SampleMap = Callable[[SensorSample], SensorSample]
+
+#: The drive every variant starts from: four soils in an order and with one strength (K = 100,
+#: between the reference classes) that the product's own scenarios do not use, 10 m each at
+#: 1 m/s, so that a 1-seed table of all variants runs in a few minutes on two cores.
+ROBUST_DRIVE = Scenario(
+    "robust-mix",
+    "grass (K=200) -> sand (K=50) -> firm (K=300) -> loam (K=100), 10 m each at 1 m/s, traction test",
+    (
+        Segment("grass", REFERENCE_SOILS["grass"], length=10.0),
+        Segment("sand", REFERENCE_SOILS["sand"], length=10.0),
+        Segment("firm", REFERENCE_SOILS["firm"], length=10.0),
+        Segment("loam", 100.0),
+    ),
+    duration=42.0,
+)
+
+
+# --- stream transforms (one sample in, one out; state per run) -----------------------------------
+@dataclass(frozen=True)
+class EpochStamps:
+    """Stamps as a real logger writes them: Unix epoch seconds (offset + simulated time)."""
+
+    offset: float = 1.7e9
+
+    def bind(self, rng: np.random.Generator) -> SampleMap:
+        return lambda s: s.model_copy(update={"stamp": s.stamp + self.offset})
+
+
+@dataclass(frozen=True)
+class TorqueScale:
+    """The torque channel reads ``scale`` x the true torque (a motor constant that is off)."""
+
+    scale: float
+
+    def bind(self, rng: np.random.Generator) -> SampleMap:
+        return lambda s: s.model_copy(update={"wheel_torque": tuple(self.scale * q for q in s.wheel_torque)})
+
+
+@dataclass(frozen=True)
+class ImuBias:
+    """Constant accelerometer bias (``accel`` m/s^2 on each axis) and gyro bias (``gyro`` rad/s),
+    signs drawn once per run from the variant's generator."""
+
+    accel: float = 0.1
+    gyro: float = 0.01
+
+    def bind(self, rng: np.random.Generator) -> SampleMap:
+        signs = rng.choice((-1.0, 1.0), size=4)
+        bias = tuple(float(self.accel * q) for q in signs[:3])
+        gyro = float(self.gyro * signs[3])
+        return lambda s: s.model_copy(
+            update={
+                "specific_force": tuple(f + b for f, b in zip(s.specific_force, bias)),
+                "yaw_rate": s.yaw_rate + gyro,
+            }
+        )
+
+
+@dataclass(frozen=True)
+class HeldChannel:
+    """A channel that refreshes at ``refresh`` Hz (instants k / refresh on the stamp clock) and is
+    held between refreshes; each refresh reports the channel's value ``lag`` seconds earlier
+    (linear interpolation between the stream's samples; before the first sample, the first)."""
+
+    channel: Literal["wheel_speed", "ground_speed"]
+    refresh: float
+    lag: float = 0.0
+
+    def bind(self, rng: np.random.Generator) -> SampleMap:
+        history: deque[tuple[float, np.ndarray]] = deque()
+        state: dict = {"k": None, "held": None}
+        keep = self.lag + 2.0 / self.refresh
+
+        def value_at(t: float) -> np.ndarray:
+            prev = history[0]
+            for cur in history:
+                if cur[0] >= t:
+                    if cur[0] == prev[0]:
+                        return cur[1]
+                    w = (t - prev[0]) / (cur[0] - prev[0])
+                    return prev[1] + max(w, 0.0) * (cur[1] - prev[1])
+                prev = cur
+            return prev[1]
+
+        def apply(s: SensorSample) -> SensorSample:
+            history.append((s.stamp, np.atleast_1d(np.asarray(getattr(s, self.channel), dtype=float))))
+            while history[0][0] < s.stamp - keep:
+                history.popleft()
+            k = math.floor(s.stamp * self.refresh + 1e-9)
+            if k != state["k"]:
+                state["k"] = k
+                state["held"] = value_at(k / self.refresh - self.lag)
+            held = state["held"]
+            new = float(held[0]) if self.channel == "ground_speed" else tuple(float(q) for q in held)
+            return s.model_copy(update={self.channel: new})
+
+        return apply
+
+
+StreamTransform = EpochStamps | TorqueScale | ImuBias | HeldChannel
+
+
+@dataclass(frozen=True)
+class VehicleChange:
+    """The TRUE vehicle relative to the nominal one the estimator uses: mass (and yaw inertia)
+    x ``mass``, CoM-to-rear-axle distance a x ``com`` (wheelbase kept: b = L - a), CoM height
+    x ``height``, wheel radius x ``radius``."""
+
+    mass: float = 1.0
+    com: float = 1.0
+    height: float = 1.0
+    radius: float = 1.0
+
+    def apply(self, nominal: VehicleParams) -> VehicleParams:
+        base = nominal.a + nominal.b
+        a = nominal.a * self.com
+        if not 0 < a < base:
+            raise ValueError(f"com factor {self.com} puts the CoM outside the wheelbase (a={a:.3f} m of {base:.3f} m)")
+        return nominal.model_copy(
+            update=dict(
+                mass=nominal.mass * self.mass,
+                yaw_inertia=nominal.yaw_inertia * self.mass,
+                a=a,
+                b=base - a,
+                h=nominal.h * self.height,
+                wheel_radius=nominal.wheel_radius * self.radius,
+            )
+        )
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A named, seeded, reproducible drive that the estimator does not know about."""
+
+    name: str
+    description: str
+    identifiable: Identifiability = "yes"
+    why_limited: str = ""
+    scenario: Scenario = ROBUST_DRIVE
+    rate: float = 100.0
+    mode: Optional[str] = None
+    sweep: Optional[SweepParams] = None
+    controller: ControllerParams = DEFAULT_CONTROLLER
+    vehicle: VehicleChange = field(default_factory=VehicleChange)
+    transforms: tuple[StreamTransform, ...] = ()
+
+    def rng(self, seed: int) -> np.random.Generator:
+        return np.random.default_rng([int(seed), zlib.crc32(self.name.encode())])
+
+    def true_vehicle(self, nominal: VehicleParams = DEFAULT_VEHICLE) -> VehicleParams:
+        return self.vehicle.apply(nominal)
+
+    def simulate(
+        self,
+        seed: int = 0,
+        *,
+        duration: Optional[float] = None,
+        nominal: VehicleParams = DEFAULT_VEHICLE,
+        constants: ModelConstants = DEFAULT_CONSTANTS,
+    ) -> Iterator[tuple[SensorSample, TruthRecord]]:
+        """(sensor sample as the estimator sees it, truth) pairs; truth keeps the simulator's
+        stamps (seq / rate), the sample carries the variant's."""
+        rng = self.rng(seed)
+        maps = [t.bind(rng) for t in self.transforms]
+        pairs = simulate(
+            self.scenario, duration=duration, rate=self.rate, seed=seed, vehicle=self.true_vehicle(nominal),
+            constants=constants, mode=self.mode, sweep=self.sweep, controller=self.controller,
+        )  # fmt: skip
+        for sample, truth in pairs:
+            for m in maps:
+                sample = m(sample)
+            yield sample, truth
+
+
+def _sweep(period: float, peak: float) -> Variant:
+    return Variant(
+        f"sweep-{period:g}s-{peak:g}",
+        f"traction test sweeping 0.02..{peak:g} slip in {period:g} s (+{period / 4:g} s dwell)",
+        sweep=SweepParams(s_min=0.02, s_max=peak, period=period, dwell=period / 4),
+    )
+
+
+def _limited(name: str, description: str, why: str, **kw) -> Variant:
+    return Variant(name, description, "limited", why, **kw)
+
+
+VARIANTS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("nominal", "the base drive as the estimator expects it: 100 Hz, default sweep, nominal vehicle"),
+        Variant(
+            "rear-mirror",
+            "rear axle brakes at about -S while the front drives at S (0.02..0.35 in 3 s + 0.5 s dwell)",
+            sweep=SweepParams(s_min=0.02, s_max=0.35, period=3.0, dwell=0.5),
+            controller=ControllerParams(rear_mirror=1.0),
+        ),
+        _sweep(3.0, 0.1),
+        _sweep(3.0, 0.5),
+        _sweep(6.0, 0.3),
+        _sweep(12.0, 0.1),
+        _sweep(12.0, 0.5),
+        Variant("rate-20hz", "sensor log at 20 Hz", rate=20.0),
+        Variant("rate-50hz", "sensor log at 50 Hz", rate=50.0),
+        Variant("rate-200hz", "sensor log at 200 Hz", rate=200.0),
+        Variant("epoch-stamps", "stamps in Unix epoch seconds (1.7e9 + t)", transforms=(EpochStamps(),)),
+        _limited("torque+10", "torque channel reads 1.10 x the true torque", "torque scale", transforms=(TorqueScale(1.10),)),
+        _limited("torque-10", "torque channel reads 0.90 x the true torque", "torque scale", transforms=(TorqueScale(0.90),)),
+        _limited("radius+3", "true wheel radius 3 % above the nominal", "wheel-speed scale", vehicle=VehicleChange(radius=1.03)),
+        _limited("radius-3", "true wheel radius 3 % below the nominal", "wheel-speed scale", vehicle=VehicleChange(radius=0.97)),
+        Variant("imu-bias", "accelerometer bias +-0.1 m/s^2 per axis and gyro bias +-0.01 rad/s (seeded signs)",
+                transforms=(ImuBias(),)),
+        Variant("ground-speed-lag", "ground speed 50 ms late and refreshed at 10 Hz (held)",
+                transforms=(HeldChannel("ground_speed", 10.0, lag=0.05),)),
+        Variant("wheel-speed-5hz", "wheel speeds refreshed at 5 Hz (held)", transforms=(HeldChannel("wheel_speed", 5.0),)),
+        _limited("mass-com+20", "true mass +20 %, CoM 20 % further from the rear axle and 20 % higher",
+                 "mass / normal-force scale", vehicle=VehicleChange(mass=1.2, com=1.2, height=1.2)),
+        _limited("mass-com-20", "true mass -20 %, CoM 20 % closer to the rear axle and 20 % lower",
+                 "mass / normal-force scale", vehicle=VehicleChange(mass=0.8, com=0.8, height=0.8)),
+        Variant("s-turns", "S-turns during the traction test: yaw rate 0.3 sin(2 pi t / 4 s) rad/s",
+                controller=ControllerParams(s_turn_rate=0.3, s_turn_period=4.0)),
+        Variant("cruise", "constant speed, no traction test: slip ~0, K not identifiable", "no", mode="cruise"),
+    )
+}
+
+
+def list_variants() -> list[Variant]:
+    return list(VARIANTS.values())
+
+
+def get_variant(name: str) -> Variant:
+    try:
+        return VARIANTS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"variant must be one of {', '.join(VARIANTS)}; got {name!r}") from None

@@ -1,0 +1,23 @@
+"""The console script ``soilocp`` and ``python -m soilocp_cli``: the lean command set for the
+long-running processes, the whole one otherwise."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+PROCESS_COMMAND_NAMES = ("service", "router")
+
+
+def command_group(args: list[str]) -> click.Group:
+    """The group that serves ``args`` (the command line without the program name)."""
+    if args and args[0] in PROCESS_COMMAND_NAMES:
+        from soilocp_cli.process import main
+    else:
+        from soilocp_cli.main import main
+    return main
+
+
+def run() -> None:
+    command_group(sys.argv[1:])(prog_name="soilocp")
