@@ -1,9 +1,9 @@
 """The observer's Kalman filter as procedural kernels over stacks of k filters, in filterpy's style
 (``predict(x, P, ...)``, ``update(x, P, z, R, H)``): x (k, n), P (k, n, n), z (k, m).
 
-One definition of each step for every caller: :class:`soilocp.observer_bank.ObserverBank` runs
+One definition of each step for every caller: :class:`soilocp.estimation.observer_bank.ObserverBank` runs
 them with k = 1 (the single-vehicle stage) and k = many (the batched service); the filterpy
-reference (:mod:`soilocp.observer_reference`) uses :func:`condition` and :func:`outlier_variance`.
+reference (:mod:`soilocp.estimation.observer_reference`) uses :func:`condition` and :func:`outlier_variance`.
 Written for small matrices (n = 12, m = 7), where numpy's per-call overhead, not arithmetic, is
 the cost (issue 11): no constant is built per step, diagonals are strided views, matrix-vector
 products are one matmul, in-place operations where a temporary is not needed.
