@@ -68,15 +68,16 @@ class ObserverInputs:
     normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
 
     def check(self) -> int:
-        k = np.shape(self.stamp)[0] if np.ndim(self.stamp) == 1 else -1
+        st = self.stamp
+        k = st.shape[0] if type(st) is np.ndarray and st.ndim == 1 else -1
         # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
         # one test; anything else takes the field-by-field check below, which names the field
-        arrs = [getattr(self, n) for n in _FIELDS_K + _FIELDS_K4]
-        if k >= 0 and all(type(a) is np.ndarray and a.dtype == np.float64 for a in arrs) \
-                and all(a.shape == (k,) for a in arrs[:5]) and all(a.shape == (k, 4) for a in arrs[5:]):
-            gs = arrs[4]
-            if np.isfinite(np.concatenate([*arrs[:4], *arrs[5:]], axis=None)).all() \
-                    and not np.isinf(gs).any():
+        flat = (st, self.specific_force_x, self.yaw_rate, self.pitch, self.ground_speed)
+        quads = (self.wheel_speed, self.wheel_torque, self.normal_force)
+        if k >= 0 and all(type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (k,) for a in flat) \
+                and all(type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (k, 4) for a in quads):
+            if np.isfinite(np.concatenate([*flat[:4], *quads], axis=None)).all() \
+                    and not np.isinf(flat[4]).any():
                 return k
         for name in _FIELDS_K:
             a = np.asarray(getattr(self, name), dtype=float)
@@ -228,8 +229,10 @@ class ObserverBank:
         ws = self._workspace(k)
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
         torque = split_side_torque(inputs.wheel_torque, fz) if self.vehicle.drive == "per_side" else inputs.wheel_torque
-        x, P = self.x[ix], self.P[ix]
-        last = self.last_stamp[ix]
+        # every vehicle in order (idx None, e.g. N = 1): basic slices instead of fancy indexing
+        sel = slice(None) if idx is None else ix
+        x, P = self.x[sel].copy(), self.P[sel].copy()
+        last = self.last_stamp[sel].copy()
         dt = inputs.stamp - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
         reasons = [""] * k
         first = np.isnan(last)
@@ -237,9 +240,9 @@ class ObserverBank:
         raw[:, :4] = inputs.wheel_speed
         raw[:, 4] = inputs.ground_speed
         raw[:, 5:] = inputs.wheel_torque
-        fresh = fresh_readings(self._prev[ix], raw, first | (dt < 0))
-        changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[ix])
-        self._prev[ix], self._changed_at[ix] = raw, changed_at
+        fresh = fresh_readings(self._prev[sel], raw, first | (dt < 0))
+        changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[sel])
+        self._prev[sel], self._changed_at[sel] = raw, changed_at
         age = inputs.stamp[:, None] - changed_at
         # dt == 0 (a repeated stamp) is no reset: only the update runs
         if (first | (dt < 0) | (dt > cfg.max_gap)).any():
@@ -273,7 +276,7 @@ class ObserverBank:
             available[:, 6] &= ~no_gs
             if not every:
                 z, available = z[run], available[run]
-            rows = ix[run]
+            rows = sel if every else ix[run]
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, ws.r if every else ws.r[run], H if every else H[run],
                                                    cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
@@ -291,8 +294,8 @@ class ObserverBank:
             for bad, why in ((~finite, "non_finite_state"), (finite & ~sane, "state_out_of_physics")):
                 if bad.any():
                     self._reset(ix, bad, x, P, inputs, reasons, why)
-        self.x[ix], self.P[ix] = x, P
-        self.last_stamp[ix] = inputs.stamp
+        self.x[sel], self.P[sel] = x, P
+        self.last_stamp[sel] = inputs.stamp
         return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), ws)
 
     def _output(self, x, P, fz, rejected, reasons, age, measured, ws: _Workspace) -> ObserverBankOutput:
@@ -304,10 +307,11 @@ class ObserverBank:
         J = ws.J
         if L.n_res:
             J[:, :, L.res] = M
-        mu_var = np.diagonal(P, axis1=1, axis2=2)[:, L.mu].copy()
+        # x and P are this step's own arrays (self.x / self.P hold copies): the outputs are views of them
+        mu_var = np.diagonal(P, axis1=1, axis2=2)[:, L.mu]
         mu = x[:, L.mu]
         return ObserverBankOutput(
-            mu=mu.copy(),
+            mu=mu,
             mu_var=mu_var,
             mu_determined=mu_var <= self.cfg.mu_std_determined**2,
             resistance=res,
@@ -315,9 +319,9 @@ class ObserverBank:
             # a quadratic form of the conditioned P: floored, since clamping correlations keeps P only
             # nearly positive semi-definite
             gross_var=np.maximum(((J @ P) * J).sum(axis=2), self.cfg.variance_floor),
-            wheel_speed=x[:, L.omega].copy(),
-            ground_speed=x[:, L.v].copy(),
-            yaw_rate=x[:, L.psi].copy(),
+            wheel_speed=x[:, L.omega],
+            ground_speed=x[:, L.v],
+            yaw_rate=x[:, L.psi],
             rejected=rejected,
             reset=np.array([bool(r) for r in reasons]),
             reset_reason=reasons,
