@@ -99,7 +99,7 @@ _ZERO = np.zeros(1, dtype=int)
 
 
 def _bools(a) -> tuple[bool, bool, bool, bool]:
-    return tuple(np.asarray(a, dtype=bool).tolist())  # type: ignore[return-value]
+    return tuple(a.tolist() if isinstance(a, np.ndarray) else (bool(v) for v in a))  # type: ignore[return-value]
 
 
 def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
