@@ -104,7 +104,8 @@ def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: 
         Pu = P[sel]
         PHT = Pu @ Hm.transpose(0, 2, 1)
         S = Hm @ PHT
-        _diag(S)[...] += rm
+        d = _diag(S)
+        d += rm  # in place on the strided view (``_diag(S)[...] += rm`` would also copy back)
         K = PHT @ np.linalg.inv(S)
         xn = x + _bmv(K, y) if every else x.copy()
         IKH = _eye(x.shape[1]) - K @ Hm
@@ -133,5 +134,5 @@ def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray
     np.minimum(P, lim, out=P)
     np.negative(lim, out=lim)
     np.maximum(P, lim, out=P)
-    _diag(P)[...] = var
+    np.copyto(_diag(P), var)
     return np.minimum(np.maximum(x, lower), upper), P
