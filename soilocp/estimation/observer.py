@@ -222,10 +222,11 @@ def resistance_map(layout: StateLayout, slip: Optional[np.ndarray], travel: Opti
 
 
 class ModelBuffers:
-    """Preallocated A (k, n, n), b (k, n), H (k, 7, n) of :func:`model` for k vehicles, with the
-    entries that depend on neither the sample nor the vehicle's state already written (the bias
+    """Preallocated A (k, n, n), b (k, n), H (k, 7, n) of :func:`model` for up to k vehicles, with
+    the entries that depend on neither the sample nor the vehicle's state already written (the bias
     term of the speed equation and the rows of H that pick states).  :func:`model` writes every
-    other non-zero entry on each call, so a buffer is reused step after step without a rebuild."""
+    other non-zero entry of the first rows it needs on each call, so a buffer is reused step after
+    step, for any number of vehicles up to k, without a rebuild."""
 
     def __init__(self, layout: StateLayout, k: int):
         L, nx = layout, layout.n
@@ -256,17 +257,19 @@ def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: n
     M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
     z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
 
-    ``out``: :class:`ModelBuffers` for these k vehicles to write into (the per-step path: no
-    allocation); the returned arrays are then its A, b, H, overwritten by the next call.
+    ``out``: :class:`ModelBuffers` for at least k vehicles to write into (the per-step path: no
+    allocation); the returned arrays are then views of its first k rows, overwritten by the next call.
     """
     L, v = layout, vehicle
     k = fz.shape[0]
     if out is None:
         out = ModelBuffers(L, k)
-    A, b, H = out.A, out.b, out.H
+    if k > out.A.shape[0]:
+        raise ValueError(f"model buffers hold {out.A.shape[0]} vehicles, {k} were given")
+    A, b, H = out.A[:k], out.b[:k], out.H[:k]
     # the operations (and their order) of the definition above, written in place
     wheel_gain = -v.wheel_radius * fz / v.wheel_inertia
-    out._A_flat[:, out._wheel_diag] = wheel_gain
+    out._A_flat[:k, out._wheel_diag] = wheel_gain
     if L.n_res:
         np.multiply(wheel_gain[:, :, None], M, out=A[:, L.omega, L.res])
     np.divide(torque, v.wheel_inertia, out=b[:, L.omega])

@@ -138,9 +138,10 @@ def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
 
 
 class _Workspace:
-    """Per-step scratch arrays for k vehicles stepped together, allocated once per k: the model's
-    A, b, H (:class:`soilocp.observer.ModelBuffers`), the raw readings, z, the row availability,
-    R and the gross-traction Jacobian J = [I | M] of :meth:`ObserverBank._output`."""
+    """Per-step scratch arrays for up to k vehicles stepped together, allocated once (a step of
+    k' <= k vehicles uses their first k' rows): the model's A, b, H
+    (:class:`soilocp.estimation.observer.ModelBuffers`), the raw readings, z, R and the
+    gross-traction Jacobian J = [I | M] of :meth:`ObserverBank._output`."""
 
     def __init__(self, layout: StateLayout, k: int, r: np.ndarray):
         self.model = ModelBuffers(layout, k)
@@ -181,13 +182,7 @@ class ObserverBank:
         # |omega_1..4| and |V| (contiguous in the state) above these are divergence
         self._speed_limits = np.array([cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed])
         self._all = _arange(n)
-        self._ws: dict[int, _Workspace] = {}
-
-    def _workspace(self, k: int) -> _Workspace:
-        ws = self._ws.get(k)
-        if ws is None:
-            ws = self._ws[k] = _Workspace(self.layout, k, self._r)
-        return ws
+        self._ws = _Workspace(L, n, self._r)
 
     def state_slip(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-wheel slip (eq. 1, floor 0.05 m/s) and travel direction of states x (k, n): the
@@ -226,7 +221,7 @@ class ObserverBank:
         if k != ix.size:
             raise ValueError(f"inputs hold {k} samples for {ix.size} vehicle indices")
         cfg, L = self.cfg, self.layout
-        ws = self._workspace(k)
+        ws = self._ws
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
         torque = split_side_torque(inputs.wheel_torque, fz) if self.vehicle.drive == "per_side" else inputs.wheel_torque
         # every vehicle in order (idx None, e.g. N = 1): basic slices instead of fancy indexing
@@ -236,7 +231,7 @@ class ObserverBank:
         dt = inputs.stamp - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
         reasons = [""] * k
         first = np.isnan(last)
-        raw = ws.raw
+        raw = ws.raw[:k]
         raw[:, :4] = inputs.wheel_speed
         raw[:, 4] = inputs.ground_speed
         raw[:, 5:] = inputs.wheel_torque
@@ -265,7 +260,7 @@ class ObserverBank:
                                                  dtr[moving], self._q)
             gs = inputs.ground_speed
             no_gs = np.isnan(gs)
-            z = ws.z
+            z = ws.z[:k]
             z[:, 0] = inputs.specific_force_x
             z[:, 1] = inputs.yaw_rate
             z[:, 2:6] = inputs.wheel_speed
@@ -277,7 +272,8 @@ class ObserverBank:
             if not every:
                 z, available = z[run], available[run]
             rows = sel if every else ix[run]
-            xr, Pr, counts, _, keep = gated_update(xr, Pr, z, ws.r if every else ws.r[run], H if every else H[run],
+            r = ws.r[:k] if every else ws.r[:k][run]
+            xr, Pr, counts, _, keep = gated_update(xr, Pr, z, r, H if every else H[run],
                                                    cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
             rejected[run] = (available & ~keep).sum(axis=1)
@@ -304,7 +300,7 @@ class ObserverBank:
         res = _bmv(M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
         # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
         # wheel torque balance even when the net / resistance split is not: docs/method.md §12)
-        J = ws.J
+        J = ws.J[:k]
         if L.n_res:
             J[:, :, L.res] = M
         # x and P are this step's own arrays (self.x / self.P hold copies): the outputs are views of them
