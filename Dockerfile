@@ -38,6 +38,7 @@ COPY pyproject.toml README.md deploy/healthcheck.py deploy/fleet/ deploy/vehicle
 COPY soilocp/ /tmp/src/soilocp/
 COPY schemas/ /tmp/src/schemas/
 COPY services/ /tmp/src/services/
+COPY soilocp_cli/ /tmp/src/soilocp_cli/
 RUN set -eu; \
     if ls /tmp/wheelhouse/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /tmp/wheelhouse"; else offline=""; fi; \
     pip install $offline /tmp/src; \

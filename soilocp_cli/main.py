@@ -20,7 +20,7 @@ from soilocp import __version__
 from soilocp.commands import control, io, offline, physics, sim
 
 AREAS = (
-    physics,  # ocp, curves, calibrate
+    physics,  # ocp, curves, calibrate, calibrate-torque
     sim,  # simulate
     offline,  # estimate, evaluate, plot, accuracy
     control,  # control compare

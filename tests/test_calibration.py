@@ -7,17 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from soilocp.analysis.calibration import (
-    PARAMETER_BOUNDS,
-    TESTBED_SLIPS,
-    efficiency_peak,
-    fit_constants,
-    fit_efficiency_line,
-    read_testbed_csv,
-    synthetic_testbed,
-    build_testbed,
-    write_testbed_csv,
-)
+from soilocp.analysis.calibration import PARAMETER_BOUNDS, efficiency_peak, fit_constants, fit_efficiency_line
+from soilocp.analysis.testbed import TESTBED_SLIPS, build_testbed, read_testbed_csv, synthetic_testbed, write_testbed_csv
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
 from soilocp.model.ocp import max_traction, optimal_slip_efficiency, optimal_slip_traction
 from soilocp.model.traction import gross_traction, net_traction, tractive_efficiency

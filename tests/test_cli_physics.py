@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from soilocp.analysis.calibration import synthetic_testbed, write_testbed_csv
+from soilocp.analysis.testbed import synthetic_testbed, write_testbed_csv
 from soilocp_cli.main import main
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
 from soilocp.analysis.curves import FIGURE_FILES

@@ -16,7 +16,9 @@ from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces, static_n
 from soilocp.model.ocp import ocp_from_soil_strength
 from soilocp.sim.scenarios import Scenario, Segment, SweepParams, get_scenario, list_scenarios
 from soilocp.sim.sensor_models import SensorNoise
-from soilocp.sim.simulator import ControllerParams, TruthRecord, simulate
+from soilocp.sim.controller import ControllerParams
+from soilocp.sim.simulator import simulate
+from soilocp.sim.truth import TruthRecord
 from soilocp.model.slip import slip_ratio
 from soilocp.model.traction import gross_traction, motion_resistance, net_traction
 from soilocp.model.vehicle import DEFAULT_VEHICLE, load_vehicle

@@ -51,3 +51,58 @@ def test_per_wheel_simulation_unchanged_by_the_option():
     b = [p[0] for p in simulate("sand", duration=1.0, seed=2, vehicle=VehicleParams(drive="per_wheel"))]
     assert a == b
     assert a[-1].wheel_speed[0] != a[-1].wheel_speed[1]  # four independent wheels
+
+
+def test_side_torque_split_keeps_each_wheels_inertia_torque():
+    """Eq. 13 for a chained pair at one speed and one gross coefficient g: the split must give each
+    wheel T_i = I_w omega_dot + R_w g Fz_i.  The split by normal force alone hands the unloaded
+    wheel a share of the inertia torque in proportion to its load."""
+    from soilocp.estimation.wheel_inputs import split_side_torque
+
+    v = VehicleParams(drive="per_side")
+    iw, r, g, wdot = v.wheel_inertia, v.wheel_radius, 0.6, 45.0
+    fz = np.array([[220.0, 40.0, 45.0, 230.0]])  # hard acceleration: the front (wheels 2, 3) unloaded
+    true = iw * wdot + r * g * fz
+    side = np.array([true[0, 0] + true[0, 1], true[0, 2] + true[0, 3]])
+    logged = np.array([[side[0] / 2, side[0] / 2, side[1] / 2, side[1] / 2]])
+    got = split_side_torque(logged, fz, np.full((1, 4), iw * wdot))
+    np.testing.assert_allclose(got, true, rtol=1e-12)
+    g_old = (split_side_torque(logged, fz) - iw * wdot) / (r * fz)
+    assert g_old[0, 1] < g - 0.1  # what the plain split made of the front wheel's g
+
+
+def test_encoder_lead_reads_interval_mean_speeds_at_their_stamp():
+    """The simulator's encoders are count differences (the interval's mean speed); led by
+    omega_dot tau / 2 they match the true speed at the stamp several times better."""
+    from soilocp.estimation.wheel_inputs import encoder_lead, wheel_acceleration
+
+    noise = SensorNoise(encoder_cpr=1 << 24, accel_noise=0, accel_bias=0, gyro_noise=0, attitude_noise=0,
+                        torque_noise=0, torque_gain_error=0, ground_speed_noise=0)
+    pairs = list(simulate("grass", duration=6.0, vehicle=VehicleParams(drive="per_side"), noise=noise))
+    w = np.array([p[0].wheel_speed for p in pairs])
+    true = np.array([p[1].wheel_speed for p in pairs])
+    tau = np.full((len(w) - 1, 4), 0.01)
+    rate = wheel_acceleration(w[:-1], w[1:], tau, np.ones_like(tau, dtype=bool), 0.5)
+    led = w[1:] + encoder_lead(tau, rate)
+    late = slice(300, None)
+    raw_err = np.abs(w[1:] - true[1:])[late].mean()
+    led_err = np.abs(led - true[1:])[late].mean()
+    assert led_err < raw_err / 3, (raw_err, led_err)
+
+
+@pytest.mark.parametrize("soil", ["grass", "firm"])
+def test_skid_steer_drive_reads_k_against_truth(soil):
+    """A short simulated skid-steer traction test (per-side drive, encoder speeds): K within the
+    targets of the accuracy table (median <= 10 %, p90 <= 25 %), and its +-2 std band honest."""
+    from soilocp.analysis.accuracy import estimate_and_score
+    from soilocp.estimation.pipeline import PipelineConfig
+    from soilocp.model.vehicle import load_vehicle
+    from pathlib import Path
+
+    vehicle = load_vehicle(Path(__file__).parents[1] / "docs" / "maps" / "skid-steer-rover.json")
+    assert vehicle.drive == "per_side" and vehicle.wheel_speed_reading == "interval_mean"
+    cfg = PipelineConfig(vehicle=vehicle)
+    _, _, segs, _ = estimate_and_score(simulate(soil, duration=12.0, seed=1, vehicle=vehicle), cfg)
+    (seg,) = segs
+    assert seg.k_median_rel <= 0.10 and seg.k_p90_rel <= 0.25, (seg.k_median_rel, seg.k_p90_rel)
+    assert seg.band_coverage >= 0.9

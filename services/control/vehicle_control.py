@@ -104,7 +104,8 @@ def controlled_source(scenario: str, vehicle_id: str, inbox: SetpointInbox, *, d
     Not a generator itself: a bad scenario name raises ValueError here, at startup."""
     from soilocp.control.rig import RAMP_TIME, RIG_SCENARIOS
     from soilocp.sim.scenarios import get_scenario
-    from soilocp.sim.simulator import _smoothstep, simulate
+    from soilocp.sim.controller import smoothstep
+    from soilocp.sim.simulator import simulate
 
     rig = RIG_SCENARIOS.get(scenario)
     sc = rig.scenario if rig is not None else get_scenario(scenario)
@@ -115,7 +116,7 @@ def controlled_source(scenario: str, vehicle_id: str, inbox: SetpointInbox, *, d
     def torque(sample):
         sp = inbox.current()
         state["setpoint"] = sp
-        cmd = sc.speed * _smoothstep(sample.stamp / RAMP_TIME)
+        cmd = sc.speed * smoothstep(sample.stamp / RAMP_TIME)
         return loop.step(sample.stamp, sample.wheel_speed, sample.ground_speed, sample.yaw_rate, cmd, sp.value).torque
 
     samples = simulate(sc, duration=duration, rate=rate, seed=seed, vehicle_id=vehicle_id, mode="cruise",

@@ -10,7 +10,6 @@ published on ``soilocp/<vid>/status/ocp`` until fresh data arrives.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from collections import deque
@@ -20,6 +19,7 @@ from schemas import keys
 from schemas.messages import OcpReply
 from schemas.pipeline import OcpEstimate
 from services.stages.graph import BY_NAME
+from soilocp.model.parse import parse_finite
 from services.stages.stage_service import StageService
 
 
@@ -63,12 +63,7 @@ class OcpStore:
                 if last_n < 1:
                     raise ValueError(f"last={value!r}: must be an integer >= 1")
             elif name == "since":
-                try:
-                    since = float(value)
-                except ValueError:
-                    raise ValueError(f"since={value!r}: must be a sample stamp in seconds") from None
-                if not math.isfinite(since):
-                    raise ValueError(f"since={value!r}: must be finite")
+                since = parse_finite(value, "since (a sample stamp in seconds)")
             else:
                 raise ValueError(f"unknown parameter {name!r}: use last=N or since=STAMP")
         now = self.clock() if now is None else now

@@ -17,6 +17,7 @@ from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.analysis.evaluation import TARGETS, SegmentResult, evaluate_records
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.simulator import simulate
+from soilocp.model.vehicle import VehicleParams
 
 DEFAULT_SCENARIOS = ("sand", "gravel", "grass", "firm", "sandy-slope", "mixed")
 
@@ -100,8 +101,12 @@ def _run_args(args):
 
 
 def run_matrix(scenarios=DEFAULT_SCENARIOS, modes=("excitation", "cruise"), compensation=(True, False),
-               seed: int = 0, duration: Optional[float] = None, jobs: int = 2) -> list[RunResult]:
-    jobs_list = [(s, m, c, seed, duration) for s in scenarios for m in modes for c in compensation]
+               seed: int = 0, duration: Optional[float] = None, jobs: int = 2,
+               vehicle: Optional[VehicleParams] = None) -> list[RunResult]:
+    """``vehicle`` (None = the default rover) is both the simulated robot and the estimator's, e.g.
+    a skid steer (``drive: per_side``, docs/maps/skid-steer-rover.json)."""
+    cfg = PipelineConfig() if vehicle is None else PipelineConfig(vehicle=vehicle)
+    jobs_list = [(s, m, c, seed, duration, cfg) for s in scenarios for m in modes for c in compensation]
     if jobs <= 1:
         return [run_one(*a) for a in jobs_list]
     with ProcessPoolExecutor(max_workers=jobs) as ex:

@@ -4,13 +4,13 @@ project's targets."""
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Optional
 
 import numpy as np
+from soilocp.model.files import read_jsonl
 
 #: The accuracy targets (issue: "Simulated rover ... measured against truth").
 TARGETS = {
@@ -67,18 +67,6 @@ class SegmentResult:
             "ocp": all(le(v, t["ocp_median_abs"]) for v in (self.mu_T_median_abs, self.S_T_median_abs, self.S_E_median_abs)),
             "class": self.class_accuracy is not None and self.class_accuracy >= t["class_accuracy"],
         }
-
-
-def _read_jsonl(path: str | Path) -> list[dict]:
-    out = []
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, 1):
-            if line.strip():
-                try:
-                    out.append(json.loads(line))
-                except json.JSONDecodeError as exc:
-                    raise ValueError(f"{path}:{lineno}: not valid JSON: {exc}") from None
-    return out
 
 
 def _segments(stamps: np.ndarray, k_true: np.ndarray) -> list[tuple[int, int]]:
@@ -190,7 +178,7 @@ def _fin(v):
 
 
 def evaluate_files(truth: str | Path, estimates: str | Path, settle: float = TARGETS["settle_s"]) -> list[SegmentResult]:
-    return evaluate_records(_read_jsonl(truth), _read_jsonl(estimates), settle)
+    return evaluate_records(read_jsonl(truth), read_jsonl(estimates), settle)
 
 
 def results_as_json(results: Iterable[SegmentResult]) -> list[dict]:

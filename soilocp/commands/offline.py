@@ -140,7 +140,10 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--seeds", default=1, show_default=True, help="--robustness: seeds per variant (seed, seed+1, ...)")
 @click.option("--variant", "variants", multiple=True, help="--robustness: only these variant(s); default: all")
 @click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
-def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants, markdown):
+@click.option("--vehicle", "vehicle_path", type=click.Path(exists=True, dir_okay=False),
+              help="Vehicle JSON, simulated and estimated (e.g. docs/maps/skid-steer-rover.json); default: the built-in rover")
+def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants, markdown,
+             vehicle_path):
     """Accuracy against simulator truth: every scenario x mode x compensation, worst segment per run.
 
     Excitation mode is judged against the targets; cruise mode shows what is identifiable without
@@ -156,13 +159,23 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
         return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
     if variants or seeds != 1 or markdown:
         raise click.UsageError("--variant, --seeds and --markdown need --robustness")
+    vehicle = None
+    if vehicle_path:
+        from soilocp.model.vehicle import load_vehicle
+
+        try:
+            vehicle = load_vehicle(vehicle_path)
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
     from soilocp.analysis.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
     from soilocp.analysis.evaluation import TARGETS
 
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()
-    results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs)
-    table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed})",
+    results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs,
+                         vehicle)
+    drive = f"; vehicle {vehicle_path}" if vehicle_path else ""
+    table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed}{drive})",
                            ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
                             "conv. change", "OCP med err", "class acc", "statuses", "targets"))
     for r in results:

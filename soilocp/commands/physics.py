@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import click
 
@@ -146,7 +147,8 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     from rich.markup import escape
     from rich.table import Table
 
-    from soilocp.analysis.calibration import fit_constants, read_testbed_csv
+    from soilocp.analysis.calibration import fit_constants
+    from soilocp.analysis.testbed import read_testbed_csv
     from soilocp.model.constants import save_constants
 
     initial = _constants(initial_file)
@@ -180,3 +182,44 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
 
 
 COMMANDS = [ocp, curves, calibrate]
+
+
+# -------------------------------------------------------------------------------- calibrate-torque
+@click.command("calibrate-torque", short_help="Fit the torque constant k (N m per unit of the torque column) of a log.")
+@click.argument("log", type=click.Path(exists=True, dir_okay=False))
+@click.option("--vehicle", "vehicle_path", type=click.Path(exists=True, dir_okay=False), required=True,
+              help="Vehicle JSON (mass, wheel radius and inertia enter the force balance).")
+@click.option("--accel", type=click.Choice(["imu", "ground_speed"]), default="imu", show_default=True,
+              help="Acceleration from the IMU's f_x, or from the ground speed's change + pitch's gravity.")
+@click.option("--window", default=0.5, show_default=True, help="Averaging window, s.")
+@click.option("--min-speed", default=0.2, show_default=True, help="Windows slower than this (m/s) are skipped.")
+@click.option("--max-yaw-rate", default=0.1, show_default=True, help="Windows turning faster (rad/s) are skipped.")
+@click.option("--saturation", type=float, default=None, help="|logged torque| per wheel at which it clips.")
+@click.option("--scale", "old_scale", type=float, default=None,
+              help="The effort_scale / current_to_torque the log was imported with (to print the new one).")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the result as JSON.")
+def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, saturation, old_scale, json_out):
+    """Estimate the constant k that turns LOG's torque column (e.g. a motor current) into wheel
+    torque, from the longitudinal force balance m f_x + I_w sum(omega_dot)/R = k sum(T)/R - F_MR
+    (docs/method.md §15), on windows where the robot drives straight, forward,
+    unsaturated.  LOG is a sensor log (JSON Lines, e.g. from soilocp import).  Says
+    not_determined, and why, when the log cannot fix k.
+    """
+    from soilocp.analysis.torque_constant import TorqueSelection, fit_torque_constant, summary_lines
+    from soilocp.model.files import read_jsonl
+    from soilocp.model.vehicle import load_vehicle
+
+    try:
+        vehicle = load_vehicle(vehicle_path)
+        sel = TorqueSelection(window=window, min_speed=min_speed, max_yaw_rate=max_yaw_rate, saturation=saturation,
+                              accel=accel)
+        fit = fit_torque_constant(read_jsonl(log), vehicle, sel)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    for line in summary_lines(fit, old_scale):
+        click.echo(line)
+    if json_out:
+        Path(json_out).write_text(json.dumps(fit.as_dict(), indent=2))
+
+
+COMMANDS.append(calibrate_torque)

@@ -37,7 +37,8 @@ from soilocp.model.constants import REFERENCE_SOILS
 from soilocp.model.normal_force import STANDARD_GRAVITY
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
 from soilocp.sim.scenarios import Scenario, Segment
-from soilocp.sim.simulator import _smoothstep, simulate
+from soilocp.sim.controller import smoothstep
+from soilocp.sim.simulator import simulate
 from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.control.controllers import SlipController, make_controller
 
@@ -65,7 +66,7 @@ def _ramp_draft(start: float, ramp: float, delay: float = 3.0) -> Callable[[floa
     w = _weight()
 
     def draft(t: float, v: float) -> float:
-        return w * (start + ramp * max(0.0, t - delay)) * _smoothstep(t / delay)
+        return w * (start + ramp * max(0.0, t - delay)) * smoothstep(t / delay)
 
     return draft
 
@@ -131,7 +132,7 @@ class _Loop:
 
     def __call__(self, sample: SensorSample):
         self.estimate = self.pipeline.process(sample)
-        cmd = self.speed * _smoothstep(sample.stamp / RAMP_TIME)
+        cmd = self.speed * smoothstep(sample.stamp / RAMP_TIME)
         self.last = self.ctl.step(sample, self.estimate, cmd)
         return self.last.loop.torque
 

@@ -28,8 +28,10 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.e
 * Divergence: a non-finite or out-of-physics state resets that vehicle's filter with a counted
   reason (``resets_by_reason``); the next samples are processed normally.
 * Skid-steer (``VehicleParams.drive == "per_side"``): the two wheels of a side share one motor, so
-  the side's torque (logged as half on each wheel) is split between them by normal force, and each
-  side's one speed measurement counts once (its two rows carry twice the variance).
+  the side's torque (logged as half on each wheel) is split between them by normal force, each
+  keeping its own inertia torque, and each side's one speed measurement counts once (its two rows
+  carry twice the variance).  Encoder speeds that are interval means (vehicle
+  ``wheel_speed_reading``) are led by omega_dot tau / 2 (:mod:`soilocp.estimation.wheel_inputs`).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from soilocp.estimation.observer import (N_MEAS, ModelBuffers, ObserverConfig, S
                                          initial_covariance, model, resistance_map, travel_direction)
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
+from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
 LIFT_OFF_FORCE = 1.0
@@ -122,19 +125,6 @@ def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.n
     held by a slow driver or logger (docs/method.md §13: wheel speeds and currents refresh at
     0.5-5 Hz and are held in between), not a new measurement.  Everything is new at a start."""
     return (now != prev) | first[:, None]
-
-
-def split_side_torque(torque: np.ndarray, fz: np.ndarray) -> np.ndarray:
-    """Per-wheel torque (k, 4) of a skid-steer robot: each side's motor torque (logged as half on
-    each of its wheels 1+2 left, 3+4 right) shared by its two wheels in proportion to their normal
-    forces, so that both see the same gross traction coefficient."""
-    out = np.empty_like(torque)
-    for a, b in ((0, 1), (2, 3)):
-        side = torque[:, a] + torque[:, b]
-        total = fz[:, a] + fz[:, b]
-        out[:, a] = side * fz[:, a] / total
-        out[:, b] = side * fz[:, b] / total
-    return out
 
 
 class _Workspace:
@@ -223,7 +213,6 @@ class ObserverBank:
         cfg, L = self.cfg, self.layout
         ws = self._ws
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
-        torque = split_side_torque(inputs.wheel_torque, fz) if self.vehicle.drive == "per_side" else inputs.wheel_torque
         # every vehicle in order (idx None, e.g. N = 1): basic slices instead of fancy indexing
         sel = slice(None) if idx is None else ix
         x, P = self.x[sel].copy(), self.P[sel].copy()
@@ -235,8 +224,22 @@ class ObserverBank:
         raw[:, :4] = inputs.wheel_speed
         raw[:, 4] = inputs.ground_speed
         raw[:, 5:] = inputs.wheel_torque
-        fresh = fresh_readings(self._prev[sel], raw, first | (dt < 0))
-        changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[sel])
+        prev, prev_changed = self._prev[sel], self._changed_at[sel]  # read before they are overwritten below
+        fresh = fresh_readings(prev, raw, first | (dt < 0))
+        per_side = self.vehicle.drive == "per_side"
+        interval_mean = self.vehicle.wheel_speed_reading == "interval_mean"
+        lead = None
+        torque = inputs.wheel_torque
+        if per_side or interval_mean:  # otherwise the wheel acceleration is not used
+            # a fresh encoder speed is a count difference: the mean over the interval since the last one
+            interval = np.where(fresh[:, :4], inputs.stamp[:, None] - prev_changed[:, :4], 0.0)
+            interval = np.where(interval <= cfg.max_gap, interval, 0.0)
+            omega_rate = wheel_acceleration(prev[:, :4], inputs.wheel_speed, interval, fresh[:, :4], cfg.max_gap)
+            if per_side:
+                torque = split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
+            if interval_mean:
+                lead = encoder_lead(interval, omega_rate)
+        changed_at = np.where(fresh, inputs.stamp[:, None], prev_changed)
         self._prev[sel], self._changed_at[sel] = raw, changed_at
         age = inputs.stamp[:, None] - changed_at
         # dt == 0 (a repeated stamp) is no reset: only the update runs
@@ -263,7 +266,10 @@ class ObserverBank:
             z = ws.z[:k]
             z[:, 0] = inputs.specific_force_x
             z[:, 1] = inputs.yaw_rate
-            z[:, 2:6] = inputs.wheel_speed
+            if lead is None:
+                z[:, 2:6] = inputs.wheel_speed
+            else:
+                np.add(inputs.wheel_speed, lead, out=z[:, 2:6])
             z[:, 6] = np.where(no_gs, 0.0, gs)
             available = np.empty(z.shape, dtype=bool)
             available[:, :2] = True

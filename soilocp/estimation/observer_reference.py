@@ -17,7 +17,8 @@ from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, condition, fresh_readings, outlier_variance, split_side_torque
+from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, fresh_readings, outlier_variance,
+                                              split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
 
 
@@ -52,6 +53,7 @@ class TractionObserver:
         self._last_stamp: float | None = None
         self._rejections = np.zeros(N_MEAS, dtype=int)
         self._prev = np.full(5, np.nan)
+        self._changed_at = np.full(4, np.nan)  # when each wheel speed last changed (the encoder interval)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
         self.steps = 0
@@ -78,15 +80,21 @@ class TractionObserver:
         """One predict/update cycle (eq. 35, standard form) for a sample at ``stamp``."""
         fz = np.maximum(np.asarray(normal_force, dtype=float), LIFT_OFF_FORCE)
         torque = np.asarray(wheel_torque, dtype=float)
-        if self.vehicle.drive == "per_side":
-            torque = split_side_torque(torque[None], fz[None])[0]
         omega = np.asarray(wheel_speed, dtype=float)
         ground_speed = float("nan") if ground_speed is None else float(ground_speed)
         dt = None if self._last_stamp is None else stamp - self._last_stamp
         reset = dt is None or dt < 0 or dt > self.cfg.max_gap
         speeds = np.array([*omega, ground_speed])
         fresh = fresh_readings(self._prev[None], speeds[None], np.array([dt is None or dt < 0]))[0]
+        interval = np.where(fresh[:4], stamp - self._changed_at, 0.0)
+        interval = np.where(interval <= self.cfg.max_gap, interval, 0.0)
+        omega_rate = wheel_acceleration(self._prev[None, :4], omega[None], interval[None], fresh[None, :4],
+                                        self.cfg.max_gap)[0]
+        if self.vehicle.drive == "per_side":
+            torque = split_side_torque(torque[None], fz[None], self.vehicle.wheel_inertia * omega_rate[None])[0]
+        lead = encoder_lead(interval, omega_rate) if self.vehicle.wheel_speed_reading == "interval_mean" else 0.0
         self._prev = speeds
+        self._changed_at = np.where(fresh[:4], stamp, self._changed_at)
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)
         A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
@@ -95,7 +103,8 @@ class TractionObserver:
             F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
             self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
         self._last_stamp = stamp
-        z = np.array([specific_force_x, yaw_rate, *omega, np.nan_to_num(ground_speed)])
+        omega_now = omega + lead
+        z = np.array([specific_force_x, yaw_rate, *omega_now, np.nan_to_num(ground_speed)])
         rejected = 0
         if not reset:
             innov = z - H @ self.kf.x

@@ -37,6 +37,16 @@ class VehicleParams(BaseModel):
         ),
     )
 
+    wheel_speed_reading: Literal["instant", "interval_mean"] = Field(
+        "instant",
+        description=(
+            "instant: the logged wheel speed is the speed at the sample's stamp. interval_mean: it is an "
+            "encoder count difference over the interval since the previous reading (the mean speed over "
+            "it, lagging by omega_dot * interval / 2), which the observer then corrects for; the "
+            "simulator's encoders read this way"
+        ),
+    )
+
     @model_validator(mode="after")
     def _finite(self):
         for name, v in self.model_dump().items():

@@ -105,3 +105,12 @@ class SensorSuite:
             "wheel_torque": tuple(float(x) for x in t),
             "ground_speed": float(ground_speed + self._white(n.ground_speed_noise)),
         }
+
+
+def per_side_readings(read: dict) -> dict:
+    """What a per-side drive measures: one encoder and one motor current per side.  Both wheels of
+    a side read the side's speed (mean of the two) and half the side's total torque."""
+    w, t = read["wheel_speed"], read["wheel_torque"]
+    ws = (0.5 * (w[0] + w[1]), 0.5 * (w[2] + w[3]))
+    ts = (0.5 * (t[0] + t[1]), 0.5 * (t[2] + t[3]))
+    return {**read, "wheel_speed": (ws[0], ws[0], ws[1], ws[1]), "wheel_torque": (ts[0], ts[0], ts[1], ts[1])}

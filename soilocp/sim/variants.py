@@ -32,7 +32,9 @@ from schemas.sensor import SensorSample
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
 from soilocp.sim.scenarios import Scenario, Segment, SweepParams
-from soilocp.sim.simulator import DEFAULT_CONTROLLER, ControllerParams, TruthRecord, simulate
+from soilocp.sim.controller import ControllerParams, DEFAULT_CONTROLLER
+from soilocp.sim.simulator import simulate
+from soilocp.sim.truth import TruthRecord
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 Identifiability = Literal["yes", "limited", "no"]
