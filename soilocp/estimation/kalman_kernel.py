@@ -67,7 +67,8 @@ def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.n
 
 
 def outlier_variance(innov: np.ndarray, hph: np.ndarray, r: np.ndarray, gate_sigma: float, keep: np.ndarray):
-    """Measurement variance of each row for the update: R where the row passes its gate (``keep``);
+    """Measurement variance of each row (k, m) for the update of eq. 35 (docs/method.md §12): R
+    where the row passes its gate (``keep``);
     for a row beyond it, the variance that puts its innovation exactly on the gate
     (nu^2 / gate^2 - H P H^T, Huber's weighting): a sensor spike moves the state by at most a
     gate's worth, and a model that is off (a traction change faster than the random walk) is
@@ -77,7 +78,8 @@ def outlier_variance(innov: np.ndarray, hph: np.ndarray, r: np.ndarray, gate_sig
 
 def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: np.ndarray,
                  gate_sigma: float, counts: np.ndarray, patience: int, available: np.ndarray | None = None):
-    """Kalman update (Joseph form) of x (k, n), P (k, n, n) by z (k, m) with diagonal R (k, m) and
+    """Kalman update (eq. 35 in its standard form, docs/method.md §7; Joseph form) of x (k, n),
+    P (k, n, n) by z (k, m) with diagonal R (k, m) and
     H (k, m, n).  Each row is gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)); a row beyond
     it is down-weighted (:func:`outlier_variance`) unless it was beyond it ``patience`` times in a
     row (then the model, not the sensor, is off: full weight again).  Rows not ``available`` (k, m)
@@ -122,9 +124,10 @@ def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: 
 
 
 def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray, floor: float, ceiling: float):
-    """Keep P symmetric positive semi-definite (symmetrise, clamp variances to [floor, ceiling] and
-    correlations to +-0.9999) and project x into the physical box [lower, upper] (each (n,)).
-    Returns x, P (new arrays)."""
+    """Keep P (k, n, n) symmetric positive semi-definite (symmetrise, clamp variances to [floor,
+    ceiling] and correlations to +-0.9999) and project x (k, n) into the physical box [lower,
+    upper] (each (n,)): the state bounds of docs/method.md §12 (|mu| <= 1.5, resistance within its
+    physical range).  Returns x, P (new arrays)."""
     # minimum / maximum in place of np.clip: the same values, without np.clip's dispatch overhead
     P = P + P.transpose(0, 2, 1)
     P /= 2.0

@@ -71,6 +71,8 @@ class ObserverInputs:
     normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
 
     def check(self) -> int:
+        """k, the number of vehicles, after checking every field's shape ((k,) or (k, 4)), dtype and
+        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise."""
         st = self.stamp
         k = st.shape[0] if type(st) is np.ndarray and st.ndim == 1 else -1
         # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
@@ -184,6 +186,8 @@ class ObserverBank:
         return slip, travel_direction(ground, self.cfg.travel_speed)
 
     def maps(self, x: np.ndarray) -> np.ndarray:
+        """The resistance map (k, 4, n_res) at states x (k, n): mu_MR,i = d_i (r0 b(|S_i|) + r1 |S_i|)
+        (eq. 4 with |S|, even in slip, docs/method.md §11), d_i the direction of travel."""
         if self.layout.n_res != 2:
             return resistance_map(self.layout, np.zeros((x.shape[0], 4)), None, self.cfg.bridge_slip)
         slip, travel = self.state_slip(x)

@@ -88,6 +88,11 @@ class NormalForceStage:
         self._solve = NormalForceSolver(config.vehicle)
 
     def step(self, sample: SensorSample) -> NormalForces:
+        """One sample's normal forces.
+
+        Parameters: ``sample.specific_force`` (3,), m/s^2, body frame (x forward, y left, z up).
+        Returns F_z per wheel (4,), N, wheels 1 LR, 2 LF, 3 RF, 4 RR (eqs. 21-25, the zero-warp
+        solution; not clipped: <= 0 is a lifted wheel, docs/method.md §2-3)."""
         fz = self._solve(sample.specific_force)
         return NormalForces(
             vehicle_id=sample.vehicle_id,
@@ -105,7 +110,9 @@ def _bools(a) -> tuple[bool, bool, bool, bool]:
 
 
 def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
-    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's inputs."""
+    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's
+    inputs: scalars (k,) (stamp s, specific force x m/s^2, yaw rate rad/s, pitch rad, ground speed
+    m/s or NaN when absent) and per-wheel arrays (k, 4) (speeds rad/s, torques N m, forces N)."""
     if len(samples) != len(normal_forces):
         raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
     # one array for the scalars and one per quad: a handful of numpy calls whatever k is
@@ -120,7 +127,8 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
 
 
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
-    """The j-th vehicle of a kernel output as the ObserverOutput message."""
+    """The j-th vehicle of a kernel output (arrays (k, 4) per wheel, (k,) per vehicle) as the
+    ObserverOutput message."""
     # one tuple per field (callgrind: fewer instructions than one stacked array's tolist, and
     # pydantic takes tuples for the Quad fields without a conversion)
     return ObserverOutput(
@@ -159,6 +167,15 @@ class ObserverStage:
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
+        """One predict + gated update of the observer (eqs. 26-35 with the §7 state).
+
+        Parameters: the sample (wheel speeds (4,) rad/s, torques (4,) N m, specific force x m/s^2,
+        yaw rate rad/s, pitch rad, ground speed m/s or None) and its normal forces (4,) N, same seq.
+        Returns per wheel (4,): net traction mu (eq. 6's F_DP/W) and its variance, motion
+        resistance (eq. 4 with |S|, §11), gross traction mu + mu_MR (what eq. 13 sees) and its
+        variance, the filtered wheel speeds; the filtered ground speed and yaw rate; whether each mu
+        is determined (posterior 1-sigma <= ``mu_std_determined``, §12) and any reset's reason.
+        ValueError when the forces belong to another sample."""
         if forces.seq != sample.seq or forces.vehicle_id != sample.vehicle_id:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
@@ -240,6 +257,9 @@ class SlipGate:
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
                  j: int) -> SoilEstimate:
+    """The j-th vehicle of a soil-kernel step as the SoilEstimate message: slip (4,) from ``inp``,
+    K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,) and its
+    determined flags (4,) passed through."""
     return SoilEstimate(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
@@ -260,6 +280,12 @@ class SoilStage:
         self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
 
     def step(self, obs: ObserverOutput) -> SoilEstimate:
+        """Slip per wheel (4,) by eq. 1 from the filtered speeds, then one update of the ln K grid
+        with the wheels' (slip, gross traction) pairs that the gate lets through (§9).
+
+        Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
+        with its probability, and a status that says when K is not determined, not observable, or
+        not explained by the traction curve (§11-13), with the reason."""
         ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
@@ -293,6 +319,9 @@ class OcpStage:
         self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
 
     def step(self, soil: SoilEstimate) -> OcpEstimate:
+        """mu_T (eq. 8), S_T (eq. 7, sign corrected, docs/method.md §5), S_E (eq. 10) and TE at S_E
+        (eq. 9) for the estimate's K (scalars; all None when K is None), with the soil estimate's
+        status, reason, slip (4,) and mu (4,) carried over."""
         k = soil.soil_strength
         if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
             self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
@@ -310,10 +339,12 @@ class VehiclePipeline:
         self.ocp = OcpStage(self.config)
 
     def process_all(self, sample: SensorSample) -> tuple[NormalForces, ObserverOutput, SoilEstimate, OcpEstimate]:
+        """One sample through the four stages; every stage's message, in order."""
         nf = self.normal.step(sample)
         ob = self.observer.step(sample, nf)
         so = self.soil.step(ob)
         return nf, ob, so, self.ocp.step(so)
 
     def process(self, sample: SensorSample) -> OcpEstimate:
+        """One sample through the four stages; the OCP estimate."""
         return self.process_all(sample)[3]

@@ -66,6 +66,9 @@ def _slip_efficiency(k: np.ndarray, c: ModelConstants) -> np.ndarray:
 
 @dataclass(frozen=True)
 class OCP:
+    """The optimal control parameters of one soil strength K: mu_T (eq. 8), S_T (eq. 7 corrected,
+    docs/method.md §5) and S_E (eq. 10), all dimensionless."""
+
     soil_strength: float
     mu_T: float
     S_T: float
