@@ -10,7 +10,7 @@ import numpy as np
 
 from soilocp.model.checks import positive, positive_scalar
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.model.traction import curve_unchecked, tractive_efficiency_unchecked
+from soilocp.model.traction import net_traction_unchecked, tractive_efficiency_unchecked
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -45,7 +45,7 @@ def _max_traction(k: np.ndarray, c: ModelConstants, st: np.ndarray | None = None
     if c.bridge_slip > 0:
         # at the origin the peak is the bridge's end point, where the printed curve starts
         st = np.maximum(st, c.bridge_slip)
-    return curve_unchecked("net", st, k, c)[0]  # eq. 6 at S_T
+    return net_traction_unchecked(st, k, c)  # eq. 6 at S_T
 
 
 def optimal_slip_efficiency(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
