@@ -3,7 +3,7 @@
 Every stage is timed sample by sample on a real simulated drive (the simulator's ``mixed``
 scenario by default), with the same objects the services run: validation is
 ``parse_sample`` + ``SampleValidator`` on the JSON line (the gateway's check), then
-``NormalForceStage``, ``ObserverStage`` (one filterpy predict/update including the per-step ZOH
+``NormalForceStage``, ``ObserverStage`` (one step of the observer kernel, N = 1, including the per-step ZOH
 discretisation), ``SoilStage`` and ``OcpStage``.  ``messages`` is what the live services add on
 top of the physics: encoding and decoding of the four internal messages (one hop each).
 """

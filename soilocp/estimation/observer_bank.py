@@ -37,12 +37,12 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.e
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
-from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, initial_covariance, model,
-                       resistance_map, travel_direction)
+from soilocp.estimation.kalman_kernel import _arange, _bmv, condition, gated_update, outlier_variance, predict
+from soilocp.estimation.observer import (N_MEAS, ModelBuffers, ObserverConfig, StateLayout, continuous_process_noise,
+                                         initial_covariance, model, resistance_map, travel_direction)
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
@@ -51,21 +51,6 @@ from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, whe
 LIFT_OFF_FORCE = 1.0
 
 RESET_REASONS = ("start", "time_gap", "stamp_backwards", "non_finite_state", "state_out_of_physics")
-
-
-@lru_cache(maxsize=None)
-def _eye(n: int) -> np.ndarray:
-    """I (n, n), built once per size (read-only): the hot path allocates no constant."""
-    e = np.eye(n)
-    e.flags.writeable = False
-    return e
-
-
-@lru_cache(maxsize=None)
-def _arange(n: int) -> np.ndarray:
-    a = np.arange(n)
-    a.flags.writeable = False
-    return a
 
 
 _FIELDS_K = ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed")
@@ -86,15 +71,18 @@ class ObserverInputs:
     normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
 
     def check(self) -> int:
-        k = np.shape(self.stamp)[0] if np.ndim(self.stamp) == 1 else -1
+        """k, the number of vehicles, after checking every field's shape ((k,) or (k, 4)), dtype and
+        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise."""
+        st = self.stamp
+        k = st.shape[0] if type(st) is np.ndarray and st.ndim == 1 else -1
         # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
         # one test; anything else takes the field-by-field check below, which names the field
-        arrs = [getattr(self, n) for n in _FIELDS_K + _FIELDS_K4]
-        if k >= 0 and all(type(a) is np.ndarray and a.dtype == np.float64 for a in arrs) \
-                and all(a.shape == (k,) for a in arrs[:5]) and all(a.shape == (k, 4) for a in arrs[5:]):
-            gs = arrs[4]
-            if np.isfinite(np.concatenate([*arrs[:4], *arrs[5:]], axis=None)).all() \
-                    and not np.isinf(gs).any():
+        flat = (st, self.specific_force_x, self.yaw_rate, self.pitch, self.ground_speed)
+        quads = (self.wheel_speed, self.wheel_torque, self.normal_force)
+        if k >= 0 and all(type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (k,) for a in flat) \
+                and all(type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (k, 4) for a in quads):
+            if np.isfinite(np.concatenate([*flat[:4], *quads], axis=None)).all() \
+                    and not np.isinf(flat[4]).any():
                 return k
         for name in _FIELDS_K:
             a = np.asarray(getattr(self, name), dtype=float)
@@ -141,79 +129,25 @@ def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.n
     return (now != prev) | first[:, None]
 
 
-def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: np.ndarray):
-    """ZOH prediction (eq. 34, exact series: A nilpotent) over dt (k,) > 0: returns x (k, n), P (k, n, n)."""
-    eye = _eye(x.shape[1])
-    d3 = dt[:, None, None]
-    F = eye + A * d3
-    G = b * dt[:, None] + np.einsum("kij,kj->ki", A, b) * (dt * dt / 2.0)[:, None]
-    AQ = A @ Qc
-    Qd = Qc * d3 + (AQ + AQ.transpose(0, 2, 1)) * (d3 * d3 / 2.0) + AQ @ A.transpose(0, 2, 1) * (d3**3 / 3.0)
-    return np.einsum("kij,kj->ki", F, x) + G, F @ P @ F.transpose(0, 2, 1) + Qd
+class _Workspace:
+    """Per-step scratch arrays for up to k vehicles stepped together, allocated once (a step of
+    k' <= k vehicles uses their first k' rows): the model's A, b, H
+    (:class:`soilocp.estimation.observer.ModelBuffers`), the raw readings, z, R and the
+    gross-traction Jacobian J = [I | M] of :meth:`ObserverBank._output`."""
 
-
-def outlier_variance(innov: np.ndarray, hph: np.ndarray, r: np.ndarray, gate_sigma: float, keep: np.ndarray):
-    """Measurement variance of each row for the update: R where the row passes its gate (``keep``);
-    for a row beyond it, the variance that puts its innovation exactly on the gate
-    (nu^2 / gate^2 - H P H^T, Huber's weighting): a sensor spike moves the state by at most a
-    gate's worth, and a model that is off (a traction change faster than the random walk) is
-    still followed, instead of coasting on a prediction that runs away."""
-    return np.where(keep, r, np.maximum(r, innov**2 / gate_sigma**2 - hph))
-
-
-def gated_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray, H: np.ndarray,
-                 gate_sigma: float, counts: np.ndarray, patience: int, available: np.ndarray | None = None):
-    """Kalman update (Joseph form) of x (k, n), P (k, n, n) by z (k, m) with diagonal R (k, m) and
-    H (k, m, n).  Each row is gated on its innovation (|nu| <= gate_sigma sqrt(S_ii)); a row beyond
-    it is down-weighted (:func:`outlier_variance`) unless it was beyond it ``patience`` times in a
-    row (then the model, not the sensor, is off: full weight again).  Rows not ``available`` (k, m)
-    (a held, not a new, reading) take no part and count nothing.  Returns x, P, the new counts
-    (k, m), the normalised innovation squares nu_i^2 / S_ii (k, m) of the prior and the rows taken
-    at full weight (k, m)."""
-    innov = z - np.einsum("kij,kj->ki", H, x)
-    hph = np.einsum("kij,kij->ki", H @ P, H)
-    nis = innov**2 / (hph + r)
-    keep = (nis <= gate_sigma**2) | (counts >= patience)
-    avail = np.ones_like(keep) if available is None else available
-    counts = np.where(avail, np.where(keep, 0, counts + 1), counts)
-    keep &= avail
-    upd = avail.any(axis=1)
-    if upd.any():
-        av = avail[upd]
-        Hm = H[upd] * av[:, :, None]  # a row not available: zero H row and innovation, harmless R
-        y = innov[upd] * av
-        rm = np.where(av, outlier_variance(innov[upd], hph[upd], r[upd], gate_sigma, keep[upd]), 1.0)
-        Pu = P[upd]
-        PHT = Pu @ Hm.transpose(0, 2, 1)
-        S = Hm @ PHT
-        dg = _arange(S.shape[1])
-        S[:, dg, dg] += rm
-        K = PHT @ np.linalg.inv(S)
-        x = x.copy()
-        P = P.copy()
-        x[upd] = x[upd] + np.einsum("kij,kj->ki", K, y)
-        IKH = _eye(x.shape[1]) - K @ Hm
-        P[upd] = IKH @ Pu @ IKH.transpose(0, 2, 1) + (K * rm[:, None, :]) @ K.transpose(0, 2, 1)
-    return x, P, counts, nis, keep & avail
-
-
-def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray, floor: float, ceiling: float):
-    """Keep P symmetric positive semi-definite (symmetrise, clamp variances to [floor, ceiling] and
-    correlations to +-0.9999) and project x into the physical box [lower, upper] (each (n,)).
-    Returns x, P (new arrays)."""
-    P = (P + P.transpose(0, 2, 1)) / 2.0
-    dg = _arange(P.shape[1])
-    var = np.clip(P[:, dg, dg], floor, ceiling)
-    sd = np.sqrt(var)
-    lim = 0.9999 * sd[:, :, None] * sd[:, None, :]
-    P = np.clip(P, -lim, lim)
-    P[:, dg, dg] = var
-    return np.clip(x, lower, upper), P
+    def __init__(self, layout: StateLayout, k: int, r: np.ndarray):
+        self.model = ModelBuffers(layout, k)
+        self.raw = np.empty((k, 9))
+        self.z = np.empty((k, N_MEAS))
+        self.r = np.broadcast_to(r, (k, N_MEAS))
+        self.J = np.zeros((k, 4, layout.n))
+        self.J[:, :, layout.mu] = np.eye(4)
 
 
 class ObserverBank:
     """N traction observers stepped together (see the module doc).  ``step(idx, inputs)`` steps
-    the vehicles ``idx`` (any subset, each at most once); vehicles need not be in step."""
+    the vehicles ``idx`` (any subset, each at most once; None: all, in order); vehicles need not
+    be in step."""
 
     def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int):
         self.vehicle = vehicle
@@ -223,6 +157,7 @@ class ObserverBank:
         self.n_vehicles = n = check_count(n_vehicles)
         self.layout = L = StateLayout.of(cfg.structure)
         self._Qc = continuous_process_noise(L, cfg)
+        self._q = np.diagonal(self._Qc).copy()  # Qc is diagonal: A Qc is a column scaling
         r_speed = cfg.r_wheel_speed**2 * (2.0 if vehicle.drive == "per_side" else 1.0)
         self._r = np.array([cfg.r_specific_force**2, cfg.r_yaw_rate**2, *([r_speed] * 4), cfg.r_ground_speed**2])
         self.x = np.zeros((n, L.n))
@@ -236,17 +171,23 @@ class ObserverBank:
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
+        # |omega_1..4| and |V| (contiguous in the state) above these are divergence
+        self._speed_limits = np.array([cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed])
+        self._all = _arange(n)
+        self._ws = _Workspace(L, n, self._r)
 
     def state_slip(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-wheel slip (eq. 1, floor 0.05 m/s) and travel direction of states x (k, n): the
         regressors of the ``slip`` structure, taken from the prior so the model stays linear."""
         L = self.layout
         rim = x[:, L.omega] * self.vehicle.wheel_radius
-        ground = x[:, L.v][:, None] - x[:, L.psi][:, None] * self._wheel_y
+        ground = x[:, L.v:L.v + 1] - x[:, L.psi:L.psi + 1] * self._wheel_y
         slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
         return slip, travel_direction(ground, self.cfg.travel_speed)
 
     def maps(self, x: np.ndarray) -> np.ndarray:
+        """The resistance map (k, 4, n_res) at states x (k, n): mu_MR,i = d_i (r0 b(|S_i|) + r1 |S_i|)
+        (eq. 4 with |S|, even in slip, docs/method.md §11), d_i the direction of travel."""
         if self.layout.n_res != 2:
             return resistance_map(self.layout, np.zeros((x.shape[0], 4)), None, self.cfg.bridge_slip)
         slip, travel = self.state_slip(x)
@@ -268,39 +209,50 @@ class ObserverBank:
             self.resets_by_reason[why] += 1
 
     def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
-        """One predict / gated update (eq. 35, standard form) for the vehicles ``idx``."""
-        ix = check_index(idx, self.n_vehicles)
+        """One predict / gated update (eq. 35, standard form) for the vehicles ``idx`` (None: all)."""
+        ix = self._all if idx is None else check_index(idx, self.n_vehicles)
         k = inputs.check()
         if k != ix.size:
             raise ValueError(f"inputs hold {k} samples for {ix.size} vehicle indices")
         cfg, L = self.cfg, self.layout
+        ws = self._ws
         fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
-        x, P = self.x[ix], self.P[ix]
-        last = self.last_stamp[ix]
-        with np.errstate(invalid="ignore"):
-            dt = inputs.stamp - last
+        # every vehicle in order (idx None, e.g. N = 1): basic slices instead of fancy indexing
+        sel = slice(None) if idx is None else ix
+        x, P = self.x[sel].copy(), self.P[sel].copy()
+        last = self.last_stamp[sel].copy()
+        dt = inputs.stamp - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
         reasons = [""] * k
         first = np.isnan(last)
-        raw = np.column_stack([inputs.wheel_speed, inputs.ground_speed, inputs.wheel_torque])
-        fresh = fresh_readings(self._prev[ix], raw, first | (dt < 0))
-        # a fresh encoder speed is a count difference: the mean over the interval since the last one
-        interval = np.where(fresh[:, :4], inputs.stamp[:, None] - self._changed_at[ix][:, :4], 0.0)
-        interval = np.where(interval <= cfg.max_gap, interval, 0.0)
-        omega_rate = wheel_acceleration(self._prev[ix][:, :4], inputs.wheel_speed, interval, fresh[:, :4], cfg.max_gap)
-        torque = (split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
-                  if self.vehicle.drive == "per_side" else inputs.wheel_torque)
-        if self.vehicle.wheel_speed_reading == "instant":
-            interval = np.zeros_like(interval)  # no lead
-        changed_at = np.where(fresh, inputs.stamp[:, None], self._changed_at[ix])
-        self._prev[ix], self._changed_at[ix] = raw, changed_at
+        raw = ws.raw[:k]
+        raw[:, :4] = inputs.wheel_speed
+        raw[:, 4] = inputs.ground_speed
+        raw[:, 5:] = inputs.wheel_torque
+        prev, prev_changed = self._prev[sel], self._changed_at[sel]  # read before they are overwritten below
+        fresh = fresh_readings(prev, raw, first | (dt < 0))
+        per_side = self.vehicle.drive == "per_side"
+        interval_mean = self.vehicle.wheel_speed_reading == "interval_mean"
+        lead = None
+        torque = inputs.wheel_torque
+        if per_side or interval_mean:  # otherwise the wheel acceleration is not used
+            # a fresh encoder speed is a count difference: the mean over the interval since the last one
+            interval = np.where(fresh[:, :4], inputs.stamp[:, None] - prev_changed[:, :4], 0.0)
+            interval = np.where(interval <= cfg.max_gap, interval, 0.0)
+            omega_rate = wheel_acceleration(prev[:, :4], inputs.wheel_speed, interval, fresh[:, :4], cfg.max_gap)
+            if per_side:
+                torque = split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
+            if interval_mean:
+                lead = encoder_lead(interval, omega_rate)
+        changed_at = np.where(fresh, inputs.stamp[:, None], prev_changed)
+        self._prev[sel], self._changed_at[sel] = raw, changed_at
         age = inputs.stamp[:, None] - changed_at
         # dt == 0 (a repeated stamp) is no reset: only the update runs
-        for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),
-                          (~first & (dt > cfg.max_gap), "time_gap")):
-            if rows.any():
-                self._reset(ix, rows, x, P, inputs, reasons, why)
-        A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity)
-        lead = encoder_lead(interval, omega_rate)
+        if (first | (dt < 0) | (dt > cfg.max_gap)).any():
+            for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),
+                              (~first & (dt > cfg.max_gap), "time_gap")):
+                if rows.any():
+                    self._reset(ix, rows, x, P, inputs, reasons, why)
+        A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity, out=ws.model)
         rejected = np.zeros(k, dtype=int)
         every = not any(reasons)  # the usual case: no mask copies, same arithmetic
         run = slice(None) if every else np.array([not r for r in reasons])
@@ -309,62 +261,73 @@ class ObserverBank:
             dtr = dt if every else dt[run]
             moving = dtr > 0
             if moving.all():
-                xr, Pr = predict(xr, Pr, A if every else A[run], b if every else b[run], self._Qc, dtr)
+                xr, Pr = predict(xr, Pr, A if every else A[run], b if every else b[run], self._Qc, dtr, self._q)
             elif moving.any():
                 xr[moving], Pr[moving] = predict(xr[moving], Pr[moving], A[run][moving], b[run][moving], self._Qc,
-                                                 dtr[moving])
-            gs = inputs.ground_speed[run]
+                                                 dtr[moving], self._q)
+            gs = inputs.ground_speed
             no_gs = np.isnan(gs)
-            z = np.column_stack([inputs.specific_force_x[run], inputs.yaw_rate[run], inputs.wheel_speed[run] + lead[run],
-                                 np.where(no_gs, 0.0, gs)])
-            available = np.ones(z.shape, dtype=bool)
-            available[:, 2:7] = fresh[run][:, :5]  # held wheel / ground speeds are no new measurement
+            z = ws.z[:k]
+            z[:, 0] = inputs.specific_force_x
+            z[:, 1] = inputs.yaw_rate
+            if lead is None:
+                z[:, 2:6] = inputs.wheel_speed
+            else:
+                np.add(inputs.wheel_speed, lead, out=z[:, 2:6])
+            z[:, 6] = np.where(no_gs, 0.0, gs)
+            available = np.empty(z.shape, dtype=bool)
+            available[:, :2] = True
+            available[:, 2:7] = fresh[:, :5]  # held wheel / ground speeds are no new measurement
             available[:, 6] &= ~no_gs
-            rows = ix[run]
-            xr, Pr, counts, _, keep = gated_update(xr, Pr, z, np.broadcast_to(self._r, z.shape), H[run], cfg.gate_sigma,
-                                                   self.rejections[rows], cfg.gate_patience, available)
+            if not every:
+                z, available = z[run], available[run]
+            rows = sel if every else ix[run]
+            r = ws.r[:k] if every else ws.r[:k][run]
+            xr, Pr, counts, _, keep = gated_update(xr, Pr, z, r, H if every else H[run],
+                                                   cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
-            rejected[run] = np.count_nonzero(available & ~keep, axis=1)
+            rejected[run] = (available & ~keep).sum(axis=1)
             xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
             if every:
                 x, P = xr, Pr
             else:
                 x[run], P[run] = xr, Pr
         # divergence guard: a non-finite or out-of-physics state restarts that vehicle's filter
-        finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
-        sane = (np.abs(x[:, L.omega]).max(axis=1) <= cfg.max_wheel_speed) & (np.abs(x[:, L.v]) <= cfg.max_ground_speed)
-        for rows, why in ((~finite, "non_finite_state"), (finite & ~sane, "state_out_of_physics")):
-            if rows.any():
-                self._reset(ix, rows, x, P, inputs, reasons, why)
-        self.x[ix], self.P[ix] = x, P
-        self.last_stamp[ix] = inputs.stamp
-        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed))
+        speeds = np.abs(x[:, L.omega.start:L.v + 1])
+        if not ((speeds <= self._speed_limits).all() and np.isfinite(P).all() and np.isfinite(x).all()):
+            finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
+            sane = (speeds <= self._speed_limits).all(axis=1)
+            for bad, why in ((~finite, "non_finite_state"), (finite & ~sane, "state_out_of_physics")):
+                if bad.any():
+                    self._reset(ix, bad, x, P, inputs, reasons, why)
+        self.x[sel], self.P[sel] = x, P
+        self.last_stamp[sel] = inputs.stamp
+        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), ws)
 
-    def _output(self, x, P, fz, rejected, reasons, age, measured) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age, measured, ws: _Workspace) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
-        res = np.einsum("kir,kr->ki", M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
+        res = _bmv(M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
         # gross_i = mu_i + (M x_res)_i: its variance from the joint covariance (determined by the
         # wheel torque balance even when the net / resistance split is not: docs/method.md §12)
-        J = np.zeros((k, 4, L.n))
-        J[:, :, L.mu] = _eye(4)
+        J = ws.J[:k]
         if L.n_res:
             J[:, :, L.res] = M
-        dg = _arange(L.n)
-        mu_var = P[:, dg, dg][:, L.mu]
+        # x and P are this step's own arrays (self.x / self.P hold copies): the outputs are views of them
+        mu_var = np.diagonal(P, axis1=1, axis2=2)[:, L.mu]
         mu = x[:, L.mu]
         return ObserverBankOutput(
-            mu=mu.copy(),
+            mu=mu,
             mu_var=mu_var,
             mu_determined=mu_var <= self.cfg.mu_std_determined**2,
             resistance=res,
             gross=mu + res,
             # a quadratic form of the conditioned P: floored, since clamping correlations keeps P only
             # nearly positive semi-definite
-            gross_var=np.maximum(np.einsum("kil,kil->ki", J @ P, J), self.cfg.variance_floor),
-            wheel_speed=x[:, L.omega].copy(),
-            ground_speed=x[:, L.v].copy(),
-            yaw_rate=x[:, L.psi].copy(),
+            gross_var=np.maximum(((J @ P) * J).sum(axis=2), self.cfg.variance_floor),
+            wheel_speed=x[:, L.omega],
+            ground_speed=x[:, L.v],
+            yaw_rate=x[:, L.psi],
             rejected=rejected,
             reset=np.array([bool(r) for r in reasons]),
             reset_reason=reasons,

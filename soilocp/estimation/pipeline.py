@@ -75,7 +75,9 @@ def load_pipeline_config(
 
 
 def _quad(a) -> tuple[float, float, float, float]:
-    return tuple(np.asarray(a, dtype=float).tolist())  # type: ignore[return-value]
+    if type(a) is not np.ndarray or a.dtype != np.float64:
+        a = np.asarray(a, dtype=float)
+    return tuple(a.tolist())  # type: ignore[return-value]
 
 
 class NormalForceStage:
@@ -86,6 +88,11 @@ class NormalForceStage:
         self._solve = NormalForceSolver(config.vehicle)
 
     def step(self, sample: SensorSample) -> NormalForces:
+        """One sample's normal forces.
+
+        Parameters: ``sample.specific_force`` (3,), m/s^2, body frame (x forward, y left, z up).
+        Returns F_z per wheel (4,), N, wheels 1 LR, 2 LF, 3 RF, 4 RR (eqs. 21-25, the zero-warp
+        solution; not clipped: <= 0 is a lifted wheel, docs/method.md §2-3)."""
         fz = self._solve(sample.specific_force)
         return NormalForces(
             vehicle_id=sample.vehicle_id,
@@ -99,27 +106,31 @@ _ZERO = np.zeros(1, dtype=int)
 
 
 def _bools(a) -> tuple[bool, bool, bool, bool]:
-    return tuple(bool(v) for v in a)  # type: ignore[return-value]
+    return tuple(a.tolist() if isinstance(a, np.ndarray) else (bool(v) for v in a))  # type: ignore[return-value]
 
 
 def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
-    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's inputs."""
+    """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's
+    inputs: scalars (k,) (stamp s, specific force x m/s^2, yaw rate rad/s, pitch rad, ground speed
+    m/s or NaN when absent) and per-wheel arrays (k, 4) (speeds rad/s, torques N m, forces N)."""
     if len(samples) != len(normal_forces):
         raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
+    # one array for the scalars and one per quad: a handful of numpy calls whatever k is
+    sc = np.array([(s.stamp, s.specific_force[0], s.yaw_rate, s.pitch, np.nan if s.ground_speed is None
+                    else s.ground_speed) for s in samples], dtype=float).reshape(-1, 5).T
     return ObserverInputs(
-        stamp=np.array([s.stamp for s in samples], dtype=float),
-        specific_force_x=np.array([s.specific_force[0] for s in samples], dtype=float),
-        yaw_rate=np.array([s.yaw_rate for s in samples], dtype=float),
-        pitch=np.array([s.pitch for s in samples], dtype=float),
+        stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
         wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
-        ground_speed=np.array([np.nan if s.ground_speed is None else s.ground_speed for s in samples], dtype=float),
         normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
     )
 
 
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
-    """The j-th vehicle of a kernel output as the ObserverOutput message."""
+    """The j-th vehicle of a kernel output (arrays (k, 4) per wheel, (k,) per vehicle) as the
+    ObserverOutput message."""
+    # one tuple per field (callgrind: fewer instructions than one stacked array's tolist, and
+    # pydantic takes tuples for the Quad fields without a conversion)
     return ObserverOutput(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp,
         mu=_quad(out.mu[j]), mu_var=_quad(out.mu_var[j]), mu_determined=_bools(out.mu_determined[j]),
@@ -133,6 +144,21 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
     )
 
 
+def observer_output(obs: ObserverOutput) -> ObserverBankOutput:
+    """An ObserverOutput message as the kernel's output for one vehicle (k = 1): the soil stage's input."""
+    # one small np.array per field: fewer instructions than one array of all the quads (callgrind)
+    return ObserverBankOutput(
+        mu=np.array([obs.mu]), mu_var=np.array([obs.mu_var]), mu_determined=np.array([obs.mu_determined]),
+        resistance=np.array([obs.resistance]), gross=np.array([obs.gross]), gross_var=np.array([obs.gross_var]),
+        wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
+        yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
+        reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
+        speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
+        ground_speed_age=np.array([obs.ground_speed_age]),
+        ground_speed_measured=np.array([obs.ground_speed_measured]),
+    )
+
+
 class ObserverStage:
     """Per-wheel traction observer (eqs. 26-35; state chosen observable, §7; §11-12 resistance and
     bounds): the kernel :class:`soilocp.estimation.observer_bank.ObserverBank` with N = 1."""
@@ -141,11 +167,20 @@ class ObserverStage:
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
+        """One predict + gated update of the observer (eqs. 26-35 with the §7 state).
+
+        Parameters: the sample (wheel speeds (4,) rad/s, torques (4,) N m, specific force x m/s^2,
+        yaw rate rad/s, pitch rad, ground speed m/s or None) and its normal forces (4,) N, same seq.
+        Returns per wheel (4,): net traction mu (eq. 6's F_DP/W) and its variance, motion
+        resistance (eq. 4 with |S|, §11), gross traction mu + mu_MR (what eq. 13 sees) and its
+        variance, the filtered wheel speeds; the filtered ground speed and yaw rate; whether each mu
+        is determined (posterior 1-sigma <= ``mu_std_determined``, §12) and any reset's reason.
+        ValueError when the forces belong to another sample."""
         if forces.seq != sample.seq or forces.vehicle_id != sample.vehicle_id:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        out = self.bank.step(_ZERO, observer_inputs([sample], [forces.normal_force]))
+        out = self.bank.step(None, observer_inputs([sample], [forces.normal_force]))  # N = 1: every vehicle
         return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
 
 
@@ -196,13 +231,16 @@ class SlipGate:
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         tau = cfg.soil.gate_smoothing
         last = self._lp_stamp[ix]
-        with np.errstate(invalid="ignore"):
-            dt = np.where(np.isnan(last), 0.0, stamp - last)
-        restart = np.isnan(last) | ob.reset | (tau <= 0) | (dt <= 0) | (dt > 1.0)
-        alpha = np.ones(ix.size)
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
         if tau > 0:
             alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
-        lp = np.where(restart[:, None], slip, self._lp[ix] + alpha[:, None] * (slip - self._lp[ix]))
+        else:
+            alpha = np.ones(ix.size)
+            restart[:] = True
+        prev = self._lp[ix]
+        lp = np.where(restart[:, None], slip, prev + alpha[:, None] * (slip - prev))
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
@@ -219,6 +257,9 @@ class SlipGate:
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
                  j: int) -> SoilEstimate:
+    """The j-th vehicle of a soil-kernel step as the SoilEstimate message: slip (4,) from ``inp``,
+    K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,) and its
+    determined flags (4,) passed through."""
     return SoilEstimate(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
@@ -240,16 +281,13 @@ class SoilStage:
         self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
 
     def step(self, obs: ObserverOutput) -> SoilEstimate:
-        ob = ObserverBankOutput(
-            mu=np.array([obs.mu]), mu_var=np.array([obs.mu_var]), mu_determined=np.array([obs.mu_determined]),
-            resistance=np.array([obs.resistance]), gross=np.array([obs.gross]), gross_var=np.array([obs.gross_var]),
-            wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
-            yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
-            reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
-            speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
-            ground_speed_age=np.array([obs.ground_speed_age]),
-            ground_speed_measured=np.array([obs.ground_speed_measured]),
-        )
+        """Slip per wheel (4,) by eq. 1 from the filtered speeds, then one update of the ln K grid
+        with the wheels' (slip, gross traction) pairs that the gate lets through (§9).
+
+        Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
+        with its probability, and a status that says when K is not determined, not observable, or
+        not explained by the traction curve (§11-13), with the reason."""
+        ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
@@ -282,6 +320,9 @@ class OcpStage:
         self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
 
     def step(self, soil: SoilEstimate) -> OcpEstimate:
+        """mu_T (eq. 8), S_T (eq. 7, sign corrected, docs/method.md §5), S_E (eq. 10) and TE at S_E
+        (eq. 9) for the estimate's K (scalars; all None when K is None), with the soil estimate's
+        status, reason, slip (4,) and mu (4,) carried over."""
         k = soil.soil_strength
         if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
             self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
@@ -299,10 +340,12 @@ class VehiclePipeline:
         self.ocp = OcpStage(self.config)
 
     def process_all(self, sample: SensorSample) -> tuple[NormalForces, ObserverOutput, SoilEstimate, OcpEstimate]:
+        """One sample through the four stages; every stage's message, in order."""
         nf = self.normal.step(sample)
         ob = self.observer.step(sample, nf)
         so = self.soil.step(ob)
         return nf, ob, so, self.ocp.step(so)
 
     def process(self, sample: SensorSample) -> OcpEstimate:
+        """One sample through the four stages; the OCP estimate."""
         return self.process_all(sample)[3]

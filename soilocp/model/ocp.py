@@ -10,7 +10,7 @@ import numpy as np
 
 from soilocp.model.checks import positive, positive_scalar
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.model.traction import curve_unchecked, tractive_efficiency_unchecked
+from soilocp.model.traction import net_traction_unchecked, tractive_efficiency_unchecked
 
 
 def optimal_slip_traction(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -45,7 +45,7 @@ def _max_traction(k: np.ndarray, c: ModelConstants, st: np.ndarray | None = None
     if c.bridge_slip > 0:
         # at the origin the peak is the bridge's end point, where the printed curve starts
         st = np.maximum(st, c.bridge_slip)
-    return curve_unchecked("net", st, k, c)[0]  # eq. 6 at S_T
+    return net_traction_unchecked(st, k, c)  # eq. 6 at S_T
 
 
 def optimal_slip_efficiency(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -66,6 +66,9 @@ def _slip_efficiency(k: np.ndarray, c: ModelConstants) -> np.ndarray:
 
 @dataclass(frozen=True)
 class OCP:
+    """The optimal control parameters of one soil strength K: mu_T (eq. 8), S_T (eq. 7 corrected,
+    docs/method.md §5) and S_E (eq. 10), all dimensionless."""
+
     soil_strength: float
     mu_T: float
     S_T: float
@@ -80,26 +83,39 @@ def ocp_arrays(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS) -> 
     of K (shape (k,)); NaN where K is NaN (no estimate) and TE NaN where S_E is not a driving slip
     in (0, 1).  The one OCP kernel of the single-vehicle stage and the batched service."""
     k = np.asarray(soil_strength, dtype=float).reshape(-1)
-    out = {name: np.full(k.shape, np.nan) for name in ("mu_T", "S_T", "S_E", "te_at_S_E")}
     have = ~np.isnan(k)
-    if have.any():
-        kk = positive("soil_strength", k[have])
-        with np.errstate(over="ignore", divide="ignore"):
-            evaluable = np.all(np.isfinite(constants.C5 / kk))
-        if not evaluable:
-            raise ValueError(f"soil_strength must be Ks the model can evaluate (>~1e-300), got {kk!r}")
-        # K checked once above; the per-sample path runs the unchecked single definitions
-        st = _slip_traction(kk, constants)
-        out["S_T"][have] = st
-        out["mu_T"][have] = _max_traction(kk, constants, st)
-        se = _slip_efficiency(kk, constants)
-        out["S_E"][have] = se
-        drive = (se > 0) & (se < 1)
+    every = have.all()  # the usual case: no masks, no NaN-filled copies
+    if not every and not have.any():
+        return {name: np.full(k.shape, np.nan) for name in _OCP_NAMES}
+    kk = k if every else k[have]
+    if not (kk > 0).all() or not np.isfinite(kk).all():
+        positive("soil_strength", kk)  # raises, describing the bad value
+    with np.errstate(over="ignore", divide="ignore"):
+        evaluable = np.isfinite(constants.C5 / kk).all()
+    if not evaluable:
+        raise ValueError(f"soil_strength must be Ks the model can evaluate (>~1e-300), got {kk!r}")
+    # K checked once above; the per-sample path runs the unchecked single definitions
+    st = _slip_traction(kk, constants)
+    se = _slip_efficiency(kk, constants)
+    vals = {"mu_T": _max_traction(kk, constants, st), "S_T": st, "S_E": se}
+    drive = (se > 0) & (se < 1)
+    if drive.all():
+        vals["te_at_S_E"] = tractive_efficiency_unchecked(se, kk, constants)
+    else:
+        te = np.full(kk.shape, np.nan)
         if drive.any():
-            te = np.full(kk.shape, np.nan)
             te[drive] = tractive_efficiency_unchecked(se[drive], kk[drive], constants)
-            out["te_at_S_E"][have] = te
+        vals["te_at_S_E"] = te
+    if every:
+        return vals
+    out = {}
+    for name in _OCP_NAMES:
+        out[name] = np.full(k.shape, np.nan)
+        out[name][have] = vals[name]
     return out
+
+
+_OCP_NAMES = ("mu_T", "S_T", "S_E", "te_at_S_E")
 
 
 def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:

@@ -17,6 +17,9 @@ DEFAULT_FLOOR = 0.05
 
 @dataclass(frozen=True)
 class Slip:
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10), shape of the
+    wheel-speed input, and where it informs traction."""
+
     slip: np.ndarray  #: eq. 1 per wheel, in [-1, 1] for forward motion
     informative: np.ndarray  #: bool per wheel: True where slip carries information on traction
 

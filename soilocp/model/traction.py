@@ -27,7 +27,6 @@ With the paper's C5 = -5 the motion resistance is negative at low slip for K bel
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -53,27 +52,34 @@ def _amplitude(k: np.ndarray, c: ModelConstants) -> np.ndarray:
     return c.C1 * -np.expm1(-c.C2 * k)
 
 
-# One-sided (s >= 0) printed curves and their derivatives.  Each returns (value, d/ds, d/dK).
-def _gross_pos(s, k, c):
+# One-sided (s >= 0) printed curves and their derivatives.  Each returns (value, d/ds, d/dK), or
+# (value, None, None) with ``derivs=False`` (the OCPs need values only: issue 11's hot path).
+def _gross_pos(s, k, c, derivs=True):
     amp = _amplitude(k, c)
     e = np.exp(-c.C3 * s)
     val = amp * (1.0 - e) + c.C4
+    if not derivs:
+        return val, None, None
     d_s = amp * c.C3 * e
     d_k = c.C1 * c.C2 * np.exp(-c.C2 * k) * (1.0 - e)
     return val, d_s, d_k
 
 
-def _resist_pos(s, k, c):
+def _resist_pos(s, k, c, derivs=True):
     sq = np.sqrt(k)
     val = c.C5 / k + c.C4 + c.C6 * s / sq
+    if not derivs:
+        return val, None, None
     d_s = np.full_like(val, 0.0) + c.C6 / sq
     d_k = -c.C5 / k**2 - 0.5 * c.C6 * s / (k * sq)
     return val, d_s, d_k
 
 
-def _net_pos(s, k, c):
-    g, gs, gk = _gross_pos(s, k, c)
-    r, rs, rk = _resist_pos(s, k, c)
+def _net_pos(s, k, c, derivs=True):
+    g, gs, gk = _gross_pos(s, k, c, derivs)
+    r, rs, rk = _resist_pos(s, k, c, derivs)
+    if not derivs:
+        return g - r, None, None
     return g - r, gs - rs, gk - rk
 
 
@@ -83,19 +89,22 @@ def _odd_bridged(one_sided, slip, soil_strength, c: ModelConstants):
     return _odd_bridged_unchecked(one_sided, s, k, c)
 
 
-def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants):
+def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants, derivs: bool = True):
     sign = np.where(s < 0, -1.0, 1.0)
     a = np.abs(s)
     b = c.bridge_slip
-    val, d_s, d_k = one_sided(a, k, c)
+    val, d_s, d_k = one_sided(a, k, c, derivs)
     if b > 0:
         inside = a < b
         if np.any(inside):
-            vb, _, kb = one_sided(np.full_like(a, b), k, c)
+            vb, _, kb = one_sided(np.full_like(a, b), k, c, derivs)
             frac = a / b
             val = np.where(inside, vb * frac, val)
-            d_s = np.where(inside, vb / b, d_s)
-            d_k = np.where(inside, kb * frac, d_k)
+            if derivs:
+                d_s = np.where(inside, vb / b, d_s)
+                d_k = np.where(inside, kb * frac, d_k)
+    if not derivs:
+        return sign * val, None, None
     return sign * val, d_s, sign * d_k
 
 
@@ -174,10 +183,11 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
 
 def tractive_efficiency_unchecked(s: np.ndarray, k: np.ndarray, constants: ModelConstants) -> np.ndarray:
     """Eq. 9, TE = (mu / g)(1 - S), for validated float arrays (0 < S < 1, K > 0) that broadcast:
-    the one definition behind :func:`tractive_efficiency` and the OCP kernel's hot path."""
-    mu = _odd_bridged_unchecked(_net_pos, s, k, constants)[0]
-    g = _gross_unchecked(s, k, constants)[0]
-    return mu / g * (1.0 - s)
+    the one definition behind :func:`tractive_efficiency` and the OCP kernel's hot path.  While
+    driving, g is eq. 3 and mu = g - r (eq. 6 = eq. 3 - eq. 4), so eq. 3 is evaluated once."""
+    g = _odd_bridged_unchecked(_gross_pos, s, k, constants, False)[0]
+    r = _odd_bridged_unchecked(_resist_pos, s, k, constants, False)[0]
+    return (g - r) / g * (1.0 - s)
 
 
 def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants):
@@ -188,14 +198,6 @@ def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, cons
     return _odd_bridged_unchecked(_net_pos, slip, soil_strength, constants)
 
 
-def tractive_efficiency_scalar(slip: float, soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> float:
-    """Eq. 9 for one driving slip outside the zero-slip bridge (bridge_slip <= S < 1), with ``math``:
-    the OCP stage's per-sample path.  Equal to :func:`tractive_efficiency` there (tested)."""
-    c = constants
-    if not (c.bridge_slip <= slip < 1 and slip > 0) or not soil_strength > 0:
-        raise ValueError(f"slip must be in [bridge_slip, 1) and soil_strength > 0, got {slip!r}, {soil_strength!r}")
-    amp = c.C1 * -math.expm1(-c.C2 * soil_strength)
-    rise = amp * (1.0 - math.exp(-c.C3 * slip))
-    gross = rise + c.C4  # eq. 3
-    net = rise - (c.C5 / soil_strength + c.C6 * slip / math.sqrt(soil_strength))  # eq. 6
-    return net / gross * (1.0 - slip)
+def net_traction_unchecked(slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants) -> np.ndarray:
+    """Eq. 6's value alone (no derivatives) for validated float arrays: the OCPs' mu_T (eq. 8)."""
+    return _odd_bridged_unchecked(_net_pos, slip, soil_strength, constants, False)[0]
