@@ -119,17 +119,12 @@ def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
-    """The soil class of the reported K and its probability for ln K ~ N(ln K, sigma^2).
-
-    The class is the one whose interval holds K itself, not the class of most probability mass:
-    with a wide band (an undetermined torque scale, docs/method.md §16) the open-ended strongest
-    class would otherwise collect the mass and name a class that contradicts the K beside it.
-    The probability says how sure that class is."""
+    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability."""
     names, edges = class_bounds(constants)
     mu = math.log(soil_strength)
     sig = max(log_k_std, 1e-6)
     cdf = [0.5 * (1 + math.erf((e - mu) / (sig * math.sqrt(2)))) if np.isfinite(e) else (0.0 if e < 0 else 1.0)
            for e in edges]
     probs = np.diff(cdf)
-    i = min(max(int(np.searchsorted(edges, mu, side="right")) - 1, 0), len(names) - 1)
+    i = int(np.argmax(probs))
     return names[i], float(probs[i])
