@@ -92,11 +92,6 @@ class SoilEstimate(_Message):
     last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
-    gross_scale: Optional[tuple[float, float]] = Field(
-        default=None, description="Gross-traction scale (front, rear axle) estimated with K: measured / model gross "
-        "traction; the torque constant's calibration when the normal forces are right (docs/method.md §16). "
-        "Null before the first informative sample and for the paper method")
-    gross_scale_std: Optional[tuple[float, float]] = Field(default=None, description="1-sigma of gross_scale")
 
 
 class OcpEstimate(_Message):

@@ -265,7 +265,6 @@ def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: S
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
         reason=st.reason, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
-        gross_scale=st.gross_scale, gross_scale_std=st.gross_scale_std,
     )
 
 

@@ -17,9 +17,7 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
   wide posterior (status ``uncertain``), not false precision.  When slip carries no information
   (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
   ``holding``, and after ``expire_after`` seconds it is withdrawn (``no_estimate``) — never a
-  drifting number.  The gross-traction scale of each axle (torque constant, normal-force split)
-  is estimated with K and marginalised out of K's band (:mod:`soilocp.estimation.soil_grid`, docs/method.md
-  §16).
+  drifting number.
 
 The observed coefficient is by default the gross traction mu + mu_xR (what the wheel torque
 balance, eq. 13, measures; monotone in K) against eq. 3; ``measurement="net"`` uses the net mu
@@ -29,18 +27,123 @@ against eq. 6, as the paper does.
 from __future__ import annotations
 
 import math
-from typing import Optional
+from dataclasses import dataclass
+from typing import Literal, Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify
-from soilocp.estimation.soil_grid import AXLE, LogKGrid, fuse_wheel, psd
-from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.model.traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
 
-__all__ = ["SoilConfig", "SoilState", "Status", "class_bounds", "classify", "LogKGrid", "SoilBank",
-           "BayesSoilEstimator", "PaperSoilEstimator", "make_soil_estimator", "slip_uncertainty"]
+Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
+
+
+class SoilConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    method: Literal["bayes", "paper"] = Field("bayes", description="bayes (default) or paper (eqs. 36-37, sign fixed)")
+    measurement: Literal["gross", "net"] = Field("gross", description="Compare gross (eq. 3) or net (eq. 6) traction")
+    slip_min: float = Field(0.04, gt=0, lt=1, description="|S| below this carries no usable information")
+    slip_max: float = Field(0.95, gt=0, le=1, description="|S| above this is wheel spin / lock")
+    k_min: float = Field(5.0, gt=0, description="Lower end of the K grid")
+    k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
+    grid_points: int = Field(241, ge=20, le=5000)
+    q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
+    change_rate: float = Field(0.5, ge=0, description="Hazard of an abrupt terrain change, 1/s (mixing with uniform)")
+    model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
+    slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
+    speed_sigma: float = Field(
+        0.008, ge=0, description="Error of the filtered speeds, m/s: slip error grows as speed_sigma / speed at low speed"
+    )
+    slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
+    gate_smoothing: float = Field(
+        0.15, ge=0, description="Time constant (s) of the low-pass slip the gate looks at: gating on the raw, noisy "
+        "slip keeps the samples whose noise pushed |S| up and biases K low (docs/method.md §9)"
+    )
+    outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
+    temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
+    uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
+    hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
+    expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
+    gross_scale_sigma: float = Field(
+        0.05, ge=0, description="1-sigma relative error of the gross traction common to all samples (torque constant, "
+        "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
+    )
+    radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
+    max_input_age: float = Field(
+        0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
+        "(a held reading from a slow driver is not a measurement, docs/method.md §13)"
+    )
+    min_load_fraction: float = Field(
+        0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
+        "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
+    )
+    fresh_age: float = Field(
+        0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
+    )
+    evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
+    mismatch_nis: float = Field(
+        4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
+        "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
+    )
+    mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
+    observable_max_gross_sigma: float = Field(
+        0.4, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
+    )
+    learning_rate: float = Field(0.5, gt=0, le=1, description="lambda of eq. 36 (paper method)")
+    k_initial: float = Field(120.0, gt=0, description="K_0 of the paper method")
+
+
+@dataclass(frozen=True)
+class SoilState:
+    """What an estimator reports after each step: K is the belief's median, soil_strength_std
+    and log_k_std half its 16-84 % interval (in K and in ln K)."""
+
+    soil_strength: Optional[float]
+    soil_strength_std: Optional[float]
+    log_k_std: Optional[float]
+    soil_class: Optional[str]
+    soil_class_confidence: Optional[float]
+    status: Status
+    reason: str
+    last_update_stamp: Optional[float]
+    used: tuple[bool, bool, bool, bool]
+
+
+_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
+
+
+def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
+    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
+
+    The weakest class starts at half its reference K: below that no class applies (the traction
+    constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
+    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
+    table (``classify`` runs on every sample)."""
+    key = tuple(constants.soils.items())
+    hit = _CLASS_BOUNDS.get(key)
+    if hit is None:
+        names = sorted(constants.soils, key=constants.soils.get)
+        logs = np.log([constants.soils[n] for n in names])
+        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
+        edges.flags.writeable = False
+        hit = _CLASS_BOUNDS[key] = (names, edges)
+    return list(hit[0]), hit[1]
+
+
+def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
+    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability."""
+    names, edges = class_bounds(constants)
+    mu = math.log(soil_strength)
+    sig = max(log_k_std, 1e-6)
+    cdf = [0.5 * (1 + math.erf((e - mu) / (sig * math.sqrt(2)))) if np.isfinite(e) else (0.0 if e < 0 else 1.0)
+           for e in edges]
+    probs = np.diff(cdf)
+    i = int(np.argmax(probs))
+    return names[i], float(probs[i])
+
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
     """Per-wheel float arrays of shape (4,), finite; one vectorised check on the happy path."""
@@ -97,21 +200,96 @@ class _HoldLogic:
         return "ok", "", (k, k_std, log_std)
 
 
+class LogKGrid:
+    """The ln K grid of the Bayes estimator and what is computed on it: the observation curve
+    (eq. 3 or 6, factorised), the belief's prediction (random walk + change prior) and its robust
+    summaries.  One object serves :class:`BayesSoilEstimator` and the batched ``soilocp.estimation.batch``."""
+
+    def __init__(self, constants: ModelConstants, cfg: SoilConfig):
+        if cfg.k_max <= cfg.k_min:
+            raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
+        self.c, self.cfg, self.kind = constants, cfg, cfg.measurement
+        self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
+        self.k_grid = np.exp(self.theta)
+        self.dtheta = self.theta[1] - self.theta[0]
+        self.span = self.theta[-1] - self.theta[0]
+        self.names, edges = class_bounds(constants)
+        self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
+        # Slip-independent factors of the curve on the grid, per side of S = 0, so an update costs
+        # one exp per wheel: h = sign (amp (1 - e^{-C3 |S|})) + offset_side + slope_side |S|
+        c = constants
+        k = self.k_grid
+        self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
+        if self.kind == "gross":
+            # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
+            self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
+            self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
+        else:  # eq. 6, odd
+            self._offset = (-c.C5 / k, c.C5 / k)
+            self._slope = (-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k))
+
+    def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
+        docs/method.md §11 for S < 0) or net traction (eq. 6).
+
+        Equal to :func:`soilocp.model.traction.curve_unchecked` (tested); outside the zero-slip bridge
+        the curve factorises into grid constants and one exp per wheel.
+        """
+        a = np.abs(s)
+        if np.any(a < self.c.bridge_slip):
+            h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
+            return h, d
+        e = np.exp(-self.c.C3 * a)
+        neg = s < 0
+        rise = self._amp * (1.0 - e)
+        off = np.where(neg, self._offset[1], self._offset[0])
+        slope = np.where(neg, self._slope[1], self._slope[0])
+        h = np.where(neg, -rise, rise) + off + slope * a
+        d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
+        return h, d
+
+    def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Beliefs p (k, G) after dt (k,) > 0 seconds: diffusion of ln K (random walk) and mixing
+        with the uniform change prior.  After a long gap nothing survives: uniform at once."""
+        cfg = self.cfg
+        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
+        if lost.any():
+            p = p.copy()
+            p[lost] = 1.0 / p.shape[1]
+        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
+        while np.any(eps > 0):
+            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
+            q = (1 - 2 * e) * p
+            q[:, 1:] += e * p[:, :-1]
+            q[:, :-1] += e * p[:, 1:]
+            q[:, :1] += e * p[:, :1]  # reflecting ends keep the mass
+            q[:, -1:] += e * p[:, -1:]
+            p = q
+            eps = eps - e[:, 0]
+        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
+        return (1 - h) * p + h / p.shape[1]
+
+    def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:
+        """(K, K 1-sigma, ln K 1-sigma) from a belief's mid-point CDF: the median and half the
+        16-84 % interval.  Moments would be dominated by the small uniform "terrain may change"
+        mass spread over K = 5..5000."""
+        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf_row, self.theta)
+        return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
+
+
 class SoilBank:
-    """N joint grid Bayes filters over (ln K, gross-traction scale) (the soil kernel; module doc,
-    :mod:`soilocp.estimation.soil_grid`), stepped together.
+    """N grid Bayes filters over ln K (the soil kernel; module doc), stepped together.
 
     Per vehicle it also keeps, over ``evidence_window`` seconds of informative samples:
 
-    * the mean normalised residual (NIS) of the used wheels at the posterior median, against the
-      predictive spread (noise and the scale's uncertainty): when the traction curve cannot
-      explain the (slip, traction) pairs at any K and scale, the status is ``model_mismatch``
-      rather than a confident class;
-    * the systematic part of K's error budget from a wheel-radius error (``radius_sigma``, common
-      to every sample, so it does not average out): its effect on ln K is the weighted
-      least-squares shift  d lnK = eps sum(w h_K h_S dS/dlnR) / sum(w h_K^2), added in quadrature
-      to the belief's own spread.  (The gross-traction scale, which used to be budgeted the same
-      way, is now a second hypothesis whose K widens the band: docs/method.md §16.)
+    * the mean normalised residual (NIS) of the used wheels at the posterior median: when the
+      traction curve cannot explain the (slip, traction) pairs at any K, the status is
+      ``model_mismatch`` rather than a confident class;
+    * the systematic part of K's error budget: a gross-traction scale error eps (1-sigma
+      ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to every
+      sample, so they do not average out like noise.  Their effect on ln K is the weighted
+      least-squares shift  d lnK = eps sum(w h_K h) / sum(w h_K^2)  (and likewise with
+      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread.
     """
 
     def __init__(self, constants: ModelConstants, config: SoilConfig | None, n_vehicles: int):
@@ -122,20 +300,17 @@ class SoilBank:
         self.n_vehicles = n = check_count(n_vehicles)
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
-        # Two hypotheses per vehicle (docs/method.md §16), rows 2i and 2i + 1: the configured scale
-        # (c = 1 exactly: K as the configured vehicle and torque constant imply) and the fitted one
-        # (c estimated with K).  K is reported from the first; their disagreement enters K's band.
-        self.p, self.m, self.v = self.grid.initial(2 * n)
-        self.v[0::2] = 0.0
+        self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
         # half the weakest reference soil's K: the traction constants were fitted on soils from there
         # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
         self.k_floor = math.exp(class_bounds(constants)[1][0])
         self._floor_idx = int(np.searchsorted(self.k_grid, self.k_floor))
-        self.last_stamp = np.full(2 * n, np.nan)
-        # window statistics: evidence (s of informative samples), NIS sum, and the radius budget's
-        # sums  sum w h_K^2, sum w h_K h_S dS
-        self.stats = np.zeros((2 * n, 4))
+        self.last_stamp = np.full(n, np.nan)
+        # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
+        # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
+        self.stats = np.zeros((n, 5))
+
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
@@ -163,114 +338,81 @@ class SoilBank:
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
         ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
-        use0 = gated & determined & ~held & ident[:, None]
-        # two hypotheses per vehicle, stepped as rows 2i (configured scale) and 2i + 1 (fitted scale)
-        ir = (2 * ix[:, None] + np.arange(2)).ravel()
-        stamp, slip, obs, var, s_sig, use = (np.repeat(a, 2, axis=0) for a in (stamp, slip, obs, var, s_sig, use0))
-        p, m, v = self.p[ir], self.m[ir], self.v[ir]
-        last = self.last_stamp[ir]
+        use = gated & determined & ~held & ident[:, None]
+        p = self.p[ix]
+        last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
             dt = stamp - last
             pred = ~np.isnan(last) & (dt > 0)
         if pred.any():
-            p[pred], m[pred], v[pred] = self.grid.predict(p[pred], m[pred], v[pred], dt[pred], (ir % 2 == 1)[pred])
-        self.last_stamp[ir] = stamp
-        stats = self.stats[ir]
+            p[pred] = self.grid.predict(p[pred], dt[pred])
+        self.last_stamp[ix] = stamp
+        stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
         stats *= decay[:, None]
-        info = np.zeros(2 * k, dtype=bool)
-        rows = np.flatnonzero(use.any(axis=1))
-        if rows.size:
-            rr, ww = np.nonzero(use[rows])  # the used wheels, stacked: row (in rows) and wheel
-            at = (rows[rr], ww)
-            h, dh_ds = self.grid.curve(slip[at][:, None])  # (M, G)
-            sig2 = var[at][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[at][:, None]) ** 2
-            y = obs[at][:, None]
-            nis = np.empty_like(h)
-            pu, mu_, vu = p[rows], m[rows], v[rows]
-            p_log = np.zeros_like(pu)
-            for i in range(4):  # wheels in turn: those of an axle share its scale (soilocp.estimation.soil_grid)
-                sel = np.flatnonzero(ww == i)
-                if sel.size == rows.size:  # every row uses this wheel: work on the arrays themselves
-                    nis[sel] = fuse_wheel(p_log, mu_, vu, AXLE[i], y[sel], h[sel], sig2[sel], cfg)
-                elif sel.size:
-                    r = rr[sel]
-                    lp, mm, vv = p_log[r], mu_[r], vu[r]
-                    nis[sel] = fuse_wheel(lp, mm, vv, AXLE[i], y[sel], h[sel], sig2[sel], cfg)
-                    p_log[r], mu_[r], vu[r] = lp, mm, vv
-            post = pu * np.exp(p_log - p_log.max(axis=1, keepdims=True))
+        info = np.zeros(k, dtype=bool)
+        upd = use.any(axis=1)
+        if upd.any():
+            u = use[upd]
+            # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
+            s_used = slip[upd][u][:, None]
+            h, dh_ds = self.grid.curve(s_used)
+            sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
+            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
+            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
+            like = np.ones(u.shape + (self.theta.size,))
+            like[u] = like_used
+            loglike = np.log(np.prod(like, axis=1)) * cfg.temper
+            post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
-            ok = (total > 0) & np.isfinite(total) & np.isfinite(mu_).all(axis=(1, 2)) & np.isfinite(vu).all(axis=(1, 2))
-            good = rows[ok]
-            p[good] = post[ok] / total[ok][:, None]
-            m[good], v[good] = mu_[ok], psd(vu[ok])
-            info[good] = True
-            self._window_stats(stats, rows, rr, ok, p, h, dh_ds, sig2, nis, slip[at], dt)
-        self.p[ir], self.m[ir], self.v[ir] = p, m, v
-        self.stats[ir] = stats
-        return self._summaries(ix, stamp[::2], p, m, v, info[::2], use0, gated & ~determined, gated & held, ident,
-                               stats[::2])
+            ok = (total > 0) & np.isfinite(total)
+            rows = np.flatnonzero(upd)[ok]
+            p[rows] = post[ok] / total[ok][:, None]
+            info[rows] = True
+            self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+        self.p[ix] = p
+        self.stats[ix] = stats
+        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
 
-    def _window_stats(self, stats, rows, rr, ok, p, h, dh_ds, sig2, nis, s_used, dt) -> None:
-        """Accumulate the NIS at the posterior median and the radius budget's sums (class doc)."""
+    def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
+        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
         G = self.theta.size
+        which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
         cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
-        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[rr]
-        w = np.arange(rr.size)
+        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
+        w = np.arange(which.size)
+        nis = r2[w, j]
         h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
         wt = 1.0 / sig2[w, j]
         ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
-        step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0) | ~ok, 0.0, np.minimum(dt[rows], 1.0))
-        n_used = np.bincount(rr, minlength=rows.size)[rr]
-        rows_w, step_w = rows[rr], step[rr]
+        step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
+        rows_w = rows[which]
         np.add.at(stats[:, 0], rows, step)
-        np.add.at(stats[:, 1], rows_w, step_w * nis[w, j] / n_used)
-        np.add.at(stats[:, 2], rows_w, step_w * wt * h_k**2)
-        np.add.at(stats[:, 3], rows_w, step_w * wt * h_k * dh_ds[w, j] * ds)
+        np.add.at(stats[:, 1], rows_w, step[which] * nis / u.sum(axis=1)[which])
+        np.add.at(stats[:, 2], rows_w, step[which] * wt * h_k**2)
+        np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
+        np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
 
-    def _scales(self, p, m, v) -> tuple[np.ndarray, np.ndarray]:
-        """The marginal mean and 1-sigma of each axle's gross-traction scale, (k, 2) each."""
-        mean = np.einsum("kg,kag->ka", p, m)
-        second = np.stack([np.einsum("kg,kg->k", p, v[:, 0] + m[:, 0] ** 2),
-                           np.einsum("kg,kg->k", p, v[:, 2] + m[:, 1] ** 2)], axis=1)
-        return mean, np.sqrt(np.maximum(second - mean**2, 0.0))
-
-    def _summaries(self, ix, stamp, p, m, v, info, use, undetermined, held, ident, stats) -> list[SoilState]:
-        """Per vehicle: K and its band from the configured-scale belief (rows 2j), widened by the
-        distance to the fitted-scale belief's K (rows 2j + 1, docs/method.md §16), statuses, reasons."""
+    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
         cfg, k = self.cfg, ix.size
         cdf = np.cumsum(p, axis=1) - 0.5 * p
-        c_mean, c_std = self._scales(p[1::2], m[1::2], v[1::2])
         out = []
         for j in range(k):
             hold = self._holds[int(ix[j])]
             st = float(stamp[j])
             if info[j]:
                 hold.last_update = st
-            k_med, _, log_stat = self.grid.summary(cdf[2 * j])
-            k_fit, _, log_fit = self.grid.summary(cdf[2 * j + 1])
-            # the data cannot tell a scale error from a different soil: the band must reach over the
-            # fitted-scale belief too (its distance and its own spread, in quadrature)
-            d_scale = math.hypot(math.log(k_med / k_fit), log_fit)
-            evidence, nis_sum, s_kk, s_ks = stats[j]
-            sys = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            log_std = math.sqrt(log_stat**2 + sys**2 + d_scale**2)
+            k_med, _, log_stat = self.grid.summary(cdf[j])
+            evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
+            sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
+            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
+            sys = math.hypot(sys_scale, sys_radius)
+            log_std = math.hypot(log_stat, sys)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
-            cm, cs = c_mean[j], c_std[j]
-            scale_txt = f"front {cm[0]:.2f} +- {cs[0]:.2f}, rear {cm[1]:.2f} +- {cs[1]:.2f}"
-            if status == "uncertain" and d_scale > max(log_stat, sys):
-                reason = (f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}, mostly the torque scale: K = "
-                          f"{k_med:.0f} at the configured torque constant and loads, {k_fit:.0f} if the gross traction "
-                          f"is scaled by ({scale_txt}) as the traction curve's shape suggests; these data cannot "
-                          "tell the two apart (docs/method.md §16)")
-            elif status == "uncertain" and sys > log_stat:
-                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:.0f} % "
-                          "wheel-radius uncertainty moves K this much where the traction curve saturates")
-            elif rk is not None and status in ("ok", "holding") and (np.abs(cm - 1.0) > np.maximum(2.0 * cs, 0.05)).any():
-                reason = (reason + "; " if reason else "") + (
-                    f"the traction curve's shape suggests a gross-traction scale of {scale_txt} (torque constant "
-                    f"or mass / CoM differ from the configuration?); K at it: {k_fit:.0f} (docs/method.md §16)")
+            if status == "uncertain" and sys > log_stat:
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
+                          "torque-scale / mass uncertainty moves K this much where the traction curve saturates")
             nis = nis_sum / evidence if evidence > 0 else 0.0
             if not ident[j]:
                 status = "not_observable"
@@ -280,7 +422,7 @@ class SoilBank:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
                           f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
-            elif rk is not None and cdf[2 * j][self._floor_idx] > 0.5:
+            elif rk is not None and cdf[j][self._floor_idx] > 0.5:
                 status = "model_mismatch"
                 reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
                           f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
@@ -297,11 +439,8 @@ class SoilBank:
             if rk is not None and status != "model_mismatch":
                 # the class from the whole band (statistical and systematic), as reported
                 cls, conf = classify(rk, rl, self.c)
-            scale = scale_sd = None
-            if hold.last_update is not None:
-                scale, scale_sd = (float(cm[0]), float(cm[1])), (float(cs[0]), float(cs[1]))
             out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
-                                 tuple(bool(u) for u in use[j]), scale, scale_sd))
+                                 tuple(bool(v) for v in use[j])))
         return out
 
 
