@@ -32,6 +32,7 @@ from typing import Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.special import erf
 
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
@@ -134,15 +135,22 @@ def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
-    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability."""
+    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability (:func:`classify_many`)."""
+    names, conf = classify_many(np.array([math.log(soil_strength)]), np.array([log_k_std]), constants)
+    return names[0], float(conf[0])
+
+
+def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
+                  constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[list[str], np.ndarray]:
+    """For n beliefs ln K ~ N(log_k, log_k_std^2) (n,): the most probable soil class of each and its
+    probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`)."""
     names, edges = class_bounds(constants)
-    mu = math.log(soil_strength)
-    sig = max(log_k_std, 1e-6)
-    cdf = [0.5 * (1 + math.erf((e - mu) / (sig * math.sqrt(2)))) if np.isfinite(e) else (0.0 if e < 0 else 1.0)
-           for e in edges]
-    probs = np.diff(cdf)
-    i = int(np.argmax(probs))
-    return names[i], float(probs[i])
+    sig = np.maximum(log_k_std, 1e-6)[:, None]
+    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K
+    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))))
+    probs = np.diff(cdf, axis=1)
+    i = probs.argmax(axis=1)
+    return [names[j] for j in i], probs[np.arange(i.size), i]
 
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
@@ -222,11 +230,14 @@ class LogKGrid:
         self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
         if self.kind == "gross":
             # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
-            self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
-            self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
+            self._offset = np.stack([np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k])
+            self._slope = np.stack([np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k)])
         else:  # eq. 6, odd
-            self._offset = (-c.C5 / k, c.C5 / k)
-            self._slope = (-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k))
+            self._offset = np.stack([-c.C5 / k, c.C5 / k])
+            self._slope = np.stack([-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k)])
+        # rows indexed by side (0: S >= 0, 1: S < 0): the odd part's sign and d(slope |S|)/dS
+        self._sign = np.array([[1.0], [-1.0]])
+        self._dslope = self._slope * self._sign
 
     def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
@@ -240,12 +251,10 @@ class LogKGrid:
             h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
-        neg = s < 0
+        side = (s[:, 0] < 0).astype(np.intp)
         rise = self._amp * (1.0 - e)
-        off = np.where(neg, self._offset[1], self._offset[0])
-        slope = np.where(neg, self._slope[1], self._slope[0])
-        h = np.where(neg, -rise, rise) + off + slope * a
-        d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
+        h = self._sign[side] * rise + self._offset[side] + self._slope[side] * a
+        d = self._amp * self.c.C3 * e + self._dslope[side]
         return h, d
 
     def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -257,8 +266,11 @@ class LogKGrid:
             p = p.copy()
             p[lost] = 1.0 / p.shape[1]
         eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
-        while np.any(eps > 0):
-            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
+        while True:
+            on = eps > 0
+            if not on.any():
+                break
+            e = np.where(on, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
             q = (1 - 2 * e) * p
             q[:, 1:] += e * p[:, :-1]
             q[:, :-1] += e * p[:, 1:]
@@ -360,43 +372,46 @@ class SoilBank:
             sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            like = np.ones(u.shape + (self.theta.size,))
-            like[u] = like_used
-            loglike = np.log(np.prod(like, axis=1)) * cfg.temper
+            # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
+            n_used = u.sum(axis=1)
+            starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])
+            loglike = np.add.reduceat(np.log(like_used), starts, axis=0) * cfg.temper
             post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
             ok = (total > 0) & np.isfinite(total)
             rows = np.flatnonzero(upd)[ok]
             p[rows] = post[ok] / total[ok][:, None]
             info[rows] = True
-            self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+        cdf = np.cumsum(p, axis=1) - 0.5 * p  # mid-point CDF of every belief after this sample
+        if upd.any():
+            self._window_stats(stats, np.flatnonzero(upd), n_used, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
+        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats)
 
-    def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
-        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
+    def _window_stats(self, stats, rows, n_used, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
+        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
+        ``cdf``: the updated beliefs' mid-point CDF.  ``rows`` are distinct (one sample per vehicle
+        and call), so the per-row sums are plain fancy-index adds."""
         G = self.theta.size
-        which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
-        cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
-        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
+        which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
+        j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
         w = np.arange(which.size)
         nis = r2[w, j]
         h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
         wt = 1.0 / sig2[w, j]
         ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
         step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
-        rows_w = rows[which]
-        np.add.at(stats[:, 0], rows, step)
-        np.add.at(stats[:, 1], rows_w, step[which] * nis / u.sum(axis=1)[which])
-        np.add.at(stats[:, 2], rows_w, step[which] * wt * h_k**2)
-        np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
-        np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
+        step_w = step[which]
+        stats[rows, 0] += step
+        for c, per_wheel in enumerate((step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
+                                       step_w * wt * h_k * dh_ds[w, j] * ds), start=1):
+            stats[rows, c] += np.bincount(which, weights=per_wheel, minlength=rows.size)
 
-    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+        """Per vehicle: K and its band from the belief's mid-point CDF ``cdf``, status and reason."""
         cfg, k = self.cfg, ix.size
-        cdf = np.cumsum(p, axis=1) - 0.5 * p
-        out = []
+        out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
         for j in range(k):
             hold = self._holds[int(ix[j])]
             st = float(stamp[j])
@@ -435,13 +450,15 @@ class SoilBank:
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
             if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
                 rk = rs = rl = None
-            cls = conf = None
             if rk is not None and status != "model_mismatch":
-                # the class from the whole band (statistical and systematic), as reported
-                cls, conf = classify(rk, rl, self.c)
-            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
-                                 tuple(bool(v) for v in use[j])))
-        return out
+                rep.append((j, rk, rl))
+            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist())])
+        if rep:  # the class from the whole band (statistical and systematic), as reported
+            js, ks, ls = zip(*rep)
+            names, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            for j, name, c in zip(js, names, conf.tolist()):
+                out[j][3:5] = name, c
+        return [SoilState(*o) for o in out]
 
 
 class BayesSoilEstimator:
