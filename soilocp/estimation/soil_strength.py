@@ -247,7 +247,7 @@ class LogKGrid:
         the curve factorises into grid constants and one exp per wheel.
         """
         a = np.abs(s)
-        if np.any(a < self.c.bridge_slip):
+        if (a < self.c.bridge_slip).any():
             h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
