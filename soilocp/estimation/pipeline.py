@@ -29,7 +29,8 @@ from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
-from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank, SoilConfig, SoilState
+from soilocp.estimation.soil_config import SoilConfig, SoilState
+from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 __all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]

@@ -27,130 +27,16 @@ against eq. 6, as the paper does.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.special import erf
 
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.model.traction import curve_unchecked, gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify, classify_many
+from soilocp.estimation.soil_grid import LogKGrid
 
-Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
-
-
-class SoilConfig(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    method: Literal["bayes", "paper"] = Field("bayes", description="bayes (default) or paper (eqs. 36-37, sign fixed)")
-    measurement: Literal["gross", "net"] = Field("gross", description="Compare gross (eq. 3) or net (eq. 6) traction")
-    slip_min: float = Field(0.04, gt=0, lt=1, description="|S| below this carries no usable information")
-    slip_max: float = Field(0.95, gt=0, le=1, description="|S| above this is wheel spin / lock")
-    k_min: float = Field(5.0, gt=0, description="Lower end of the K grid")
-    k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
-    grid_points: int = Field(241, ge=20, le=5000)
-    q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
-    change_rate: float = Field(0.5, ge=0, description="Hazard of an abrupt terrain change, 1/s (mixing with uniform)")
-    model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
-    slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
-    speed_sigma: float = Field(
-        0.008, ge=0, description="Error of the filtered speeds, m/s: slip error grows as speed_sigma / speed at low speed"
-    )
-    slip_snr: float = Field(3.0, ge=0, description="A wheel is used only when |S| >= slip_snr x its slip uncertainty")
-    gate_smoothing: float = Field(
-        0.15, ge=0, description="Time constant (s) of the low-pass slip the gate looks at: gating on the raw, noisy "
-        "slip keeps the samples whose noise pushed |S| up and biases K low (docs/method.md §9)"
-    )
-    outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
-    temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
-    uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
-    hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
-    expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
-    gross_scale_sigma: float = Field(
-        0.05, ge=0, description="1-sigma relative error of the gross traction common to all samples (torque constant, "
-        "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
-    )
-    radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
-    max_input_age: float = Field(
-        0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
-        "(a held reading from a slow driver is not a measurement, docs/method.md §13)"
-    )
-    min_load_fraction: float = Field(
-        0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
-        "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
-    )
-    fresh_age: float = Field(
-        0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
-    )
-    evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
-    mismatch_nis: float = Field(
-        4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
-        "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
-    )
-    mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
-    observable_max_gross_sigma: float = Field(
-        0.4, gt=0, description="A wheel whose gross traction 1-sigma exceeds this cannot inform K (torque balance undetermined)"
-    )
-    learning_rate: float = Field(0.5, gt=0, le=1, description="lambda of eq. 36 (paper method)")
-    k_initial: float = Field(120.0, gt=0, description="K_0 of the paper method")
-
-
-@dataclass(frozen=True)
-class SoilState:
-    """What an estimator reports after each step: K is the belief's median, soil_strength_std
-    and log_k_std half its 16-84 % interval (in K and in ln K)."""
-
-    soil_strength: Optional[float]
-    soil_strength_std: Optional[float]
-    log_k_std: Optional[float]
-    soil_class: Optional[str]
-    soil_class_confidence: Optional[float]
-    status: Status
-    reason: str
-    last_update_stamp: Optional[float]
-    used: tuple[bool, bool, bool, bool]
-
-
-_CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample
-
-
-def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
-    """Soil classes ordered by K and their boundaries in ln K (geometric means of neighbours).
-
-    The weakest class starts at half its reference K: below that no class applies (the traction
-    constants were fitted on the reference soils; a K far under the weakest is an extrapolation,
-    typically a wrong torque scale), so that mass counts for no class.  Computed once per soil
-    table (``classify`` runs on every sample)."""
-    key = tuple(constants.soils.items())
-    hit = _CLASS_BOUNDS.get(key)
-    if hit is None:
-        names = sorted(constants.soils, key=constants.soils.get)
-        logs = np.log([constants.soils[n] for n in names])
-        edges = np.concatenate([[logs[0] - math.log(2.0)], (logs[:-1] + logs[1:]) / 2.0, [np.inf]])
-        edges.flags.writeable = False
-        hit = _CLASS_BOUNDS[key] = (names, edges)
-    return list(hit[0]), hit[1]
-
-
-def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
-    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability (:func:`classify_many`)."""
-    names, conf = classify_many(np.array([math.log(soil_strength)]), np.array([log_k_std]), constants)
-    return names[0], float(conf[0])
-
-
-def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
-                  constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[list[str], np.ndarray]:
-    """For n beliefs ln K ~ N(log_k, log_k_std^2) (n,): the most probable soil class of each and its
-    probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`)."""
-    names, edges = class_bounds(constants)
-    sig = np.maximum(log_k_std, 1e-6)[:, None]
-    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K
-    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))))
-    probs = np.diff(cdf, axis=1)
-    i = probs.argmax(axis=1)
-    return [names[j] for j in i], probs[np.arange(i.size), i]
 
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
@@ -159,13 +45,6 @@ def _checked_quads(**arrays) -> list[np.ndarray]:
     if all(a.shape == (4,) for a in out) and np.isfinite(np.concatenate(out)).all():
         return out
     return [as_float_array(name, v, shape=(4,)) for name, v in arrays.items()]  # raises, naming the argument
-
-
-def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
-    """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
-    dS ~ dV / V, which dominates at low speed (docs/method.md §6, §9)."""
-    v = np.maximum(np.abs(np.asarray(speed, dtype=float)), 1e-3)
-    return np.hypot(cfg.slip_sigma, cfg.speed_sigma / v)
 
 
 def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma=None) -> np.ndarray:
@@ -206,87 +85,6 @@ class _HoldLogic:
         if log_std is not None and log_std > cfg.uncertain_log_sigma:
             return "uncertain", f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: K poorly determined", (k, k_std, log_std)
         return "ok", "", (k, k_std, log_std)
-
-
-class LogKGrid:
-    """The ln K grid of the Bayes estimator and what is computed on it: the observation curve
-    (eq. 3 or 6, factorised), the belief's prediction (random walk + change prior) and its robust
-    summaries.  One object serves :class:`BayesSoilEstimator` and the batched ``soilocp.estimation.batch``."""
-
-    def __init__(self, constants: ModelConstants, cfg: SoilConfig):
-        if cfg.k_max <= cfg.k_min:
-            raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
-        self.c, self.cfg, self.kind = constants, cfg, cfg.measurement
-        self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
-        self.k_grid = np.exp(self.theta)
-        self.dtheta = self.theta[1] - self.theta[0]
-        self.span = self.theta[-1] - self.theta[0]
-        self.names, edges = class_bounds(constants)
-        self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
-        # Slip-independent factors of the curve on the grid, per side of S = 0, so an update costs
-        # one exp per wheel: h = sign (amp (1 - e^{-C3 |S|})) + offset_side + slope_side |S|
-        c = constants
-        k = self.k_grid
-        self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
-        if self.kind == "gross":
-            # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
-            self._offset = np.stack([np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k])
-            self._slope = np.stack([np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k)])
-        else:  # eq. 6, odd
-            self._offset = np.stack([-c.C5 / k, c.C5 / k])
-            self._slope = np.stack([-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k)])
-        # rows indexed by side (0: S >= 0, 1: S < 0): the odd part's sign and d(slope |S|)/dS
-        self._sign = np.array([[1.0], [-1.0]])
-        self._dslope = self._slope * self._sign
-
-    def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
-        docs/method.md §11 for S < 0) or net traction (eq. 6).
-
-        Equal to :func:`soilocp.model.traction.curve_unchecked` (tested); outside the zero-slip bridge
-        the curve factorises into grid constants and one exp per wheel.
-        """
-        a = np.abs(s)
-        if (a < self.c.bridge_slip).any():
-            h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
-            return h, d
-        e = np.exp(-self.c.C3 * a)
-        side = (s[:, 0] < 0).astype(np.intp)
-        rise = self._amp * (1.0 - e)
-        h = self._sign[side] * rise + self._offset[side] + self._slope[side] * a
-        d = self._amp * self.c.C3 * e + self._dslope[side]
-        return h, d
-
-    def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """Beliefs p (k, G) after dt (k,) > 0 seconds: diffusion of ln K (random walk) and mixing
-        with the uniform change prior.  After a long gap nothing survives: uniform at once."""
-        cfg = self.cfg
-        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
-        if lost.any():
-            p = p.copy()
-            p[lost] = 1.0 / p.shape[1]
-        eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
-        while True:
-            on = eps > 0
-            if not on.any():
-                break
-            e = np.where(on, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
-            q = (1 - 2 * e) * p
-            q[:, 1:] += e * p[:, :-1]
-            q[:, :-1] += e * p[:, 1:]
-            q[:, :1] += e * p[:, :1]  # reflecting ends keep the mass
-            q[:, -1:] += e * p[:, -1:]
-            p = q
-            eps = eps - e[:, 0]
-        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
-        return (1 - h) * p + h / p.shape[1]
-
-    def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:
-        """(K, K 1-sigma, ln K 1-sigma) from a belief's mid-point CDF: the median and half the
-        16-84 % interval.  Moments would be dominated by the small uniform "terrain may change"
-        mass spread over K = 5..5000."""
-        t16, t50, t84 = np.interp((0.15865, 0.5, 0.84135), cdf_row, self.theta)
-        return math.exp(t50), float((math.exp(t84) - math.exp(t16)) / 2.0), float((t84 - t16) / 2.0)
 
 
 class SoilBank:
