@@ -172,7 +172,7 @@ class SoilBank:
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
             # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
             n_used = u.sum(axis=1)
-            starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])
+            starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])  # first used pair of each row
             loglike = np.add.reduceat(np.log(like_used), starts, axis=0) * cfg.temper
             post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
@@ -182,15 +182,16 @@ class SoilBank:
             info[rows] = True
         cdf = np.cumsum(p, axis=1) - 0.5 * p  # mid-point CDF of every belief after this sample
         if upd.any():
-            self._window_stats(stats, np.flatnonzero(upd), n_used, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+            self._window_stats(stats, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
         return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats)
 
-    def _window_stats(self, stats, rows, n_used, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
+    def _window_stats(self, stats, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
-        ``cdf``: the updated beliefs' mid-point CDF.  ``rows`` are distinct (one sample per vehicle
-        and call), so the per-row sums are plain fancy-index adds."""
+        ``cdf``: the updated beliefs' mid-point CDF; the used pairs are stacked row by row, row i's
+        from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and call), so the per-row
+        sums are plain fancy-index adds."""
         G = self.theta.size
         which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
         j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
@@ -202,9 +203,9 @@ class SoilBank:
         step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
         step_w = step[which]
         stats[rows, 0] += step
-        for c, per_wheel in enumerate((step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
-                                       step_w * wt * h_k * dh_ds[w, j] * ds), start=1):
-            stats[rows, c] += np.bincount(which, weights=per_wheel, minlength=rows.size)
+        per_wheel = np.stack([step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
+                              step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
+        stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
 
     def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats) -> list[SoilState]:
         """Per vehicle: K and its band from the belief's mid-point CDF ``cdf``, status and reason."""
