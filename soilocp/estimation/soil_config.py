@@ -8,6 +8,7 @@ from typing import Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.special import erf
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
@@ -108,15 +109,22 @@ def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
-    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability."""
+    """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability (:func:`classify_many`)."""
+    names, conf = classify_many(np.array([math.log(soil_strength)]), np.array([log_k_std]), constants)
+    return names[0], float(conf[0])
+
+
+def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
+                  constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[list[str], np.ndarray]:
+    """For n beliefs ln K ~ N(log_k, log_k_std^2) (n,): the most probable soil class of each and its
+    probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`)."""
     names, edges = class_bounds(constants)
-    mu = math.log(soil_strength)
-    sig = max(log_k_std, 1e-6)
-    cdf = [0.5 * (1 + math.erf((e - mu) / (sig * math.sqrt(2)))) if np.isfinite(e) else (0.0 if e < 0 else 1.0)
-           for e in edges]
-    probs = np.diff(cdf)
-    i = int(np.argmax(probs))
-    return names[i], float(probs[i])
+    sig = np.maximum(log_k_std, 1e-6)[:, None]
+    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K
+    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))))
+    probs = np.diff(cdf, axis=1)
+    i = probs.argmax(axis=1)
+    return [names[j] for j in i], probs[np.arange(i.size), i]
 
 
 def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:

@@ -34,11 +34,14 @@ class LogKGrid:
         self._amp = c.C1 * -np.expm1(-c.C2 * k)  # C1 (1 - e^{-C2 K})
         if self.kind == "gross":
             # S > 0: eq. 3.  S < 0 (docs/method.md §11): -mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)
-            self._offset = (np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k)
-            self._slope = (np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k))
+            self._offset = np.stack([np.full_like(k, c.C4), c.C4 + 2.0 * c.C5 / k])
+            self._slope = np.stack([np.zeros_like(k), 2.0 * c.C6 / np.sqrt(k)])
         else:  # eq. 6, odd
-            self._offset = (-c.C5 / k, c.C5 / k)
-            self._slope = (-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k))
+            self._offset = np.stack([-c.C5 / k, c.C5 / k])
+            self._slope = np.stack([-c.C6 / np.sqrt(k), c.C6 / np.sqrt(k)])
+        # rows indexed by side (0: S >= 0, 1: S < 0): the odd part's sign and d(slope |S|)/dS
+        self._sign = np.array([[1.0], [-1.0]])
+        self._dslope = self._slope * self._sign
 
     def curve(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """h(S, K_grid) and d h/dS for slips s (n, 1): gross traction g = mu + r (eq. 3 for S > 0,
@@ -48,16 +51,14 @@ class LogKGrid:
         the curve factorises into grid constants and one exp per wheel.
         """
         a = np.abs(s)
-        if np.any(a < self.c.bridge_slip):
+        if (a < self.c.bridge_slip).any():
             h, d, _ = curve_unchecked(self.kind, s, self.k_grid[None, :], self.c)
             return h, d
         e = np.exp(-self.c.C3 * a)
-        neg = s < 0
+        side = (s[:, 0] < 0).astype(np.intp)
         rise = self._amp * (1.0 - e)
-        off = np.where(neg, self._offset[1], self._offset[0])
-        slope = np.where(neg, self._slope[1], self._slope[0])
-        h = np.where(neg, -rise, rise) + off + slope * a
-        d = self._amp * self.c.C3 * e + np.where(neg, -slope, slope)
+        h = self._sign[side] * rise + self._offset[side] + self._slope[side] * a
+        d = self._amp * self.c.C3 * e + self._dslope[side]
         return h, d
 
     def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -69,8 +70,11 @@ class LogKGrid:
             p = p.copy()
             p[lost] = 1.0 / p.shape[1]
         eps = np.where(lost, 0.0, cfg.q_log_k**2 * dt / (2 * self.dtheta**2))
-        while np.any(eps > 0):
-            e = np.where(eps > 0, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
+        while True:
+            on = eps > 0
+            if not on.any():
+                break
+            e = np.where(on, np.minimum(eps, 0.25), 0.0)[:, None]  # 3-tap kernel valid for eps <= 1/4
             q = (1 - 2 * e) * p
             q[:, 1:] += e * p[:, :-1]
             q[:, :-1] += e * p[:, 1:]

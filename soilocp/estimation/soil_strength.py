@@ -34,7 +34,7 @@ import numpy as np
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
-from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify
+from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
 
 
@@ -170,43 +170,47 @@ class SoilBank:
             sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            like = np.ones(u.shape + (self.theta.size,))
-            like[u] = like_used
-            loglike = np.log(np.prod(like, axis=1)) * cfg.temper
+            # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
+            n_used = u.sum(axis=1)
+            starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])  # first used pair of each row
+            loglike = np.add.reduceat(np.log(like_used), starts, axis=0) * cfg.temper
             post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
             ok = (total > 0) & np.isfinite(total)
             rows = np.flatnonzero(upd)[ok]
             p[rows] = post[ok] / total[ok][:, None]
             info[rows] = True
-            self._window_stats(stats, np.flatnonzero(upd), u, p, h, dh_ds, r2, sig2, s_used[:, 0], dt)
+        cdf = np.cumsum(p, axis=1) - 0.5 * p  # mid-point CDF of every belief after this sample
+        if upd.any():
+            self._window_stats(stats, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, p, info, use, gated & ~determined, gated & held, ident, stats)
+        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats)
 
-    def _window_stats(self, stats, rows, u, p, h, dh_ds, r2, sig2, s_used, dt) -> None:
-        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc)."""
+    def _window_stats(self, stats, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
+        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
+        ``cdf``: the updated beliefs' mid-point CDF; the used pairs are stacked row by row, row i's
+        from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and call), so the per-row
+        sums are plain fancy-index adds."""
         G = self.theta.size
-        which = np.repeat(np.arange(rows.size), u.sum(axis=1))  # wheel -> row in rows
-        cdf = np.cumsum(p[rows], axis=1) - 0.5 * p[rows]
-        j = np.clip([int(np.searchsorted(c, 0.5)) for c in cdf], 1, G - 2)[which]
+        which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
+        j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
         w = np.arange(which.size)
         nis = r2[w, j]
         h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
         wt = 1.0 / sig2[w, j]
         ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
         step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
-        rows_w = rows[which]
-        np.add.at(stats[:, 0], rows, step)
-        np.add.at(stats[:, 1], rows_w, step[which] * nis / u.sum(axis=1)[which])
-        np.add.at(stats[:, 2], rows_w, step[which] * wt * h_k**2)
-        np.add.at(stats[:, 3], rows_w, step[which] * wt * h_k * h[w, j])
-        np.add.at(stats[:, 4], rows_w, step[which] * wt * h_k * dh_ds[w, j] * ds)
+        step_w = step[which]
+        stats[rows, 0] += step
+        per_wheel = np.stack([step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
+                              step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
+        stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
 
-    def _summaries(self, ix, stamp, p, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+        """Per vehicle: K and its band from the belief's mid-point CDF ``cdf``, status and reason."""
         cfg, k = self.cfg, ix.size
-        cdf = np.cumsum(p, axis=1) - 0.5 * p
-        out = []
+        out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
         for j in range(k):
             hold = self._holds[int(ix[j])]
             st = float(stamp[j])
@@ -245,13 +249,15 @@ class SoilBank:
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
             if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
                 rk = rs = rl = None
-            cls = conf = None
             if rk is not None and status != "model_mismatch":
-                # the class from the whole band (statistical and systematic), as reported
-                cls, conf = classify(rk, rl, self.c)
-            out.append(SoilState(rk, rs, rl, cls, conf, status, reason, hold.last_update,
-                                 tuple(bool(v) for v in use[j])))
-        return out
+                rep.append((j, rk, rl))
+            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist())])
+        if rep:  # the class from the whole band (statistical and systematic), as reported
+            js, ks, ls = zip(*rep)
+            names, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            for j, name, c in zip(js, names, conf.tolist()):
+                out[j][3:5] = name, c
+        return [SoilState(*o) for o in out]
 
 
 class BayesSoilEstimator:
