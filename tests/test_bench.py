@@ -148,10 +148,12 @@ def test_compare_cli_renders_saved_reports_and_rejects_a_bad_baseline(tmp_path):
 @pytest.mark.parametrize("argv", [["service", "observer"], ["router"]])
 def test_process_commands_load_no_heavy_module(argv):
     """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
-    register only the services area's commands, and a stage service loads no scipy / rich /
-    matplotlib / filterpy (the cli with any other command still registers every area)."""
+    register only the services area's commands, and the stage services, with every stage built,
+    load no scipy / rich / matplotlib / filterpy (the cli with any other command still registers every area)."""
     code = ("import sys; import soilocp_cli.entry as entry; group = entry.command_group(sys.argv[1:]); "
-            "import services.stages.observer; "
+            "import services.stages.registry; from services.stages.graph import PIPELINE; "
+            "from soilocp.estimation.pipeline import PipelineConfig; "
+            "[row.stage(PipelineConfig()) for row in PIPELINE if row.stage is not None]; "
             "heavy = sorted(m for m in ('scipy', 'rich', 'matplotlib', 'filterpy') if m in sys.modules); "
             "print(heavy, sorted(group.commands))")
     r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)

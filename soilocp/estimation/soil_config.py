@@ -8,7 +8,6 @@ from typing import Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.special import erf
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
@@ -108,6 +107,9 @@ def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
     return list(hit[0]), hit[1]
 
 
+_erf = np.frompyfunc(math.erf, 1, 1)
+
+
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
     """Most probable soil class for ln K ~ N(ln K, sigma^2), and its probability (:func:`classify_many`)."""
     names, conf = classify_many(np.array([math.log(soil_strength)]), np.array([log_k_std]), constants)
@@ -120,8 +122,9 @@ def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
     probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`)."""
     names, edges = class_bounds(constants)
     sig = np.maximum(log_k_std, 1e-6)[:, None]
-    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K
-    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))))
+    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K.
+    # math.erf element-wise: scipy.special would load scipy into the soil service (~60 MiB, issue 11)
+    cdf = 0.5 * (1 + _erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))).astype(float))
     probs = np.diff(cdf, axis=1)
     i = probs.argmax(axis=1)
     return [names[j] for j in i], probs[np.arange(i.size), i]
