@@ -16,6 +16,7 @@ from typing import Callable, Optional
 
 import pytest
 
+from services.stages.graph import PIPELINE_SERVICES
 from services.supervisor.processes import ProcessGroup
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,6 +62,25 @@ class Processes(ProcessGroup):
         # netns-vehicle.sh execs `ip netns exec`, which execs argv: the pid is the process itself
         return self.start_argv(name, [str(NETNS), "exec", self.run_id, unit, *argv], env=env, cwd=self.log_dir,
                                new_session=False).proc
+
+
+#: The pipeline rows of the sensing unit (deploy/vehicle-two-unit); the others run on the estimation unit.
+SENSING_ROWS = ("gateway", "normal-force")
+
+
+def start_two_unit_vehicle(procs: Processes, sense: dict[str, str], est: dict[str, str], fleet_ep: str, *,
+                           duration_s: float, vehicle_router_env: Optional[dict[str, str]] = None) -> None:
+    """The vehicle of deploy/vehicle-two-unit inside the run's namespaces: its router on the
+    sensing unit (uplink ``fleet_ep``), the estimation unit's router linked to it, the pipeline
+    rows split between the two units, and a synthetic vehicle on sand at 50 Hz for ``duration_s``."""
+    procs.start("vehicle-router", "sense", [*SOILOCP, "router"],
+                {**sense, "SOILOCP_ROUTER_CONNECT": fleet_ep, **(vehicle_router_env or {})})
+    procs.start("unit-router", "est", [*SOILOCP, "router"], {**est, "SOILOCP_ROUTER_CONNECT": VEHICLE_ROUTER_EP})
+    for name in PIPELINE_SERVICES:
+        unit, env = ("sense", sense) if name in SENSING_ROWS else ("est", est)
+        procs.start(name, unit, [*SOILOCP, "service", name], env)
+    procs.start("vehicle", "sense", [*SOILOCP, "service", "vehicle", "--scenario", "sand", "--rate", "50",
+                                     "--duration", f"{duration_s:g}", "--wait-timeout", "120"], sense)
 
 
 def wait_until(what: str, cond: Callable[[], bool], timeout: float, procs: Processes) -> float:

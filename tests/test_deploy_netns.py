@@ -30,7 +30,8 @@ from pathlib import Path
 
 import pytest
 from netns_rig import (ESTIMATION, FLEET_SECURE, LOCAL_EP, NETNS, PROBE, ROOT, SENSING_SECURE, SOILOCP,  # noqa: F401
-                       VEHICLE_ROUTER_EP, VID, Processes, vehicle_netns, wait_until)
+                       VEHICLE_ROUTER_EP, VID, Processes, start_two_unit_vehicle, vehicle_netns,
+                       wait_until)
 from zenoh_helpers import json_lines_so_far
 
 SENSING = ROOT / "deploy" / "vehicle-two-unit" / "sensing.json"
@@ -54,14 +55,7 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
         # routers: the file's endpoints are overridden by the environment, as on a real unit
         procs.start("fleet-router", "fleet", [*SOILOCP, "router"],
                     {"SOILOCP_CONFIG": str(FLEET), "SOILOCP_LISTEN": FLEET_EP})
-        procs.start("vehicle-router", "sense", [*SOILOCP, "router"], {**sense, "SOILOCP_ROUTER_CONNECT": FLEET_EP})
-        procs.start("unit-router", "est", [*SOILOCP, "router"], {**est, "SOILOCP_ROUTER_CONNECT": VEHICLE_ROUTER_EP})
-        for name in ("gateway", "normal-force"):
-            procs.start(name, "sense", [*SOILOCP, "service", name], sense)
-        for name in ("observer", "soil-strength", "ocp"):
-            procs.start(name, "est", [*SOILOCP, "service", name], est)
-        procs.start("vehicle", "sense", [*SOILOCP, "service", "vehicle", "--scenario", "sand", "--rate", "50",
-                                         "--duration", "600", "--wait-timeout", "120"], sense)
+        start_two_unit_vehicle(procs, sense, est, FLEET_EP, duration_s=600)
         probe_args = [sys.executable, str(PROBE), "--vehicle", VID, "--period", "0.1", "--query-timeout", "0.4"]
         procs.start("probe-est", "est", [*probe_args, "--connect", LOCAL_EP, "--out", str(unit_probe)], {})
         procs.start("probe-fleet", "fleet", [*probe_args, "--connect", FLEET_EP, "--out", str(fleet_probe)], {})

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 from netns_rig import (ESTIMATION, LOCAL_EP, NETNS, PROBE, SOILOCP, VEHICLE_ROUTER_EP, VID, Processes,  # noqa: F401
-                       vehicle_netns, wait_until)
+                       start_two_unit_vehicle, vehicle_netns, wait_until)
 from netns_rig import FLEET_SECURE as FLEET
 from netns_rig import SENSING_SECURE as SENSING
 from zenoh_helpers import json_lines_so_far
@@ -124,15 +124,8 @@ def run_outages(run_id: str, tmp_path: Path, outages: int, seed: int) -> list[fl
                     {"SOILOCP_CONFIG": str(FLEET), "SOILOCP_LISTEN": FLEET_EP, "SOILOCP_FLEET_VEHICLES": VID,
                      **fleet_tls})
         # the vehicle router listens only inside the vehicle (loopback + the link to est)
-        procs.start("vehicle-router", "sense", [*SOILOCP, "router"],
-                    {**sense, "SOILOCP_ROUTER_CONNECT": FLEET_EP, "SOILOCP_LISTEN": f"{LOCAL_EP},{VEHICLE_ROUTER_EP}"})
-        procs.start("unit-router", "est", [*SOILOCP, "router"], {**est, "SOILOCP_ROUTER_CONNECT": VEHICLE_ROUTER_EP})
-        for name in ("gateway", "normal-force"):
-            procs.start(name, "sense", [*SOILOCP, "service", name], sense)
-        for name in ("observer", "soil-strength", "ocp"):
-            procs.start(name, "est", [*SOILOCP, "service", name], est)
-        procs.start("vehicle", "sense", [*SOILOCP, "service", "vehicle", "--scenario", "sand", "--rate", "50",
-                                         "--duration", "7200", "--wait-timeout", "120"], sense)
+        start_two_unit_vehicle(procs, sense, est, FLEET_EP, duration_s=7200,
+                               vehicle_router_env={"SOILOCP_LISTEN": f"{LOCAL_EP},{VEHICLE_ROUTER_EP}"})
         procs.start("probe-fleet", "fleet", [sys.executable, str(PROBE), "--vehicle", VID, "--period", "0.1",
                                              "--query-timeout", "0.4", "--connect", FLEET_EP, "--out", str(probe)],
                     tool_tls)
