@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from soilocp.model.constants import DEFAULT_CONSTANTS
@@ -34,7 +34,7 @@ def test_recovers_k_from_noiseless_net_traction_pairs(log_k, s0):
     """The estimator recovers K from noiseless (S, mu) pairs across K in [26, 2000] (from just above
     half the weakest reference soil's K: below that, see the next test)."""
     k_true = math.exp(log_k)
-    cfg = SoilConfig(measurement="net", model_sigma=0.002, slip_sigma=0.0, temper=1.0, change_rate=0.0, q_log_k=0.0,
+    cfg = SoilConfig(measurement="net", model_sigma=0.002, slip_sigma=0.0, temper=1.0, change_per_metre=0.0, q_log_k=0.0,
                      grid_points=801)
     est = BayesSoilEstimator(DEFAULT_CONSTANTS, cfg)
     slips = [[s0, -s0, s0 * 0.5 + 0.3, -(s0 * 0.5 + 0.3)], [0.9 - s0, s0, -s0, 0.7]]
@@ -207,3 +207,84 @@ def test_paper_rule_learns_from_braking_wheels_too():
     sweep = [[-s] * 4 for s in np.linspace(0.15, 0.6, 30)]
     state = _feed(est, 50, sweep, 3000, measurement="net")
     assert all(state.used) and state.soil_strength == pytest.approx(50, rel=0.05)
+
+
+def _mass_near(est, k, rel=0.5):
+    near = np.abs(np.log(est.k_grid / k)) <= math.log1p(rel)
+    return float(est.p[near].sum())
+
+
+def test_terrain_change_hazard_is_per_metre_a_robot_that_stands_keeps_its_soil():
+    """The belief mixes with the change prior over the distance travelled, not the time: after
+    5 s parked (speed 0) the belief is still on the soil it stands on; after the same 5 s at
+    1 m/s (5 m, one expected change at 0.2 / m) most of it is gone."""
+    sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
+    masses = {}
+    for speed in (0.0, 1.0):
+        est = BayesSoilEstimator()
+        _feed(est, 80, sweep, 200)
+        before = _mass_near(est, 80)
+        for i in range(500):  # 5 s without information at this speed
+            est.update(2.0 + i * 0.01, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO, speed=speed)
+        masses[speed] = (before, _mass_near(est, 80))
+    (b0, a0), (b1, a1) = masses[0.0], masses[1.0]
+    assert b0 > 0.9 and b1 > 0.9
+    assert a0 > 0.8  # only the slow random walk of ln K (0.1 / sqrt(s)) spreads it
+    assert a1 < 0.5 * a0  # e^(-0.2 x 5) = 37 % kept, spread by the same walk
+
+
+@pytest.mark.parametrize("k_true", [1000.0, 3000.0])
+def test_a_clean_sweep_on_saturated_soil_reports_a_finite_band_not_an_overflow(k_true):
+    """Far above K ~ 300 the curve is flat in K, so the systematic (torque-scale) shift of K has
+    no bound; it once overflowed math.sinh in the summary.  The band is capped at the grid's ln K
+    span and the status says K is not determined."""
+    est = BayesSoilEstimator()
+    state = _feed(est, k_true, [[0.2] * 4], 200)
+    assert state.status == "uncertain"
+    assert math.isfinite(state.soil_strength_std) and state.log_k_std <= math.log(est.cfg.k_max / est.cfg.k_min) + 1e-9
+    assert state.soil_class is not None and state.soil_class_confidence < 0.9
+
+
+# docs/method.md §9, test vectors: K_true -> (status, K, ln K 1-sigma) at t = 2.0, 2.6, 12.4 s
+_S9_VECTORS = {
+    50: [("ok", 50.0, 0.0862), ("holding", 50.0, 0.129), ("holding", 50.0, 2.21)],
+    80: [("ok", 80.0, 0.0954), ("holding", 80.0, 0.135), ("holding", 80.0, 2.21)],
+    200: [("ok", 200.2, 0.188), ("holding", 200.2, 0.211), ("holding", 200.2, 2.22)],
+    300: [("uncertain", 301.3, 0.374), ("holding", 301.3, 0.387), ("holding", 301.3, 2.24)],
+    1000: [("uncertain", 1691.3, 6.91), ("holding", 1691.3, 6.91), ("holding", 1691.3, 6.91)],
+}
+
+
+@pytest.mark.parametrize("k_true", sorted(_S9_VECTORS))
+def test_method_notes_section_9_vectors(k_true):
+    est = BayesSoilEstimator()
+    got = {}
+    for i in range(1261):  # 100 Hz to t = 12.6 s
+        s = np.full(4, 0.2 if i < 200 else 0.01)
+        got[i] = est.update(i * 0.01, s, gross_traction(s, k_true), np.full(4, 1e-4), INFO)
+    final = got[1260]
+    for i, (status, k, log_std) in zip((200, 260, 1240), _S9_VECTORS[k_true]):
+        state = got[i]
+        assert state.status == status
+        assert state.soil_strength == pytest.approx(k, rel=2e-3)
+        assert state.log_k_std == pytest.approx(log_std, rel=0.01)
+    assert final.status == "no_estimate" and final.soil_strength is None
+
+
+@settings(max_examples=60, deadline=None)
+@given(log_k=st.floats(math.log(5.0), math.log(5000.0)),
+       slips=st.lists(st.lists(st.floats(-0.95, 0.95), min_size=4, max_size=4), min_size=1, max_size=8),
+       noise=st.sampled_from([0.0, 1e-3, 0.03]), steps=st.integers(1, 150), seed=st.integers(0, 2**16))
+@example(log_k=math.log(1000.0), slips=[[0.2] * 4], noise=0.0, steps=150, seed=0)  # once overflowed math.sinh
+def test_any_soil_and_slip_pattern_gives_finite_summaries(log_k, slips, noise, steps, seed):
+    """Property: whatever the soil (K over the whole grid) and the slip pattern, clean or noisy,
+    every summary is finite and the status is one of the estimator's (no overflow, no NaN)."""
+    rng = np.random.default_rng(seed)
+    est = BayesSoilEstimator()
+    for i in range(steps):
+        s = np.asarray(slips[i % len(slips)])
+        obs = gross_traction(s, math.exp(log_k)) + rng.normal(0, noise, 4)
+        state = est.update(i * 0.01, s, obs, np.full(4, noise**2 + 1e-6), INFO)
+        for v in (state.soil_strength, state.soil_strength_std, state.log_k_std, state.soil_class_confidence):
+            assert v is None or math.isfinite(v)
+        assert state.status in ("ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch")

@@ -198,6 +198,7 @@ class SoilInputs:
     gate_sigma: np.ndarray
     held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
+    speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
 
 
 class SlipGate:
@@ -253,7 +254,7 @@ class SlipGate:
         fresh = ob.speed_age <= cfg.soil.fresh_age
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
         return SoilInputs(slip, informative & measured[:, None] & fresh & loaded, observed, var, s_sig, lp, g_sig, held,
-                          measured)
+                          measured, ob.ground_speed)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -292,7 +293,8 @@ class SoilStage:
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable)[0]
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
+                                  inp.speed)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])

@@ -25,7 +25,11 @@ class SoilConfig(BaseModel):
     k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
     grid_points: int = Field(241, ge=20, le=5000)
     q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
-    change_rate: float = Field(0.5, ge=0, description="Hazard of an abrupt terrain change, 1/s (mixing with uniform)")
+    change_per_metre: float = Field(
+        0.2, ge=0, description="Hazard of an abrupt terrain change per metre travelled (mixing the belief with the "
+        "uniform change prior): terrain changes where the robot goes, not while it stands; 0.2 = a new soil every 5 m "
+        "on average"
+    )
     model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
     slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
     speed_sigma: float = Field(

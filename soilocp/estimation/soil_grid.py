@@ -61,11 +61,14 @@ class LogKGrid:
         d = self._amp * self.c.C3 * e + self._dslope[side]
         return h, d
 
-    def predict(self, p: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """Beliefs p (k, G) after dt (k,) > 0 seconds: diffusion of ln K (random walk) and mixing
-        with the uniform change prior.  After a long gap nothing survives: uniform at once."""
+    def predict(self, p: np.ndarray, dt: np.ndarray, distance: np.ndarray) -> np.ndarray:
+        """Beliefs p (k, G) after dt (k,) > 0 seconds over ``distance`` (k,) metres travelled:
+        diffusion of ln K (random walk in time: slow drift, moisture) and mixing with the uniform
+        change prior (a hazard per metre: the soil changes where the robot goes, so a robot that
+        stands keeps its belief).  After a long gap or a long way nothing survives: uniform at once."""
         cfg = self.cfg
-        lost = (cfg.change_rate * dt >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
+        h = cfg.change_per_metre * distance
+        lost = (h >= 1.0) | (cfg.q_log_k**2 * dt >= self.span**2)
         if lost.any():
             p = p.copy()
             p[lost] = 1.0 / p.shape[1]
@@ -82,7 +85,7 @@ class LogKGrid:
             q[:, -1:] += e * p[:, -1:]
             p = q
             eps = eps - e[:, 0]
-        h = np.minimum(cfg.change_rate * dt, 1.0)[:, None]
+        h = np.minimum(h, 1.0)[:, None]
         return (1 - h) * p + h / p.shape[1]
 
     def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:

@@ -11,8 +11,8 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
 * :class:`BayesSoilEstimator` — the default.  A grid (histogram) Bayes filter over ln K fuses all
   four wheels over time: each informative wheel contributes a robust likelihood of its observed
   coefficient given the model at its slip; between samples the belief diffuses (random walk in
-  ln K) and mixes with a small uniform hazard, so abrupt terrain changes are picked up within a
-  fraction of a second.  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone
+  ln K) and mixes with a uniform hazard per metre travelled, so abrupt terrain changes are picked
+  up within a fraction of a second of informative slip, and a robot that stands keeps its soil.  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone
   in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
   wide posterior (status ``uncertain``), not false precision.  When slip carries no information
   (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
@@ -37,6 +37,8 @@ from soilocp.model.traction import gross_traction_with_derivatives, net_traction
 from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
 
+#: m/s: the speed the terrain-change hazard assumes when a caller gives none (a typical rover's)
+UNKNOWN_SPEED = 1.0
 
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
@@ -123,13 +125,15 @@ class SoilBank:
 
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None, held=None, identifiable=None) -> list[SoilState]:
+               gate_sigma=None, held=None, identifiable=None, speed=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
         ``gate_sigma``: the smoothed slip and its 1-sigma the gate decides on (default: the raw);
         ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now);
-        ``identifiable`` (k,) bool: False when the sample has no independent ground speed."""
+        ``identifiable`` (k,) bool: False when the sample has no independent ground speed;
+        ``speed`` (k,) m/s: the vehicle's ground speed, which sets the distance over which the soil
+        may have changed since the last sample (None: ``UNKNOWN_SPEED``, m/s)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -155,7 +159,9 @@ class SoilBank:
             dt = stamp - last
             pred = ~np.isnan(last) & (dt > 0)
         if pred.any():
-            p[pred] = self.grid.predict(p[pred], dt[pred])
+            v = (np.full(k, UNKNOWN_SPEED) if speed is None
+                 else np.abs(np.nan_to_num(np.asarray(speed, dtype=float).reshape(k), nan=UNKNOWN_SPEED)))
+            p[pred] = self.grid.predict(p[pred], dt[pred], v[pred] * dt[pred])
         self.last_stamp[ix] = stamp
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
@@ -220,8 +226,10 @@ class SoilBank:
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            sys = math.hypot(sys_scale, sys_radius)
-            log_std = math.hypot(log_stat, sys)
+            # where the curve is flat in K (K >> 300, §9) a scale error moves K without bound: the
+            # band is capped at the grid's whole ln K span, which already says "undetermined"
+            sys = min(math.hypot(sys_scale, sys_radius), self.grid.span)
+            log_std = min(math.hypot(log_stat, sys), self.grid.span)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             if status == "uncertain" and sys > log_stat:
@@ -273,15 +281,16 @@ class BayesSoilEstimator:
         return self.bank.p[0]
 
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
-               gate_slip=None, gate_sigma=None, held=None) -> SoilState:
+               gate_slip=None, gate_sigma=None, held=None, speed=None) -> SoilState:
         """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
-        ``cfg.slip_sigma``)."""
+        ``cfg.slip_sigma``; ``speed`` the ground speed, m/s, default ``UNKNOWN_SPEED``, m/s)."""
         slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
         s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
         one = (lambda a: None if a is None else np.asarray(a, dtype=float)[None])
         return self.bank.update(np.zeros(1, dtype=int), [stamp], slip[None], obs[None], var[None],
                                 np.asarray(informative, dtype=bool)[None], s_sig[None], one(gate_slip), one(gate_sigma),
-                                None if held is None else np.asarray(held, dtype=bool)[None])[0]
+                                None if held is None else np.asarray(held, dtype=bool)[None], None,
+                                None if speed is None else [speed])[0]
 
 
 class PaperSoilEstimator:
