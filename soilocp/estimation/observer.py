@@ -74,11 +74,6 @@ class ObserverConfig(BaseModel):
     r_yaw_rate: float = Field(0.01, gt=0, description="Gyro noise, rad/s")
     r_wheel_speed: float = Field(0.03, gt=0, description="Encoder speed noise incl. quantisation, rad/s")
     r_ground_speed: float = Field(0.02, gt=0, description="GNSS / visual-odometry speed noise, m/s")
-    ground_speed_latency_sigma: float = Field(
-        0.05, ge=0, description="1-sigma of the ground speed's unknown latency against the wheel encoders and IMU, "
-        "s (GNSS and visual odometry deliver a speed tens of ms old): while the CoM accelerates at a, the reading "
-        "is off by about a x latency, so its noise grows by that and the IMU carries the speed through it"
-    )
     # initial covariance (1-sigma)
     p0_mu: float = Field(0.5, gt=0)
     p0_resistance: float = Field(0.2, gt=0)

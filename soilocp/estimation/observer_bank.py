@@ -129,20 +129,6 @@ def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.n
     return (now != prev) | first[:, None]
 
 
-def ground_speed_latency(v_dot, envelope, dt, sigma: float):
-    """The ground speed's latency as measurement noise: (new envelope, extra variance), arrays (k,).
-
-    A GNSS / visual-odometry speed arrives some tens of ms late against the wheel encoders and the
-    IMU, by an amount the user rarely knows (1-sigma ``sigma``, s).  While the CoM accelerates at
-    a, such a reading is off by about a x latency, so its variance grows by (sigma a)^2, with a
-    the envelope of |V_dot| (the model's, at the prior) decaying over 3 sigma: a late reading still
-    carries a deceleration that has just ended.  The IMU then carries the speed through it, which
-    is what keeps slip (eq. 1) from inheriting the lag (docs/method.md §13)."""
-    keep = np.exp(-np.where(dt > 0, dt, 0.0) / (3.0 * sigma))
-    env = np.maximum(np.abs(v_dot), envelope * keep)
-    return env, (sigma * env) ** 2
-
-
 class _Workspace:
     """Per-step scratch arrays for up to k vehicles stepped together, allocated once (a step of
     k' <= k vehicles uses their first k' rows): the model's A, b, H
@@ -182,7 +168,6 @@ class ObserverBank:
         # the last raw readings (wheel speeds, ground speed, torques) and when each last changed
         self._prev = np.full((n, 9), np.nan)
         self._changed_at = np.full((n, 9), np.nan)
-        self._accel_env = np.zeros(n)  # recent peak |V_dot| (the ground speed's latency noise)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -220,7 +205,6 @@ class ObserverBank:
             x[j] = np.clip(x0, self._lower, self._upper)
             P[j] = self._P0
             self.rejections[ix[j]] = 0
-            self._accel_env[ix[j]] = 0.0
             reasons[j] = why
             self.resets_by_reason[why] += 1
 
@@ -299,8 +283,6 @@ class ObserverBank:
                 z, available = z[run], available[run]
             rows = sel if every else ix[run]
             r = ws.r[:k] if every else ws.r[:k][run]
-            if cfg.ground_speed_latency_sigma > 0:
-                r = self._latency_noise(rows, r, A if every else A[run], b if every else b[run], xr, dtr)
             xr, Pr, counts, _, keep = gated_update(xr, Pr, z, r, H if every else H[run],
                                                    cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
@@ -321,17 +303,6 @@ class ObserverBank:
         self.x[sel], self.P[sel] = x, P
         self.last_stamp[sel] = inputs.stamp
         return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), ws)
-
-    def _latency_noise(self, rows, r, A, b, x, dt) -> np.ndarray:
-        """Measurement variances r (k, N_MEAS) with the ground speed's grown by its latency
-        (:func:`ground_speed_latency`), at the priors x (k, n) after dt (k,)."""
-        L = self.layout
-        v_dot = np.einsum("kj,kj->k", A[:, L.v, :], x) + b[:, L.v]
-        env, extra = ground_speed_latency(v_dot, self._accel_env[rows], dt, self.cfg.ground_speed_latency_sigma)
-        self._accel_env[rows] = env
-        r = np.array(r)
-        r[:, 6] += extra
-        return r
 
     def _output(self, x, P, fz, rejected, reasons, age, measured, ws: _Workspace) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]

@@ -17,8 +17,8 @@ from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, fresh_readings, ground_speed_latency,
-                                              outlier_variance, split_side_torque, wheel_acceleration)
+from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, fresh_readings, outlier_variance,
+                                              split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
 
 
@@ -57,7 +57,6 @@ class TractionObserver:
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
         self.steps = 0
-        self._accel_env = 0.0  # recent peak |V_dot|: the ground speed's latency noise
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
         L = self.layout
@@ -68,7 +67,6 @@ class TractionObserver:
         self.kf.x = np.clip(x, self._lower, self._upper)
         self.kf.P = initial_covariance(L, self.cfg)
         self._rejections[:] = 0
-        self._accel_env = 0.0
 
     def _map(self) -> np.ndarray:
         L, x, v = self.layout, self.kf.x, self.vehicle
@@ -109,17 +107,9 @@ class TractionObserver:
         z = np.array([specific_force_x, yaw_rate, *omega_now, np.nan_to_num(ground_speed)])
         rejected = 0
         if not reset:
-            r_diag = self._R_diag
-            if self.cfg.ground_speed_latency_sigma > 0:
-                L = self.layout
-                env, extra = ground_speed_latency(np.array([A[L.v] @ self.kf.x + b[L.v]]), np.array([self._accel_env]),
-                                                  np.array([dt]), self.cfg.ground_speed_latency_sigma)
-                self._accel_env = float(env[0])
-                r_diag = r_diag.copy()
-                r_diag[6] += extra[0]
             innov = z - H @ self.kf.x
             hph = np.einsum("ij,jk,ik->i", H, self.kf.P, H)
-            keep = (innov**2 <= (self.cfg.gate_sigma**2) * (hph + r_diag)) | (self._rejections >= self.cfg.gate_patience)
+            keep = (innov**2 <= (self.cfg.gate_sigma**2) * (hph + self._R_diag)) | (self._rejections >= self.cfg.gate_patience)
             available = np.ones(N_MEAS, dtype=bool)
             available[2:7] = fresh  # held wheel / ground speeds are no new measurement
             available[6] &= not np.isnan(ground_speed)
@@ -127,7 +117,7 @@ class TractionObserver:
             keep &= available
             rejected = int(np.count_nonzero(available & ~keep))
             idx = np.flatnonzero(available)
-            r = outlier_variance(innov, hph, r_diag, self.cfg.gate_sigma, keep)
+            r = outlier_variance(innov, hph, self._R_diag, self.cfg.gate_sigma, keep)
             self.kf.update(z[idx], R=np.diag(r[idx]), H=H[idx])
             x, P = condition(self.kf.x[None], self.kf.P[None], self._lower, self._upper,
                              self.cfg.variance_floor, self.cfg.variance_ceiling)
