@@ -26,9 +26,9 @@ class SoilConfig(BaseModel):
     grid_points: int = Field(241, ge=20, le=5000)
     q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
     change_per_metre: float = Field(
-        0.2, ge=0, description="Hazard of an abrupt terrain change per metre travelled (mixing the belief with the "
-        "uniform change prior): terrain changes where the robot goes, not while it stands; 0.2 = a new soil every 5 m "
-        "on average"
+        0.5, ge=0, description="Hazard of an abrupt terrain change per metre travelled (mixing the belief with the "
+        "uniform change prior): terrain changes where the robot goes, not while it stands; 0.5 = a new soil every 2 m "
+        "on average, which lets K follow a change within about a second of informative slip"
     )
     model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
     slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
@@ -65,6 +65,16 @@ class SoilConfig(BaseModel):
     mismatch_nis: float = Field(
         4.0, gt=0, description="Mean normalised residual (NIS) of the used wheels at the estimate above which the "
         "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
+    )
+    axle_mismatch_z: float = Field(
+        2.5, ge=0, description="Root mean square over evidence_window of the front-only and rear-only beliefs' "
+        "disagreement in ln K, in units of its 1-sigma, above which the status is model_mismatch: the normal forces "
+        "(mass, centre of mass) or one axle's torque constant are off (docs/method.md §16); 0 = no check"
+    )
+    axle_scale_sigma: float = Field(
+        0.03, ge=0, description="1-sigma relative difference of gross traction between the axles that is ordinary "
+        "model error (tyres, load transfer): mapped to ln K through the traction curve's sensitivity, it widens the "
+        "disagreement the axle check tolerates (at K = 300 a 3 % difference is ~12 % in K)"
     )
     mismatch_min_evidence: float = Field(1.0, gt=0, description="s of informative samples in the window before judging a mismatch")
     observable_max_gross_sigma: float = Field(

@@ -35,6 +35,7 @@ from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
 from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify, classify_many
+from soilocp.estimation.soil_axles import AxleCheck
 from soilocp.estimation.soil_grid import LogKGrid
 
 #: m/s: the speed the terrain-change hazard assumes when a caller gives none (a typical rover's)
@@ -122,6 +123,7 @@ class SoilBank:
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
         self.stats = np.zeros((n, 5))
+        self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
 
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
@@ -162,6 +164,7 @@ class SoilBank:
             v = (np.full(k, UNKNOWN_SPEED) if speed is None
                  else np.abs(np.nan_to_num(np.asarray(speed, dtype=float).reshape(k), nan=UNKNOWN_SPEED)))
             p[pred] = self.grid.predict(p[pred], dt[pred], v[pred] * dt[pred])
+            self.axles.predict(ix[pred], dt[pred], v[pred] * dt[pred])
         self.last_stamp[ix] = stamp
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
@@ -179,7 +182,10 @@ class SoilBank:
             # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
             n_used = u.sum(axis=1)
             starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])  # first used pair of each row
-            loglike = np.add.reduceat(np.log(like_used), starts, axis=0) * cfg.temper
+            loglike_used = np.log(like_used) * cfg.temper
+            loglike = np.add.reduceat(loglike_used, starts, axis=0)
+            pair_row, pair_wheel = np.nonzero(u)  # row-major: the order the used pairs are stacked in
+            self.axles.update(ix[upd], stamp[upd], pair_row, pair_wheel, loglike_used)
             post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
             total = post.sum(axis=1)
             ok = (total > 0) & np.isfinite(total)
@@ -191,7 +197,7 @@ class SoilBank:
             self._window_stats(stats, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
         self.p[ix] = p
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats)
+        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt)
 
     def _window_stats(self, stats, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
@@ -213,7 +219,7 @@ class SoilBank:
                               step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
         stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
 
-    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats) -> list[SoilState]:
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt) -> list[SoilState]:
         """Per vehicle: K and its band from the belief's mid-point CDF ``cdf``, status and reason."""
         cfg, k = self.cfg, ix.size
         out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
@@ -226,9 +232,14 @@ class SoilBank:
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            # where the curve is flat in K (K >> 300, §9) a scale error moves K without bound: the
-            # band is capped at the grid's whole ln K span, which already says "undetermined"
-            sys = min(math.hypot(sys_scale, sys_radius), self.grid.span)
+            sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
+            axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
+                                                                         cfg.axle_scale_sigma * sens)
+            # axles that disagree: the truth is usually near one of them (soil_axles), so their distance
+            # is a systematic term.  Where the curve is flat in K (K >> 300, §9) a scale error moves K
+            # without bound: the band is capped at the grid's whole ln K span ("undetermined")
+            sys_axle = abs(theta_front - theta_rear) if axle_off else 0.0
+            sys = min(math.hypot(math.hypot(sys_scale, sys_radius), sys_axle), self.grid.span)
             log_std = min(math.hypot(log_stat, sys), self.grid.span)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
@@ -240,6 +251,11 @@ class SoilBank:
                 status = "not_observable"
                 reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
                           "with it; wheel odometry cannot stand in)")
+            elif rk is not None and axle_off:
+                status = "model_mismatch"
+                reason = (f"the front and rear axles read different soils (K {math.exp(theta_front):.0f} front, "
+                          f"{math.exp(theta_rear):.0f} rear; {axle_z:.1f} sigma apart, and most of the last {cfg.evidence_window:g} s): "
+                          "the normal forces (mass, centre of mass) or an axle's torque constant are off")
             elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
