@@ -25,6 +25,8 @@ import numpy as np
 from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.soil_grid import LogKGrid
 
+_QUANTILES = (0.15865, 0.5, 0.84135)  # 16 %, median, 84 %: the band of soil_grid.LogKGrid.summary
+
 #: per wheel (paper order: left-rear, left-front, right-front, right-rear): 0 front axle, 1 rear
 AXLE_OF_WHEEL = np.array([1, 0, 0, 1])
 
@@ -41,25 +43,28 @@ class AxleCheck:
         self.over = np.zeros(n_vehicles)
         self.weight = np.zeros(n_vehicles)
 
-    def predict(self, ix: np.ndarray, dt: np.ndarray, distance: np.ndarray) -> None:
-        """Both axles' beliefs of vehicles ``ix`` (m,) after dt (m,) s over ``distance`` (m,) m."""
-        if ix.size:
-            g = self.p.shape[2]
-            self.p[ix] = self.grid.predict(self.p[ix].reshape(-1, g), np.repeat(dt, 2), np.repeat(distance, 2)).reshape(-1, 2, g)
+    def beliefs(self, ix: np.ndarray) -> np.ndarray:
+        """Both axles' beliefs of vehicles ``ix`` (m,) as rows (2m, G), front then rear of each
+        (the soil kernel predicts them in one call with the pooled beliefs)."""
+        return self.p[ix].reshape(-1, self.p.shape[2])
+
+    def set_beliefs(self, ix: np.ndarray, rows: np.ndarray) -> None:
+        self.p[ix] = rows.reshape(-1, 2, self.p.shape[2])
 
     def update(self, ix: np.ndarray, stamp: np.ndarray, pair_row: np.ndarray, pair_wheel: np.ndarray,
                loglike: np.ndarray) -> None:
         """Fuse the used wheels' tempered log-likelihoods ``loglike`` (n_pairs, G); pair j belongs to
         vehicle ``ix[pair_row[j]]``, wheel ``pair_wheel[j]``."""
         m, g = ix.size, self.p.shape[2]
-        acc = np.zeros((m * 2, g))
         key = pair_row * 2 + AXLE_OF_WHEEL[pair_wheel]
-        np.add.at(acc, key, loglike)
-        acc = acc.reshape(m, 2, g)
-        post = self.p[ix] * np.exp(acc - acc.max(axis=2, keepdims=True))
+        pick = np.zeros((m * 2, key.size))  # sums the pairs of each (vehicle, axle): one small product
+        pick[key, np.arange(key.size)] = 1.0
+        acc = (pick @ loglike).reshape(m, 2, g)
+        prior = self.p[ix]
+        post = prior * np.exp(acc - acc.max(axis=2, keepdims=True))
         total = post.sum(axis=2, keepdims=True)
         ok = (total > 0) & np.isfinite(total)
-        self.p[ix] = np.where(ok, post / np.where(ok, total, 1.0), self.p[ix])
+        self.p[ix] = post / total if ok.all() else np.where(ok, post / np.where(ok, total, 1.0), prior)
         hit = np.zeros((m, 2), dtype=bool)
         hit[pair_row, AXLE_OF_WHEEL[pair_wheel]] = True
         self.informed[ix] = np.where(hit, stamp[:, None], self.informed[ix])
@@ -76,13 +81,14 @@ class AxleCheck:
         decay = math.exp(-max(dt, 0.0) / cfg.evidence_window) if math.isfinite(dt) else 0.0
         self.over[vehicle] *= decay
         self.weight[vehicle] *= decay
-        age = stamp - self.informed[vehicle]
-        if not np.all(age <= cfg.hold_after):
+        front, rear = self.informed[vehicle].tolist()
+        if not (stamp - front <= cfg.hold_after and stamp - rear <= cfg.hold_after):  # NaN: never informed
             return False, math.nan, math.nan, math.nan
+        p = self.p[vehicle]
+        cdf = np.cumsum(p, axis=1) - 0.5 * p
         theta, spread = [0.0, 0.0], [0.0, 0.0]
         for a in range(2):
-            cdf = np.cumsum(self.p[vehicle, a]) - 0.5 * self.p[vehicle, a]
-            t16, theta[a], t84 = np.interp((0.15865, 0.5, 0.84135), cdf, self.grid.theta)
+            t16, theta[a], t84 = np.interp(_QUANTILES, cdf[a], self.grid.theta)
             spread[a] = (t84 - t16) / 2.0
         z = abs(theta[0] - theta[1]) / math.sqrt(max(spread[0] ** 2 + spread[1] ** 2 + tolerance**2, 1e-24))
         step = 1.0 - decay if math.isfinite(dt) and dt > 0 else 0.0

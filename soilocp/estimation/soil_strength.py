@@ -163,8 +163,13 @@ class SoilBank:
         if pred.any():
             v = (np.full(k, UNKNOWN_SPEED) if speed is None
                  else np.abs(np.nan_to_num(np.asarray(speed, dtype=float).reshape(k), nan=UNKNOWN_SPEED)))
-            p[pred] = self.grid.predict(p[pred], dt[pred], v[pred] * dt[pred])
-            self.axles.predict(ix[pred], dt[pred], v[pred] * dt[pred])
+            # the pooled beliefs and both axles' (soil_axles) in one prediction: rows k, then 2k
+            m, ixp = int(pred.sum()), ix[pred]
+            rows = self.grid.predict(np.concatenate([p[pred], self.axles.beliefs(ixp)]),
+                                     np.concatenate([dt[pred], np.repeat(dt[pred], 2)]),
+                                     np.concatenate([v[pred] * dt[pred], np.repeat(v[pred] * dt[pred], 2)]))
+            p[pred] = rows[:m]
+            self.axles.set_beliefs(ixp, rows[m:])
         self.last_stamp[ix] = stamp
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
