@@ -22,7 +22,8 @@ BoolQuad = tuple[bool, bool, bool, bool]
 EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
 _STATUS_DOC = (
     "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
-    "not_observable (the data do not determine K) | model_mismatch (the traction curve does not explain the data) | "
+    "not_observable (the data do not determine K) | model_mismatch (the model does not explain the data: the traction "
+    "curve, or the axles read different soils) | "
     "stale (live publisher: inputs stopped)"
 )
 
