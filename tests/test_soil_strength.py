@@ -290,19 +290,21 @@ def test_any_soil_and_slip_pattern_gives_finite_summaries(log_k, slips, noise, s
         assert state.status in ("ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch")
 
 
-def _feed_axles(est, k_front, k_rear, steps, t0=0.0, noise=0.01, seed=3, k_rear_from=None):
-    """Front wheels (1, 2) see K = k_front, rear wheels (0, 3) k_rear (k_rear_from: before t0 + 0.25 s)."""
-    rng = np.random.default_rng(seed)
+def _feed_axles(est, k_front, k_rear, steps, t0=0.0, noise=0.01, rng=None):
+    """A traction test (front wheels 1, 2 drive, rear wheels 0, 3 brake) where the front wheels see
+    the gross coefficient of K = k_front and the rear ones of k_rear(t) (a number or a function of
+    t); every state, in order."""
+    rng = rng or np.random.default_rng(3)
     sweep = np.linspace(0.08, 0.5, 40)
-    state = None
+    states = []
     for i in range(steps):
         t = t0 + i * 0.01
-        s = sweep[i % 40] * np.array([-1.0, 1.0, 1.0, -1.0])  # front drives, rear brakes (a traction test)
-        kr = k_rear_from if (k_rear_from is not None and t < t0 + 0.25) else k_rear
+        s = sweep[i % 40] * np.array([-1.0, 1.0, 1.0, -1.0])
+        kr = k_rear(t) if callable(k_rear) else k_rear
         obs = np.array([gross_traction(s[0], kr), gross_traction(s[1], k_front), gross_traction(s[2], k_front),
                         gross_traction(s[3], kr)]) + rng.normal(0, noise, 4)
-        state = est.update(t, s, obs, np.full(4, noise**2), INFO)
-    return state
+        states.append(est.update(t, s, obs, np.full(4, noise**2), INFO))
+    return states
 
 
 def test_axles_reading_different_soils_are_a_model_mismatch_with_a_band_over_both():
@@ -310,7 +312,7 @@ def test_axles_reading_different_soils_are_a_model_mismatch_with_a_band_over_bot
     forces (docs/method.md §16).  The pooled K would be confidently wrong; the axle check says
     model_mismatch, why, and widens the band over both axles' soils."""
     est = BayesSoilEstimator()
-    state = _feed_axles(est, 200.0, 70.0, 400)
+    state = _feed_axles(est, 200.0, 70.0, 400)[-1]
     assert state.status == "model_mismatch" and "axles read different soils" in state.reason
     assert state.soil_class is None
     lo, hi = state.soil_strength - 2 * state.soil_strength_std, state.soil_strength + 2 * state.soil_strength_std
@@ -319,10 +321,9 @@ def test_axles_reading_different_soils_are_a_model_mismatch_with_a_band_over_bot
 
 def test_axles_on_one_soil_and_a_front_first_terrain_change_are_no_mismatch():
     est = BayesSoilEstimator()
-    states = [_feed_axles(est, 200.0, 200.0, 300)]
-    # a change: the front wheels reach the sand 0.25 s before the rear ones (b / V at 1 m/s)
-    for i in range(300):
-        states.append(_feed_axles(est, 50.0, 50.0, 1, t0=3.0 + i * 0.01, seed=10 + i,
-                                  k_rear_from=200.0 if i < 25 else None))
+    rng = np.random.default_rng(4)
+    states = _feed_axles(est, 200.0, 200.0, 300, rng=rng)
+    # a change to sand that the front wheels reach 0.25 s before the rear ones (b / V at 1 m/s)
+    states += _feed_axles(est, 50.0, lambda t: 200.0 if t < 3.25 else 50.0, 300, t0=3.0, rng=rng)
     assert not [s for s in states if "axles" in s.reason]
     assert states[-1].soil_strength == pytest.approx(50.0, rel=0.1)

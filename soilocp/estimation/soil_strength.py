@@ -12,8 +12,8 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
   four wheels over time: each informative wheel contributes a robust likelihood of its observed
   coefficient given the model at its slip; between samples the belief diffuses (random walk in
   ln K) and mixes with a uniform hazard per metre travelled, so abrupt terrain changes are picked
-  up within a fraction of a second of informative slip, and a robot that stands keeps its soil.  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone
-  in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
+  up within a fraction of a second of informative slip, and a robot that stands keeps its soil.
+  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
   wide posterior (status ``uncertain``), not false precision.  When slip carries no information
   (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
   ``holding``, and after ``expire_after`` seconds it is withdrawn (``no_estimate``) — never a
@@ -102,7 +102,10 @@ class SoilBank:
       ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to every
       sample, so they do not average out like noise.  Their effect on ln K is the weighted
       least-squares shift  d lnK = eps sum(w h_K h) / sum(w h_K^2)  (and likewise with
-      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread.
+      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread;
+    * a front-only and a rear-only belief (:class:`soilocp.estimation.soil_axles.AxleCheck`): when
+      the axles read different soils the normal forces are off (``model_mismatch``, docs/method.md
+      §16), and their distance in ln K joins the systematic part of the band.
     """
 
     def __init__(self, constants: ModelConstants, config: SoilConfig | None, n_vehicles: int):
@@ -235,9 +238,9 @@ class SoilBank:
                 hold.last_update = st
             k_med, _, log_stat = self.grid.summary(cdf[j])
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
-            sys_scale = cfg.gross_scale_sigma * abs(s_kh) / s_kk if s_kk > 0 else 0.0
-            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
+            sys_scale = cfg.gross_scale_sigma * sens
+            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
                                                                          cfg.axle_scale_sigma * sens)
             # axles that disagree: the truth is usually near one of them (soil_axles), so their distance
@@ -259,8 +262,9 @@ class SoilBank:
             elif rk is not None and axle_off:
                 status = "model_mismatch"
                 reason = (f"the front and rear axles read different soils (K {math.exp(theta_front):.0f} front, "
-                          f"{math.exp(theta_rear):.0f} rear; {axle_z:.1f} sigma apart, and most of the last {cfg.evidence_window:g} s): "
-                          "the normal forces (mass, centre of mass) or an axle's torque constant are off")
+                          f"{math.exp(theta_rear):.0f} rear; {axle_z:.1f} sigma apart, and most of the last "
+                          f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
+                          "constant are off")
             elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
                 status = "model_mismatch"
                 reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
@@ -304,7 +308,7 @@ class BayesSoilEstimator:
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
                gate_slip=None, gate_sigma=None, held=None, speed=None) -> SoilState:
         """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
-        ``cfg.slip_sigma``; ``speed`` the ground speed, m/s, default ``UNKNOWN_SPEED``, m/s)."""
+        ``cfg.slip_sigma``; ``speed`` the ground speed in m/s, default ``UNKNOWN_SPEED``)."""
         slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
         s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
         one = (lambda a: None if a is None else np.asarray(a, dtype=float)[None])
