@@ -25,8 +25,6 @@ import numpy as np
 from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.soil_grid import LogKGrid
 
-_QUANTILES = (0.15865, 0.5, 0.84135)  # 16 %, median, 84 %: the band of soil_grid.LogKGrid.summary
-
 #: per wheel (paper order: left-rear, left-front, right-front, right-rear): 0 front axle, 1 rear
 AXLE_OF_WHEEL = np.array([1, 0, 0, 1])
 
@@ -86,10 +84,8 @@ class AxleCheck:
             return False, math.nan, math.nan, math.nan
         p = self.p[vehicle]
         cdf = np.cumsum(p, axis=1) - 0.5 * p
-        theta, spread = [0.0, 0.0], [0.0, 0.0]
-        for a in range(2):
-            t16, theta[a], t84 = np.interp(_QUANTILES, cdf[a], self.grid.theta)
-            spread[a] = (t84 - t16) / 2.0
+        (k_f, _, s_f), (k_r, _, s_r) = self.grid.summary(cdf[0]), self.grid.summary(cdf[1])
+        theta, spread = [math.log(k_f), math.log(k_r)], [s_f, s_r]
         z = abs(theta[0] - theta[1]) / math.sqrt(max(spread[0] ** 2 + spread[1] ** 2 + tolerance**2, 1e-24))
         step = 1.0 - decay if math.isfinite(dt) and dt > 0 else 0.0
         self.weight[vehicle] += step
