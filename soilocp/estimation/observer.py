@@ -85,6 +85,15 @@ class ObserverConfig(BaseModel):
         10, ge=1, description="After this many consecutive rejections a row is accepted again (the model, not the sensor, is off)"
     )
     max_gap: float = Field(0.5, gt=0, description="A time step longer than this (s) re-initialises the filter")
+    full_rate_share: float = Field(
+        0.5, gt=0, lt=1, description="A reading stream whose value changes come at consecutive samples more often than "
+        "this (running share) is read at the sample rate: a repeated value is a new, quantised reading of the same "
+        "value, not a held one (soilocp.estimation.readings, docs/method.md §13)"
+    )
+    repeat_window: float = Field(
+        0.5, ge=0, description="s: the longest a full-rate stream's unchanged value still counts as a new reading "
+        "(a frozen driver repeats forever)"
+    )
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
     gravity: float = Field(STANDARD_GRAVITY, gt=0)

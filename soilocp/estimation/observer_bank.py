@@ -45,6 +45,7 @@ from soilocp.estimation.observer import (N_MEAS, ModelBuffers, ObserverConfig, S
                                          initial_covariance, model, resistance_map, travel_direction)
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
+from soilocp.estimation.readings import ReadingClock
 from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -122,13 +123,6 @@ class ObserverBankOutput:
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
 
 
-def fresh_readings(prev: np.ndarray, now: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """Which readings (k, c) are new: a value exactly equal to the previous sample's is a reading
-    held by a slow driver or logger (docs/method.md §13: wheel speeds and currents refresh at
-    0.5-5 Hz and are held in between), not a new measurement.  Everything is new at a start."""
-    return (now != prev) | first[:, None]
-
-
 class _Workspace:
     """Per-step scratch arrays for up to k vehicles stepped together, allocated once (a step of
     k' <= k vehicles uses their first k' rows): the model's A, b, H
@@ -165,9 +159,8 @@ class ObserverBank:
         self.last_stamp = np.full(n, np.nan)
         self.rejections = np.zeros((n, N_MEAS), dtype=int)
         self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
-        # the last raw readings (wheel speeds, ground speed, torques) and when each last changed
-        self._prev = np.full((n, 9), np.nan)
-        self._changed_at = np.full((n, 9), np.nan)
+        # the raw readings (wheel speeds, ground speed, torques): which are new measurements, and when
+        self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -228,24 +221,23 @@ class ObserverBank:
         raw[:, :4] = inputs.wheel_speed
         raw[:, 4] = inputs.ground_speed
         raw[:, 5:] = inputs.wheel_torque
-        prev, prev_changed = self._prev[sel], self._changed_at[sel]  # read before they are overwritten below
-        fresh = fresh_readings(prev, raw, first | (dt < 0))
+        rd = self._readings.step(sel, inputs.stamp, last, raw, first | (dt < 0))
+        fresh, changed, prev = rd.fresh, rd.changed, rd.prev
         per_side = self.vehicle.drive == "per_side"
         interval_mean = self.vehicle.wheel_speed_reading == "interval_mean"
         lead = None
         torque = inputs.wheel_torque
         if per_side or interval_mean:  # otherwise the wheel acceleration is not used
-            # a fresh encoder speed is a count difference: the mean over the interval since the last one
-            interval = np.where(fresh[:, :4], inputs.stamp[:, None] - prev_changed[:, :4], 0.0)
+            # a changed encoder speed is a count difference: the mean over the interval since the last
+            # change (a quantised repeat in between is the same count rate, and adds no acceleration)
+            interval = np.where(changed[:, :4], inputs.stamp[:, None] - rd.changed_before[:, :4], 0.0)
             interval = np.where(interval <= cfg.max_gap, interval, 0.0)
-            omega_rate = wheel_acceleration(prev[:, :4], inputs.wheel_speed, interval, fresh[:, :4], cfg.max_gap)
+            omega_rate = wheel_acceleration(prev[:, :4], inputs.wheel_speed, interval, changed[:, :4], cfg.max_gap)
             if per_side:
                 torque = split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
             if interval_mean:
                 lead = encoder_lead(interval, omega_rate)
-        changed_at = np.where(fresh, inputs.stamp[:, None], prev_changed)
-        self._prev[sel], self._changed_at[sel] = raw, changed_at
-        age = inputs.stamp[:, None] - changed_at
+        age = rd.age
         # dt == 0 (a repeated stamp) is no reset: only the update runs
         if (first | (dt < 0) | (dt > cfg.max_gap)).any():
             for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),

@@ -17,9 +17,10 @@ from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, resistance_map, travel_direction)
-from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, fresh_readings, outlier_variance,
+from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, outlier_variance,
                                               split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
+from soilocp.estimation.readings import ReadingClock
 
 
 @dataclass
@@ -52,8 +53,7 @@ class TractionObserver:
         self.kf = KalmanFilter(dim_x=L.n, dim_z=N_MEAS)
         self._last_stamp: float | None = None
         self._rejections = np.zeros(N_MEAS, dtype=int)
-        self._prev = np.full(5, np.nan)
-        self._changed_at = np.full(4, np.nan)  # when each wheel speed last changed (the encoder interval)
+        self._readings = ReadingClock(1, 5, cfg.full_rate_share, cfg.repeat_window)  # wheel speeds, ground speed
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
         self.steps = 0
@@ -85,16 +85,17 @@ class TractionObserver:
         dt = None if self._last_stamp is None else stamp - self._last_stamp
         reset = dt is None or dt < 0 or dt > self.cfg.max_gap
         speeds = np.array([*omega, ground_speed])
-        fresh = fresh_readings(self._prev[None], speeds[None], np.array([dt is None or dt < 0]))[0]
-        interval = np.where(fresh[:4], stamp - self._changed_at, 0.0)
+        last = np.nan if self._last_stamp is None else self._last_stamp
+        fresh, changed, prev, changed_before, _ = (
+            a[0] for a in self._readings.step(slice(None), np.array([stamp]), np.array([last]), speeds[None],
+                                              np.array([dt is None or dt < 0])))
+        interval = np.where(changed[:4], stamp - changed_before[:4], 0.0)  # a count difference's interval
         interval = np.where(interval <= self.cfg.max_gap, interval, 0.0)
-        omega_rate = wheel_acceleration(self._prev[None, :4], omega[None], interval[None], fresh[None, :4],
+        omega_rate = wheel_acceleration(prev[None, :4], omega[None], interval[None], changed[None, :4],
                                         self.cfg.max_gap)[0]
         if self.vehicle.drive == "per_side":
             torque = split_side_torque(torque[None], fz[None], self.vehicle.wheel_inertia * omega_rate[None])[0]
         lead = encoder_lead(interval, omega_rate) if self.vehicle.wheel_speed_reading == "interval_mean" else 0.0
-        self._prev = speeds
-        self._changed_at = np.where(fresh[:4], stamp, self._changed_at)
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)
         A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
