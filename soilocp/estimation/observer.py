@@ -90,6 +90,11 @@ class ObserverConfig(BaseModel):
         "this (running share) is read at the sample rate: a repeated value is a new, quantised reading of the same "
         "value, not a held one (soilocp.estimation.readings, docs/method.md §13)"
     )
+    ground_speed_latency_max: float = Field(
+        0.3, ge=0, description="s: the longest ground-speed latency the observer measures against the accelerometer "
+        "and leads the reading by (soilocp.estimation.ground_speed_latency, docs/method.md §13); 0 = none"
+    )
+    latency_window: float = Field(30.0, gt=0, description="s: memory of the ground-speed latency fit")
     repeat_window: float = Field(
         0.5, ge=0, description="s: the longest a full-rate stream's unchanged value still counts as a new reading "
         "(a frozen driver repeats forever)"

@@ -45,6 +45,7 @@ from soilocp.estimation.observer import (N_MEAS, ModelBuffers, ObserverConfig, S
                                          initial_covariance, model, resistance_map, travel_direction)
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
+from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.readings import ReadingClock
 from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
@@ -161,6 +162,8 @@ class ObserverBank:
         self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
         # the raw readings (wheel speeds, ground speed, torques): which are new measurements, and when
         self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
+        self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
+                         if cfg.ground_speed_latency_max > 0 else None)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -244,6 +247,10 @@ class ObserverBank:
                               (~first & (dt > cfg.max_gap), "time_gap")):
                 if rows.any():
                     self._reset(ix, rows, x, P, inputs, reasons, why)
+        gs = inputs.ground_speed
+        if self._latency is not None:  # a late ground speed, led by its measured latency (ground_speed_latency)
+            gs = self._latency.step(sel, np.where(first | (dt < 0) | (dt > cfg.max_gap), np.nan, dt),
+                                    inputs.specific_force_x + cfg.gravity * np.sin(inputs.pitch), gs, fresh[:, 4])
         A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity, out=ws.model)
         rejected = np.zeros(k, dtype=int)
         every = not any(reasons)  # the usual case: no mask copies, same arithmetic
@@ -257,7 +264,6 @@ class ObserverBank:
             elif moving.any():
                 xr[moving], Pr[moving] = predict(xr[moving], Pr[moving], A[run][moving], b[run][moving], self._Qc,
                                                  dtr[moving], self._q)
-            gs = inputs.ground_speed
             no_gs = np.isnan(gs)
             z = ws.z[:k]
             z[:, 0] = inputs.specific_force_x

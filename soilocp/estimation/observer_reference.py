@@ -20,6 +20,7 @@ from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, co
 from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, outlier_variance,
                                               split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
+from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.readings import ReadingClock
 
 
@@ -54,6 +55,8 @@ class TractionObserver:
         self._last_stamp: float | None = None
         self._rejections = np.zeros(N_MEAS, dtype=int)
         self._readings = ReadingClock(1, 5, cfg.full_rate_share, cfg.repeat_window)  # wheel speeds, ground speed
+        self._latency = (GroundSpeedLatency(1, cfg.latency_window, cfg.ground_speed_latency_max)
+                         if cfg.ground_speed_latency_max > 0 else None)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
         self.steps = 0
@@ -96,6 +99,11 @@ class TractionObserver:
         if self.vehicle.drive == "per_side":
             torque = split_side_torque(torque[None], fz[None], self.vehicle.wheel_inertia * omega_rate[None])[0]
         lead = encoder_lead(interval, omega_rate) if self.vehicle.wheel_speed_reading == "interval_mean" else 0.0
+        read_speed = ground_speed
+        if self._latency is not None:
+            read_speed = float(self._latency.step(slice(None), np.array([np.nan if reset else dt]),
+                                                  np.array([specific_force_x + self.cfg.gravity * np.sin(pitch)]),
+                                                  np.array([ground_speed]), np.array([bool(fresh[4])]))[0])
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)
         A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
@@ -105,7 +113,7 @@ class TractionObserver:
             self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
         self._last_stamp = stamp
         omega_now = omega + lead
-        z = np.array([specific_force_x, yaw_rate, *omega_now, np.nan_to_num(ground_speed)])
+        z = np.array([specific_force_x, yaw_rate, *omega_now, np.nan_to_num(read_speed)])
         rejected = 0
         if not reset:
             innov = z - H @ self.kf.x
