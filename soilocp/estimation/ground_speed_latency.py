@@ -58,12 +58,19 @@ class GroundSpeedLatency:
         ground-speed ``reading`` (k,; NaN: none) and whether it is a new one (k,).  Returns the
         reading led by the latency, V_read + tau a (k,)."""
         restart = ~np.isfinite(dt)
-        step = np.where(restart | (dt < 0), 0.0, dt)
-        a_lp = np.where(restart, np.nan, self.a_lp[sel])
-        a_prev = np.where(restart, np.nan, self.a_prev[sel])
-        alpha = np.where(np.isnan(a_lp), 1.0, -np.expm1(-step / SMOOTHING))
-        a_lp = np.where(np.isnan(a_lp), acc, a_lp + alpha * (acc - a_lp))
-        integral = np.where(restart, np.nan, self.integral[sel]) + 0.5 * (np.where(np.isnan(a_prev), acc, a_prev) + acc) * step
+        a_lp, a_prev, integral = self.a_lp[sel], self.a_prev[sel], self.integral[sel]
+        if restart.any() or (dt < 0).any():  # the usual case has neither: no mask copies
+            a_lp, a_prev, integral = (np.where(restart, np.nan, v) for v in (a_lp, a_prev, integral))
+            step = np.where(restart | (dt < 0), 0.0, dt)
+        else:
+            step = dt
+        fresh_lp = np.isnan(a_lp)
+        if fresh_lp.any():
+            a_lp = np.where(fresh_lp, acc, a_lp + -np.expm1(-step / SMOOTHING) * (acc - a_lp))
+            a_prev = np.where(np.isnan(a_prev), acc, a_prev)
+        else:
+            a_lp = a_lp + -np.expm1(-step / SMOOTHING) * (acc - a_lp)
+        integral = integral + 0.5 * (a_prev + acc) * step
         sums = self.sums[sel] * np.exp(-step / self.window)[:, None]
         latency = self.latency[sel]
         new = new & np.isfinite(reading)
@@ -71,13 +78,14 @@ class GroundSpeedLatency:
             pair = new & np.isfinite(integral)  # a new reading with one before it (and no restart since)
             x = a_lp - self.a_then[sel]
             y = integral - (reading - self.read[sel])
-            add = np.stack([x * y, x * x, y * y, np.ones_like(x)], axis=1)
-            sums = sums + np.where(pair[:, None], add, 0.0)
+            sums[:, 0] += np.where(pair, x * y, 0.0)
+            sums[:, 1] += np.where(pair, x * x, 0.0)
+            sums[:, 2] += np.where(pair, y * y, 0.0)
+            sums[:, 3] += pair
             sxy, sxx, syy, n = sums.T
             with np.errstate(invalid="ignore", divide="ignore"):
                 tau = sxy / sxx
-                resid = np.maximum(syy - tau * sxy, 0.0) / np.maximum(n - 1.0, 1.0)
-                t_stat = tau / np.sqrt(resid / sxx)
+                t_stat = tau * np.sqrt(sxx * np.maximum(n - 1.0, 1.0) / np.maximum(syy - tau * sxy, 1e-30))
             determined = (sxx > MIN_SPREAD**2) & (n > MIN_PAIRS) & (t_stat > MIN_T)
             latency = np.where(pair, np.where(determined, np.clip(tau, 0.0, self.max_latency), 0.0), latency)
             self.read[sel] = np.where(new, reading, self.read[sel])

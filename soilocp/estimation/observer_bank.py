@@ -242,14 +242,16 @@ class ObserverBank:
                 lead = encoder_lead(interval, omega_rate)
         age = rd.age
         # dt == 0 (a repeated stamp) is no reset: only the update runs
-        if (first | (dt < 0) | (dt > cfg.max_gap)).any():
+        restart = first | (dt < 0) | (dt > cfg.max_gap)
+        any_restart = bool(restart.any())
+        if any_restart:
             for rows, why in ((first, "start"), (~first & (dt < 0), "stamp_backwards"),
                               (~first & (dt > cfg.max_gap), "time_gap")):
                 if rows.any():
                     self._reset(ix, rows, x, P, inputs, reasons, why)
         gs = inputs.ground_speed
         if self._latency is not None:  # a late ground speed, led by its measured latency (ground_speed_latency)
-            gs = self._latency.step(sel, np.where(first | (dt < 0) | (dt > cfg.max_gap), np.nan, dt),
+            gs = self._latency.step(sel, np.where(restart, np.nan, dt) if any_restart else dt,
                                     inputs.specific_force_x + cfg.gravity * np.sin(inputs.pitch), gs, fresh[:, 4])
         A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity, out=ws.model)
         rejected = np.zeros(k, dtype=int)
