@@ -13,6 +13,7 @@ from soilocp.estimation.batch import BatchPipeline
 from soilocp.model.ocp import ocp_arrays, ocp_from_soil_strength
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
 from soilocp.sim.simulator import simulate
+from soilocp.sim.variants import get_variant
 
 TOL = 1e-9
 
@@ -30,7 +31,12 @@ def drives():
     spike = c[250]
     c[250] = spike.model_copy(update={"wheel_speed": (spike.wheel_speed[0] + 40.0, *spike.wheel_speed[1:])})
     c = c[:300] + c[380:]
-    return {"a": a, "b": b, "c": c}
+    # d: a ground speed 50 ms late at 10 Hz (the observer measures and leads it), a 0.3 s dropout of
+    # it, a 1 s gap (reset) and a repeated stamp
+    d = [s.model_copy(update={"vehicle_id": "d"}) for s, _t in get_variant("ground-speed-lag").simulate(4, duration=10.0)]
+    d = [s.model_copy(update={"ground_speed": None}) if 500 <= i < 530 else s for i, s in enumerate(d)]
+    d = d[:700] + [d[700]] + d[700:760] + d[860:]
+    return {"a": a, "b": b, "c": c, "d": d}
 
 
 def _close(x, y, what):
@@ -106,6 +112,9 @@ def test_observer_kernel_equals_filterpy_reference_step_by_step(drives, structur
                 _quad(getattr(o, field)[0], getattr(r, field), (name, k, field))
             _close(float(o.ground_speed[0]), r.ground_speed, (name, k, "ground_speed"))
             assert int(o.rejected[0]) == r.rejected and bool(o.reset[0]) == r.reset, (name, k)
+        if name == "d":  # the latency path ran, in both, to the same value
+            assert bank._latency.latency[0] > 0.03
+            assert bank._latency.latency[0] == pytest.approx(ref._latency.latency[0], abs=1e-12)
 
 
 def test_ocp_arrays_equal_the_single_k_path_and_te_is_defined_alike():

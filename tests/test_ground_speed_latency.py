@@ -77,3 +77,23 @@ def test_the_observer_speed_no_longer_lags_a_late_ground_speed():
     led, late = _speed_errors(ObserverConfig()), _speed_errors(ObserverConfig(ground_speed_latency_max=0.0))
     print(f"filtered speed error p99: led {np.quantile(led, 0.99):.4f} m/s, as read {np.quantile(late, 0.99):.4f} m/s")
     assert np.quantile(led, 0.99) < 0.7 * np.quantile(late, 0.99)
+
+
+def test_a_dropout_neither_poisons_the_fit_nor_closes_it():
+    # the reading goes missing (NaN) for 0.5 s in the middle: the fit keeps its sums finite and still
+    # reads the latency afterwards; a restart (dt NaN) opens a new pair
+    rng = np.random.default_rng(2)
+    est = GroundSpeedLatency(1, window=30.0, max_latency=0.3)
+    lag, prev_t = 0.05, math.nan
+    for i in range(4000):
+        t = i * 0.01
+        a = math.sin(2 * math.pi * 0.3 * t) + 0.4 * math.sin(2 * math.pi * 0.7 * t + 1.0)
+        v_then = 1.0 - (math.cos(2 * math.pi * 0.3 * (t - lag)) - 1) / (2 * math.pi * 0.3) \
+            - 0.4 * (math.cos(2 * math.pi * 0.7 * (t - lag) + 1.0) - math.cos(1.0)) / (2 * math.pi * 0.7)
+        reading = math.nan if 1500 <= i < 1550 else v_then + rng.normal(0, 0.01)
+        dt = math.nan if i == 2500 else t - prev_t  # one restart
+        est.step(slice(None), np.array([dt]), np.array([a + rng.normal(0, 0.03)]), np.array([reading]),
+                 np.array([i % 10 == 0]))
+        prev_t = t
+        assert np.isfinite(est.sums).all()
+    assert est.latency[0] == pytest.approx(lag, abs=0.012)

@@ -100,3 +100,31 @@ def test_the_observer_stays_on_a_quantised_encoder_at_steady_speed():
     new, held = _slip_errors(ObserverConfig()), _slip_errors(ObserverConfig(full_rate_share=0.999))
     print(f"slip error p99: repeats as readings {np.quantile(new, 0.99):.4f}, as held {np.quantile(held, 0.99):.4f}")
     assert np.quantile(new, 0.99) < 0.03 < np.quantile(held, 0.99)
+
+
+def test_a_dropout_does_not_make_a_held_stream_full_rate():
+    # a 10 Hz ground speed held at 100 Hz, after 1 s of NaN (no reading): the NaN samples are no
+    # evidence of a full-rate stream, so every held repeat stays held
+    values = np.concatenate([np.full(100, np.nan), np.repeat(np.linspace(1.0, 1.5, 18), 10)])
+    got = _feed(values)
+    held = [i for i in range(101, len(values)) if values[i] == values[i - 1]]
+    assert len(held) > 100 and not any(got[i][0] for i in held)
+
+
+def test_a_subset_of_vehicles_steps_without_touching_the_others():
+    # vehicle 0: full-rate quantised; vehicle 1: held at 5 Hz; stepped alternately alone and together
+    clock = ReadingClock(2, 1, 0.5, 0.5)
+    full = _quantised(np.linspace(5.0, 5.5, 300))
+    slow = np.repeat(np.linspace(3.0, 4.0, 15), 20)
+    last = np.full(2, math.nan)
+    for i in range(300):
+        t = i * DT
+        idx = np.array([0, 1]) if i % 3 == 0 else np.array([i % 3 - 1])
+        raw = np.array([[full[i]], [slow[i]]])[idx]
+        r = clock.step(idx, np.full(idx.size, t), last[idx], raw, np.isnan(last[idx]))
+        for j, v in enumerate(idx.tolist()):
+            if v == 1 and i > 0:
+                # the previous reading is this vehicle's own, whichever vehicles stepped in between
+                assert r.prev[j, 0] == slow[int(round(last[1] / DT))]
+        last[idx] = t
+    assert clock.share[0, 0] > 0.5 > clock.share[1, 0]

@@ -53,15 +53,17 @@ class GroundSpeedLatency:
         self.latency = np.zeros(n_vehicles)  # s; 0 while not determined
 
     def step(self, sel, dt: np.ndarray, acc: np.ndarray, reading: np.ndarray, new: np.ndarray) -> np.ndarray:
-        """One sample of the vehicles ``sel``: ``dt`` (k,) s since their previous sample (NaN: a
-        restart, which closes the open pair; 0: a repeated stamp), ``acc`` (k,) m/s^2, the
-        ground-speed ``reading`` (k,; NaN: none) and whether it is a new one (k,).  Returns the
-        reading led by the latency, V_read + tau a (k,)."""
-        restart = ~np.isfinite(dt)
+        """One sample of the vehicles ``sel``: ``dt`` (k,) s since their previous sample (NaN or
+        negative: a restart, which closes the open pair; 0: a repeated stamp), ``acc`` (k,) m/s^2,
+        the ground-speed ``reading`` (k,; NaN: none, which neither closes a pair nor enters the
+        fit) and whether it is a new one (k,).  Returns the reading led by the latency,
+        V_read + tau a (k,)."""
+        with np.errstate(invalid="ignore"):
+            restart = ~(dt >= 0)  # NaN or negative
         a_lp, a_prev, integral = self.a_lp[sel], self.a_prev[sel], self.integral[sel]
-        if restart.any() or (dt < 0).any():  # the usual case has neither: no mask copies
+        if restart.any():  # the usual case: no mask copies
             a_lp, a_prev, integral = (np.where(restart, np.nan, v) for v in (a_lp, a_prev, integral))
-            step = np.where(restart | (dt < 0), 0.0, dt)
+            step = np.where(restart, 0.0, dt)
         else:
             step = dt
         fresh_lp = np.isnan(a_lp)

@@ -59,7 +59,9 @@ class ReadingClock:
         prev, fresh_before, value_before = self.prev[sel].copy(), self.fresh_at[sel].copy(), self.value_at[sel].copy()
         share = self.share[sel]
         changed = (raw != prev) | restart[:, None]
-        counted = changed & ~restart[:, None]
+        # a missing reading (NaN: a dropout) and the first one after it change nothing about the
+        # stream's rate: counted, a dropout would make a held 10 Hz stream look full-rate
+        counted = changed & ~restart[:, None] & np.isfinite(raw) & np.isfinite(prev)
         # the previous sample brought a new value too: the stream is read at the sample rate
         consecutive = value_before == last_stamp[:, None]
         share = np.where(counted, share + SHARE_WEIGHT * (consecutive - share), share)
