@@ -13,7 +13,7 @@ A value exactly equal to the previous sample's is one of two things:
 
 The stream tells which it is: a stream read at the sample rate changes value at consecutive
 samples whenever the signal moves (63-100 % of its changes in the simulated drives), a held one
-never does (0 % of the Warthog's 1-2 Hz wheel speeds, 0 % at 5 Hz).  So each channel keeps a
+never does (0 % of the Warthog's held wheel speeds, 0 % at 5 Hz).  So each channel keeps a
 running share of its value changes that came one sample after the previous change; above
 ``full_rate_share`` its repeats are readings, for at most ``repeat_window`` s (a driver that
 froze repeats forever: after that the value is held, as from a slow stream).
