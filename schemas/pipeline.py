@@ -68,9 +68,16 @@ class ObserverOutput(_Message):
         description="Per wheel: the data determine mu (posterior 1-sigma small). False: the net / resistance split is "
         "carried by the model's assumptions only (e.g. a traction test with mirrored slips): do not use mu",
     )
-    speed_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's speed reading last changed")
-    ground_speed_age: float = Field(default=0.0, description="s since the ground speed reading last changed")
-    torque_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's torque reading last changed")
+    speed_age: Quad = Field(
+        default=(0.0,) * 4, description="s since the wheel's speed reading was last a new measurement (a changed value, "
+        "or a full-rate stream's quantised repeat; a held value ages: docs/method.md §13)"
+    )
+    ground_speed_age: float = Field(default=0.0, description="s since the ground speed reading was last a new measurement")
+    torque_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's torque reading was last a new measurement")
+    ground_speed_latency: float = Field(
+        default=0.0, ge=0, description="s: the ground speed's latency measured against the accelerometer, by which the "
+        "observer leads the reading (0: none determined; docs/method.md §13)"
+    )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")
     reset_reason: str = Field(

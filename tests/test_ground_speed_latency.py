@@ -70,6 +70,8 @@ def _speed_errors(observer: ObserverConfig) -> np.ndarray:
     pairs = list(get_variant("ground-speed-lag").simulate(0, duration=20.0, nominal=cfg.vehicle, constants=cfg.constants))
     est = list(estimate_lines([s.model_dump_json() for s, _ in pairs], cfg, summary=EstimateSummary(), full=True))
     err = np.abs(np.array([e["filtered_ground_speed"] for e in est]) - np.array([t.ground_speed for _, t in pairs]))
+    # the observer's output says by how much it led the reading (0 when switched off)
+    assert est[-1]["ground_speed_latency"] == (pytest.approx(0.05, abs=0.012) if observer.ground_speed_latency_max else 0.0)
     return err[1000:]
 
 

@@ -34,7 +34,7 @@ def _numbers_table(title: str, columns: tuple[str, ...]) -> Table:
 @click.option("--config", type=click.Path(exists=True, dir_okay=False), help="Pipeline config JSON (observer, soil)")
 @click.option("--no-compensation", is_flag=True, help="Observer without motion-resistance compensation (paper Figs. 11, 13)")
 @click.option("--method", type=click.Choice(["bayes", "paper"]), default=None, help="Soil-strength estimator")
-@click.option("--full", is_flag=True, help="Also write normal forces, gross traction and resistance per record")
+@click.option("--full", is_flag=True, help="Also write normal forces, gross traction, resistance, the filtered ground speed and its measured latency per record")
 def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation, method, full):
     """Run the whole chain on a sensor log: validate -> normal forces -> observer -> slip + K -> OCPs.
 

@@ -74,6 +74,7 @@ def estimate_lines(
             rec["resistance"] = list(ob.resistance)
             rec["mu_var"] = list(ob.mu_var)
             rec["filtered_ground_speed"] = ob.ground_speed
+            rec["ground_speed_latency"] = ob.ground_speed_latency
             rec["informative"] = list(so.informative)
         yield rec
 

@@ -118,10 +118,11 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed reading last changed
-    ground_speed_age: np.ndarray  # (k,) s since the ground speed reading last changed
-    torque_age: np.ndarray  # s since the wheel's torque reading last changed
+    speed_age: np.ndarray  # s since the wheel's speed reading was last new (readings.ReadingClock)
+    ground_speed_age: np.ndarray  # (k,) s since the ground speed reading was last new
+    torque_age: np.ndarray  # s since the wheel's torque reading was last new
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
+    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (ground_speed_latency; 0: none)
 
 
 class _Workspace:
@@ -302,9 +303,10 @@ class ObserverBank:
                     self._reset(ix, bad, x, P, inputs, reasons, why)
         self.x[sel], self.P[sel] = x, P
         self.last_stamp[sel] = inputs.stamp
-        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), ws)
+        latency = self._latency.latency[sel] if self._latency is not None else np.zeros(k)
+        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), latency, ws)
 
-    def _output(self, x, P, fz, rejected, reasons, age, measured, ws: _Workspace) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age, measured, latency, ws: _Workspace) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
         res = _bmv(M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
@@ -336,4 +338,5 @@ class ObserverBank:
             ground_speed_age=age[:, 4],
             torque_age=age[:, 5:9],
             ground_speed_measured=measured,
+            ground_speed_latency=latency.copy(),
         )

@@ -141,7 +141,7 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
         speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
         ground_speed_age=float(out.ground_speed_age[j]),
-        ground_speed_measured=bool(out.ground_speed_measured[j]),
+        ground_speed_measured=bool(out.ground_speed_measured[j]), ground_speed_latency=float(out.ground_speed_latency[j]),
     )
 
 
@@ -157,6 +157,7 @@ def observer_output(obs: ObserverOutput) -> ObserverBankOutput:
         speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
         ground_speed_age=np.array([obs.ground_speed_age]),
         ground_speed_measured=np.array([obs.ground_speed_measured]),
+        ground_speed_latency=np.array([obs.ground_speed_latency]),
     )
 
 
