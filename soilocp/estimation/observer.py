@@ -90,15 +90,15 @@ class ObserverConfig(BaseModel):
         "this (running share) is read at the sample rate: a repeated value is a new, quantised reading of the same "
         "value, not a held one (soilocp.estimation.readings, docs/method.md §13)"
     )
+    repeat_window: float = Field(
+        0.5, ge=0, description="s: the longest a full-rate stream's unchanged value still counts as a new reading "
+        "(a frozen driver repeats forever)"
+    )
     ground_speed_latency_max: float = Field(
         0.3, ge=0, description="s: the longest ground-speed latency the observer measures against the accelerometer "
         "and leads the reading by (soilocp.estimation.ground_speed_latency, docs/method.md §13); 0 = none"
     )
     latency_window: float = Field(30.0, gt=0, description="s: memory of the ground-speed latency fit")
-    repeat_window: float = Field(
-        0.5, ge=0, description="s: the longest a full-rate stream's unchanged value still counts as a new reading "
-        "(a frozen driver repeats forever)"
-    )
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
     gravity: float = Field(STANDARD_GRAVITY, gt=0)
@@ -258,6 +258,19 @@ class ModelBuffers:
         self._A_flat = self.A.reshape(k, nx * nx)
 
 
+def path_acceleration(specific_force_x, pitch, gravity: float = STANDARD_GRAVITY):
+    """The CoM's acceleration along its path, V_dot of the speed equation below, with the
+    accelerometer's specific force (eq. 29, docs/method.md §3) for sum(mu_i Fz_i) / m:
+    f_x + g sin(pitch) (REP-103: pitch > 0 nose down).  The ground-speed latency fit
+    (soilocp.estimation.ground_speed_latency) integrates it."""
+    return specific_force_x + gravity_along_path(pitch, gravity)
+
+
+def gravity_along_path(pitch, gravity: float = STANDARD_GRAVITY):
+    """g sin(pitch): the gravity term of the speed equation (eq. 20's reaction, REP-103 pitch)."""
+    return gravity * np.sin(pitch)
+
+
 def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray,
           M: np.ndarray, gravity: float = STANDARD_GRAVITY,
           out: Optional[ModelBuffers] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -288,7 +301,7 @@ def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: n
         np.multiply(wheel_gain[:, :, None], M, out=A[:, L.omega, L.res])
     np.divide(torque, v.wheel_inertia, out=b[:, L.omega])
     np.divide(fz, v.mass, out=A[:, L.v, L.mu])
-    b[:, L.v] = gravity * np.sin(pitch)
+    b[:, L.v] = gravity_along_path(pitch, gravity)
     np.divide(np.array([-v.c, -v.c, v.d, v.d]) * fz, v.yaw_inertia, out=A[:, L.psi, L.mu])
     lat = np.array([v.a, v.b, v.b, v.a]) * fz
     if L.n_lat == 1:

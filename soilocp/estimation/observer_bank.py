@@ -42,7 +42,8 @@ import numpy as np
 
 from soilocp.estimation.kalman_kernel import _arange, _bmv, condition, gated_update, outlier_variance, predict
 from soilocp.estimation.observer import (N_MEAS, ModelBuffers, ObserverConfig, StateLayout, continuous_process_noise,
-                                         initial_covariance, model, resistance_map, travel_direction)
+                                         initial_covariance, model, path_acceleration, resistance_map,
+                                         travel_direction)
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
@@ -253,7 +254,8 @@ class ObserverBank:
         gs = inputs.ground_speed
         if self._latency is not None:  # a late ground speed, led by its measured latency (ground_speed_latency)
             gs = self._latency.step(sel, np.where(restart, np.nan, dt) if any_restart else dt,
-                                    inputs.specific_force_x + cfg.gravity * np.sin(inputs.pitch), gs, fresh[:, 4])
+                                    path_acceleration(inputs.specific_force_x, inputs.pitch, cfg.gravity), gs,
+                                    fresh[:, 4])
         A, b, H = model(L, self.vehicle, fz, torque, inputs.pitch, self.maps(x), cfg.gravity, out=ws.model)
         rejected = np.zeros(k, dtype=int)
         every = not any(reasons)  # the usual case: no mask copies, same arithmetic

@@ -16,7 +16,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
-                       model, resistance_map, travel_direction)
+                       model, path_acceleration, resistance_map, travel_direction)
 from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, outlier_variance,
                                               split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
@@ -102,7 +102,7 @@ class TractionObserver:
         read_speed = ground_speed
         if self._latency is not None:
             read_speed = float(self._latency.step(slice(None), np.array([np.nan if reset else dt]),
-                                                  np.array([specific_force_x + self.cfg.gravity * np.sin(pitch)]),
+                                                  np.array([path_acceleration(specific_force_x, pitch, self.cfg.gravity)]),
                                                   np.array([ground_speed]), np.array([bool(fresh[4])]))[0])
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)

@@ -67,8 +67,8 @@ class SoilConfig(BaseModel):
         "traction curve does not explain the (slip, traction) pairs: status model_mismatch"
     )
     axle_mismatch_z: float = Field(
-        2.5, ge=0, description="Root mean square over evidence_window of the front-only and rear-only beliefs' "
-        "disagreement in ln K, in units of its 1-sigma, above which the status is model_mismatch: the normal forces "
+        2.5, ge=0, description="The front-only and rear-only beliefs' disagreement in ln K, in units of its 1-sigma, "
+        "above which - now and for more than half of evidence_window - the status is model_mismatch: the normal forces "
         "(mass, centre of mass) or one axle's torque constant are off (docs/method.md §16); 0 = no check"
     )
     axle_scale_sigma: float = Field(

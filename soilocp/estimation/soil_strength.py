@@ -13,8 +13,9 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
   coefficient given the model at its slip; between samples the belief diffuses (random walk in
   ln K) and mixes with a uniform hazard per metre travelled, so abrupt terrain changes are picked
   up within a fraction of a second of informative slip, and a robot that stands keeps its soil.
-  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone in K at small slip, and above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a
-  wide posterior (status ``uncertain``), not false precision.  When slip carries no information
+  Working on a grid handles what an EKF cannot: mu(S, K) is not monotone in K at small slip, and
+  above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a wide posterior
+  (status ``uncertain``), not false precision.  When slip carries no information
   (flat ground at cruise, standstill) nothing updates: the last estimate is held and flagged
   ``holding``, and after ``expire_after`` seconds it is withdrawn (``no_estimate``) — never a
   drifting number.
