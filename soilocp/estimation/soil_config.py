@@ -30,6 +30,16 @@ class SoilConfig(BaseModel):
         "uniform change prior): terrain changes where the robot goes, not while it stands; 0.5 = a new soil every 2 m "
         "on average, which lets K follow a change within about a second of informative slip"
     )
+    change_evidence: float = Field(
+        1.0, ge=0, description="s of informative samples over which the data's evidence for a terrain change is "
+        "weighed: K is reported from the no-change belief until a change is more probable than not and the recent "
+        "data favour it (docs/method.md §9); 0 = always the pooled belief's median"
+    )
+    stay_forgetting: float = Field(
+        0.5, ge=0, le=1, description="Share of the change hazard at which the no-change belief forgets old "
+        "evidence (p^(1 - a h)): without it the belief keeps every sample since the last change, the observer's "
+        "early errors with them"
+    )
     model_sigma: float = Field(0.03, gt=0, description="Model / unmodelled error of the coefficient, 1-sigma")
     slip_sigma: float = Field(0.005, ge=0, description="Uncertainty of the filtered slip at speed, 1-sigma")
     speed_sigma: float = Field(

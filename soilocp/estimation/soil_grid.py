@@ -88,6 +88,16 @@ class LogKGrid:
         h = np.minimum(h, 1.0)[:, None]
         return (1 - h) * p + h / p.shape[1]
 
+    def medians(self, cdf: np.ndarray) -> np.ndarray:
+        """ln K at the median of each belief (k,) from their mid-point CDFs (k, G): np.interp(0.5, row,
+        theta) for every row at once (a CDF is non-decreasing; beyond its ends, the end node)."""
+        g = self.theta.size
+        i = np.clip((cdf < 0.5).sum(axis=1), 1, g - 1)
+        r = np.arange(cdf.shape[0])
+        c0, c1 = cdf[r, i - 1], cdf[r, i]
+        f = np.clip((0.5 - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.0, 1.0)
+        return self.theta[i - 1] + f * (self.theta[i] - self.theta[i - 1])
+
     def summary(self, cdf_row: np.ndarray) -> tuple[float, float, float]:
         """(K, K 1-sigma, ln K 1-sigma) from a belief's mid-point CDF: the median and half the
         16-84 % interval.  Moments would be dominated by the small uniform "terrain may change"

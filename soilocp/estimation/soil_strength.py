@@ -118,6 +118,12 @@ class SoilBank:
         self.grid = LogKGrid(constants, cfg)
         self.theta, self.k_grid = self.grid.theta, self.grid.k_grid
         self.p = np.full((n, cfg.grid_points), 1.0 / cfg.grid_points)
+        # the belief that the soil has not changed since the change last taken, that hypothesis'
+        # posterior probability, and the data's recent log-evidence for it against the pooled belief
+        # (_report_median)
+        self.p_stay = self.p.copy()
+        self.w_stay = np.ones(n)
+        self.stay_llr = np.zeros(n)
         self._holds = [_HoldLogic(cfg) for _ in range(n)]
         # half the weakest reference soil's K: the traction constants were fitted on soils from there
         # up; a belief mostly below it is an extrapolation that a wrong torque scale produces, not a soil
@@ -159,7 +165,7 @@ class SoilBank:
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
         ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
         use = gated & determined & ~held & ident[:, None]
-        p = self.p[ix]
+        p, p_stay, w_stay, stay_llr = self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
             dt = stamp - last
@@ -167,13 +173,20 @@ class SoilBank:
         if pred.any():
             v = (np.full(k, UNKNOWN_SPEED) if speed is None
                  else np.abs(np.nan_to_num(np.asarray(speed, dtype=float).reshape(k), nan=UNKNOWN_SPEED)))
-            # the pooled beliefs and both axles' (soil_axles) in one prediction: rows k, then 2k
+            # the pooled beliefs, the no-change beliefs (diffusion, no change prior: no distance) and both axles'
+            # (soil_axles) in one prediction: rows m, m, then 2m
             m, ixp = int(pred.sum()), ix[pred]
-            rows = self.grid.predict(np.concatenate([p[pred], self.axles.beliefs(ixp)]),
-                                     np.concatenate([dt[pred], np.repeat(dt[pred], 2)]),
-                                     np.concatenate([v[pred] * dt[pred], np.repeat(v[pred] * dt[pred], 2)]))
-            p[pred] = rows[:m]
-            self.axles.set_beliefs(ixp, rows[m:])
+            dist = v[pred] * dt[pred]
+            rows = self.grid.predict(np.concatenate([p[pred], p_stay[pred], self.axles.beliefs(ixp)]),
+                                     np.concatenate([dt[pred], dt[pred], np.repeat(dt[pred], 2)]),
+                                     np.concatenate([dist, np.zeros(m), np.repeat(dist, 2)]))
+            p[pred], p_stay[pred] = rows[:m], rows[m:2 * m]
+            hz = np.minimum(cfg.change_per_metre * dist, 1.0)
+            w_stay[pred] *= 1.0 - hz  # P(no change over this step)
+            if cfg.stay_forgetting > 0:  # _report_median: the no-change belief's memory
+                q = np.maximum(p_stay[pred], 1e-300) ** (1.0 - cfg.stay_forgetting * hz)[:, None]
+                p_stay[pred] = q / q.sum(axis=1, keepdims=True)
+            self.axles.set_beliefs(ixp, rows[2 * m:])
         self.last_stamp[ix] = stamp
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
@@ -185,28 +198,76 @@ class SoilBank:
             # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
             s_used = slip[upd][u][:, None]
             h, dh_ds = self.grid.curve(s_used)
-            sig2 = var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ds * s_sig[upd][u][:, None]) ** 2
-            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
-            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
             # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
             n_used = u.sum(axis=1)
             starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])  # first used pair of each row
+            # the slip term of the variance at the prior belief's median, the same for every K (docs/method.md
+            # §9, quasi-likelihood): evaluated per K, (dh/dS sigma_S)^2 would make the variance depend on K,
+            # and with stated variances above the real scatter (observer gross 1-sigma 0.05 against 0.008
+            # measured) 1/sqrt(sig2(K)) pulls K towards the flattest curve at every sample (firm 250 for 300)
+            ref = np.minimum((np.cumsum(p[upd], axis=1) < 0.5).sum(axis=1), self.theta.size - 1)
+            dh_ref = dh_ds[np.arange(dh_ds.shape[0]), np.repeat(ref, n_used)][:, None]
+            sig2 = np.broadcast_to(var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ref * s_sig[upd][u][:, None]) ** 2,
+                                   h.shape)
+            r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
+            like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
             loglike_used = np.log(like_used) * cfg.temper
             loglike = np.add.reduceat(loglike_used, starts, axis=0)
             pair_row, pair_wheel = np.nonzero(u)  # row-major: the order the used pairs are stacked in
             self.axles.update(ix[upd], stamp[upd], pair_row, pair_wheel, loglike_used)
-            post = p[upd] * np.exp(loglike - loglike.max(axis=1, keepdims=True))
-            total = post.sum(axis=1)
+            like = np.exp(loglike - loglike.max(axis=1, keepdims=True))
+            post, post_stay = p[upd] * like, p_stay[upd] * like
+            total, total_stay = post.sum(axis=1), post_stay.sum(axis=1)
             ok = (total > 0) & np.isfinite(total)
             rows = np.flatnonzero(upd)[ok]
             p[rows] = post[ok] / total[ok][:, None]
+            # Bayes on the two hypotheses: P(no change | data) = P(no change) x Z_stay / Z_pooled
+            w_stay[rows] = np.clip(w_stay[rows] * total_stay[ok] / total[ok], 0.0, 1.0)
+            # and the data's own say, ln Z_stay / Z_pooled, over the last change_evidence s of informative samples
+            if cfg.change_evidence > 0:
+                fade = np.exp(-np.where(pred, np.minimum(dt, 1.0), 0.0)[rows] / cfg.change_evidence)
+                stay_llr[rows] = stay_llr[rows] * fade + np.log(np.maximum(total_stay[ok], 1e-300) / total[ok])
+            fine = total_stay[ok] > 0  # else the data exclude the no-change belief: w is 0, taken below
+            p_stay[rows[fine]] = post_stay[ok][fine] / total_stay[ok][fine][:, None]
             info[rows] = True
         cdf = np.cumsum(p, axis=1) - 0.5 * p  # mid-point CDF of every belief after this sample
         if upd.any():
             self._window_stats(stats, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
-        self.p[ix] = p
+        k_report = self._report_median(p, p_stay, w_stay, stay_llr, cdf)
+        self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
         self.stats[ix] = stats
-        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt)
+        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt,
+                               k_report)
+
+    def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> np.ndarray:
+        """The K each vehicle reports (k,): the median of the no-change belief until the data take a
+        change, then the pooled belief's (docs/method.md §9, "Reporting across a possible change").
+
+        The pooled belief p is a mixture: the soil is still the one learnt, or it changed (the hazard
+        per metre mixes in the uniform change prior).  After a stretch without informative slip the
+        change part holds much of the mass, and the first weakly informative samples place it where
+        the curve is flat in K, so the mixture's median leaves a well-learnt K for samples that do not
+        contradict it (firm 300 read 355 for 0.1 s after a 1.5 s hold).  Beside it runs the
+        no-change belief p_stay (the same likelihood; diffusion and ``stay_forgetting``, no change
+        prior) and the posterior probability of that hypothesis, w = P(no change | data) =
+        P(no change) x Z_stay / Z_pooled: the hazard lowers the prior with distance, each informative
+        sample multiplies by the ratio of the two beliefs' evidence.  A change is taken when it is the
+        more probable hypothesis (w < 1/2) and the data themselves favour it: ``stay_llr``, the sum of
+        ln Z_stay / Z_pooled over the last ``change_evidence`` seconds of informative samples, is
+        negative (distance alone, a hold, takes no change).  Then p_stay restarts from p (w = 1) and
+        p's median is reported, where the mixture's median goes anyway once a new soil dominates it.
+        ``change_evidence`` 0 reports p's median always.  The band is always p's: it includes the
+        chance of a change.  p_stay, w_stay and stay_llr are updated in place."""
+        if self.cfg.change_evidence > 0:
+            changed = (w_stay < 0.5) & (stay_llr < 0.0)
+        else:
+            changed = np.ones(p.shape[0], dtype=bool)
+        if changed.any():
+            p_stay[changed] = p[changed]
+            w_stay[changed] = 1.0
+            stay_llr[changed] = 0.0
+        cdf_stay = np.cumsum(p_stay, axis=1) - 0.5 * p_stay
+        return np.exp(self.grid.medians(np.where(changed[:, None], cdf, cdf_stay)))
 
     def _window_stats(self, stats, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
         """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
@@ -228,8 +289,9 @@ class SoilBank:
                               step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
         stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
 
-    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt) -> list[SoilState]:
-        """Per vehicle: K and its band from the belief's mid-point CDF ``cdf``, status and reason."""
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt, k_report) -> list[SoilState]:
+        """Per vehicle: K (``k_report``, :meth:`_report_median`) and its band from the pooled belief's
+        mid-point CDF ``cdf``, status and reason."""
         cfg, k = self.cfg, ix.size
         out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
         for j in range(k):
@@ -237,7 +299,8 @@ class SoilBank:
             st = float(stamp[j])
             if info[j]:
                 hold.last_update = st
-            k_med, _, log_stat = self.grid.summary(cdf[j])
+            _, _, log_stat = self.grid.summary(cdf[j])
+            k_med = float(k_report[j])
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
             sys_scale = cfg.gross_scale_sigma * sens
