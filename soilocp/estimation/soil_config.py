@@ -96,8 +96,9 @@ class SoilConfig(BaseModel):
 
 @dataclass(frozen=True)
 class SoilState:
-    """What an estimator reports after each step: K is the belief's median, soil_strength_std
-    and log_k_std half its 16-84 % interval (in K and in ln K)."""
+    """What an estimator reports after each step: K is a belief's median (the no-change belief's until
+    the data take a terrain change, docs/method.md §9), soil_strength_std and log_k_std half the
+    pooled belief's 16-84 % interval (in K and in ln K) with the systematic terms."""
 
     soil_strength: Optional[float]
     soil_strength_std: Optional[float]

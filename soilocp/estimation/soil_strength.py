@@ -13,6 +13,9 @@ Two estimators share one interface (``update(stamp, slip, observed, variance, in
   coefficient given the model at its slip; between samples the belief diffuses (random walk in
   ln K) and mixes with a uniform hazard per metre travelled, so abrupt terrain changes are picked
   up within a fraction of a second of informative slip, and a robot that stands keeps its soil.
+  K is reported from a second, no-change belief until the data take a change (the mixture's
+  median leaves a learnt soil on the first weak samples after a hold: :meth:`SoilBank._report_median`),
+  and the likelihood's slip term is evaluated at the belief's median, the same for every K.
   Working on a grid handles what an EKF cannot: mu(S, K) is not monotone in K at small slip, and
   above K ~ 300 the curve saturates (docs/method.md §9), which shows up as a wide posterior
   (status ``uncertain``), not false precision.  When slip carries no information
