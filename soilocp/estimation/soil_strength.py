@@ -207,7 +207,8 @@ class SoilBank:
             # the slip term of the variance at the prior belief's median, the same for every K (docs/method.md
             # §9, quasi-likelihood): evaluated per K, (dh/dS sigma_S)^2 would make the variance depend on K,
             # and with stated variances above the real scatter (observer gross 1-sigma 0.05 against 0.008
-            # measured) 1/sqrt(sig2(K)) pulls K towards the flattest curve at every sample (firm 250 for 300)
+            # measured) 1/sqrt(sig2(K)) pulls K towards the flattest curve at every sample
+            # (sweep-12s-0.1: firm 300 read 235)
             ref = np.minimum((np.cumsum(p[upd], axis=1) < 0.5).sum(axis=1), self.theta.size - 1)
             dh_ref = dh_ds[np.arange(dh_ds.shape[0]), np.repeat(ref, n_used)][:, None]
             sig2 = np.broadcast_to(var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ref * s_sig[upd][u][:, None]) ** 2,
@@ -250,7 +251,7 @@ class SoilBank:
         per metre mixes in the uniform change prior).  After a stretch without informative slip the
         change part holds much of the mass, and the first weakly informative samples place it where
         the curve is flat in K, so the mixture's median leaves a well-learnt K for samples that do not
-        contradict it (firm 300 read 355 for 0.1 s after a 1.5 s hold).  Beside it runs the
+        contradict it (sweep-6s-0.3: firm 300 read 355 for 0.2 s after a 1.5 s hold).  Beside it runs the
         no-change belief p_stay (the same likelihood; diffusion and ``stay_forgetting``, no change
         prior) and the posterior probability of that hypothesis, w = P(no change | data) =
         P(no change) x Z_stay / Z_pooled: the hazard lowers the prior with distance, each informative
