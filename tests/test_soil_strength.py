@@ -64,15 +64,20 @@ def test_recovers_k_from_noisy_gross_traction(k_true):
 
 
 def test_saturated_soil_reports_wide_uncertainty_not_false_precision():
-    rng = np.random.default_rng(1)
-    est = BayesSoilEstimator()
-    sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 60)]
-    hard = _feed(est, 1500, sweep, 300, noise=0.01, rng=rng)
-    est2 = BayesSoilEstimator()
-    soft = _feed(est2, 50, sweep, 300, noise=0.01, rng=rng)
+    """Above K ~ 300 eq. 3's amplitude saturates (docs/method.md §9).  Driving wheels see only that
+    amplitude, so a torque scale within its 1-sigma moves K anywhere above ~300: the band says so.
+    A braking axle adds the motion resistance (even in S, §11), which does not saturate as fast: it
+    determines K and the scale in part, and then the band is narrower but still holds the truth."""
+    drive = [[s, s, s, s] for s in np.linspace(0.05, 0.6, 60)]
+    hard = _feed(BayesSoilEstimator(), 1500, drive, 300, noise=0.01, rng=np.random.default_rng(1))
+    soft = _feed(BayesSoilEstimator(), 50, drive, 300, noise=0.01, rng=np.random.default_rng(1))
     assert hard.log_k_std > 3 * soft.log_k_std
     assert hard.status == "uncertain"
     assert hard.soil_strength > 300
+    brake = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 60)]
+    both = _feed(BayesSoilEstimator(), 1500, brake, 300, noise=0.01, rng=np.random.default_rng(1))
+    assert soft.log_k_std < both.log_k_std < hard.log_k_std
+    assert abs(both.soil_strength - 1500) <= 2 * both.soil_strength_std
 
 
 def test_no_information_at_zero_slip_gives_no_estimate():
@@ -247,10 +252,10 @@ def test_a_clean_sweep_on_saturated_soil_reports_a_finite_band_not_an_overflow(k
 
 # docs/method.md §9, test vectors: K_true -> (status, K, ln K 1-sigma) at t = 2.0, 2.6, 12.4 s
 _S9_VECTORS = {
-    50: [("ok", 50.0, 0.0863), ("holding", 50.0, 0.287), ("holding", 50.0, 2.36)],
-    80: [("ok", 80.0, 0.0955), ("holding", 80.0, 0.182), ("holding", 80.0, 2.36)],
-    200: [("ok", 200.3, 0.188), ("holding", 200.3, 0.238), ("holding", 200.3, 2.37)],
-    300: [("uncertain", 301.6, 0.374), ("holding", 301.6, 0.409), ("holding", 301.6, 2.39)],
+    50: [("ok", 50.0, 0.0866), ("holding", 50.0, 0.287), ("holding", 50.0, 2.36)],
+    80: [("ok", 80.0, 0.0958), ("holding", 80.0, 0.182), ("holding", 80.0, 2.36)],
+    200: [("uncertain", 200.3, 0.240), ("holding", 200.3, 0.284), ("holding", 200.3, 2.38)],
+    300: [("uncertain", 301.6, 0.680), ("holding", 301.6, 0.709), ("holding", 301.6, 2.53)],
     1000: [("uncertain", 1688.0, 6.91), ("holding", 1688.0, 6.91), ("holding", 1688.0, 6.91)],
 }
 

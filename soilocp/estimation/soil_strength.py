@@ -136,6 +136,9 @@ class SoilBank:
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
         self.stats = np.zeros((n, 5))
+        # the same window's weighted sums per node for the scale profile (_scale_shift): sum w obs h(theta),
+        # sum w h(theta)^2 and sum w obs^2 (the same at every node: one array carries the window)
+        self.profile = np.zeros((n, 3, cfg.grid_points))
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
 
 
@@ -194,6 +197,8 @@ class SoilBank:
         stats = self.stats[ix]
         decay = np.where(pred, np.exp(-np.where(pred, dt, 0.0) / cfg.evidence_window), 1.0)
         stats *= decay[:, None]
+        prof = self.profile[ix]
+        prof *= decay[:, None, None]
         info = np.zeros(k, dtype=bool)
         upd = use.any(axis=1)
         if upd.any():
@@ -235,16 +240,22 @@ class SoilBank:
             p_stay[rows[fine]] = post_stay[ok][fine] / total_stay[ok][fine][:, None]
             info[rows] = True
         cdf = np.cumsum(p, axis=1) - 0.5 * p  # mid-point CDF of every belief after this sample
+        k_report, taken = self._report_median(p, p_stay, w_stay, stay_llr, cdf)
+        # a change taken: the window's mismatch and systematic statistics were gathered on the old soil,
+        # and would judge the new estimate by it for evidence_window seconds (the robustness drive's firm
+        # segment: the scale profile still read 250 for 300 five seconds after the change)
+        stats[taken] = 0.0
+        prof[taken] = 0.0
         if upd.any():
-            self._window_stats(stats, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0], dt)
-        k_report = self._report_median(p, p_stay, w_stay, stay_llr, cdf)
+            self._window_stats(stats, prof, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0],
+                               obs[upd][u], dt)
         self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
-        self.stats[ix] = stats
+        self.stats[ix], self.profile[ix] = stats, prof
         return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt,
-                               k_report)
+                               k_report, self._scale_shift(prof))
 
-    def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> np.ndarray:
-        """The K each vehicle reports (k,): the median of the no-change belief until the data take a
+    def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> tuple[np.ndarray, np.ndarray]:
+        """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of the no-change belief until the data take a
         change, then the pooled belief's (docs/method.md §9, "Reporting across a possible change").
 
         The pooled belief p is a mixture: the soil is still the one learnt, or it changed (the hazard
@@ -260,23 +271,23 @@ class SoilBank:
         ln Z_stay / Z_pooled over the last ``change_evidence`` seconds of informative samples, is
         negative (distance alone, a hold, takes no change).  Then p_stay restarts from p (w = 1) and
         p's median is reported, where the mixture's median goes anyway once a new soil dominates it.
-        ``change_evidence`` 0 reports p's median always.  The band is always p's: it includes the
-        chance of a change.  p_stay, w_stay and stay_llr are updated in place."""
+        ``change_evidence`` 0 reports p's median always (and takes no change).  The band is always p's:
+        it includes the chance of a change.  p_stay, w_stay and stay_llr are updated in place."""
         if self.cfg.change_evidence > 0:
-            changed = (w_stay < 0.5) & (stay_llr < 0.0)
+            changed = taken = (w_stay < 0.5) & (stay_llr < 0.0)
         else:
-            changed = np.ones(p.shape[0], dtype=bool)
+            changed, taken = np.ones(p.shape[0], dtype=bool), np.zeros(p.shape[0], dtype=bool)
         if changed.any():
             p_stay[changed] = p[changed]
             w_stay[changed] = 1.0
             stay_llr[changed] = 0.0
         cdf_stay = np.cumsum(p_stay, axis=1) - 0.5 * p_stay
-        return np.exp(self.grid.medians(np.where(changed[:, None], cdf, cdf_stay)))
+        return np.exp(self.grid.medians(np.where(changed[:, None], cdf, cdf_stay))), taken
 
-    def _window_stats(self, stats, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, dt) -> None:
-        """Accumulate the NIS at the posterior median and the systematic budget's sums (class doc);
-        ``cdf``: the updated beliefs' mid-point CDF; the used pairs are stacked row by row, row i's
-        from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and call), so the per-row
+    def _window_stats(self, stats, prof, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, obs_used, dt) -> None:
+        """Accumulate the NIS at the posterior median, the systematic budget's sums (class doc) and the
+        scale profile's per-node sums (:meth:`_scale_shift`); ``cdf``: the updated beliefs' mid-point
+        CDF; the used pairs are stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and call), so the per-row
         sums are plain fancy-index adds."""
         G = self.theta.size
         which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
@@ -292,8 +303,65 @@ class SoilBank:
         per_wheel = np.stack([step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
                               step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
         stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
+        # per sample, as the belief weighs them (temper applies per sample); sig2 is the same for every K
+        # (quasi-likelihood, update): one weight per used wheel
+        wt_pair = 1.0 / sig2[:, 0]
+        wh = wt_pair[:, None] * h
+        prof[rows, 0] += np.add.reduceat(wh * obs_used[:, None], starts, axis=0)
+        prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
+        prof[rows, 2] += np.add.reduceat(wt_pair * obs_used**2, starts)[:, None]
 
-    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt, k_report) -> list[SoilState]:
+    def _scale_shift(self, prof) -> np.ndarray:
+        """The systematic 1-sigma of ln K from a scale error c common to every observed coefficient (k,):
+        the torque constant (docs/method.md §9, "The band").
+
+        A torque constant off by c makes every observed gross traction c x the true one.  The curve's
+        amplitude is a function of K alone (eq. 3), so on driving wheels c and K trade off; a braking
+        wheel's gross traction carries the motion resistance twice (eq. 4, even in S: §11), which does
+        not scale with the amplitude, so a drive that brakes one axle tells c apart in part.  Over the
+        window (``prof`` (k, 3, G): S_oh(theta) = sum w obs h(theta), S_hh(theta) = sum w h(theta)^2 and
+        S_oo = sum w obs^2, on the current soil's samples: reset when a change is taken) the misfit of
+        obs = c h(theta) is
+
+            M(c) = min_theta  S_oo - 2 c S_oh(theta) + c^2 S_hh(theta),   at theta*(c).
+
+        c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-temper M(c) / 2) (the
+        belief's own per-sample weighting), on nodes over +-4 sigma.  The systematic 1-sigma is the
+        root mean square of theta*(c) - theta*(1) under that posterior: exact through the curve (where
+        it saturates, K >~ 300 (§9), a small c sends theta* to the grid's end and the band says K is
+        undetermined upwards), and narrow where the data exclude a scale error.  A linearised
+        sensitivity at the estimate (d ln K = eps sum w h_K h / sum w h_K^2, earlier releases)
+        understated it on both sides: torque-10 read firm 300 as 203 with a 1-sigma of 0.14,
+        torque+10 as 1009 with 0.26; without the data's say (the prior's +-2 sigma alone), nominal firm
+        soil's band reached 300..1300."""
+        sig = self.cfg.gross_scale_sigma
+        have = prof[:, 1].any(axis=1)
+        if sig <= 0 or not have.any():
+            return np.zeros(prof.shape[0])
+        c = 1.0 + sig * np.linspace(-4.0, 4.0, 25)
+        misfit = (prof[:, None, 2] - 2.0 * c[None, :, None] * prof[:, None, 0]
+                  + (c**2)[None, :, None] * prof[:, None, 1])  # (k, C, G)
+        theta, m = self._profile_argmin(misfit)
+        log_post = -0.5 * ((c - 1.0) / sig) ** 2 - 0.5 * self.cfg.temper * (m - m.min(axis=1, keepdims=True))
+        post = np.exp(log_post - log_post.max(axis=1, keepdims=True))
+        post /= post.sum(axis=1, keepdims=True)
+        at_one = theta[:, c.size // 2]
+        rms = np.sqrt((post * (theta - at_one[:, None]) ** 2).sum(axis=1))
+        return np.where(have, rms, 0.0)
+
+    def _profile_argmin(self, f) -> tuple[np.ndarray, np.ndarray]:
+        """ln K at the least ``f`` (..., G) along the last axis, and that least value, both refined by the
+        parabola through the nodes around it (the grid's end: its last interior node +- half a step)."""
+        G = f.shape[-1]
+        i = np.clip(np.argmin(f, axis=-1), 1, G - 2)[..., None]
+        y0, y1, y2 = (np.take_along_axis(f, i + d, axis=-1)[..., 0] for d in (-1, 0, 1))
+        curv = y0 - 2.0 * y1 + y2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            off = np.clip(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5, 0.5)
+        return self.theta[i[..., 0]] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
+
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt, k_report,
+                   scale_shift) -> list[SoilState]:
         """Per vehicle: K (``k_report``, :meth:`_report_median`) and its band from the pooled belief's
         mid-point CDF ``cdf``, status and reason."""
         cfg, k = self.cfg, ix.size
@@ -307,7 +375,7 @@ class SoilBank:
             k_med = float(k_report[j])
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
-            sys_scale = cfg.gross_scale_sigma * sens
+            sys_scale = float(scale_shift[j])  # exact, on the current data (_scale_shift)
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
                                                                          cfg.axle_scale_sigma * sens)
