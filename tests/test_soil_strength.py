@@ -254,8 +254,8 @@ def test_a_clean_sweep_on_saturated_soil_reports_a_finite_band_not_an_overflow(k
 _S9_VECTORS = {
     50: [("ok", 50.0, 0.0866), ("holding", 50.0, 0.287), ("holding", 50.0, 2.36)],
     80: [("ok", 80.0, 0.0958), ("holding", 80.0, 0.182), ("holding", 80.0, 2.36)],
-    200: [("uncertain", 200.3, 0.240), ("holding", 200.3, 0.284), ("holding", 200.3, 2.38)],
-    300: [("uncertain", 301.6, 0.680), ("holding", 301.6, 0.709), ("holding", 301.6, 2.53)],
+    200: [("uncertain", 200.3, 0.240), ("holding", 200.3, 0.281), ("holding", 200.3, 2.37)],
+    300: [("uncertain", 301.6, 0.680), ("holding", 301.6, 0.699), ("holding", 301.6, 2.46)],
     1000: [("uncertain", 1688.0, 6.91), ("holding", 1688.0, 6.91), ("holding", 1688.0, 6.91)],
 }
 

@@ -136,9 +136,13 @@ class SoilBank:
         # window statistics: evidence (s of informative samples), NIS sum, and the sums of the
         # systematic budget: sum w h_K^2, sum w h_K h, sum w h_K h_S dS
         self.stats = np.zeros((n, 5))
-        # the same window's weighted sums per node for the scale profile (_scale_shift): sum w obs h(theta),
-        # sum w h(theta)^2 and sum w obs^2 (the same at every node: one array carries the window)
-        self.profile = np.zeros((n, 3, cfg.grid_points))
+        # the same window's weighted sums per node for the scale profile (_scale_shift): sum w obs h(theta)
+        # and sum w h(theta)^2
+        self.profile = np.zeros((n, 2, cfg.grid_points))
+        self.scale_sys = np.zeros(n)  # _scale_shift of the last informative sample (no new data, no new value)
+        # _scale_shift's nodes of the common scale c over +-4 sigma, and their log prior N(1, gross_scale_sigma)
+        self._scale_c = 1.0 + cfg.gross_scale_sigma * np.linspace(-4.0, 4.0, 25)
+        self._scale_log_prior = -0.5 * np.linspace(-4.0, 4.0, 25) ** 2
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
 
 
@@ -251,8 +255,11 @@ class SoilBank:
                                obs[upd][u], dt)
         self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
         self.stats[ix], self.profile[ix] = stats, prof
+        fresh = np.flatnonzero(upd | taken)
+        if fresh.size:
+            self.scale_sys[ix[fresh]] = self._scale_shift(prof[fresh])
         return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt,
-                               k_report, self._scale_shift(prof))
+                               k_report, self.scale_sys[ix])
 
     def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> tuple[np.ndarray, np.ndarray]:
         """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of the no-change belief until the data take a
@@ -309,7 +316,6 @@ class SoilBank:
         wh = wt_pair[:, None] * h
         prof[rows, 0] += np.add.reduceat(wh * obs_used[:, None], starts, axis=0)
         prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
-        prof[rows, 2] += np.add.reduceat(wt_pair * obs_used**2, starts)[:, None]
 
     def _scale_shift(self, prof) -> np.ndarray:
         """The systematic 1-sigma of ln K from a scale error c common to every observed coefficient (k,):
@@ -319,11 +325,12 @@ class SoilBank:
         amplitude is a function of K alone (eq. 3), so on driving wheels c and K trade off; a braking
         wheel's gross traction carries the motion resistance twice (eq. 4, even in S: §11), which does
         not scale with the amplitude, so a drive that brakes one axle tells c apart in part.  Over the
-        window (``prof`` (k, 3, G): S_oh(theta) = sum w obs h(theta), S_hh(theta) = sum w h(theta)^2 and
-        S_oo = sum w obs^2, on the current soil's samples: reset when a change is taken) the misfit of
-        obs = c h(theta) is
+        window (``prof`` (k, 2, G): S_oh(theta) = sum w obs h(theta) and S_hh(theta) = sum w h(theta)^2,
+        on the current soil's samples: reset when a change is taken) the misfit of obs = c h(theta) is
 
-            M(c) = min_theta  S_oo - 2 c S_oh(theta) + c^2 S_hh(theta),   at theta*(c).
+            M(c) = min_theta  sum w obs^2 - 2 c S_oh(theta) + c^2 S_hh(theta),   at theta*(c)
+
+        (sum w obs^2 is the same for every c and drops out).
 
         c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-temper M(c) / 2) (the
         belief's own per-sample weighting), on nodes over +-4 sigma.  The systematic 1-sigma is the
@@ -334,31 +341,30 @@ class SoilBank:
         understated it on both sides: torque-10 read firm 300 as 203 with a 1-sigma of 0.14,
         torque+10 as 1009 with 0.26; without the data's say (the prior's +-2 sigma alone), nominal firm
         soil's band reached 300..1300."""
-        sig = self.cfg.gross_scale_sigma
-        have = prof[:, 1].any(axis=1)
-        if sig <= 0 or not have.any():
+        if self.cfg.gross_scale_sigma <= 0:
             return np.zeros(prof.shape[0])
-        c = 1.0 + sig * np.linspace(-4.0, 4.0, 25)
-        misfit = (prof[:, None, 2] - 2.0 * c[None, :, None] * prof[:, None, 0]
-                  + (c**2)[None, :, None] * prof[:, None, 1])  # (k, C, G)
+        c = self._scale_c
+        cc = c[None, :, None]
+        misfit = cc * (cc * prof[:, None, 1] - 2.0 * prof[:, None, 0])  # (k, C, G), less sum w obs^2 (the same for every c)
         theta, m = self._profile_argmin(misfit)
-        log_post = -0.5 * ((c - 1.0) / sig) ** 2 - 0.5 * self.cfg.temper * (m - m.min(axis=1, keepdims=True))
+        log_post = self._scale_log_prior - 0.5 * self.cfg.temper * m
         post = np.exp(log_post - log_post.max(axis=1, keepdims=True))
-        post /= post.sum(axis=1, keepdims=True)
-        at_one = theta[:, c.size // 2]
-        rms = np.sqrt((post * (theta - at_one[:, None]) ** 2).sum(axis=1))
-        return np.where(have, rms, 0.0)
+        shift2 = (theta - theta[:, c.size // 2, None]) ** 2  # against c = 1
+        # no samples in the window: every c fits alike, theta* is the grid's first node: no term
+        return np.sqrt((post * shift2).sum(axis=1) / post.sum(axis=1)) * prof[:, 1].any(axis=1)
 
     def _profile_argmin(self, f) -> tuple[np.ndarray, np.ndarray]:
         """ln K at the least ``f`` (..., G) along the last axis, and that least value, both refined by the
         parabola through the nodes around it (the grid's end: its last interior node +- half a step)."""
         G = f.shape[-1]
-        i = np.clip(np.argmin(f, axis=-1), 1, G - 2)[..., None]
-        y0, y1, y2 = (np.take_along_axis(f, i + d, axis=-1)[..., 0] for d in (-1, 0, 1))
+        flat = f.reshape(-1)
+        i = np.minimum(np.maximum(np.argmin(f, axis=-1), 1), G - 2)  # (np.clip costs 15 us on small arrays)
+        at = (np.arange(i.size) * G + i.reshape(-1)).reshape(i.shape)  # flat index of each row's least node
+        y0, y1, y2 = flat[at - 1], flat[at], flat[at + 1]
         curv = y0 - 2.0 * y1 + y2
         with np.errstate(divide="ignore", invalid="ignore"):
-            off = np.clip(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5, 0.5)
-        return self.theta[i[..., 0]] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
+            off = np.minimum(np.maximum(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5), 0.5)
+        return self.theta[i] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
 
     def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt, k_report,
                    scale_shift) -> list[SoilState]:
