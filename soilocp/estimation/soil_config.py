@@ -56,8 +56,9 @@ class SoilConfig(BaseModel):
     hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
     expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
     gross_scale_sigma: float = Field(
-        0.05, ge=0, description="1-sigma relative error of the gross traction common to all samples (torque constant, "
-        "wheel radius, mass): it does not average out, so it enters K's band as a systematic term"
+        0.05, ge=0, description="Prior 1-sigma relative error of the gross traction common to all samples (torque "
+        "constant, mass): it does not average out, so it enters K's band as a systematic term, narrowed where the data "
+        "tell the scale apart (a braking axle)"
     )
     radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
     max_input_age: float = Field(

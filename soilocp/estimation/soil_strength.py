@@ -102,11 +102,13 @@ class SoilBank:
     * the mean normalised residual (NIS) of the used wheels at the posterior median: when the
       traction curve cannot explain the (slip, traction) pairs at any K, the status is
       ``model_mismatch`` rather than a confident class;
-    * the systematic part of K's error budget: a gross-traction scale error eps (1-sigma
-      ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to every
-      sample, so they do not average out like noise.  Their effect on ln K is the weighted
-      least-squares shift  d lnK = eps sum(w h_K h) / sum(w h_K^2)  (and likewise with
-      h_S dS/dlnR for the radius), which is added in quadrature to the belief's own spread;
+    * the systematic part of K's error budget: a gross-traction scale error c (the torque constant;
+      prior 1-sigma ``gross_scale_sigma``) and a wheel-radius error (``radius_sigma``) are common to
+      every sample, so they do not average out like noise.  The scale's effect on ln K is propagated
+      exactly through the curve, under c's posterior given the window's samples
+      (:meth:`_scale_shift`); the radius's is the linearised weighted least-squares shift
+      d lnK = eps sum(w h_K h_S dS/dlnR) / sum(w h_K^2).  Both add in quadrature to the belief's own
+      spread.  The window restarts when a change is taken: its samples are the current soil's;
     * a front-only and a rear-only belief (:class:`soilocp.estimation.soil_axles.AxleCheck`): when
       the axles read different soils the normal forces are off (``model_mismatch``, docs/method.md
       §16), and their distance in ln K joins the systematic part of the band.
@@ -139,7 +141,9 @@ class SoilBank:
         # the same window's weighted sums per node for the scale profile (_scale_shift): sum w obs h(theta)
         # and sum w h(theta)^2
         self.profile = np.zeros((n, 2, cfg.grid_points))
-        self.scale_sys = np.zeros(n)  # _scale_shift of the last informative sample (no new data, no new value)
+        # _scale_shift of the last informative sample (no new data, no new value): the systematic 1-sigma of
+        # ln K, and the scale's posterior mean and 1-sigma
+        self.scale_sys = np.tile([0.0, 1.0, cfg.gross_scale_sigma], (n, 1))
         # _scale_shift's nodes of the common scale c over +-4 sigma, and their log prior N(1, gross_scale_sigma)
         self._scale_c = 1.0 + cfg.gross_scale_sigma * np.linspace(-4.0, 4.0, 25)
         self._scale_log_prior = -0.5 * np.linspace(-4.0, 4.0, 25) ** 2
@@ -318,8 +322,8 @@ class SoilBank:
         prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
 
     def _scale_shift(self, prof) -> np.ndarray:
-        """The systematic 1-sigma of ln K from a scale error c common to every observed coefficient (k,):
-        the torque constant (docs/method.md §9, "The band").
+        """The systematic 1-sigma of ln K from a scale error c common to every observed coefficient (the
+        torque constant), and c's posterior mean and 1-sigma: (k, 3) (docs/method.md §9, "The band").
 
         A torque constant off by c makes every observed gross traction c x the true one.  The curve's
         amplitude is a function of K alone (eq. 3), so on driving wheels c and K trade off; a braking
@@ -342,16 +346,21 @@ class SoilBank:
         torque+10 as 1009 with 0.26; without the data's say (the prior's +-2 sigma alone), nominal firm
         soil's band reached 300..1300."""
         if self.cfg.gross_scale_sigma <= 0:
-            return np.zeros(prof.shape[0])
+            return np.tile([0.0, 1.0, 0.0], (prof.shape[0], 1))
         c = self._scale_c
         cc = c[None, :, None]
         misfit = cc * (cc * prof[:, None, 1] - 2.0 * prof[:, None, 0])  # (k, C, G), less sum w obs^2 (the same for every c)
         theta, m = self._profile_argmin(misfit)
         log_post = self._scale_log_prior - 0.5 * self.cfg.temper * m
         post = np.exp(log_post - log_post.max(axis=1, keepdims=True))
+        post /= post.sum(axis=1, keepdims=True)
         shift2 = (theta - theta[:, c.size // 2, None]) ** 2  # against c = 1
+        c_mean = post @ c
+        out = np.stack([np.sqrt((post * shift2).sum(axis=1)), c_mean,
+                        np.sqrt(np.maximum(post @ c**2 - c_mean**2, 0.0))], axis=1)
         # no samples in the window: every c fits alike, theta* is the grid's first node: no term
-        return np.sqrt((post * shift2).sum(axis=1) / post.sum(axis=1)) * prof[:, 1].any(axis=1)
+        out[~prof[:, 1].any(axis=1)] = (0.0, 1.0, self.cfg.gross_scale_sigma)
+        return out
 
     def _profile_argmin(self, f) -> tuple[np.ndarray, np.ndarray]:
         """ln K at the least ``f`` (..., G) along the last axis, and that least value, both refined by the
@@ -381,7 +390,7 @@ class SoilBank:
             k_med = float(k_report[j])
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
-            sys_scale = float(scale_shift[j])  # exact, on the current data (_scale_shift)
+            sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (_scale_shift)
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
                                                                          cfg.axle_scale_sigma * sens)
@@ -394,8 +403,11 @@ class SoilBank:
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             if status == "uncertain" and sys > log_stat:
-                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.gross_scale_sigma:.0f} % "
-                          "torque-scale / mass uncertainty moves K this much where the traction curve saturates")
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
+                          f"{cfg.gross_scale_sigma:.2f} assumed, {c_mean:.2f} +- {c_std:.2f} from these data) moves K "
+                          "this much where the traction curve is flat in K")
+                if abs(c_mean - 1.0) > max(2.0 * c_std, 0.5 * cfg.gross_scale_sigma):
+                    reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
             nis = nis_sum / evidence if evidence > 0 else 0.0
             if not ident[j]:
                 status = "not_observable"
