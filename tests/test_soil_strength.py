@@ -275,6 +275,23 @@ def test_the_data_narrow_the_torque_scale_band_where_a_braking_axle_tells_the_sc
     assert state.log_k_std < 0.2 and state.status == "ok"
 
 
+def test_the_reason_names_the_systematic_term_that_widens_the_band():
+    """Sand at |S| 0.045-0.05: a 1 % wheel radius is a 20 % slip error there and dominates the band;
+    grass at the same slips: the torque scale does (the curve is flatter in K)."""
+    def small_slips(k_true):
+        est, rng = BayesSoilEstimator(), np.random.default_rng(0)
+        sweep = [[s, s, -s, -s] for s in np.linspace(0.045, 0.05, 20)]
+        for i in range(600):
+            s = np.asarray(sweep[i % len(sweep)])
+            state = est.update(i * 0.01, s, gross_traction(s, k_true) + rng.normal(0, 0.003, 4), np.full(4, 1e-5), INFO)
+        return state
+
+    sand, grass = small_slips(50.0), small_slips(200.0)
+    assert sand.status == grass.status == "uncertain"
+    assert "wheel-radius" in sand.reason and "torque scale" not in sand.reason
+    assert "torque scale" in grass.reason and "calibrate-torque" not in grass.reason
+
+
 def test_the_band_statistics_restart_when_a_change_is_taken():
     """After sand -> firm, K's systematic term is the firm samples' alone: what an estimator that only
     ever saw firm soil reports (with the sand samples kept, the scale's posterior read 0.98 for 1.00)."""

@@ -266,8 +266,9 @@ class SoilBank:
                                k_report, self.scale_sys[ix])
 
     def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> tuple[np.ndarray, np.ndarray]:
-        """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of the no-change belief until the data take a
-        change, then the pooled belief's (docs/method.md §9, "Reporting across a possible change").
+        """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of
+        the no-change belief until the data take a change, then the pooled belief's (docs/method.md §9,
+        "Reporting across a possible change").
 
         The pooled belief p is a mixture: the soil is still the one learnt, or it changed (the hazard
         per metre mixes in the uniform change prior).  After a stretch without informative slip the
@@ -298,8 +299,8 @@ class SoilBank:
     def _window_stats(self, stats, prof, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, obs_used, dt) -> None:
         """Accumulate the NIS at the posterior median, the systematic budget's sums (class doc) and the
         scale profile's per-node sums (:meth:`_scale_shift`); ``cdf``: the updated beliefs' mid-point
-        CDF; the used pairs are stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and call), so the per-row
-        sums are plain fancy-index adds."""
+        CDF; the used pairs are stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct
+        (one sample per vehicle and call), so the per-row sums are plain fancy-index adds."""
         G = self.theta.size
         which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
         j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
@@ -402,12 +403,15 @@ class SoilBank:
             log_std = min(math.hypot(log_stat, sys), self.grid.span)
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
-            if status == "uncertain" and sys > log_stat:
+            if status == "uncertain" and sys > log_stat and sys_scale >= sys_radius:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
                           f"{cfg.gross_scale_sigma:.2f} assumed, {c_mean:.2f} +- {c_std:.2f} from these data) moves K "
                           "this much where the traction curve is flat in K")
                 if abs(c_mean - 1.0) > max(2.0 * c_std, 0.5 * cfg.gross_scale_sigma):
                     reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
+            elif status == "uncertain" and sys > log_stat:
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
+                          "uncertainty moves these small slips, and K, this much")
             nis = nis_sum / evidence if evidence > 0 else 0.0
             if not ident[j]:
                 status = "not_observable"
