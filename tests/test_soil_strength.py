@@ -263,7 +263,7 @@ def test_a_wrong_torque_constant_is_inside_the_band_and_named(k_true, scale):
     assert abs(state.soil_strength - k_true) <= 2 * state.soil_strength_std
     if state.status == "uncertain":
         assert "mostly systematic" in state.reason and "calibrate-torque" in state.reason
-        data_scale = float(state.reason.split("assumed, ")[1].split(" ")[0])
+        data_scale = float(state.reason.split("lean to ")[1].split(")")[0])
         assert (data_scale - 1.0) * (scale - 1.0) > 0 and abs(data_scale - 1.0) > 0.05
 
 

@@ -404,9 +404,11 @@ class SoilBank:
             k_std = k_med * math.sinh(log_std)
             status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
             if status == "uncertain" and sys > log_stat and sys_scale >= sys_radius:
+                # the data's scale without its posterior spread: across drives it moves by more than that
+                # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
-                          f"{cfg.gross_scale_sigma:.2f} assumed, {c_mean:.2f} +- {c_std:.2f} from these data) moves K "
-                          "this much where the traction curve is flat in K")
+                          f"{cfg.gross_scale_sigma:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
+                          "where the traction curve is flat in K")
                 if abs(c_mean - 1.0) > max(2.0 * c_std, 0.5 * cfg.gross_scale_sigma):
                     reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
             elif status == "uncertain" and sys > log_stat:
