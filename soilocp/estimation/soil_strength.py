@@ -147,6 +147,7 @@ class SoilBank:
         # _scale_shift's nodes of the common scale c over +-4 sigma, and their log prior N(1, gross_scale_sigma)
         self._scale_c = 1.0 + cfg.gross_scale_sigma * np.linspace(-4.0, 4.0, 25)
         self._scale_log_prior = -0.5 * np.linspace(-4.0, 4.0, 25) ** 2
+        self._lean_since = np.full(n, np.nan)  # stamp since which the data lean to a wrong torque constant
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
 
 
@@ -392,6 +393,12 @@ class SoilBank:
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
             sens = abs(s_kh) / s_kk if s_kk > 0 else 0.0  # d ln K per relative gross-traction scale
             sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (_scale_shift)
+            # how long the data have leant to a wrong torque constant: a window that spans two soils leans
+            # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
+            if abs(c_mean - 1.0) <= max(2.0 * c_std, cfg.gross_scale_sigma):
+                self._lean_since[int(ix[j])] = np.nan
+            elif np.isnan(self._lean_since[int(ix[j])]):
+                self._lean_since[int(ix[j])] = st
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
                                                                          cfg.axle_scale_sigma * sens)
@@ -409,7 +416,7 @@ class SoilBank:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
                           f"{cfg.gross_scale_sigma:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
                           "where the traction curve is flat in K")
-                if abs(c_mean - 1.0) > max(2.0 * c_std, 0.5 * cfg.gross_scale_sigma):
+                if st - self._lean_since[int(ix[j])] >= cfg.evidence_window:
                     reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
             elif status == "uncertain" and sys > log_stat:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
