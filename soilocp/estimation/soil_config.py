@@ -51,7 +51,19 @@ class SoilConfig(BaseModel):
         "slip keeps the samples whose noise pushed |S| up and biases K low (docs/method.md §9)"
     )
     outlier_prob: float = Field(0.02, ge=0, lt=1, description="Weight of the outlier component of the likelihood")
-    temper: float = Field(0.15, gt=0, le=1, description="Likelihood exponent: 100 Hz observer outputs are correlated")
+    temper: float = Field(
+        0.15, gt=0, le=1, description="Likelihood exponent of a sample temper_interval s after the previous one: the "
+        "observer's gross traction carries a per-wheel bias that samples do not average out (docs/method.md §9, "
+        "'Information per second')"
+    )
+    temper_interval: float = Field(
+        0.01, gt=0, description="s: the sample interval temper is stated for; a sample dt after the previous one "
+        "weighs temper x dt / temper_interval, up to temper_max"
+    )
+    temper_max: float = Field(
+        0.3, gt=0, le=1, description="Largest likelihood exponent of one sample: at low rates consecutive observer "
+        "outputs are correlated (lag-one r ~0.4 at 20 Hz), so a sample carries less than its interval's share"
+    )
     uncertain_log_sigma: float = Field(0.2, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain'")
     hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
     expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")

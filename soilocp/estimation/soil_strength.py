@@ -210,6 +210,7 @@ class SoilBank:
         prof *= decay[:, None, None]
         info = np.zeros(k, dtype=bool)
         upd = use.any(axis=1)
+        exponent = self._exponent(dt, pred)
         if upd.any():
             u = use[upd]
             # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
@@ -229,7 +230,7 @@ class SoilBank:
                                    h.shape)
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            loglike_used = np.log(like_used) * cfg.temper
+            loglike_used = np.log(like_used) * np.repeat(exponent[upd], n_used)[:, None]
             loglike = np.add.reduceat(loglike_used, starts, axis=0)
             pair_row, pair_wheel = np.nonzero(u)  # row-major: the order the used pairs are stacked in
             self.axles.update(ix[upd], stamp[upd], pair_row, pair_wheel, loglike_used)
@@ -257,7 +258,7 @@ class SoilBank:
         prof[taken] = 0.0
         if upd.any():
             self._window_stats(stats, prof, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0],
-                               obs[upd][u], dt)
+                               obs[upd][u], dt, exponent[upd])
         self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
         self.stats[ix], self.profile[ix] = stats, prof
         fresh = np.flatnonzero(upd | taken)
@@ -297,11 +298,29 @@ class SoilBank:
         cdf_stay = np.cumsum(p_stay, axis=1) - 0.5 * p_stay
         return np.exp(self.grid.medians(np.where(changed[:, None], cdf, cdf_stay))), taken
 
-    def _window_stats(self, stats, prof, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, obs_used, dt) -> None:
+    def _exponent(self, dt, pred) -> np.ndarray:
+        """Each vehicle's likelihood exponent (k,) for a sample ``dt`` s after its previous one (docs/method.md
+        §9, "Information per second"): temper x dt / temper_interval, at most temper_max; temper itself where
+        no interval is known (a first sample, a stamp repeated or gone backwards).
+
+        The observer's gross traction error is nearly white at 100 and 200 Hz (lag-one r -0.16..0.12 on the
+        nominal drive) around a per-wheel bias of 0.003-0.007 that no number of samples averages out, so what
+        a second of samples says about K is the same at any rate: per sample it scales with the interval.  At
+        low rates the error grows (1-sigma 0.025-0.037 at 20 Hz against 0.015) and is correlated with the next
+        sample's (r 0.24-0.42), so a sample is worth (1 - r) / (1 + r) ~ 0.43 of its interval's share:
+        0.75 x 0.43 ~ 0.3 at 20 Hz, ``temper_max``.  A fixed exponent per sample made a 20 Hz log learn a
+        fifth as fast as a 100 Hz one (rate-20hz ln K band 0.154 against 0.096), a 200 Hz log twice as fast."""
+        cfg = self.cfg
+        step = np.where(pred, dt, cfg.temper_interval)
+        return np.minimum(cfg.temper * step / cfg.temper_interval, cfg.temper_max)
+
+    def _window_stats(self, stats, prof, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, obs_used, dt,
+                      exponent) -> None:
         """Accumulate the NIS at the posterior median, the systematic budget's sums (class doc) and the
-        scale profile's per-node sums (:meth:`_scale_shift`); ``cdf``: the updated beliefs' mid-point
-        CDF; the used pairs are stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct
-        (one sample per vehicle and call), so the per-row sums are plain fancy-index adds."""
+        scale profile's per-node sums (:meth:`_scale_shift`, weighted as the belief weighs the samples:
+        ``exponent`` (rows,) / variance); ``cdf``: the updated beliefs' mid-point CDF; the used pairs are
+        stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and
+        call), so the per-row sums are plain fancy-index adds."""
         G = self.theta.size
         which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
         j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
@@ -316,9 +335,9 @@ class SoilBank:
         per_wheel = np.stack([step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
                               step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
         stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
-        # per sample, as the belief weighs them (temper applies per sample); sig2 is the same for every K
+        # per sample, as the belief weighs them (its exponent / variance); sig2 is the same for every K
         # (quasi-likelihood, update): one weight per used wheel
-        wt_pair = 1.0 / sig2[:, 0]
+        wt_pair = exponent[which] / sig2[:, 0]
         wh = wt_pair[:, None] * h
         prof[rows, 0] += np.add.reduceat(wh * obs_used[:, None], starts, axis=0)
         prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
@@ -338,8 +357,8 @@ class SoilBank:
 
         (sum w obs^2 is the same for every c and drops out).
 
-        c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-temper M(c) / 2) (the
-        belief's own per-sample weighting), on nodes over +-4 sigma.  The systematic 1-sigma is the
+        c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-M(c) / 2) with w the belief's
+        own per-sample weighting (the sample's exponent / variance, :meth:`_exponent`), on nodes over +-4 sigma.  The systematic 1-sigma is the
         root mean square of theta*(c) - theta*(1) under that posterior: exact through the curve (where
         it saturates, K >~ 300 (§9), a small c sends theta* to the grid's end and the band says K is
         undetermined upwards), and narrow where the data exclude a scale error.  A linearised
@@ -353,7 +372,7 @@ class SoilBank:
         cc = c[None, :, None]
         misfit = cc * (cc * prof[:, None, 1] - 2.0 * prof[:, None, 0])  # (k, C, G), less sum w obs^2 (the same for every c)
         theta, m = self._profile_argmin(misfit)
-        log_post = self._scale_log_prior - 0.5 * self.cfg.temper * m
+        log_post = self._scale_log_prior - 0.5 * m
         post = np.exp(log_post - log_post.max(axis=1, keepdims=True))
         post /= post.sum(axis=1, keepdims=True)
         shift2 = (theta - theta[:, c.size // 2, None]) ** 2  # against c = 1
@@ -366,10 +385,17 @@ class SoilBank:
 
     def _profile_argmin(self, f) -> tuple[np.ndarray, np.ndarray]:
         """ln K at the least ``f`` (..., G) along the last axis, and that least value, both refined by the
-        parabola through the nodes around it (the grid's end: its last interior node +- half a step)."""
+        parabola through the nodes around it (the grid's end: its last interior node +- half a step).
+
+        Values within 1e-9 of the row's magnitude of the least are ties, and the lowest ln K among them is
+        taken: where the curve saturates (K >~ 1000, §9) a scaled profile is flat to 1e-14, and the plain
+        argmin picked a node in that plateau by rounding (firm 300 with c <= 0.9: any of K 3000-5000, so
+        the band moved by 5 % when the same sums were added in another order)."""
         G = f.shape[-1]
         flat = f.reshape(-1)
-        i = np.minimum(np.maximum(np.argmin(f, axis=-1), 1), G - 2)  # (np.clip costs 15 us on small arrays)
+        tol = 1e-9 * np.abs(f).max(axis=-1, keepdims=True)
+        least = np.argmax(f <= f.min(axis=-1, keepdims=True) + tol, axis=-1)  # the first of the ties
+        i = np.minimum(np.maximum(least, 1), G - 2)  # (np.clip costs 15 us on small arrays)
         at = (np.arange(i.size) * G + i.reshape(-1)).reshape(i.shape)  # flat index of each row's least node
         y0, y1, y2 = flat[at - 1], flat[at], flat[at + 1]
         curv = y0 - 2.0 * y1 + y2
