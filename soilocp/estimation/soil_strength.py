@@ -387,14 +387,14 @@ class SoilBank:
         """ln K at the least ``f`` (..., G) along the last axis, and that least value, both refined by the
         parabola through the nodes around it (the grid's end: its last interior node +- half a step).
 
-        Values within 1e-9 of the row's magnitude of the least are ties, and the lowest ln K among them is
+        Values within 1e-9 of the least (relative) are ties, and the lowest ln K among them is
         taken: where the curve saturates (K >~ 1000, §9) a scaled profile is flat to 1e-14, and the plain
         argmin picked a node in that plateau by rounding (firm 300 with c <= 0.9: any of K 3000-5000, so
         the band moved by 5 % when the same sums were added in another order)."""
         G = f.shape[-1]
         flat = f.reshape(-1)
-        tol = 1e-9 * np.abs(f).max(axis=-1, keepdims=True)
-        least = np.argmax(f <= f.min(axis=-1, keepdims=True) + tol, axis=-1)  # the first of the ties
+        low = f.min(axis=-1, keepdims=True)
+        least = np.argmax(f <= low + 1e-9 * np.abs(low), axis=-1)  # the first of the ties (a plateau lies at the least)
         i = np.minimum(np.maximum(least, 1), G - 2)  # (np.clip costs 15 us on small arrays)
         at = (np.arange(i.size) * G + i.reshape(-1)).reshape(i.shape)  # flat index of each row's least node
         y0, y1, y2 = flat[at - 1], flat[at], flat[at + 1]
