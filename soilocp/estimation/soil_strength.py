@@ -357,11 +357,11 @@ class SoilBank:
 
         (sum w obs^2 is the same for every c and drops out).
 
-        c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-M(c) / 2) with w the belief's
-        own per-sample weighting (the sample's exponent / variance, :meth:`_exponent`), on nodes over +-4 sigma.  The systematic 1-sigma is the
-        root mean square of theta*(c) - theta*(1) under that posterior: exact through the curve (where
-        it saturates, K >~ 300 (§9), a small c sends theta* to the grid's end and the band says K is
-        undetermined upwards), and narrow where the data exclude a scale error.  A linearised
+        c gets the prior N(1, ``gross_scale_sigma``) and the likelihood exp(-M(c) / 2), with w the belief's
+        own weight of a sample (its exponent / variance, :meth:`_exponent`), on nodes over +-4 sigma.  The
+        systematic 1-sigma is the root mean square of theta*(c) - theta*(1) under that posterior: exact
+        through the curve (where it saturates, K >~ 300 (§9), a small c sends theta* to the grid's end and
+        the band says K is undetermined upwards), and narrow where the data exclude a scale error.  A linearised
         sensitivity at the estimate (d ln K = eps sum w h_K h / sum w h_K^2, earlier releases)
         understated it on both sides: torque-10 read firm 300 as 203 with a 1-sigma of 0.14,
         torque+10 as 1009 with 0.26; without the data's say (the prior's +-2 sigma alone), nominal firm
