@@ -272,9 +272,21 @@ def test_a_wrong_torque_constant_is_inside_the_band_and_named(k_true, scale):
         assert (data_scale - 1.0) * (scale - 1.0) > 0 and abs(data_scale - 1.0) > 0.05
 
 
+def test_the_calibrate_hint_survives_a_restarted_clock():
+    """A source that restarts (stamps back to 0): the data still lean to the wrong torque constant on the
+    new clock, and the hint comes back after the evidence window on that clock (kept on the old one, it
+    waited until the new stamps passed the old lean's start, 100 s on)."""
+    est = BayesSoilEstimator()
+    before = _drive_and_brake(est, 300.0, 0.9, 700, t0=100.0)
+    assert "calibrate-torque" in before.reason
+    states = []
+    _drive_and_brake(est, 300.0, 0.9, 500, t0=0.0, seed=1, states=states)
+    assert any("calibrate-torque" in s.reason for s in states)
+
+
 def test_the_data_narrow_the_torque_scale_band_where_a_braking_axle_tells_the_scale_apart():
     """With the right torque constant the drive-and-brake test keeps firm soil's band well below the
-    prior's alone (ln K 1-sigma 0.68 at K = 300 with driving wheels only: the §9 vectors)."""
+    prior's alone (ln K 1-sigma 0.52 at K = 300 with driving wheels only: the §9 vectors)."""
     state = _drive_and_brake(BayesSoilEstimator(), 300.0, 1.0, 400)
     assert state.soil_strength == pytest.approx(300.0, rel=0.03)
     assert state.log_k_std < 0.2 and state.status == "ok"

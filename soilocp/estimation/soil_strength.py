@@ -423,7 +423,7 @@ class SoilBank:
             # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
             if abs(c_mean - 1.0) <= max(2.0 * c_std, cfg.gross_scale_sigma):
                 self._lean_since[int(ix[j])] = np.nan
-            elif np.isnan(self._lean_since[int(ix[j])]):
+            elif not self._lean_since[int(ix[j])] <= st:  # none yet (NaN), or a restarted clock: it starts now
                 self._lean_since[int(ix[j])] = st
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
