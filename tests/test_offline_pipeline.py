@@ -103,3 +103,21 @@ def test_stage_composition_equals_pipeline(mixed_drive):
         so = stages[2].step(type(ob).model_validate_json(ob.model_dump_json()))
         oc = stages[3].step(type(so).model_validate_json(so.model_dump_json()))
         assert oc == pipe.process(s)
+
+
+def test_k_learns_only_from_samples_with_a_new_torque_reading():
+    """A torque (motor current) refreshed at 2 Hz and held between: the soil kernel learns at the samples that
+    bring a new torque reading, not from the held one paired with new wheel speeds (the Warthog's currents,
+    refreshed once a second, were used with four wheel-speed refreshes each, and at every 100 Hz sample
+    within 0.5 s of a refresh)."""
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    variant = get_variant("torque-2hz")
+    pipe, last, changed_at, ages = VehiclePipeline(cfg), None, None, []
+    for sample, _ in variant.simulate(0, duration=12.0, nominal=cfg.vehicle, constants=cfg.constants):
+        if sample.wheel_torque != last:
+            last, changed_at = sample.wheel_torque, sample.stamp
+        if any(pipe.process_all(sample)[2].informative):
+            ages.append(sample.stamp - changed_at)
+    assert len(ages) >= 10 and max(ages) <= cfg.soil.fresh_age + 1e-9  # held for up to 0.5 s before

@@ -54,7 +54,7 @@ def test_warthog_log_runs_to_the_end_offline_with_honest_statuses(name):
     assert not [r for r in recs if r["status"] == "ok"]
     assert max((r["soil_class_confidence"] or 0.0) for r in recs) < 0.9
     reasons = " ".join({r["reason"] for r in recs if r["status"] == "not_observable"})
-    assert "held longer than" in reasons
+    assert "readings are held: no new reading of both" in reasons
 
 
 @needs_data

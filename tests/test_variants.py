@@ -82,6 +82,21 @@ def test_wheel_speeds_refresh_every_0_2_s_and_hold(nominal):
     assert changes >= 15  # 4 s at 5 Hz, moving after the first samples
 
 
+@pytest.mark.parametrize("name, hz", [("torque-10hz", 10), ("torque-2hz", 2)])
+def test_torques_refresh_at_their_rate_and_hold(nominal, name, hz):
+    samples, _ = _run(name, 4.0)
+    base = nominal[0]
+    changes = 0
+    for i in range(1, len(samples)):
+        assert samples[i].wheel_speed == base[i].wheel_speed  # only the torque channel is held
+        if math.floor(samples[i].stamp * hz + 1e-9) == math.floor(samples[i - 1].stamp * hz + 1e-9):
+            assert samples[i].wheel_torque == samples[i - 1].wheel_torque
+        else:
+            assert samples[i].wheel_torque == pytest.approx(base[i].wheel_torque, rel=1e-12, abs=1e-12)
+            changes += samples[i].wheel_torque != samples[i - 1].wheel_torque
+    assert changes >= 4 * hz - 1
+
+
 def test_ground_speed_lags_50_ms_and_refreshes_at_10_hz(nominal):
     samples, _ = _run("ground-speed-lag", 4.0)
     base = nominal[0]

@@ -197,7 +197,7 @@ class SoilInputs:
     slip_sigma: np.ndarray
     gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
     gate_sigma: np.ndarray
-    held: np.ndarray  # the wheel's speed or torque reading is older than SoilConfig.max_input_age
+    held: np.ndarray  # no new speed and torque reading of the wheel now (SoilConfig.fresh_age), or a stale ground speed
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
     speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
 
@@ -247,14 +247,15 @@ class SlipGate:
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        held = ((ob.speed_age > cfg.soil.max_input_age) | (ob.torque_age > cfg.soil.max_input_age)
+        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
+        # samples repeat one measurement: K learns from the samples that bring a new one.  The same holds for
+        # a slow torque stream: between its refreshes the gross traction rests on a held torque (the Warthog's
+        # currents, refreshed once a second, were paired with four wheel-speed refreshes each)
+        held = ((ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age)
                 | (ob.ground_speed_age > cfg.soil.max_input_age)[:, None])
         measured = ob.ground_speed_measured
-        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction, and the
-        # samples repeat one measurement: K learns from the samples that bring a new one
-        fresh = ob.speed_age <= cfg.soil.fresh_age
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
-        return SoilInputs(slip, informative & measured[:, None] & fresh & loaded, observed, var, s_sig, lp, g_sig, held,
+        return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
                           measured, ob.ground_speed)
 
 

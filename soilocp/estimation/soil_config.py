@@ -74,15 +74,17 @@ class SoilConfig(BaseModel):
     )
     radius_sigma: float = Field(0.01, ge=0, description="1-sigma relative error of the wheel radius (a systematic slip error)")
     max_input_age: float = Field(
-        0.5, gt=0, description="s: a wheel whose speed or torque reading has not changed for longer is not used "
-        "(a held reading from a slow driver is not a measurement, docs/method.md §13)"
+        0.5, gt=0, description="s: no wheel informs K while the ground speed reading has not changed for longer "
+        "(a held reading from a slow driver is not a measurement, docs/method.md §13; between its refreshes the observer "
+        "carries the speed on the accelerometer)"
     )
     min_load_fraction: float = Field(
         0.25, ge=0, lt=1, description="A wheel informs K only while its normal force is at least this share of "
         "the static m g / 4: the torque balance hardly determines a nearly unloaded wheel's gross traction"
     )
     fresh_age: float = Field(
-        0.05, ge=0, description="s: a wheel informs K only at samples whose speed reading is at most this old"
+        0.05, ge=0, description="s: a wheel informs K only at samples whose speed and torque readings are both at most "
+        "this old: between a slow stream's refreshes the observer's slip or gross traction rests on a held value"
     )
     evidence_window: float = Field(3.0, gt=0, description="s: memory of the mismatch and systematic-error statistics")
     mismatch_nis: float = Field(

@@ -468,8 +468,9 @@ class SoilBank:
                           f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
             elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
                 status = "not_observable"
-                reason = (f"slip is informative but the wheel speed / torque readings are held longer than "
-                          f"{cfg.max_input_age:g} s (sensor refresh too slow to measure traction)")
+                since = f"for {st - hold.last_update:.1f} s" if hold.last_update is not None else "yet"
+                reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of both "
+                          f"{since} (sensor refresh too slow to measure traction)")
             elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"

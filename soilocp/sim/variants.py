@@ -103,7 +103,7 @@ class HeldChannel:
     held between refreshes; each refresh reports the channel's value ``lag`` seconds earlier
     (linear interpolation between the stream's samples; before the first sample, the first)."""
 
-    channel: Literal["wheel_speed", "ground_speed"]
+    channel: Literal["wheel_speed", "wheel_torque", "ground_speed"]
     refresh: float
     lag: float = 0.0
 
@@ -253,6 +253,10 @@ VARIANTS: dict[str, Variant] = {
         Variant("ground-speed-lag", "ground speed 50 ms late and refreshed at 10 Hz (held)",
                 transforms=(HeldChannel("ground_speed", 10.0, lag=0.05),)),
         Variant("wheel-speed-5hz", "wheel speeds refreshed at 5 Hz (held)", transforms=(HeldChannel("wheel_speed", 5.0),)),
+        Variant("torque-10hz", "wheel torques (motor currents) refreshed at 10 Hz (held)",
+                transforms=(HeldChannel("wheel_torque", 10.0),)),
+        Variant("torque-2hz", "wheel torques (motor currents) refreshed at 2 Hz (held)",
+                transforms=(HeldChannel("wheel_torque", 2.0),)),
         _limited("mass-com+20", "true mass +20 %, CoM 20 % further from the rear axle and 20 % higher",
                  "mass / normal-force scale", vehicle=VehicleChange(mass=1.2, com=1.2, height=1.2)),
         _limited("mass-com-20", "true mass -20 %, CoM 20 % closer to the rear axle and 20 % lower",
