@@ -328,7 +328,6 @@ def test_the_band_statistics_restart_when_a_change_is_taken():
     changed = BayesSoilEstimator()
     _drive_and_brake(changed, 50.0, 1.0, 400)
     after = _drive_and_brake(changed, 300.0, 1.0, 300, t0=4.0)
-
     fresh = BayesSoilEstimator()
     only = _drive_and_brake(fresh, 300.0, 1.0, 300)
     assert after.soil_strength == pytest.approx(only.soil_strength, rel=1e-3)

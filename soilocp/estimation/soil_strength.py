@@ -410,7 +410,8 @@ class SoilBank:
         cfg, k = self.cfg, ix.size
         out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
         for j in range(k):
-            hold = self._holds[int(ix[j])]
+            v = int(ix[j])
+            hold = self._holds[v]
             st = float(stamp[j])
             if info[j]:
                 hold.last_update = st
@@ -422,11 +423,11 @@ class SoilBank:
             # how long the data have leant to a wrong torque constant: a window that spans two soils leans
             # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
             if abs(c_mean - 1.0) <= max(2.0 * c_std, cfg.gross_scale_sigma):
-                self._lean_since[int(ix[j])] = np.nan
-            elif not self._lean_since[int(ix[j])] <= st:  # none yet (NaN), or a restarted clock: it starts now
-                self._lean_since[int(ix[j])] = st
+                self._lean_since[v] = np.nan
+            elif not self._lean_since[v] <= st:  # none yet (NaN), or a restarted clock: it starts now
+                self._lean_since[v] = st
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            axle_off, axle_z, theta_front, theta_rear = self.axles.judge(int(ix[j]), st, float(dt[j]),
+            axle_off, axle_z, theta_front, theta_rear = self.axles.judge(v, st, float(dt[j]),
                                                                          cfg.axle_scale_sigma * sens)
             # axles that disagree: the truth is usually near one of them (soil_axles), so their distance
             # is a systematic term.  Where the curve is flat in K (K >> 300, §9) a scale error moves K
@@ -442,7 +443,7 @@ class SoilBank:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
                           f"{cfg.gross_scale_sigma:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
                           "where the traction curve is flat in K")
-                if st - self._lean_since[int(ix[j])] >= cfg.evidence_window:
+                if st - self._lean_since[v] >= cfg.evidence_window:
                     reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
             elif status == "uncertain" and sys > log_stat:
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
