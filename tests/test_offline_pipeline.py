@@ -121,3 +121,30 @@ def test_k_learns_only_from_samples_with_a_new_torque_reading():
         if any(pipe.process_all(sample)[2].informative):
             ages.append(sample.stamp - changed_at)
     assert len(ages) >= 10 and max(ages) <= cfg.soil.fresh_age + 1e-9  # held for up to 0.5 s before
+
+
+def test_a_stale_ground_speed_is_named_not_the_wheel_readings():
+    """The ground speed (GNSS, visual odometry) freezes mid-drive while the wheels keep reporting at
+    100 Hz: K stops learning, and the record names the ground speed, not the wheels' readings (an
+    earlier release said "the wheel speed / torque readings are held" for either)."""
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    pipe, frozen, reasons = VehiclePipeline(cfg), None, []
+    for sample, _ in get_variant("nominal").simulate(0, duration=16.0, nominal=cfg.vehicle, constants=cfg.constants):
+        if sample.stamp >= 10.0:
+            frozen = sample.ground_speed if frozen is None else frozen
+            sample = sample.model_copy(update={"ground_speed": frozen})
+        soil = pipe.process_all(sample)[2]
+        if sample.stamp >= 11.5:  # repeats read as readings for observer.repeat_window, then soil.max_input_age
+            assert not any(soil.informative)
+            reasons.append(soil.reason or "")
+    stale = [r for r in reasons if "ground speed is stale" in r]
+    assert len(stale) >= 100, collections_summary(reasons)
+    assert not [r for r in reasons if "wheel speed / torque readings are held" in r]
+
+
+def collections_summary(reasons):
+    import collections
+
+    return collections.Counter(r[:60] for r in reasons).most_common(5)

@@ -54,7 +54,8 @@ class BatchPipeline:
         ob = self.observer.step(ix, inputs)
         inp = self.gate.step(ix, inputs.stamp, ob)
         states = self.soil.update(ix, inputs.stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed)
+                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed,
+                                  inp.ground_stale)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
         ocp = ocp_arrays(ks, self.config.constants)
         out = []

@@ -197,7 +197,8 @@ class SoilInputs:
     slip_sigma: np.ndarray
     gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
     gate_sigma: np.ndarray
-    held: np.ndarray  # no new speed and torque reading of the wheel now (SoilConfig.fresh_age), or a stale ground speed
+    held: np.ndarray  # no new speed and torque reading of the wheel now (SoilConfig.fresh_age)
+    ground_stale: np.ndarray  # (k,) the ground speed's last reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
     speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
 
@@ -251,12 +252,11 @@ class SlipGate:
         # samples repeat one measurement: K learns from the samples that bring a new one.  The same holds for
         # a slow torque stream: between its refreshes the gross traction rests on a held torque (the Warthog's
         # currents, refreshed once a second, were paired with four wheel-speed refreshes each)
-        held = ((ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age)
-                | (ob.ground_speed_age > cfg.soil.max_input_age)[:, None])
+        held = (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age)
         measured = ob.ground_speed_measured
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
         return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
-                          measured, ob.ground_speed)
+                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed)
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -296,10 +296,10 @@ class SoilStage:
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
-                                  inp.speed)[0]
+                                  inp.speed, inp.ground_stale)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
-                                   inp.informative[0] & ~inp.held[0], inp.slip_sigma[0])
+                                   inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])
         return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
 
 

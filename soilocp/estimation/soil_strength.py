@@ -152,7 +152,7 @@ class SoilBank:
 
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None, held=None, identifiable=None, speed=None) -> list[SoilState]:
+               gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
@@ -160,7 +160,9 @@ class SoilBank:
         ``held`` (k, 4) bool: the wheel's speed or torque reading is stale (not a measurement now);
         ``identifiable`` (k,) bool: False when the sample has no independent ground speed;
         ``speed`` (k,) m/s: the vehicle's ground speed, which sets the distance over which the soil
-        may have changed since the last sample (None: ``UNKNOWN_SPEED``, m/s)."""
+        may have changed since the last sample (None: ``UNKNOWN_SPEED``, m/s); ``ground_stale`` (k,)
+        bool: the ground speed's last reading is older than ``max_input_age`` (no wheel informs K,
+        and the reason names the ground speed, not the wheels' readings)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -178,6 +180,8 @@ class SoilBank:
         # a wheel whose torque balance does not determine its gross traction cannot inform K (§12)
         determined = var <= cfg.observable_max_gross_sigma**2
         held = np.zeros((k, 4), dtype=bool) if held is None else np.asarray(held, dtype=bool)
+        stale = np.zeros(k, dtype=bool) if ground_stale is None else np.asarray(ground_stale, dtype=bool).reshape(k)
+        held = held | stale[:, None]
         ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
         use = gated & determined & ~held & ident[:, None]
         p, p_stay, w_stay, stay_llr = self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix]
@@ -264,8 +268,8 @@ class SoilBank:
         fresh = np.flatnonzero(upd | taken)
         if fresh.size:
             self.scale_sys[ix[fresh]] = self._scale_shift(prof[fresh])
-        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, ident, stats, dt,
-                               k_report, self.scale_sys[ix])
+        return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, stale, ident, stats,
+                               dt, k_report, self.scale_sys[ix])
 
     def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> tuple[np.ndarray, np.ndarray]:
         """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of
@@ -403,7 +407,7 @@ class SoilBank:
             off = np.minimum(np.maximum(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5), 0.5)
         return self.theta[i] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
 
-    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, ident, stats, dt, k_report,
+    def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, stale, ident, stats, dt, k_report,
                    scale_shift) -> list[SoilState]:
         """Per vehicle: K (``k_report``, :meth:`_report_median`) and its band from the pooled belief's
         mid-point CDF ``cdf``, status and reason."""
@@ -470,8 +474,12 @@ class SoilBank:
             elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
                 status = "not_observable"
                 since = f"for {st - hold.last_update:.1f} s" if hold.last_update is not None else "yet"
-                reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of both "
-                          f"{since} (sensor refresh too slow to measure traction)")
+                if stale[j]:
+                    reason = (f"slip is informative but the ground speed is stale: no new reading for more than "
+                              f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
+                else:
+                    reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
+                              f"both {since} (sensor refresh too slow to measure traction)")
             elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
