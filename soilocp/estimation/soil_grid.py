@@ -88,11 +88,18 @@ class LogKGrid:
         h = np.minimum(h, 1.0)[:, None]
         return (1 - h) * p + h / p.shape[1]
 
+    def median_nodes(self, cdf: np.ndarray, lo: int = 0, hi: int | None = None) -> np.ndarray:
+        """Index (k,) of each belief's first node whose mid-point CDF (k, G) reaches 1/2, kept within
+        [lo, hi] (default: the grid): the node the median lies at or just below.  The one definition of
+        "the median's node" (the likelihood's slip term, the window's NIS and slope, :meth:`medians`)."""
+        g = self.theta.size
+        i = (cdf < 0.5).sum(axis=1)
+        return np.minimum(np.maximum(i, lo), g - 1 if hi is None else hi)
+
     def medians(self, cdf: np.ndarray) -> np.ndarray:
         """ln K at the median of each belief (k,) from their mid-point CDFs (k, G): np.interp(0.5, row,
         theta) for every row at once (a CDF is non-decreasing; beyond its ends, the end node)."""
-        g = self.theta.size
-        i = np.clip((cdf < 0.5).sum(axis=1), 1, g - 1)
+        i = self.median_nodes(cdf, 1)
         r = np.arange(cdf.shape[0])
         c0, c1 = cdf[r, i - 1], cdf[r, i]
         f = np.clip((0.5 - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.0, 1.0)

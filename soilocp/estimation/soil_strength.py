@@ -228,7 +228,7 @@ class SoilBank:
             # and with stated variances above the real scatter (observer gross 1-sigma 0.05 against 0.008
             # measured) 1/sqrt(sig2(K)) pulls K towards the flattest curve at every sample
             # (sweep-12s-0.1: firm 300 read 235)
-            ref = np.minimum((np.cumsum(p[upd], axis=1) < 0.5).sum(axis=1), self.theta.size - 1)
+            ref = self.grid.median_nodes(np.cumsum(p[upd], axis=1) - 0.5 * p[upd])
             dh_ref = dh_ds[np.arange(dh_ds.shape[0]), np.repeat(ref, n_used)][:, None]
             sig2 = np.broadcast_to(var[upd][u][:, None] + cfg.model_sigma**2 + (dh_ref * s_sig[upd][u][:, None]) ** 2,
                                    h.shape)
@@ -327,7 +327,7 @@ class SoilBank:
         call), so the per-row sums are plain fancy-index adds."""
         G = self.theta.size
         which = np.repeat(np.arange(rows.size), n_used)  # wheel -> row in rows
-        j = np.minimum(np.maximum((cdf[rows] < 0.5).sum(axis=1), 1), G - 2)[which]  # the posterior median's node
+        j = self.grid.median_nodes(cdf[rows], 1, G - 2)[which]  # the posterior median's node (central differences)
         w = np.arange(which.size)
         nis = r2[w, j]
         h_k = (h[w, j + 1] - h[w, j - 1]) / (2.0 * self.grid.dtheta)  # d h / d ln K at the median
