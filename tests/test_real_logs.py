@@ -1,4 +1,5 @@
-"""The real Warthog logs (shared/data/real/warthog: skid steer, 20 Hz, wheel speeds held 0.5-1 s,
+"""The real Warthog logs (shared/data/real/warthog: skid steer, 20 Hz, each side's wheel speed refreshed every
+0.25 s and its current about once a second,
 'torque' a motor current of unknown scale) run to the end offline and live, with finite outputs
 and no confident soil class (docs/method.md §13)."""
 
@@ -50,7 +51,7 @@ def test_warthog_log_runs_to_the_end_offline_with_honest_statuses(name):
     print(name, dict(collections.Counter(r["status"] for r in recs)), "resets", summary.resets)
     assert len(recs) == len(lines) and not summary.rejected and not summary.stage_errors
     assert all(_finite(r) and all(abs(m) <= 1.5 for m in r["mu"]) for r in recs)
-    # a current of unknown scale and speeds held for a second: never a confident soil class
+    # a current of unknown scale, refreshed once a second, and held speeds: never a confident soil class
     assert not [r for r in recs if r["status"] == "ok"]
     assert max((r["soil_class_confidence"] or 0.0) for r in recs) < 0.9
     reasons = " ".join({r["reason"] for r in recs if r["status"] == "not_observable"})
