@@ -1,6 +1,7 @@
 """End to end offline: simulate -> estimate -> evaluate through the real commands, against the
 accuracy targets; bad log lines reported by line number and skipped; cruise honesty."""
 
+import collections
 import json
 import subprocess
 import sys
@@ -140,11 +141,5 @@ def test_a_stale_ground_speed_is_named_not_the_wheel_readings():
             assert not any(soil.informative)
             reasons.append(soil.reason or "")
     stale = [r for r in reasons if "ground speed is stale" in r]
-    assert len(stale) >= 100, collections_summary(reasons)
+    assert len(stale) >= 100, collections.Counter(r[:60] for r in reasons).most_common(5)
     assert not [r for r in reasons if "wheel speed / torque readings are held" in r]
-
-
-def collections_summary(reasons):
-    import collections
-
-    return collections.Counter(r[:60] for r in reasons).most_common(5)
