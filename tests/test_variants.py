@@ -82,6 +82,23 @@ def test_wheel_speeds_refresh_every_0_2_s_and_hold(nominal):
     assert changes >= 15  # 4 s at 5 Hz, moving after the first samples
 
 
+def test_wheel_speeds_at_4_7_hz_refresh_between_samples_and_hold(nominal):
+    """Refreshes at k / 4.7 s fall between the 100 Hz samples: each reports the reading interpolated
+    there, held until the next (the 5 Hz variant's refreshes coincide with samples and the sweep's kinks)."""
+    samples, _ = _run("wheel-speed-4.7hz", 4.0)
+    base = nominal[0]
+    refreshes = 0
+    for i in range(1, len(samples)):
+        if math.floor(samples[i].stamp * 4.7 + 1e-9) == math.floor(samples[i - 1].stamp * 4.7 + 1e-9):
+            assert samples[i].wheel_speed == samples[i - 1].wheel_speed
+            continue
+        refreshes += 1
+        lo = np.minimum(base[i - 1].wheel_speed, base[i].wheel_speed)
+        hi = np.maximum(base[i - 1].wheel_speed, base[i].wheel_speed)
+        assert np.all(lo - 1e-12 <= samples[i].wheel_speed) and np.all(samples[i].wheel_speed <= hi + 1e-12)
+    assert refreshes == math.floor(samples[-1].stamp * 4.7 + 1e-9)
+
+
 @pytest.mark.parametrize("name, hz", [("torque-10hz", 10), ("torque-2hz", 2)])
 def test_torques_refresh_at_their_rate_and_hold(nominal, name, hz):
     samples, _ = _run(name, 4.0)

@@ -253,6 +253,10 @@ VARIANTS: dict[str, Variant] = {
         Variant("ground-speed-lag", "ground speed 50 ms late and refreshed at 10 Hz (held)",
                 transforms=(HeldChannel("ground_speed", 10.0, lag=0.05),)),
         Variant("wheel-speed-5hz", "wheel speeds refreshed at 5 Hz (held)", transforms=(HeldChannel("wheel_speed", 5.0),)),
+        # the default sweep's kinks (0.8 s triangle + 0.4 s dwell) fall on multiples of 0.2 s, as 5 Hz refreshes
+        # do: every refresh then samples the same phases of the sweep.  4.7 Hz locks to no phase of it
+        Variant("wheel-speed-4.7hz", "wheel speeds refreshed at 4.7 Hz (held; no phase lock with the sweep)",
+                transforms=(HeldChannel("wheel_speed", 4.7),)),
         Variant("torque-10hz", "wheel torques (motor currents) refreshed at 10 Hz (held)",
                 transforms=(HeldChannel("wheel_torque", 10.0),)),
         Variant("torque-2hz", "wheel torques (motor currents) refreshed at 2 Hz (held)",
