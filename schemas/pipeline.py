@@ -78,6 +78,27 @@ class ObserverOutput(_Message):
         default=0.0, ge=0, description="s: the ground speed's latency measured against the accelerometer, by which the "
         "observer leads the reading (0: none determined; docs/method.md §13)"
     )
+    interval: Quad = Field(
+        default=(0.0,) * 4, description="s: > 0 where this sample is the refresh of a slow (held) wheel-speed stream whose "
+        "torque was read at every sample since the previous refresh: the interval the interval_* fields describe, "
+        "from the readings (eq. 13 integrated, docs/method.md §13); 0 otherwise"
+    )
+    interval_gross: Quad = Field(default=(0.0,) * 4, description="The interval's mean gross traction coefficient")
+    interval_gross_var: Quad = Field(default=(0.0,) * 4, description="Variance of interval_gross")
+    interval_rim_start: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's start, m/s")
+    interval_rim_end: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's end, m/s")
+    interval_ground_start: Quad = Field(
+        default=(0.0,) * 4, description="Ground speed at the wheel (V - yaw rate x y_i) at the interval's start, m/s"
+    )
+    interval_ground_end: Quad = Field(default=(0.0,) * 4, description="Ground speed at the wheel at the interval's end, m/s")
+    interval_rim_sigma: Quad = Field(
+        default=(0.0,) * 4, description="1-sigma of the rim speed's course between the readings against "
+        "their chord, m/s"
+    )
+    interval_learning: BoolQuad = Field(
+        default=(False,) * 4, description="Per wheel: its speed stream refreshes slowly and its torque is read at every "
+        "sample, so K learns from the refresh intervals only, not from the predicted speeds between them"
+    )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")
     reset_reason: str = Field(

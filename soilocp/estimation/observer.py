@@ -99,6 +99,19 @@ class ObserverConfig(BaseModel):
         "and leads the reading by (soilocp.estimation.ground_speed_latency, docs/method.md §13); 0 = none"
     )
     latency_window: float = Field(30.0, gt=0, description="s: memory of the ground-speed latency fit")
+    refresh_jerk: float = Field(
+        50.0, gt=0, description="rad/s^3: the wheel's unmeasured jerk between a slow wheel-speed stream's refreshes, "
+        "which sets the variance of the interval's gross traction from the readings "
+        "(soilocp.estimation.refresh_traction, docs/method.md §13)"
+    )
+    refresh_min_interval: float = Field(
+        0.1, gt=0, description="s: a wheel-speed stream held at least this long between its readings refreshes slowly, "
+        "and its intervals' gross traction is taken from the readings (a quantised encoder's few repeats are not)"
+    )
+    refresh_max_interval: float = Field(
+        1.0, gt=0, description="s: the longest refresh interval of a slow wheel-speed stream whose gross traction is "
+        "taken from the readings (a longer one says little of the speed's course between them)"
+    )
     variance_floor: float = Field(1e-10, gt=0)
     variance_ceiling: float = Field(1e4, gt=0)
     gravity: float = Field(STANDARD_GRAVITY, gt=0)

@@ -48,6 +48,7 @@ from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.readings import ReadingClock
+from soilocp.estimation.refresh_traction import IntervalTraction, RefreshIntervals
 from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -124,6 +125,16 @@ class ObserverBankOutput:
     torque_age: np.ndarray  # s since the wheel's torque reading was last new
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
     ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (ground_speed_latency; 0: none)
+    # a slow wheel-speed stream's refresh interval closed at this sample (refresh_traction; interval 0: none)
+    interval: np.ndarray
+    interval_gross: np.ndarray
+    interval_gross_var: np.ndarray
+    interval_rim_start: np.ndarray
+    interval_rim_end: np.ndarray
+    interval_ground_start: np.ndarray
+    interval_ground_end: np.ndarray
+    interval_rim_sigma: np.ndarray
+    interval_learning: np.ndarray  # bool: slow wheel speeds, torque at the sample rate: K learns at the refreshes
 
 
 class _Workspace:
@@ -166,6 +177,8 @@ class ObserverBank:
         self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
         self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
                          if cfg.ground_speed_latency_max > 0 else None)
+        self._intervals = RefreshIntervals(n, vehicle.wheel_inertia, vehicle.wheel_radius, cfg.refresh_jerk,
+                                           cfg.refresh_min_interval, cfg.refresh_max_interval, cfg.variance_floor)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -306,9 +319,13 @@ class ObserverBank:
         self.x[sel], self.P[sel] = x, P
         self.last_stamp[sel] = inputs.stamp
         latency = self._latency.latency[sel] if self._latency is not None else np.zeros(k)
-        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), latency, ws)
+        ground = x[:, L.v, None] - x[:, L.psi, None] * self._wheel_y
+        intervals = self._intervals.step(sel, dt, restart, changed[:, :4], rd.full_rate[:, :4], prev[:, :4],
+                                         inputs.wheel_speed, torque, fresh[:, 5:9], fz, ground)
+        return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), latency, intervals, ws)
 
-    def _output(self, x, P, fz, rejected, reasons, age, measured, latency, ws: _Workspace) -> ObserverBankOutput:
+    def _output(self, x, P, fz, rejected, reasons, age, measured, latency, intervals: IntervalTraction,
+                ws: _Workspace) -> ObserverBankOutput:
         L, k = self.layout, x.shape[0]
         M = self.maps(x)
         res = _bmv(M, x[:, L.res]) if L.n_res else np.zeros((k, 4))
@@ -341,4 +358,13 @@ class ObserverBank:
             torque_age=age[:, 5:9],
             ground_speed_measured=measured,
             ground_speed_latency=latency.copy(),
+            interval=intervals.interval,
+            interval_gross=intervals.gross,
+            interval_gross_var=intervals.gross_var,
+            interval_rim_start=intervals.rim_start,
+            interval_rim_end=intervals.rim_end,
+            interval_ground_start=intervals.ground_start,
+            interval_ground_end=intervals.ground_end,
+            interval_rim_sigma=intervals.rim_sigma,
+            interval_learning=intervals.active,
         )

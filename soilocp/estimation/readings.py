@@ -37,6 +37,7 @@ class Readings(NamedTuple):
     prev: np.ndarray  #: the previous sample's readings
     changed_before: np.ndarray  #: when the value last changed before this sample (the interval of a count difference)
     age: np.ndarray  #: s since the channel's last new measurement (0 when fresh)
+    full_rate: np.ndarray  #: the stream is read at the sample rate (its running share of consecutive changes)
 
 
 class ReadingClock:
@@ -74,4 +75,4 @@ class ReadingClock:
         self.fresh_at[sel] = fresh_at
         self.value_at[sel] = np.where(changed, stamp[:, None], value_before)
         self.share[sel] = share
-        return Readings(fresh, changed, prev, value_before, stamp[:, None] - fresh_at)
+        return Readings(fresh, changed, prev, value_before, stamp[:, None] - fresh_at, share > self.full_rate_share)

@@ -152,7 +152,8 @@ class SoilBank:
 
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
-               gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None) -> list[SoilState]:
+               gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None,
+               span=None, slip_ends=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
@@ -162,7 +163,11 @@ class SoilBank:
         ``speed`` (k,) m/s: the vehicle's ground speed, which sets the distance over which the soil
         may have changed since the last sample (None: ``UNKNOWN_SPEED``, m/s); ``ground_stale`` (k,)
         bool: the ground speed's last reading is older than ``max_input_age`` (no wheel informs K,
-        and the reason names the ground speed, not the wheels' readings)."""
+        and the reason names the ground speed, not the wheels' readings); ``span`` (k, 4) s: a pair that
+        stands for a longer interval than the sample's own (a slow wheel-speed stream's refresh,
+        :mod:`soilocp.estimation.refresh_traction`) weighs that interval's exponent; 0 or None: the sample's;
+        ``slip_ends`` (k, 4, 2): such a pair's slip at its interval's start and end: its mean gross traction
+        is compared with the curve averaged over that slip path (Simpson's rule)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -220,6 +225,16 @@ class SoilBank:
             # the likelihood of the used wheels only, (m, G); the unused get a factor of exactly 1
             s_used = slip[upd][u][:, None]
             h, dh_ds = self.grid.curve(s_used)
+            if slip_ends is not None and span is not None:
+                # a refresh interval's pair: its mean gross traction against the curve averaged over the
+                # interval's slip path, start -> end (refresh_traction), by Simpson's rule on the path's middle
+                ends = np.asarray(slip_ends, dtype=float)[upd][u]
+                path = (np.asarray(span, dtype=float)[upd][u] > 0) & np.isfinite(ends).all(axis=1)
+                if path.any():
+                    h0, d0 = self.grid.curve(ends[path, 0, None])
+                    h1, d1 = self.grid.curve(ends[path, 1, None])
+                    h[path] = (h0 + 4.0 * h[path] + h1) / 6.0
+                    dh_ds[path] = (d0 + 4.0 * dh_ds[path] + d1) / 6.0
             # the product over a row's used wheels as a sum of logs; the used pairs are stacked row by row
             n_used = u.sum(axis=1)
             starts = np.concatenate([[0], np.cumsum(n_used)[:-1]])  # first used pair of each row
@@ -234,7 +249,13 @@ class SoilBank:
                                    h.shape)
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            loglike_used = np.log(like_used) * np.repeat(exponent[upd], n_used)[:, None]
+            # each pair's exponent: its vehicle's per sample, or its own refresh interval's (span)
+            exp_used = np.repeat(exponent[upd], n_used)
+            span_used = None
+            if span is not None:
+                span_used = np.asarray(span, dtype=float)[upd][u]
+                exp_used = np.where(span_used > 0, cfg.temper * span_used / cfg.temper_interval, exp_used)
+            loglike_used = np.log(like_used) * exp_used[:, None]
             loglike = np.add.reduceat(loglike_used, starts, axis=0)
             pair_row, pair_wheel = np.nonzero(u)  # row-major: the order the used pairs are stacked in
             self.axles.update(ix[upd], stamp[upd], pair_row, pair_wheel, loglike_used)
@@ -262,7 +283,7 @@ class SoilBank:
         prof[taken] = 0.0
         if upd.any():
             self._window_stats(stats, prof, np.flatnonzero(upd), n_used, starts, cdf, h, dh_ds, r2, sig2, s_used[:, 0],
-                               obs[upd][u], dt, exponent[upd])
+                               obs[upd][u], dt, exp_used, span_used)
         self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
         self.stats[ix], self.profile[ix] = stats, prof
         fresh = np.flatnonzero(upd | taken)
@@ -319,10 +340,11 @@ class SoilBank:
         return np.minimum(cfg.temper * step / cfg.temper_interval, cfg.temper_max)
 
     def _window_stats(self, stats, prof, rows, n_used, starts, cdf, h, dh_ds, r2, sig2, s_used, obs_used, dt,
-                      exponent) -> None:
+                      exponent, span=None) -> None:
         """Accumulate the NIS at the posterior median, the systematic budget's sums (class doc) and the
         scale profile's per-node sums (:meth:`_scale_shift`, weighted as the belief weighs the samples:
-        ``exponent`` (rows,) / variance); ``cdf``: the updated beliefs' mid-point CDF; the used pairs are
+        ``exponent`` (pairs,) / variance); ``span`` (pairs,) or None: the s a refresh interval's pair stands
+        for (0: the sample's own interval); ``cdf``: the updated beliefs' mid-point CDF; the used pairs are
         stacked row by row, row i's from ``starts[i]``.  ``rows`` are distinct (one sample per vehicle and
         call), so the per-row sums are plain fancy-index adds."""
         G = self.theta.size
@@ -335,13 +357,16 @@ class SoilBank:
         ds = 1.0 - np.minimum(np.abs(s_used), 1.0)  # d S / d ln R_w (eq. 1, both slip signs)
         step = np.where(np.isnan(dt[rows]) | (dt[rows] <= 0), 0.0, np.minimum(dt[rows], 1.0))
         step_w = step[which]
+        if span is not None:  # a refresh interval's pair stands for its interval (refresh_traction)
+            step_w = np.where(span > 0, np.minimum(span, 1.0), step_w)
+            step = np.maximum.reduceat(step_w, starts)
         stats[rows, 0] += step
         per_wheel = np.stack([step_w * nis / n_used[which], step_w * wt * h_k**2, step_w * wt * h_k * h[w, j],
                               step_w * wt * h_k * dh_ds[w, j] * ds], axis=1)
         stats[rows, 1:] += np.add.reduceat(per_wheel, starts, axis=0)
         # per sample, as the belief weighs them (its exponent / variance); sig2 is the same for every K
         # (quasi-likelihood, update): one weight per used wheel
-        wt_pair = exponent[which] / sig2[:, 0]
+        wt_pair = exponent / sig2[:, 0]
         wh = wt_pair[:, None] * h
         prof[rows, 0] += np.add.reduceat(wh * obs_used[:, None], starts, axis=0)
         prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
