@@ -61,6 +61,9 @@ class RefreshIntervals:
         self.torque_dt = np.zeros(shape)
         self.fz_dt = np.zeros(shape)
         self.ground_start = np.zeros(shape)  # the ground speed at the wheel when the interval began
+        # the sums of a straight line's least squares through y = T / (R_w Fz) against the time in the interval:
+        # n, t, t^2, y, t y, y^2
+        self.line = np.zeros((n_vehicles, 4, 6))
         # the integrals began at a change of the speed (not at a restart) and the torque was read at
         # every sample since
         self.valid = np.zeros(shape, dtype=bool)
@@ -88,6 +91,10 @@ class RefreshIntervals:
         torque_dt += torque * step
         fz_dt += fz * step
         valid &= torque_fresh
+        line = self.line[sel].copy()
+        y = torque / (self.radius * fz)
+        t = span
+        line += (step > 0)[..., None] * np.stack([np.ones_like(y), t, t * t, y, t * y, y * y], axis=-1)
         # a slow stream's refresh: the interval is longer than the sample interval and min_interval (a
         # quantised encoder's change after a few repeats is a full-rate stream's, and the observer follows
         # it), and not so long that the speed's linear course between the readings says nothing
@@ -102,6 +109,14 @@ class RefreshIntervals:
             fz_mean = np.where(close, fz_dt / tau, 1.0)
             gross = (torque_dt - self.inertia * (speed - prev_speed)) / (self.radius * np.where(close, fz_dt, 1.0))
             var = (self.inertia * self.jerk * tau / (self.radius * fz_mean)) ** 2 + self.variance_floor
+            # the gross traction's course within the interval off a straight line in time: the slip path's
+            # average (Simpson's rule on a straight path) does not see it, so it is that much less certain
+            # (a braking wheel released and braked again within one interval)
+            n_, st, stt, sy, sty, syy = np.moveaxis(line, -1, 0)
+            n1 = np.maximum(n_, 1.0)
+            sxx, sxy, syy_c = stt - st * st / n1, sty - st * sy / n1, syy - sy * sy / n1
+            resid = np.maximum(syy_c - np.where(sxx > 0, sxy * sxy / np.where(sxx > 0, sxx, 1.0), 0.0), 0.0) / n1
+            var = var + resid
             # the mean speed over the interval against the readings' mean: a course bent by an acceleration
             # change d_a within the interval strays from the chord by up to d_a tau / 8 (a kink at its middle)
             rim_sigma = self.radius * np.abs(rate - last_rate) * tau / 8.0
@@ -117,9 +132,11 @@ class RefreshIntervals:
         start = changed | restart[:, None]
         for a in (span, torque_dt, fz_dt):
             a[start] = 0.0
+        line[start] = 0.0
         ground_start = np.where(start, ground, ground_start)
         valid = np.where(start, ~restart[:, None] & changed, valid)
         self.span[sel], self.torque_dt[sel], self.fz_dt[sel], self.ground_start[sel] = span, torque_dt, fz_dt, ground_start
         self.valid[sel] = valid
+        self.line[sel] = line
         self.active[sel] = out.active
         return out

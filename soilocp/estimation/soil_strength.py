@@ -254,7 +254,7 @@ class SoilBank:
             span_used = None
             if span is not None:
                 span_used = np.asarray(span, dtype=float)[upd][u]
-                exp_used = np.where(span_used > 0, cfg.temper * span_used / cfg.temper_interval, exp_used)
+                exp_used = np.where(span_used > 0, np.minimum(cfg.temper * span_used / cfg.temper_interval, 1.0), exp_used)
             loglike_used = np.log(like_used) * exp_used[:, None]
             loglike = np.add.reduceat(loglike_used, starts, axis=0)
             pair_row, pair_wheel = np.nonzero(u)  # row-major: the order the used pairs are stacked in
