@@ -89,7 +89,7 @@ class TractionObserver:
         reset = dt is None or dt < 0 or dt > self.cfg.max_gap
         speeds = np.array([*omega, ground_speed])
         last = np.nan if self._last_stamp is None else self._last_stamp
-        fresh, changed, prev, changed_before, _ = (
+        fresh, changed, prev, changed_before, _, _ = (
             a[0] for a in self._readings.step(slice(None), np.array([stamp]), np.array([last]), speeds[None],
                                               np.array([dt is None or dt < 0])))
         interval = np.where(changed[:4], stamp - changed_before[:4], 0.0)  # a count difference's interval
