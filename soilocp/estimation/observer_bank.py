@@ -48,7 +48,7 @@ from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.readings import ReadingClock
-from soilocp.estimation.refresh_traction import IntervalTraction, RefreshIntervals
+from soilocp.estimation.refresh_traction import IntervalTraction, RefreshIntervals, merge
 from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -178,7 +178,8 @@ class ObserverBank:
         self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
                          if cfg.ground_speed_latency_max > 0 else None)
         self._intervals = RefreshIntervals(n, vehicle.wheel_inertia, vehicle.wheel_radius, cfg.refresh_jerk,
-                                           cfg.refresh_min_interval, cfg.refresh_max_interval, cfg.variance_floor)
+                                           cfg.refresh_min_interval, cfg.refresh_max_interval, cfg.variance_floor,
+                                           cfg.r_wheel_speed)
         self._P0 = initial_covariance(L, cfg)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = L.bounds(cfg)
@@ -322,6 +323,11 @@ class ObserverBank:
         ground = x[:, L.v, None] - x[:, L.psi, None] * self._wheel_y
         intervals = self._intervals.step(sel, dt, restart, changed[:, :4], rd.full_rate[:, :4], prev[:, :4],
                                          inputs.wheel_speed, torque, fresh[:, 5:9], fz, ground)
+        torque_pairs = self._intervals.torque_refresh(
+            sel, dt, restart, changed[:, 5:9], rd.full_rate[:, 5:9], inputs.stamp[:, None] - rd.changed_before[:, 5:9],
+            fresh[:, :4], rd.full_rate[:, :4], prev[:, :4], inputs.wheel_speed, torque, fz,
+            inputs.wheel_speed * self.vehicle.wheel_radius, ground)
+        intervals = merge(intervals, torque_pairs)
         return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), latency, intervals, ws)
 
     def _output(self, x, P, fz, rejected, reasons, age, measured, latency, intervals: IntervalTraction,

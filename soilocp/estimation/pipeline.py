@@ -285,8 +285,8 @@ class SlipGate:
         # (interval_learning) at the refresh only.  A slow torque stream likewise: between its refreshes the
         # gross traction rests on a held torque (the Warthog's currents, refreshed once a second, were paired
         # with four wheel-speed refreshes each)
-        speed_held = ob.speed_age > np.where(ob.interval_learning, 0.0, cfg.soil.fresh_age)
-        held = (speed_held | (ob.torque_age > cfg.soil.fresh_age)) & ~refresh
+        held = np.where(ob.interval_learning, ~refresh,
+                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
         measured = ob.ground_speed_measured
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
         return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
