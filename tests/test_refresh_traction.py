@@ -88,8 +88,8 @@ def test_wheel_speeds_held_at_4_7_hz_learn_k_from_the_refresh_intervals():
     assert learnt >= 100  # about 4.7 refreshes a second
     _, _, segs, _ = estimate_and_score(pairs, cfg, 2.0)
     for seg in segs:
-        assert seg.k_median_rel <= 0.10 and seg.k_p90_rel <= 0.25, (seg.soil, seg.k_median_rel, seg.k_p90_rel)
-        assert seg.band_coverage >= 0.9, (seg.soil, seg.band_coverage)
+        assert seg.k_median_rel <= 0.10 and seg.k_p90_rel <= 0.25, (seg.soil_class, seg.k_median_rel, seg.k_p90_rel)
+        assert seg.band_coverage >= 0.9, (seg.soil_class, seg.band_coverage)
 
 
 @pytest.mark.parametrize("drive", ["wheel-speed-5hz"])
@@ -102,4 +102,60 @@ def test_the_5_hz_row_is_not_the_phase_locked_artefact_any_more(drive):
     cfg = PipelineConfig()
     pairs = list(get_variant(drive).simulate(0, nominal=cfg.vehicle, constants=cfg.constants))
     _, _, segs, _ = estimate_and_score(pairs, cfg, 2.0)
-    assert all(seg.k_median_rel <= 0.10 for seg in segs), [(s.soil, s.k_median_rel) for s in segs]
+    assert all(seg.k_median_rel <= 0.10 for seg in segs), [(s.soil_class, s.k_median_rel) for s in segs]
+
+
+def test_a_slow_torque_refresh_serves_eq_13_at_that_instant_from_the_readings():
+    """Torque (a motor current) held 0.5 s between readings, speed read at every sample: at each torque
+    refresh the pair is eq. 13 at that instant from the readings, nothing between; not at all when the
+    speed is held too (the Warthog) or the torque is read at the sample rate."""
+    def run(torque_every, speed_every=1):
+        ri = RefreshIntervals(1, I_W, R_W, jerk=50.0, min_interval=0.1, max_interval=1.0, variance_floor=1e-10)
+        out, t = [], 0.0
+        for k in range(300):
+            t = k * DT
+            omega, omega_prev = 5.0 + 3.0 * t, 5.0 + 3.0 * (t - DT)
+            g = 0.4 + 0.2 * np.sin(2 * np.pi * t / 0.9)
+            tq = R_W * FZ * g + I_W * 3.0
+            changed = k % torque_every == 0
+            pair = ri.torque_refresh(slice(None), np.array([DT if k else np.nan]), np.array([k == 0]),
+                                     np.full((1, 4), changed), np.full((1, 4), torque_every == 1),
+                                     np.full((1, 4), torque_every * DT), np.full((1, 4), False),
+                                     np.full((1, 4), speed_every * DT),
+                                     np.full((1, 4), omega_prev),
+                                     np.full((1, 4), omega), np.full((1, 4), tq), np.full((1, 4), FZ),
+                                     np.full((1, 4), R_W * omega), np.full((1, 4), 0.7))
+            if pair.interval[0, 0] > 0:
+                out.append((pair.interval[0, 0], pair.gross[0, 0] - g, np.sqrt(pair.gross_var[0, 0])))
+            elif k > 60:
+                assert pair.active[0, 0] == (torque_every > 1 and speed_every < 10)
+        return out
+
+    pairs = run(50)
+    assert len(pairs) == 5  # every refresh but the first sample's (no interval before it)
+    assert all(span == pytest.approx(0.5) and abs(err) < 1e-9 and 0.005 < sd < 0.02 for span, err, sd in pairs)
+    assert run(1) == []  # read at the sample rate: the observer's own gross traction serves
+    assert run(50, speed_every=25) == []  # both held (the Warthog): the instant's acceleration is unknown
+    assert len(run(50, speed_every=3)) == 5  # a quantised encoder's repeats are readings
+
+
+def test_torques_held_at_2_hz_learn_k_at_their_refreshes_only():
+    """The robustness drive with torques held at 2 Hz: K learns at each torque refresh from the readings
+    (before: from the observer at samples within 0.05 s of it, band std/K 0.177, 3.8 s to follow a
+    change), within 10 % at the median and 25 % at p90 on every segment."""
+    from soilocp.analysis.accuracy import estimate_and_score
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    pairs = list(get_variant("torque-2hz").simulate(0, nominal=cfg.vehicle, constants=cfg.constants))
+    pipe, last, changed_at = VehiclePipeline(cfg), None, None
+    for sample, _ in pairs:
+        if sample.wheel_torque != last:
+            last, changed_at = sample.wheel_torque, sample.stamp
+        _, ob, soil, _ = pipe.process_all(sample)
+        if any(soil.informative) and sample.stamp >= 2.0:
+            assert sample.stamp == changed_at  # at the refresh itself, not the held samples after it
+    _, _, segs, _ = estimate_and_score(pairs, cfg, 2.0)
+    for seg in segs:
+        assert seg.k_median_rel <= 0.10 and seg.k_p90_rel <= 0.25, (seg.soil_class, seg.k_median_rel, seg.k_p90_rel)
+        assert seg.band_coverage >= 0.9, (seg.soil_class, seg.band_coverage)

@@ -84,6 +84,9 @@ class RefreshIntervals:
         stream is read at the sample rate (no held interval to close), ``prev_speed`` / ``speed`` the
         previous and the new reading (rad/s), ``torque`` (N m) and ``torque_fresh`` (a new torque
         reading), ``fz`` (N, > 0) and ``ground`` the ground speed at the wheel now (m/s)."""
+        if full_rate.all():  # the usual case: every speed is read at the sample rate, no interval to keep
+            self.valid[sel], self.active[sel], self.last_rate[sel] = False, False, np.nan
+            return _none(changed.shape)
         span, torque_dt, fz_dt, ground_start = (a[sel].copy() for a in (self.span, self.torque_dt, self.fz_dt,
                                                                         self.ground_start))
         valid = self.valid[sel] & ~restart[:, None]
@@ -143,7 +146,7 @@ class RefreshIntervals:
         return out
 
     def torque_refresh(self, sel, dt: np.ndarray, restart: np.ndarray, changed: np.ndarray, full_rate: np.ndarray,
-                       since: np.ndarray, speed_fresh: np.ndarray, speed_full_rate: np.ndarray,
+                       since: np.ndarray, speed_full_rate: np.ndarray, speed_since: np.ndarray,
                        prev_speed: np.ndarray, speed: np.ndarray, torque: np.ndarray, fz: np.ndarray,
                        rim: np.ndarray, ground: np.ndarray) -> IntervalTraction:
         """A slow torque stream's refresh (a motor current held 0.1-1 s between readings) while the wheel
@@ -155,13 +158,18 @@ class RefreshIntervals:
         would rest on a held torque, and K learns nothing there.  The pair stands for the torque's
         interval ``since`` (k, 4) s, which sets its exponent in the soil stage.
 
-        Per wheel (k, 4): ``changed`` / ``full_rate`` the torque reading's, ``speed_fresh`` /
-        ``speed_full_rate`` the speed reading's; ``prev_speed`` / ``speed`` the last two speed readings
-        (rad/s), ``torque`` N m, ``fz`` N, ``rim`` the rim speed R_w omega of the reading and ``ground``
+        Per wheel (k, 4): ``changed`` / ``full_rate`` the torque reading's; the speed is not held when
+        its stream is read at the sample rate (``speed_full_rate``, a quantised encoder's repeats for
+        up to 0.3 s included) or its value last changed less than ``min_interval`` before
+        (``speed_since``, s); ``prev_speed`` / ``speed`` the last two speed
+        readings (rad/s), ``torque`` N m, ``fz`` N, ``rim`` the rim speed R_w omega of the reading and ``ground``
         the ground speed at the wheel (m/s)."""
+        if full_rate.all():  # the usual case: every torque is read at the sample rate
+            self.torque_active[sel] = False
+            return _none(changed.shape)
         ok_dt = ~restart & (dt > 0)
-        slow = ~full_rate & speed_full_rate & ok_dt[:, None]
-        close = (changed & slow & speed_fresh & (since >= self.min_interval) & (since <= self.max_interval)
+        slow = ~full_rate & (speed_full_rate | (speed_since < self.min_interval)) & ok_dt[:, None]
+        close = (changed & slow & (since >= self.min_interval) & (since <= self.max_interval)
                  & np.isfinite(prev_speed) & (fz > 0))
         step = np.where(ok_dt, dt, 1.0)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -178,7 +186,17 @@ class RefreshIntervals:
                                 np.where(close, ground, 0.0), zero, active)
 
 
+def _none(shape) -> IntervalTraction:
+    """No interval closed and none kept: zeros (k, 4), inactive."""
+    zero = np.zeros(shape)
+    return IntervalTraction(zero, zero, zero, zero, zero, zero, zero, zero, np.zeros(shape, dtype=bool))
+
+
 def merge(a: IntervalTraction, b: IntervalTraction) -> IntervalTraction:
     """Two sources' pairs (k, 4) in one: b's where it closes an interval, a's elsewhere; active in either."""
+    if not b.active.any():  # (a pair closed is active)
+        return a
+    if not a.active.any():
+        return b
     take = b.interval > 0
     return IntervalTraction(*(np.where(take, y, x) for x, y in zip(a[:-1], b[:-1])), a.active | b.active)
