@@ -211,7 +211,7 @@ class SoilInputs:
     ground_stale: np.ndarray  # (k,) the ground speed's last reading is older than SoilConfig.max_input_age
     identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
     speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
-    span: np.ndarray  # s a wheel's pair stands for: a slow speed stream's refresh interval (0: the sample's own)
+    span: np.ndarray | None  # (k, 4) s a wheel's pair stands for: a refresh interval (0: the sample's own; None: none)
     slip_ends: np.ndarray | None  # (k, 4, 2) a refresh pair's slip at its interval's start and end (None: no pair)
 
 
@@ -275,7 +275,7 @@ class SlipGate:
         self._lp[ix] = lp
         self._lp_stamp[ix] = stamp
         g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        span = np.zeros(slip.shape)
+        span = None
         if any_refresh:  # between refreshes the low-pass follows a prediction: the gate takes the interval's slip
             lp, g_sig = np.where(refresh, slip, lp), np.where(refresh, s_sig, g_sig)
             span = np.where(refresh, ob.interval, 0.0)

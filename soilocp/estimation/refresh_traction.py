@@ -104,10 +104,34 @@ class RefreshIntervals:
         # it), and not so long that the speed's linear course between the readings says nothing
         ended = (changed & valid & ~full_rate & (span > 1.5 * step) & (span >= self.min_interval)
                  & (span <= self.max_interval) & np.isfinite(prev_speed) & (fz_dt > 0))
+        last_rate = self.last_rate[sel]
+        active = np.where(ended, True, self.active[sel] & ~restart[:, None] & ~(changed & ~ended) & torque_fresh)
+        if ended.any():
+            out, rate = self._close(ended, span, torque_dt, fz_dt, line, prev_speed, speed, ground_start, ground,
+                                    last_rate, active)
+        else:  # most samples close nothing
+            out, rate = _none(changed.shape)._replace(active=active), last_rate
+        self.last_rate[sel] = np.where(ended, rate, np.where(restart[:, None] | (changed & ~ended), np.nan, last_rate))
+        # a change starts the next interval; a restart starts an invalid one (its start is unknown)
+        start = changed | restart[:, None]
+        for a in (span, torque_dt, fz_dt):
+            a[start] = 0.0
+        line[start] = 0.0
+        ground_start = np.where(start, ground, ground_start)
+        valid = np.where(start, ~restart[:, None] & changed, valid)
+        self.span[sel], self.torque_dt[sel], self.fz_dt[sel], self.ground_start[sel] = span, torque_dt, fz_dt, ground_start
+        self.valid[sel] = valid
+        self.line[sel] = line
+        self.active[sel] = out.active
+        return out
+
+    def _close(self, ended, span, torque_dt, fz_dt, line, prev_speed, speed, ground_start, ground, last_rate,
+               active) -> tuple[IntervalTraction, np.ndarray]:
+        """The pairs of the intervals that ``ended`` now (k, 4), and every wheel's mean acceleration over
+        its interval (rad/s^2; meaningful where ended)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             tau = np.where(ended, span, 1.0)
             rate = (speed - prev_speed) / tau
-            last_rate = self.last_rate[sel]
             # the first interval after a restart has no neighbour to tell its curvature: it only starts the chain
             close = ended & np.isfinite(last_rate)
             fz_mean = np.where(close, fz_dt / tau, 1.0)
@@ -124,26 +148,11 @@ class RefreshIntervals:
             # the mean speed over the interval against the readings' mean: a course bent by an acceleration
             # change d_a within the interval strays from the chord by up to d_a tau / 8 (a kink at its middle)
             rim_sigma = self.radius * np.abs(rate - last_rate) * tau / 8.0
-        interval = np.where(close, span, 0.0)
-        out = IntervalTraction(interval, np.where(close, gross, 0.0), np.where(close, var, 0.0),
+        out = IntervalTraction(np.where(close, span, 0.0), np.where(close, gross, 0.0), np.where(close, var, 0.0),
                                np.where(close, self.radius * prev_speed, 0.0), np.where(close, self.radius * speed, 0.0),
                                np.where(close, ground_start, 0.0), np.where(close, ground, 0.0),
-                               np.where(close, rim_sigma, 0.0),
-                               np.where(ended, True, self.active[sel] & ~restart[:, None] & ~(changed & ~ended)
-                                        & torque_fresh))
-        self.last_rate[sel] = np.where(ended, rate, np.where(restart[:, None] | (changed & ~ended), np.nan, last_rate))
-        # a change starts the next interval; a restart starts an invalid one (its start is unknown)
-        start = changed | restart[:, None]
-        for a in (span, torque_dt, fz_dt):
-            a[start] = 0.0
-        line[start] = 0.0
-        ground_start = np.where(start, ground, ground_start)
-        valid = np.where(start, ~restart[:, None] & changed, valid)
-        self.span[sel], self.torque_dt[sel], self.fz_dt[sel], self.ground_start[sel] = span, torque_dt, fz_dt, ground_start
-        self.valid[sel] = valid
-        self.line[sel] = line
-        self.active[sel] = out.active
-        return out
+                               np.where(close, rim_sigma, 0.0), active)
+        return out, rate
 
     def torque_refresh(self, sel, dt: np.ndarray, restart: np.ndarray, changed: np.ndarray, full_rate: np.ndarray,
                        since: np.ndarray, speed_full_rate: np.ndarray, speed_since: np.ndarray,
