@@ -28,7 +28,7 @@ from soilocp.model.normal_force import NormalForceSolver
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
 from soilocp.model.ocp import ocp_arrays
-from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
 from soilocp.estimation.soil_config import SoilConfig, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
@@ -293,10 +293,11 @@ class SlipGate:
                           ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends)
 
     def _eq1(self, rim: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 1 with the floor of docs/method.md §6: slip (k, 4) from rim speeds R_w omega and the ground
-        speeds at the wheels (m/s), and the larger of the two speeds (the deadband's measure)."""
-        scale = np.maximum(np.abs(rim), np.abs(ground))
-        return (rim - ground) / np.maximum(scale, self.cfg.slip_floor), scale
+        """Eq. 1 with the floor of docs/method.md §6 (:func:`soilocp.model.slip.slip_ratio_unchecked`): slip
+        (k, 4) from rim speeds R_w omega and the ground speeds at the wheels (m/s), and the larger of the
+        two speeds (the deadband's measure)."""
+        s = slip_ratio_unchecked(rim, ground, 1.0, self.cfg.slip_deadband, self.cfg.slip_floor)
+        return s.slip, np.maximum(np.abs(rim), np.abs(ground))
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,

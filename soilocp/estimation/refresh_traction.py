@@ -1,5 +1,7 @@
-"""Gross traction over a slow wheel-speed stream's refresh interval, from the readings themselves
-(eq. 13 integrated over the interval; docs/method.md §13, "Slow wheel speeds").
+"""Gross traction at a slow stream's refresh, from the readings themselves (docs/method.md §13, "Slow
+wheel speeds or torques"): over a held wheel speed's interval, eq. 13 integrated
+(:meth:`RefreshIntervals.step`); at a held torque's refresh while the speed is read at every sample,
+eq. 13 at that instant (:meth:`RefreshIntervals.torque_refresh`).
 
 Between the refreshes of a wheel-speed stream held by a slow driver (5 Hz, 4.7 Hz) the observer's
 wheel speed is a prediction through the stiff wheel equation, and at the refresh its gross traction
