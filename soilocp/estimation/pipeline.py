@@ -240,8 +240,9 @@ class SlipGate:
             observed, var = ob.gross, ob.gross_var * self._shared
         else:
             observed, var = ob.mu, ob.mu_var * self._shared
-        # a slow wheel-speed stream's refresh: the interval's pair from the readings (eq. 13 integrated,
-        # soilocp.estimation.refresh_traction) instead of the observer's prediction at its end; gross only
+        # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
+        # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
+        # prediction through the held value; gross only
         refresh = ob.interval > 0 if cfg.soil.measurement == "gross" else np.zeros(ob.interval.shape, dtype=bool)
         any_refresh = bool(refresh.any())
         slip_ends = None

@@ -164,8 +164,9 @@ class SoilBank:
         may have changed since the last sample (None: ``UNKNOWN_SPEED``, m/s); ``ground_stale`` (k,)
         bool: the ground speed's last reading is older than ``max_input_age`` (no wheel informs K,
         and the reason names the ground speed, not the wheels' readings); ``span`` (k, 4) s: a pair that
-        stands for a longer interval than the sample's own (a slow wheel-speed stream's refresh,
-        :mod:`soilocp.estimation.refresh_traction`) weighs that interval's exponent; 0 or None: the sample's;
+        stands for a longer interval than the sample's own (a slow wheel-speed or torque stream's refresh,
+        :mod:`soilocp.estimation.refresh_traction`) weighs that interval's exponent, at most 1; 0 or None:
+        the sample's;
         ``slip_ends`` (k, 4, 2): such a pair's slip at its interval's start and end: its mean gross traction
         is compared with the curve averaged over that slip path (Simpson's rule)."""
         cfg = self.cfg
@@ -249,7 +250,9 @@ class SoilBank:
                                    h.shape)
             r2 = (obs[upd][u][:, None] - h) ** 2 / sig2
             like_used = (1 - cfg.outlier_prob) * np.exp(-0.5 * r2) / np.sqrt(sig2) + cfg.outlier_prob
-            # each pair's exponent: its vehicle's per sample, or its own refresh interval's (span)
+            # each pair's exponent: its vehicle's per sample, or its own refresh interval's (span), at most 1:
+            # one pair is one observation at its stated variance (with the whole interval's 3.2 at 4.7 Hz, one
+            # pair across a sweep's kink moved K from 200 to 70)
             exp_used = np.repeat(exponent[upd], n_used)
             span_used = None
             if span is not None:
