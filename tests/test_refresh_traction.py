@@ -159,3 +159,23 @@ def test_torques_held_at_2_hz_learn_k_at_their_refreshes_only():
     for seg in segs:
         assert seg.k_median_rel <= 0.10 and seg.k_p90_rel <= 0.25, (seg.soil_class, seg.k_median_rel, seg.k_p90_rel)
         assert seg.band_coverage >= 0.9, (seg.soil_class, seg.band_coverage)
+
+
+@pytest.mark.parametrize("drive", ["wheel-speed-4.7hz", "torque-2hz"])
+def test_the_refresh_pairs_cross_the_live_services_json_unchanged(drive):
+    """The live services pass ObserverOutput as JSON: the interval fields round-trip, and the chain
+    composed through JSON gives the offline pipeline's records, refresh pairs included."""
+    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpStage(cfg)
+    pipe, served = VehiclePipeline(cfg), 0
+    for sample, _ in get_variant(drive).simulate(0, duration=6.0, nominal=cfg.vehicle, constants=cfg.constants):
+        nf = stages[0].step(sample)
+        ob = stages[1].step(sample, type(nf).model_validate_json(nf.model_dump_json()))
+        served += any(v > 0 for v in ob.interval)
+        so = stages[2].step(type(ob).model_validate_json(ob.model_dump_json()))
+        oc = stages[3].step(type(so).model_validate_json(so.model_dump_json()))
+        assert oc == pipe.process(sample)
+    assert served >= 10
