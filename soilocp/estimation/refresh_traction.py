@@ -34,6 +34,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+#: s: intervals are sums or differences of stamps, so a 10 Hz stream's 0.1 s reads 0.1 - 1e-15 as
+#: often as not; the interval bounds are taken this much wider
+STAMP_TOLERANCE = 1e-6
+
 
 class IntervalTraction(NamedTuple):
     """One step's refresh intervals (k, 4); ``interval`` 0 where the sample closes none."""
@@ -104,8 +108,8 @@ class RefreshIntervals:
         # a slow stream's refresh: the interval is longer than the sample interval and min_interval (a
         # quantised encoder's change after a few repeats is a full-rate stream's, and the observer follows
         # it), and not so long that the speed's linear course between the readings says nothing
-        ended = (changed & valid & ~full_rate & (span > 1.5 * step) & (span >= self.min_interval)
-                 & (span <= self.max_interval) & np.isfinite(prev_speed) & (fz_dt > 0))
+        ended = (changed & valid & ~full_rate & (span > 1.5 * step) & (span >= self.min_interval - STAMP_TOLERANCE)
+                 & (span <= self.max_interval + STAMP_TOLERANCE) & np.isfinite(prev_speed) & (fz_dt > 0))
         last_rate = self.last_rate[sel]
         active = np.where(ended, True, self.active[sel] & ~restart[:, None] & ~(changed & ~ended) & torque_fresh)
         if ended.any():
@@ -179,8 +183,9 @@ class RefreshIntervals:
             self.torque_active[sel] = False
             return _none(changed.shape)
         ok_dt = ~restart & (dt > 0)
-        slow = ~full_rate & (speed_full_rate | (speed_since < self.min_interval)) & ok_dt[:, None]
-        close = (changed & slow & (since >= self.min_interval) & (since <= self.max_interval)
+        slow = ~full_rate & (speed_full_rate | (speed_since < self.min_interval - STAMP_TOLERANCE)) & ok_dt[:, None]
+        close = (changed & slow & (since >= self.min_interval - STAMP_TOLERANCE)
+                 & (since <= self.max_interval + STAMP_TOLERANCE)
                  & np.isfinite(prev_speed) & (fz > 0))
         step = np.where(ok_dt, dt, 1.0)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
