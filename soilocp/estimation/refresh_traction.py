@@ -24,8 +24,10 @@ too (a motor current refreshed once a second, as on the Warthog) leaves the inte
 unknown, and then nothing is served and the soil stage keeps to the observer's own gross traction
 at the refresh.  The speed is taken as linear over the interval, which it is not near a sweep's kink:
 the variance states that as the inertia torque of a ``jerk`` (rad/s^3) over the interval,
-(I_w jerk tau / (R_w Fz))^2; against the simulated truth the pairs are off by 1-sigma 0.010-0.018 at
-5 Hz (0.039-0.048 at 3.3-1 Hz).
+(I_w jerk tau / (R_w Fz))^2, plus the scatter of T / (R_w Fz) about a straight line in time within
+it, and the slip path as uncertain by R_w |d omega_dot| tau / 8 (``rim_sigma``).  Against the
+simulated truth g_bar is off by 1-sigma 0.004-0.006 on the 4.7 Hz drive, and the end slips by
+0.008-0.014.
 """
 
 from __future__ import annotations
@@ -50,13 +52,13 @@ class IntervalTraction(NamedTuple):
     ground_start: np.ndarray  #: the ground speed at the wheel (V - psi_dot y_i) at the interval's start, m/s
     ground_end: np.ndarray  #: and at its end, m/s
     rim_sigma: np.ndarray  #: 1-sigma of the rim speed's course between the readings against their chord, m/s
-    active: np.ndarray  #: bool: the wheel's speed refreshes slowly and its torque is read at the sample rate
+    active: np.ndarray  #: bool: one stream refreshes slowly and the other is read at the sample rate
 
 
 class RefreshIntervals:
-    """Per (vehicle, wheel): the integrals of torque, normal force and ground speed at the wheel
-    since the wheel speed's last change, and whether every sample since brought a new torque
-    reading; arrays (n, 4)."""
+    """Per (vehicle, wheel), arrays (n, 4): the integrals of torque and normal force since the wheel
+    speed's last change, the ground speed at the wheel then, whether every sample since brought a new
+    torque reading, and whether the wheel learns at refreshes only (a slow speed or a slow torque)."""
 
     def __init__(self, n_vehicles: int, wheel_inertia: float, wheel_radius: float, jerk: float,
                  min_interval: float, max_interval: float, variance_floor: float, speed_sigma: float = 0.03):
