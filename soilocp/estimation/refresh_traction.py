@@ -85,7 +85,9 @@ class RefreshIntervals:
              prev_speed: np.ndarray, speed: np.ndarray, torque: np.ndarray, torque_fresh: np.ndarray,
              fz: np.ndarray, ground: np.ndarray) -> IntervalTraction:
         """Integrate one sample (its values stand for the ``dt`` (k,) s before it) and close the
-        intervals whose speed reading changed now.
+        intervals whose speed reading changed now: eq. 13 integrated over each, g_bar = (int T dt -
+        I_w (omega(t1) - omega(t0))) / (R_w int Fz dt) (docs/method.md §13; the print's eq. 13 holds
+        per instant, and a held speed leaves no instant between the readings to apply it at).
 
         ``restart`` (k,): a first sample, a gap or a stamp that went backwards (every interval
         restarts invalid); per wheel (k, 4): ``changed`` the speed reading changed, ``full_rate`` its
