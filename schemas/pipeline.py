@@ -79,11 +79,13 @@ class ObserverOutput(_Message):
         "observer leads the reading (0: none determined; docs/method.md §13)"
     )
     interval: Quad = Field(
-        default=(0.0,) * 4, description="s: > 0 where this sample is the refresh of a slow (held) wheel-speed stream whose "
-        "torque was read at every sample since the previous refresh: the interval the interval_* fields describe, "
-        "from the readings (eq. 13 integrated, docs/method.md §13); 0 otherwise"
+        default=(0.0,) * 4, description="s: > 0 where this sample is the refresh of a slow (held) stream while the other is "
+        "read at every sample: a wheel speed's (the interval_* fields describe its interval, eq. 13 integrated) or a "
+        "torque's (they describe this instant, eq. 13 from the readings; start = end); docs/method.md §13; 0 otherwise"
     )
-    interval_gross: Quad = Field(default=(0.0,) * 4, description="The interval's mean gross traction coefficient")
+    interval_gross: Quad = Field(
+        default=(0.0,) * 4, description="The refresh's gross traction coefficient from the readings (the interval's mean)"
+    )
     interval_gross_var: Quad = Field(default=(0.0,) * 4, description="Variance of interval_gross")
     interval_rim_start: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's start, m/s")
     interval_rim_end: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's end, m/s")
@@ -96,8 +98,8 @@ class ObserverOutput(_Message):
         "their chord, m/s"
     )
     interval_learning: BoolQuad = Field(
-        default=(False,) * 4, description="Per wheel: its speed stream refreshes slowly and its torque is read at every "
-        "sample, so K learns from the refresh intervals only, not from the predicted speeds between them"
+        default=(False,) * 4, description="Per wheel: one of its speed and torque streams refreshes slowly and the other is "
+        "read at every sample, so K learns at the refreshes only, not from the observer's prediction between them"
     )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")

@@ -125,7 +125,7 @@ class ObserverBankOutput:
     torque_age: np.ndarray  # s since the wheel's torque reading was last new
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
     ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (ground_speed_latency; 0: none)
-    # a slow wheel-speed stream's refresh interval closed at this sample (refresh_traction; interval 0: none)
+    # a slow stream's refresh at this sample, the pair from the readings (refresh_traction; interval 0: none)
     interval: np.ndarray
     interval_gross: np.ndarray
     interval_gross_var: np.ndarray
@@ -134,7 +134,7 @@ class ObserverBankOutput:
     interval_ground_start: np.ndarray
     interval_ground_end: np.ndarray
     interval_rim_sigma: np.ndarray
-    interval_learning: np.ndarray  # bool: slow wheel speeds, torque at the sample rate: K learns at the refreshes
+    interval_learning: np.ndarray  # bool: one stream slow, the other at the sample rate: K learns at the refreshes
 
 
 class _Workspace:
