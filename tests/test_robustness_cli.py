@@ -118,3 +118,23 @@ def test_convergence_is_judged_while_every_wheel_is_on_the_segment_soil():
     for rec in truth:
         del rec["wheel_soil_strength"]
     assert evaluate_records(truth, est)[0].convergence_s is None
+
+
+def test_a_config_file_sets_the_estimator_the_variants_are_judged_with(tmp_path):
+    """--config is the estimator's (soilocp estimate --config): a torque constant taken as known
+    (gross_scale_sigma 0) narrows the band on the same drive; a bad key is a usage error naming it."""
+    known = tmp_path / "known.json"
+    known.write_text(json.dumps({"soil": {"gross_scale_sigma": 0.0}}))
+    out_default, out_known = tmp_path / "default.json", tmp_path / "known-out.json"
+    runner = CliRunner()
+    for extra, out in (([], out_default), (["--config", str(known)], out_known)):
+        res = runner.invoke(main, ["accuracy", "--robustness", "--variant", "nominal", "--duration", "8", "--jobs", "1",
+                                   "--json", str(out), *extra])
+        assert res.exit_code in (0, 1), res.output
+    assert f"config {known}" in res.output  # the title names the settings judged
+    (default_row,), (known_row,) = (json.loads(p.read_text())["variants"] for p in (out_default, out_known))
+    assert known_row["std_rel_median"] < default_row["std_rel_median"]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"soil": {"gross_scale": 0.0}}))
+    res = runner.invoke(main, ["accuracy", "--robustness", "--variant", "cruise", "--config", str(bad)])
+    assert res.exit_code == 2 and "soil.gross_scale" in res.output

@@ -65,10 +65,12 @@ class VariantRun:
     rejected: int
 
 
-def run_variant(name: str, seed: int = 0, duration: Optional[float] = None) -> VariantRun:
-    """simulate (the variant) -> estimate (nominal config) -> evaluate, in this process."""
+def run_variant(name: str, seed: int = 0, duration: Optional[float] = None,
+                config: Optional[PipelineConfig] = None) -> VariantRun:
+    """simulate (the variant) -> estimate -> evaluate, in this process.  ``config`` (None = the
+    defaults) is the estimator's; the variant changes the true vehicle relative to its vehicle."""
     variant = get_variant(name)
-    cfg = PipelineConfig()
+    cfg = config or PipelineConfig()
     pairs = variant.simulate(seed, duration=duration, nominal=cfg.vehicle, constants=cfg.constants)
     n, rate, segs, summary = estimate_and_score(pairs, cfg, ROBUSTNESS_TARGETS["settle_s"])
     return VariantRun(name, seed, n, rate, segs, dict(summary.statuses), len(summary.rejected))
@@ -79,11 +81,11 @@ def _run_args(args) -> VariantRun:
 
 
 def run_robustness(variants: Sequence[str] | None = None, seeds: Sequence[int] = (0,), duration: Optional[float] = None,
-                   jobs: int = 2) -> list[VariantRun]:
+                   jobs: int = 2, config: Optional[PipelineConfig] = None) -> list[VariantRun]:
     names = list(variants) if variants else [v.name for v in list_variants()]
     for n in names:
         get_variant(n)  # unknown names fail before any work starts
-    jobs_list = [(n, s, duration) for n in names for s in seeds]
+    jobs_list = [(n, s, duration, config) for n in names for s in seeds]
     if jobs <= 1:
         return [run_variant(*a) for a in jobs_list]
     with ProcessPoolExecutor(max_workers=jobs) as ex:

@@ -142,8 +142,11 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--markdown", is_flag=True, help="--robustness: print the table as Markdown (for the README)")
 @click.option("--vehicle", "vehicle_path", type=click.Path(exists=True, dir_okay=False),
               help="Vehicle JSON, simulated and estimated (e.g. docs/maps/skid-steer-rover.json); default: the built-in rover")
+@click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False),
+              help="Pipeline config JSON (observer, soil; as soilocp estimate --config): judge your settings, e.g. "
+                   "the torque constant's uncertainty after soilocp calibrate-torque; default: the defaults")
 def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, robustness, seeds, variants, markdown,
-             vehicle_path):
+             vehicle_path, config_path):
     """Accuracy against simulator truth: every scenario x mode x compensation, worst segment per run.
 
     Excitation mode is judged against the targets; cruise mode shows what is identifiable without
@@ -153,28 +156,28 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     held channels, a different true vehicle, mirrored or other sweeps, S-turns) run through the
     nominal estimator.
     """
+    config = None
+    if vehicle_path or config_path:
+        from soilocp.estimation.pipeline import load_pipeline_config
+
+        try:
+            config = load_pipeline_config(config_path, vehicle=vehicle_path)
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
+    drive = "".join(f"; {what} {path}" for what, path in (("vehicle", vehicle_path), ("config", config_path)) if path)
     if robustness:
         from soilocp.commands.robustness_table import run_and_print
 
-        return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown)
+        return run_and_print(variants, seed, seeds, duration, jobs, json_out, markdown, config, drive)
     if variants or seeds != 1 or markdown:
         raise click.UsageError("--variant, --seeds and --markdown need --robustness")
-    vehicle = None
-    if vehicle_path:
-        from soilocp.model.vehicle import load_vehicle
-
-        try:
-            vehicle = load_vehicle(vehicle_path)
-        except ValueError as exc:
-            raise click.UsageError(str(exc)) from None
     from soilocp.analysis.accuracy import DEFAULT_SCENARIOS, results_json, run_matrix
     from soilocp.analysis.evaluation import TARGETS
 
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()
     results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs,
-                         vehicle)
-    drive = f"; vehicle {vehicle_path}" if vehicle_path else ""
+                         config=config)
     table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed}{drive})",
                            ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
                             "conv. change", "OCP med err", "class acc", "statuses", "targets"))

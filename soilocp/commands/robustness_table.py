@@ -30,7 +30,10 @@ def _cells(r, shown) -> list[str]:
     ]  # fmt: skip
 
 
-def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out, markdown: bool = False) -> None:
+def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out, markdown: bool = False,
+                  config=None, drive: str = "") -> None:
+    """``config`` (a PipelineConfig; None = the defaults) is the estimator's, named in the title by
+    ``drive`` ("; config FILE")."""
     from soilocp.analysis.robustness import ROBUSTNESS_TARGETS, SHOWN_STATUSES, rows_json, run_robustness, summarize
     from soilocp.sim.variants import list_variants
 
@@ -38,14 +41,14 @@ def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out
         raise click.UsageError(f"--seeds must be >= 1, got {seeds}")
     try:
         t0 = time.perf_counter()
-        runs = run_robustness(variants or None, range(seed, seed + seeds), duration, jobs)
+        runs = run_robustness(variants or None, range(seed, seed + seeds), duration, jobs, config)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     rows = summarize(runs)
     t = ROBUSTNESS_TARGETS
     table = Table(title=(
-        f"Robustness vs simulator truth (nominal estimator; worst segment / seed; settle {t['settle_s']:g} s; "
-        f"seeds {seed}..{seed + seeds - 1})"
+        f"Robustness vs simulator truth ({'estimator as configured' if config else 'nominal estimator'}; worst segment / "
+        f"seed; settle {t['settle_s']:g} s; seeds {seed}..{seed + seeds - 1}{drive})"
     ))
     for col in COLUMNS:
         table.add_column(col, justify="left" if col in ("variant", "identifiable", "verdict") else "right", no_wrap=True)
