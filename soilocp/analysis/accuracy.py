@@ -17,7 +17,6 @@ from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.analysis.evaluation import TARGETS, SegmentResult, evaluate_records
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.simulator import simulate
-from soilocp.model.vehicle import VehicleParams
 
 DEFAULT_SCENARIOS = ("sand", "gravel", "grass", "firm", "sandy-slope", "mixed")
 
@@ -102,13 +101,10 @@ def _run_args(args):
 
 def run_matrix(scenarios=DEFAULT_SCENARIOS, modes=("excitation", "cruise"), compensation=(True, False),
                seed: int = 0, duration: Optional[float] = None, jobs: int = 2,
-               vehicle: Optional[VehicleParams] = None, config: Optional[PipelineConfig] = None) -> list[RunResult]:
+               config: Optional[PipelineConfig] = None) -> list[RunResult]:
     """``config`` (None = the defaults) is the estimator's; its vehicle and constants are also the
-    simulated robot's and soil's.  ``vehicle`` replaces the config's, e.g. a skid steer (``drive:
-    per_side``, docs/maps/skid-steer-rover.json)."""
+    simulated robot's and soil's, e.g. a skid steer (``drive: per_side``, docs/maps/skid-steer-rover.json)."""
     cfg = config or PipelineConfig()
-    if vehicle is not None:
-        cfg = cfg.model_copy(update={"vehicle": vehicle})
     jobs_list = [(s, m, c, seed, duration, cfg) for s in scenarios for m in modes for c in compensation]
     if jobs <= 1:
         return [run_one(*a) for a in jobs_list]

@@ -177,7 +177,7 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
     comp = (True, False) if compensation is None else (compensation,)
     t0 = time.perf_counter()
     results = run_matrix(scenarios or DEFAULT_SCENARIOS, modes or ("excitation", "cruise"), comp, seed, duration, jobs,
-                         config=config)
+                         config)
     table = _numbers_table(f"Accuracy vs simulator truth (worst segment; settle {TARGETS['settle_s']:g} s; seed {seed}{drive})",
                            ("scenario", "mode", "MR comp.", "coverage", "K med err", "K p90 err", "conv. start",
                             "conv. change", "OCP med err", "class acc", "statuses", "targets"))
