@@ -16,7 +16,8 @@ def _drive(refresh_every: int, torque_every: int = 1, seconds: float = 3.0, full
     """One wheel whose gross traction follows g(t) = 0.4 + 0.2 sin(2 pi t / 0.9): its speed integrates
     eq. 13 at 1 kHz and is read every ``refresh_every`` samples (held between), its torque every
     ``torque_every``; returns the served intervals and the true Fz-weighted mean gross of each."""
-    ri = RefreshIntervals(1, I_W, R_W, jerk=50.0, min_interval=0.1, max_interval=1.0, variance_floor=1e-10)
+    ri = RefreshIntervals(1, I_W, R_W, jerk=50.0, min_interval=0.1, max_interval=1.0, variance_floor=1e-10,
+                          speed_sigma=0.03)
     g = lambda t: 0.4 + 0.2 * np.sin(2 * np.pi * t / 0.9)  # noqa: E731
     torque = lambda t: R_W * FZ * g(t) + I_W * 3.0  # noqa: E731  (a constant 3 rad/s^2 spin-up)
     omega, t_fine, served, truth = 5.0, 0.0, [], []
@@ -110,7 +111,8 @@ def test_a_slow_torque_refresh_serves_eq_13_at_that_instant_from_the_readings():
     refresh the pair is eq. 13 at that instant from the readings, nothing between; not at all when the
     speed is held too (the Warthog) or the torque is read at the sample rate."""
     def run(torque_every, speed_every=1):
-        ri = RefreshIntervals(1, I_W, R_W, jerk=50.0, min_interval=0.1, max_interval=1.0, variance_floor=1e-10)
+        ri = RefreshIntervals(1, I_W, R_W, jerk=50.0, min_interval=0.1, max_interval=1.0, variance_floor=1e-10,
+                          speed_sigma=0.03)
         out, t = [], 0.0
         for k in range(300):
             t = k * DT
@@ -124,7 +126,7 @@ def test_a_slow_torque_refresh_serves_eq_13_at_that_instant_from_the_readings():
                                      np.full((1, 4), speed_every * DT),
                                      np.full((1, 4), omega_prev),
                                      np.full((1, 4), omega), np.full((1, 4), tq), np.full((1, 4), FZ),
-                                     np.full((1, 4), R_W * omega), np.full((1, 4), 0.7))
+                                     np.full((1, 4), 0.7))
             if pair.interval[0, 0] > 0:
                 out.append((pair.interval[0, 0], pair.gross[0, 0] - g, np.sqrt(pair.gross_var[0, 0])))
             elif k > 60:

@@ -326,8 +326,7 @@ class ObserverBank:
         torque_pairs = self._intervals.torque_refresh(
             sel, dt, restart, changed[:, 5:9], rd.full_rate[:, 5:9], inputs.stamp[:, None] - rd.changed_before[:, 5:9],
             rd.full_rate[:, :4], inputs.stamp[:, None] - rd.changed_before[:, :4], prev[:, :4], inputs.wheel_speed,
-            torque, fz,
-            inputs.wheel_speed * self.vehicle.wheel_radius, ground)
+            torque, fz, ground)
         intervals = merge(intervals, torque_pairs)
         return self._output(x, P, fz, rejected, reasons, age, ~np.isnan(inputs.ground_speed), latency, intervals, ws)
 

@@ -61,7 +61,7 @@ class RefreshIntervals:
     torque reading, and whether the wheel learns at refreshes only (a slow speed or a slow torque)."""
 
     def __init__(self, n_vehicles: int, wheel_inertia: float, wheel_radius: float, jerk: float,
-                 min_interval: float, max_interval: float, variance_floor: float, speed_sigma: float = 0.03):
+                 min_interval: float, max_interval: float, variance_floor: float, speed_sigma: float):
         self.inertia, self.radius, self.jerk, self.speed_sigma = wheel_inertia, wheel_radius, jerk, speed_sigma
         self.min_interval, self.max_interval, self.variance_floor = min_interval, max_interval, variance_floor
         shape = (n_vehicles, 4)
@@ -167,7 +167,7 @@ class RefreshIntervals:
     def torque_refresh(self, sel, dt: np.ndarray, restart: np.ndarray, changed: np.ndarray, full_rate: np.ndarray,
                        since: np.ndarray, speed_full_rate: np.ndarray, speed_since: np.ndarray,
                        prev_speed: np.ndarray, speed: np.ndarray, torque: np.ndarray, fz: np.ndarray,
-                       rim: np.ndarray, ground: np.ndarray) -> IntervalTraction:
+                       ground: np.ndarray) -> IntervalTraction:
         """A slow torque stream's refresh (a motor current held 0.1-1 s between readings) while the wheel
         speed is read at every sample: eq. 13 at this instant from the readings,
         g = (T - I_w omega_dot) / (R_w Fz), with omega_dot the last two speed readings' difference (1-sigma
@@ -181,8 +181,8 @@ class RefreshIntervals:
         its stream is read at the sample rate (``speed_full_rate``, a quantised encoder's repeats for
         up to 0.3 s included) or its value last changed less than ``min_interval`` before
         (``speed_since``, s); ``prev_speed`` / ``speed`` the last two speed
-        readings (rad/s), ``torque`` N m, ``fz`` N, ``rim`` the rim speed R_w omega of the reading and ``ground``
-        the ground speed at the wheel (m/s)."""
+        readings (rad/s), ``torque`` N m, ``fz`` N and ``ground`` the ground speed at the wheel (m/s).
+        ``speed_sigma`` (rad/s, the encoder's noise) is the constructor's."""
         if full_rate.all():  # the usual case: every torque is read at the sample rate
             self.torque_active[sel] = False
             return _none(changed.shape)
@@ -198,6 +198,7 @@ class RefreshIntervals:
             var = (scale * np.sqrt(2.0) * self.speed_sigma / step) ** 2 + (scale * self.jerk * step) ** 2 \
                 + self.variance_floor
         # the stream stays slow until it is read at the sample rate (or the speeds are not), or a restart
+        rim = self.radius * speed  # the pair's slip is this reading's
         active = np.where(close, True, self.torque_active[sel] & slow)
         self.torque_active[sel] = active
         zero = np.zeros(close.shape)
