@@ -1,0 +1,72 @@
+//! `soilocp._core.NormalForceSolver`: the zero-warp normal forces (eqs. 16-25, docs/method.md
+//! §2-3) of one geometry for a bank of specific forces in one call.
+
+use numpy::ndarray::{ArrayD, Axis, IxDyn};
+use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyType;
+
+use crate::normal_force::{Geometry, NormalForceMap};
+
+/// The solver of one vehicle geometry: A^+ and the load vector's coefficients prepared once.
+#[pyclass(frozen, module = "soilocp._core")]
+pub struct NormalForceSolver {
+    geometry: Geometry,
+    inner: NormalForceMap,
+}
+
+#[pymethods]
+impl NormalForceSolver {
+    #[new]
+    #[pyo3(signature = (a, b, c, d, h, mass))]
+    fn py_new(a: f64, b: f64, c: f64, d: f64, h: f64, mass: f64) -> PyResult<Self> {
+        let geometry = Geometry { a, b, c, d, h, mass };
+        let inner = NormalForceMap::new(&geometry).map_err(PyValueError::new_err)?;
+        Ok(NormalForceSolver { geometry, inner })
+    }
+
+    /// Pickle / deepcopy support (a stage travels to a worker process with its solver).
+    #[allow(clippy::type_complexity)]
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, PyType>, (f64, f64, f64, f64, f64, f64)) {
+        let g = slf.get().geometry;
+        (slf.get_type(), (g.a, g.b, g.c, g.d, g.h, g.mass))
+    }
+
+    /// F_z per wheel (N; wheels 1 LR, 2 LF, 3 RF, 4 RR) for specific forces of shape (..., 3)
+    /// in m/s^2: shape (..., 4).  ValueError if the last axis is not 3 or a value is not finite.
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        specific_force: PyReadonlyArrayDyn<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let f = specific_force.as_array();
+        let shape = f.shape();
+        if shape.last() != Some(&3) {
+            return Err(PyValueError::new_err(format!(
+                "specific_force must have shape (..., 3), got shape {shape:?}"
+            )));
+        }
+        if !f.iter().all(|v| v.is_finite()) {
+            return Err(PyValueError::new_err("specific_force must be finite"));
+        }
+        let mut out_shape = shape.to_vec();
+        *out_shape.last_mut().unwrap() = 4;
+        let mut out = ArrayD::<f64>::zeros(IxDyn(&out_shape));
+        let last = Axis(shape.len() - 1);
+        for (row_in, mut row_out) in f.lanes(last).into_iter().zip(out.lanes_mut(last)) {
+            let fz = self.inner.solve([row_in[0], row_in[1], row_in[2]]);
+            for j in 0..4 {
+                row_out[j] = fz[j];
+            }
+        }
+        Ok(out.into_pyarray(py))
+    }
+
+    /// The (3, 4) matrix M with F = f @ M (the solver is linear in the specific force).
+    #[getter]
+    fn map<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let rows: Vec<Vec<f64>> = self.inner.map.iter().map(|r| r.to_vec()).collect();
+        PyArray2::from_vec2(py, &rows).expect("3 rows of 4")
+    }
+}
