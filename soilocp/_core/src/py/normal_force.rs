@@ -52,6 +52,15 @@ impl NormalForceSolver {
         }
         let mut out_shape = shape.to_vec();
         *out_shape.last_mut().unwrap() = 4;
+        if let Some(flat) = f.as_slice() {
+            // the usual case, a C-contiguous (N, 3): one pass over the memory
+            let mut out = Vec::with_capacity(flat.len() / 3 * 4);
+            for row in flat.chunks_exact(3) {
+                out.extend_from_slice(&self.inner.solve([row[0], row[1], row[2]]));
+            }
+            let out = ArrayD::from_shape_vec(IxDyn(&out_shape), out).expect("4 per row");
+            return Ok(out.into_pyarray(py));
+        }
         let mut out = ArrayD::<f64>::zeros(IxDyn(&out_shape));
         let last = Axis(shape.len() - 1);
         for (row_in, mut row_out) in f.lanes(last).into_iter().zip(out.lanes_mut(last)) {
