@@ -18,6 +18,7 @@ ports.  The robot's router (rmw_zenohd on a robot) is a plain Zenoh router, ``so
 from __future__ import annotations
 
 import json
+import struct
 import math
 import os
 import signal
@@ -27,6 +28,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from soilocp.ingest import load_map
@@ -216,3 +218,77 @@ def test_b_sdk_subscriber_receives_and_decodes_our_topics(live_run):
         s = last[f"soilocp/{VID}/{svc}"]
         assert s["level"] == 0 and s["message"] == "running", s
     assert int(last[f"soilocp/{VID}/ros2-in"]["values"]["dropped"]) == 0
+
+
+# --- the reader's checks and the wire helpers, without sessions ------------------------------------
+def _reader(drive):
+    import io
+
+    from services.ros2.ros2_in import Ros2InService
+    from services.runtime.config import ServiceConfig
+    from services.runtime.log import JsonLog
+
+    d, _bag = drive
+    return Ros2InService(ServiceConfig(vehicle_ids=[VID]), JsonLog("ros2-in", "error", stream=io.StringIO()),
+                         tmap=load_map(d / "map.yaml"), ros2_connect=["tcp/127.0.0.1:7447"])
+
+
+def test_reader_drops_what_does_not_fit_with_its_reason(drive):
+    from services.ros2 import rmw_zenoh as rz
+
+    svc = _reader(drive)
+    ts = rz.typestore()
+    T = ts.types
+    imu = T["sensor_msgs/msg/Imu"](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000, nanosec=0),
+                                        frame_id="imu"),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+        angular_velocity=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.1), angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=9.81),
+        linear_acceleration_covariance=np.zeros(9))
+    cdr = bytes(ts.serialize_cdr(imu, "sensor_msgs/msg/Imu"))
+    att = rz.attachment(1, 5, bytes(16))
+    key = rz.topic_key(0, "/imu/data", "sensor_msgs/msg/Imu")
+    svc._decode(key, cdr, att, 1)  # good
+    svc._decode(key.replace("Imu_", "Temperature_"), cdr, att, 2)  # another type on the topic
+    svc._decode(key.rsplit("/", 1)[0] + "/RIHS01_" + "0" * 64, cdr, att, 3)  # another definition
+    svc._decode(key.rsplit("/", 1)[0] + "/" + rz.NO_TYPE_HASH, cdr, att, 4)  # Humble: accepted
+    svc._decode(key, cdr, None, 5)  # not from rmw_zenoh
+    svc._decode(key, cdr, b"\x01\x02", 6)  # a broken attachment
+    svc._decode(key, b"\x00\x01\x00\x00\x07", att, 7)  # truncated CDR
+    reasons = svc.aligner.dropped()
+    assert len(svc.aligner.readers["imu"].rows) == 2  # the good one and the Humble one
+    assert any(k.startswith("/imu/data: type: sensor_msgs::msg::dds_::Temperature_ cannot feed imu") for k in reasons)
+    assert any(k.startswith("/imu/data: type_hash: RIHS01_000") and "definition differs" in k for k in reasons)
+    assert "/imu/data: attachment: missing (not an rmw_zenoh publisher)" in reasons
+    assert any(k.startswith("/imu/data: attachment: not an rmw_zenoh attachment") for k in reasons)
+    assert any(k.startswith("/imu/data: payload: CDR does not decode as sensor_msgs/msg/Imu: ") for k in reasons)
+    assert sum(reasons.values()) == 5
+
+
+def test_wire_helpers_follow_design_md():
+    from services.ros2 import rmw_zenoh as rz
+
+    # design.md's own example: chatter, std_msgs/String, domain 0
+    assert rz.topic_key(0, "/chatter", "std_msgs/msg/String") == (
+        "0/chatter/std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18")
+    assert rz.split_topic_key("2/robot1/chatter/std_msgs::msg::dds_::String_/RIHS01_x") == (
+        2, "/robot1/chatter", "std_msgs::msg::dds_::String_", "RIHS01_x")
+    assert rz.ros_type_name("sensor_msgs::msg::dds_::Imu_") == "sensor_msgs/msg/Imu"
+    assert rz.endpoint_token(2, "8b20", 0, 10, "MP", "/", "talker", "/chatter", "std_msgs/msg/String",
+                             qos="::,7:,:,:,,") == (
+        "@ros2_lv/2/8b20/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/"
+        "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,")
+    raw = rz.attachment(7, 1_700_000_000_123_456_789, bytes(range(16)))
+    assert raw == struct.pack("<qqB", 7, 1_700_000_000_123_456_789, 16) + bytes(range(16))
+    assert rz.parse_attachment(raw) == (7, 1_700_000_000_123_456_789, bytes(range(16)))
+    for bad in ("imu", "/imu/", "//imu", "/imu/1data", "/imu data"):
+        with pytest.raises(ValueError, match="topic"):
+            rz.check_topic(bad)
+
+
+def test_run_refuses_the_robots_router_on_its_own_port(drive):
+    d, _bag = drive
+    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "run", "--ros2-in", str(d / "map.yaml")],
+                       capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert r.returncode == 2 and "give --listen another endpoint" in r.stderr, r.stderr
