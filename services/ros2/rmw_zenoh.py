@@ -50,6 +50,7 @@ def estimate_msg_definition() -> str:
     return resources.files("services.ros2").joinpath("soilocp_msgs/msg/SoilEstimate.msg").read_text(encoding="utf-8")
 
 
+@lru_cache(maxsize=None)
 def type_hash(ros_type: str) -> str:
     """RIHS01 hash of ``ros_type`` (REP-2016), e.g. ``RIHS01_df668c74...`` for std_msgs/msg/String."""
     return typestore().hash_rihs01(ros_type)
