@@ -169,11 +169,21 @@ def live_run(drive):
         procs.close()
 
 
+def _reader_report(robot) -> dict:
+    """What the reader counted (its health, relayed in /diagnostics): for a failure's message."""
+    for arr in reversed(robot.get("diagnostics", [])):
+        for s in arr:
+            if s["name"].endswith("/ros2-in"):
+                return {k: v for k, v in s["values"].items()}
+    return {"published": robot.get("published"), "estimates": len(robot.get("estimates", []))}
+
+
 def test_a_live_ros2_input_gives_the_bag_imports_estimates(live_run):
     offline, live = live_run["offline"], live_run["live"]
     assert live_run["run_rc"] == 130, live_run["run_out"][-3000:]  # stopped by the signal, nothing died
     assert len(offline) == len(live_run["imported"]) >= int(DRIVE_S * 100)  # every tick of the drive
-    assert [r["seq"] for r in live] == [r["seq"] for r in offline], (len(live), len(offline))
+    why = _reader_report(live_run["robot"])
+    assert [r["seq"] for r in live] == [r["seq"] for r in offline], (len(live), len(offline), why)
     assert any(r["soil_strength"] is not None for r in offline)
     for lv, off in zip(live, offline):
         assert set(lv) == set(off)
@@ -210,14 +220,23 @@ def test_b_sdk_subscriber_receives_and_decodes_our_topics(live_run):
     assert [a["seq"] for a in att] == list(range(1, len(att) + 1))
     assert len({a["gid"] for a in att}) == 1 and abs(att[-1]["ts"] / 1e9 - time.time()) < 300
     assert {a["encoding"] for a in att} == {"application/cdr"}
-    # diagnostics: the estimate and each service, with robot_localization's levels
-    last = {s["name"]: s for s in robot["diagnostics"][-1]}
-    e = last[f"soilocp/{VID}/estimate"]
-    assert e["level"] in (0, 1, 3) and e["values"]["seq"].isdigit()
-    for svc in ("gateway", "observer", "ocp", "ros2-in"):
-        s = last[f"soilocp/{VID}/{svc}"]
-        assert s["level"] == 0 and s["message"] == "running", s
-    assert int(last[f"soilocp/{VID}/ros2-in"]["values"]["dropped"]) == 0
+    # diagnostics: the estimate and each service, with robot_localization's levels; during the
+    # drive every service is running (OK), the estimate is OK or WARN (status: reason)
+    names = [f"soilocp/{VID}/{svc}" for svc in ("gateway", "normal-force", "observer", "soil-strength", "ocp", "ros2-in")]
+    arrays = [{s["name"]: s for s in arr} for arr in robot["diagnostics"]]
+    driving = [a for a in arrays if all(n in a and a[n]["level"] == 0 for n in names)
+               and a[f"soilocp/{VID}/estimate"]["level"] in (0, 1)]
+    assert driving, [{n: (s["level"], s["message"]) for n, s in a.items()} for a in arrays]
+    for a in driving:
+        assert all(a[n]["message"] == "running" for n in names)
+        e = a[f"soilocp/{VID}/estimate"]
+        assert e["values"]["seq"].isdigit() and e["message"].split(":")[0] in ("ok", "uncertain", "holding",
+                                                                             "no_estimate", "not_observable")
+    # after the drive the OCP service says its input stopped: STALE, not OK
+    for a in arrays:
+        s = a[f"soilocp/{VID}/ocp"]
+        assert s["level"] == (3 if s["values"]["state"] == "stale" else 0), s
+    assert int(arrays[-1][f"soilocp/{VID}/ros2-in"]["values"]["dropped"]) == 0
 
 
 # --- the reader's checks and the wire helpers, without sessions ------------------------------------

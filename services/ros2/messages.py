@@ -84,7 +84,8 @@ def service_status(h: ServiceHealth, age_s: float, stale_after_s: float):
     msg = ("no health report for %.1f s" % age_s) if stale else h.state
     vals = [("state", h.state), ("received", h.received), ("published", h.published), ("rejected", h.rejected),
             ("dropped", h.dropped), ("errors", h.errors), ("failure_rate", f"{h.failure_rate:.3f}"),
-            ("queue_depth", h.queue_depth), ("last_seq", h.last_seq), ("pid", h.pid), ("host", h.host)]
+            ("queue_depth", h.queue_depth), ("last_seq", h.last_seq), ("pid", h.pid), ("host", h.host),
+            *sorted(h.detail.items())]  # e.g. the ROS 2 reader's messages, drops and skips by reason
     return _status(level, f"soilocp/{h.vehicle_id}/{h.service}", msg, h.vehicle_id, vals)
 
 

@@ -218,6 +218,17 @@ class RosNode:
         self._closables.clear()
 
 
+def close_ros(node: Optional[RosNode], session) -> None:
+    """Undeclare a node's tokens and endpoints, then close its session (either may be None)."""
+    if node is not None:
+        node.close()
+    if session is not None:
+        try:
+            session.close()
+        except Exception:  # closing twice, or a session the runtime already tore down
+            pass
+
+
 def ros_session_config(connect: list[str], *, connect_timeout_ms: Optional[int] = None):
     """A client session on the robot's Zenoh router (rmw_zenohd): explicit endpoints, no multicast
     scouting (rmw_zenoh's own default), no TLS (a robot's router listens on plain tcp/)."""

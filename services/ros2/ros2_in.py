@@ -27,7 +27,10 @@ from soilocp.ingest.mapfile import TopicMap
 from soilocp.ingest.rosbag_import import EXPECTED_TYPES
 
 NODE_NAME = "soilocp_ros2_in"
-IDLE_FLUSH_S = 1.0  # wall s without any message: write the held ticks up to where every stream is fresh
+#: wall s without any message: write the held ticks up to where every stream is fresh.  A flush
+#: decides ticks that a message still in flight could have changed, so it waits well past any
+#: pause of a live publisher (the estimates are already flagged stale after the OCP's timeout)
+IDLE_FLUSH_S = 2.0
 RAW_QUEUE = 20_000  # messages waiting for the decoder (~1 min of three topics at 100/50/20 Hz)
 
 
@@ -153,11 +156,5 @@ class Ros2InService(VehicleService):
         return {"detail": detail, "dropped": self.counters[vehicle_id].dropped + self.raw_dropped}
 
     def close(self) -> None:
-        if self.node is not None:
-            self.node.close()
-        if self.ros_session is not None:
-            try:
-                self.ros_session.close()
-            except Exception:
-                pass
+        rmw_zenoh.close_ros(self.node, self.ros_session)
         super().close()

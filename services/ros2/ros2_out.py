@@ -93,11 +93,5 @@ class Ros2OutService(Service):
             self.log.warning("diagnostics_publish_failed", error=f"{type(exc).__name__}: {exc}"[:300])
 
     def close(self) -> None:
-        if self.node is not None:
-            self.node.close()
-        if self.ros_session is not None:
-            try:
-                self.ros_session.close()
-            except Exception:
-                pass
+        rmw_zenoh.close_ros(self.node, self.ros_session)
         super().close()
