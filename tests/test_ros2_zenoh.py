@@ -311,3 +311,28 @@ def test_run_refuses_the_robots_router_on_its_own_port(drive):
     r = subprocess.run([sys.executable, "-m", "soilocp_cli", "run", "--ros2-in", str(d / "map.yaml")],
                        capture_output=True, text=True, timeout=60, cwd=REPO)
     assert r.returncode == 2 and "give --listen another endpoint" in r.stderr, r.stderr
+
+
+def test_reader_names_the_robots_topics_when_a_mapped_one_stays_silent(drive, tmp_path):
+    """The robot publishes /imu, the map says /imu/data: the reader's log lists what the graph has."""
+    from services.ros2 import rmw_zenoh as rz
+
+    d, _bag = drive
+    ep = endpoint(free_port())
+    procs = Procs(tmp_path / "logs")
+    try:
+        procs.spawn("router", ["router", "--listen", ep])
+        with client(ep) as s:
+            tok = s.liveliness().declare_token(rz.endpoint_token(0, str(s.zid()), 0, 1, "MP", "/", "imu_driver", "/imu",
+                                                                 "sensor_msgs/msg/Imu"))
+            procs.spawn("ros2-in", ["service", "ros2-in", "--vehicle-id", VID, "--connect", ep, "--ros2-connect", ep,
+                                    "--ros2-map", str(d / "map.yaml"), "--wait-timeout", "0"])
+            line = wait_for(lambda: next((x for x in procs.log_text("ros2-in").splitlines()
+                                          if "ros2_topics_silent" in x), None), 40)
+            tok.undeclare()
+        assert line, procs.log_text("ros2-in")[-2000:]
+        rec = json.loads(line)
+        assert rec["silent"] == ["/imu/data", "/joint_states", "/odom"]
+        assert rec["published_in_graph"] == {"/imu": ["sensor_msgs/msg/Imu"]}
+    finally:
+        procs.close()

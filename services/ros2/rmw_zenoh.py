@@ -118,6 +118,19 @@ def endpoint_token(domain_id: int, zid: str, node_id: int, entity_id: int, kind:
             f"{mangle(check_topic(topic))}/{dds_type_name(ros_type)}/{hash_ or type_hash(ros_type)}/{qos}")
 
 
+def graph_publishers(session, domain_id: int, timeout_s: float = 1.0) -> dict[str, set[str]]:
+    """topic -> ROS types of the publishers in the graph (their ``MP`` tokens), as ``ros2 topic list -t``
+    would show them; for telling a user which topics exist when a mapped one stays silent."""
+    out: dict[str, set[str]] = {}
+    for reply in session.liveliness().get(f"{ADMIN_SPACE}/{int(domain_id)}/**", timeout=timeout_s):
+        if reply.ok is None:
+            continue
+        parts = str(reply.ok.key_expr).split("/")
+        if len(parts) >= 12 and parts[5] == "MP":
+            out.setdefault(parts[9].replace("%", "/"), set()).add(ros_type_name(parts[10]) or parts[10])
+    return out
+
+
 def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
     """rmw_zenoh's attachment: int64 sequence number, int64 source time (ns), GID with its length."""
     from zenoh.ext import Int64, z_serialize

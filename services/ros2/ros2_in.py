@@ -32,6 +32,7 @@ NODE_NAME = "soilocp_ros2_in"
 #: pause of a live publisher (the estimates are already flagged stale after the OCP's timeout)
 IDLE_FLUSH_S = 2.0
 RAW_QUEUE = 20_000  # messages waiting for the decoder (~1 min of three topics at 100/50/20 Hz)
+SILENT_REPORT_S = 5.0  # a mapped topic silent this long after subscribing: say which topics the robot has
 
 
 class Ros2InService(VehicleService):
@@ -51,6 +52,7 @@ class Ros2InService(VehicleService):
         self.idle_flush_s = float(idle_flush_s)
         self._raw: queue.Queue = queue.Queue(maxsize=RAW_QUEUE)
         self.messages = Counter()  # per topic: received
+        self.silent_topics: list[str] = []
         self.raw_dropped = 0
         self.ros_session = None
         self.node: Optional[rmw_zenoh.RosNode] = None
@@ -122,6 +124,7 @@ class Ros2InService(VehicleService):
         if not self._open():
             return
         last_msg = time.monotonic()
+        next_report = last_msg + SILENT_REPORT_S
         flushed = True
         while not self.stop_event.is_set():
             try:
@@ -137,6 +140,9 @@ class Ros2InService(VehicleService):
                 except queue.Empty:
                     item = None
             now = time.monotonic()
+            if now >= next_report:
+                next_report = now + 6 * SILENT_REPORT_S
+                self._report_silent_topics()
             if n:
                 last_msg, flushed = now, False
                 out = self.aligner.ready()
@@ -147,9 +153,24 @@ class Ros2InService(VehicleService):
             for s in out:
                 yield s.model_dump_json().encode(), s.stamp
 
+    def _report_silent_topics(self) -> None:
+        """A mapped topic that never delivered: log the robot's published topics (a wrong name,
+        domain or type is the usual cause), and keep the list in the health detail."""
+        silent = [t for t in self.aligner.topics.values() if not self.messages.get(t)]
+        if not silent:
+            return
+        try:
+            graph = rmw_zenoh.graph_publishers(self.ros_session, self.domain_id)
+        except Exception as exc:  # a failed graph query must not stop the reader
+            graph = {"<graph query failed>": {f"{type(exc).__name__}: {exc}"[:200]}}
+        self.silent_topics = silent
+        self.log.warning("ros2_topics_silent", silent=silent, domain_id=self.domain_id,
+                         published_in_graph={t: sorted(v) for t, v in sorted(graph.items())})
+
     def health_extra(self, vehicle_id: str) -> dict:
         al = self.aligner
         detail = {**self.counters[vehicle_id].detail, "samples": al.samples, "raw_dropped": self.raw_dropped,
+                  "silent_topics": ",".join(t for t in self.silent_topics if not self.messages.get(t)),
                   **{f"messages {t}": n for t, n in self.messages.items()},
                   **{f"dropped {k}": n for k, n in al.dropped().items()},
                   **{f"skipped {k}": n for k, n in al.skipped.items()}}
