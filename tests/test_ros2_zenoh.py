@@ -98,16 +98,23 @@ def drive(tmp_path_factory):
     samples = [s for s, _ in simulate("sand", duration=DRIVE_S, seed=3, vehicle_id=VID)]
     bag = write_bag(samples, d / "bag")  # /imu/data 100 Hz, /joint_states 50 Hz (shuffled joints), /odom 20 Hz
     (d / "map.yaml").write_text(MAP)
-    return d, bag
+    return d, bag, samples
 
 
-def test_live_aligner_gives_the_bag_imports_samples(drive, tmp_path):
-    """The bag's messages, one at a time in log order, give the import's samples byte for byte."""
+@pytest.mark.parametrize("variant", ["odometry", "twist_stamped+imu_without_orientation"])
+def test_live_aligner_gives_the_bag_imports_samples(drive, tmp_path, variant):
+    """The bag's messages, one at a time in log order, give the import's samples byte for byte
+    (also with TwistStamped ground speed and the attitude from gyro + accelerometer)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    d, bag = drive
+    d, bag, samples = drive
     tmap = load_map(d / "map.yaml")
+    if variant != "odometry":
+        bag = write_bag(samples, tmp_path / "bag", types={"/odom": "geometry_msgs/msg/TwistStamped"})
+        (tmp_path / "map.yaml").write_text(MAP.replace("imu: {topic: /imu/data}",
+                                                       "imu: {topic: /imu/data, attitude: estimate}"))
+        tmap = load_map(tmp_path / "map.yaml")
     import_bag(bag, tmap, tmp_path / "imp.jsonl", progress=False)
     al = LiveAligner(tmap)
     out = []
@@ -129,7 +136,7 @@ def test_live_aligner_gives_the_bag_imports_samples(drive, tmp_path):
 
 @pytest.fixture(scope="module")
 def live_run(drive):
-    d, bag = drive
+    d, bag, _samples = drive
     offline_log, offline_est = d / "imported.jsonl", d / "estimates.jsonl"
     ros_port, soil_port = free_port(), free_port()
     ros_ep, soil_ep = endpoint(ros_port), endpoint(soil_port)
@@ -247,7 +254,7 @@ def _reader(drive):
     from services.runtime.config import ServiceConfig
     from services.runtime.log import JsonLog
 
-    d, _bag = drive
+    d, _bag, _samples = drive
     return Ros2InService(ServiceConfig(vehicle_ids=[VID]), JsonLog("ros2-in", "error", stream=io.StringIO()),
                          tmap=load_map(d / "map.yaml"), ros2_connect=["tcp/127.0.0.1:7447"])
 
@@ -307,7 +314,7 @@ def test_wire_helpers_follow_design_md():
 
 
 def test_run_refuses_the_robots_router_on_its_own_port(drive):
-    d, _bag = drive
+    d, _bag, _samples = drive
     r = subprocess.run([sys.executable, "-m", "soilocp_cli", "run", "--ros2-in", str(d / "map.yaml")],
                        capture_output=True, text=True, timeout=60, cwd=REPO)
     assert r.returncode == 2 and "give --listen another endpoint" in r.stderr, r.stderr
@@ -317,7 +324,7 @@ def test_reader_names_the_robots_topics_when_a_mapped_one_stays_silent(drive, tm
     """The robot publishes /imu, the map says /imu/data: the reader's log lists what the graph has."""
     from services.ros2 import rmw_zenoh as rz
 
-    d, _bag = drive
+    d, _bag, _samples = drive
     ep = endpoint(free_port())
     procs = Procs(tmp_path / "logs")
     try:
