@@ -343,3 +343,20 @@ def test_reader_names_the_robots_topics_when_a_mapped_one_stays_silent(drive, tm
         assert rec["published_in_graph"] == {"/imu": ["sensor_msgs/msg/Imu"]}
     finally:
         procs.close()
+
+
+def test_live_aligner_stays_bounded_while_a_stream_never_starts(drive):
+    """/odom never arrives: nothing is written (no clock yet) and the IMU buffer stays ~max_age + lag long."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    d, bag, _samples = drive
+    al = LiveAligner(load_map(d / "map.yaml"))
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as r:
+        for c, t, raw in r.messages():
+            if c.topic != "/odom":
+                al.add(al.role_of(c.topic), r.deserialize(raw, c.msgtype), c.msgtype, t)
+                assert al.ready() == []
+    assert al.flush() == []
+    imu = al._buf["imu"]
+    assert (imu.stamps[-1] - imu.stamps[0]) / 1e9 <= 0.05 + 0.5 and len(imu.stamps) <= 56

@@ -17,7 +17,8 @@ the last instant every stream is still fresh.
 
 Messages are expected in stamp order per topic (one publisher, one link).  A message stamped
 before the previous one of its topic is dropped with the bag import's reason ("goes backwards");
-the bag import can instead keep the longest in-order run because it sees the whole log.
+the bag import can instead keep the longest in-order run because it sees the whole log.  A clock
+that jumps back for good (a simulation restarted) therefore needs a new reader.
 """
 
 from __future__ import annotations
@@ -133,6 +134,15 @@ class LiveAligner:
                                          s.max_age)
         if self._start is None and all(b is not None for b in self._buf.values()):
             self._start = max(int(b.stamps[0]) for b in self._buf.values())
+        elif self._start is None:
+            # a stream that never starts must not make the others grow without bound: before the
+            # clock starts, a stream's values older than its max age + lag cannot be fresh at any tick
+            for k, b in self._buf.items():
+                if b is not None:
+                    keep = b.stamps >= b.stamps[-1] - int(round(self.roles[k].max_age * NS)) - self.lag_ns
+                    if not keep[0]:
+                        self._buf[k] = Stream(b.name, b.stamps[keep], {f: v[keep] for f, v in b.values.items()},
+                                              b.max_age)
 
     def _write_until(self, bound: int) -> list[SensorSample]:
         n = tick_count(self._start, bound, self.tmap.rate_hz) - self._next
