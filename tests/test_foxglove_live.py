@@ -48,6 +48,8 @@ async def _connect(port: int, deadline: float):
 async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
     """Connect, subscribe to every channel advertised (also later ones), collect decoded messages;
     ``on_first_sensors()`` is called once the first sensor message has arrived."""
+    from websockets.exceptions import ConnectionClosed
+
     ws = await _connect(port, deadline)
     out: dict = {"subprotocol": ws.subprotocol, "server_info": None, "channels": {}, "messages": defaultdict(list)}
     subs: dict[int, int] = {}
@@ -55,7 +57,7 @@ async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
         while time.monotonic() < deadline:
             try:
                 frame = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
-            except asyncio.TimeoutError:
+            except (asyncio.TimeoutError, ConnectionClosed):  # the asserts below say what is missing
                 break
             if isinstance(frame, str):
                 op = json.loads(frame)
