@@ -23,6 +23,8 @@ from typing import Any, Optional
 import click
 
 from schemas import keys
+from schemas.pipeline import OcpEstimate
+from schemas.sensor import parse_sensor_line
 from services.runtime.log import JsonLog
 from services.runtime.worker import BoundedWorker
 from soilocp.export.channels import (
@@ -143,12 +145,8 @@ class FoxgloveLive:
             return
         try:
             if kind == "ocp":
-                from schemas.pipeline import OcpEstimate
-
                 data = OcpEstimate.model_validate_json(payload).model_dump()
             else:
-                from schemas.sensor import parse_sensor_line
-
                 data = parse_sensor_line(payload).model_dump()
             if data["vehicle_id"] != vid:
                 raise ValueError(f"vehicle_id {data['vehicle_id']!r} on the key of vehicle {vid!r}")
@@ -195,6 +193,8 @@ def run_foxglove(connect: list[str], vehicle_ids: list[str], host: str, port: in
 
     log = log or JsonLog("foxglove")
     live = FoxgloveLive(host, port, vehicle_ids, log=log)  # ValueError: port taken, bad id
+    click.echo(f"soilocp foxglove: {live.url} (in Foxglove: Open connection, Foxglove WebSocket; "
+               "layout docs/foxglove/soilocp-layout.json)", err=True)
     stop = threading.Event()
     install_stop_handlers(stop, log)
     watch_parent(stop, log)
