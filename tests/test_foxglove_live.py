@@ -26,8 +26,8 @@ pytestmark = [pytest.mark.timeout(240), pytest.mark.e2e]
 VID = "rover1"
 # the MCAP export's four channels (tests/test_mcap_out.py) and the sensors
 EXPECTED = {f"/soilocp/{VID}/{s}" for s in ("soil_strength", "ocp", "wheels", "status", "sensors")}
-# foxglove-sdk >= 0.26 speaks the Foxglove WebSocket protocol under this name (the same protocol as
-# foxglove.websocket.v1, which it refuses at the handshake)
+# foxglove-sdk (0.30) speaks the Foxglove WebSocket protocol under this name: the protocol of
+# foxglove.websocket.v1, renamed; the old name is refused at the handshake (HTTP 400)
 SUBPROTOCOL = "foxglove.sdk.v1"
 WANT_PER_CHANNEL = 300  # 3 s of the 100 Hz drive
 WANT_WITH_K = 20  # messages that carry a K estimate
@@ -186,3 +186,21 @@ def test_run_foxglove_and_fleet_foxglove_serve_the_zenoh_stream(tmp_path):
         assert sum(m["K"] is not None for m in soil) >= WANT_WITH_K
     # no fake: the fleet server's sensor stream is the vehicle's, bad payloads excluded
     assert all(m["vehicle_id"] == VID for _t, m in fleet["messages"][f"/soilocp/{VID}/sensors"])
+
+
+def test_a_taken_port_or_a_bad_address_is_a_clear_error_before_anything_starts(tmp_path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        for args, says in (
+            (["foxglove", "--port", str(port), "--connect", endpoint(free_port())], f"127.0.0.1:{port}"),
+            (["run", "--synthetic", "sand", "--foxglove", f"127.0.0.1:{port}", "--listen", endpoint(free_port()),
+              "--log-dir", str(tmp_path / "run")], "Address already in use"),
+            (["run", "--synthetic", "sand", "--foxglove", "localhost:http"], "expected HOST:PORT"),
+        ):
+            r = subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=60)
+            assert r.returncode == 2 and says in r.stderr + r.stdout, r.stderr + r.stdout
+    assert not (tmp_path / "run" / "router.log").exists()  # nothing was started
