@@ -4,6 +4,7 @@ are real (issue 29)."""
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -44,6 +45,21 @@ def test_mkdocs_strict_build_passes(site):
     for f in ("maps/ros2-robot.yaml", "maps/skid-steer-rover.json", "bench-final-2026-11-28.json",
               "bench-final-2026-11-28.txt", "dashboard.png"):
         assert (out / f).read_bytes() == (ROOT / "docs" / f).read_bytes(), f
+
+
+def test_pages_render_their_markdown(site):
+    """Python-Markdown, unlike GitHub, wants 4-space indents inside list items and a blank line
+    before a list: otherwise a list or a bold run shows up as raw '- ' / '**' text on the site."""
+    proc, out = site
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    raw = re.compile(r"^\s*- |\*\*|\]\(", re.M)
+    for page in sorted(out.rglob("index.html")):
+        html_text = page.read_text()
+        article = html_text[html_text.find("<article"):html_text.find("</article>")]
+        article = re.sub(r"<pre.*?</pre>|<code>.*?</code>", "", article, flags=re.S)
+        text = html.unescape(re.sub(r"<[^>]+>", "", article))
+        leftovers = [text[max(0, m.start() - 60):m.end() + 30] for m in raw.finditer(text)]
+        assert not leftovers, f"{page.relative_to(out)}: Markdown left unrendered: {leftovers[:3]}"
 
 
 def test_every_docs_page_is_in_the_nav():
