@@ -198,6 +198,9 @@ def router_cmd(config_path, listen, connect) -> None:
 @click.option("--control", metavar="CONTROLLER",
               help="Close the loop: run the controller service with this policy (ocp_traction, ocp_efficiency, "
                    "fixed_<slip>, speed); the synthetic vehicle follows its slip set-points.")
+@click.option("--foxglove", "foxglove_addr", is_flag=False, flag_value="127.0.0.1:8765", metavar="[HOST:PORT]",
+              help="Serve the vehicle's estimates and sensors to Foxglove on a WebSocket (default 127.0.0.1:8765; "
+                   "port 0: any free one).")
 @click.option("--ros2", "ros2_out", is_flag=True,
               help="Also publish the estimates as ROS 2 topics (rmw_zenoh) on the robot's router: "
                    "/soilocp/<vid>/estimate and /diagnostics (docs/ros2.md).")
@@ -209,7 +212,7 @@ def router_cmd(config_path, listen, connect) -> None:
                    "(then give --listen another port for soilocp's own router).")
 @click.option("--ros2-domain", type=int, help="ROS domain id for --ros2 / --ros2-in; default $ROS_DOMAIN_ID or 0.")
 def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
-            plain, control, ros2_out, ros2_in, ros2_connect, ros2_domain) -> None:
+            plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect, ros2_domain) -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
@@ -249,6 +252,10 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
             raise ValueError(f"--duration {duration!r}: must be > 0 s")
         if speed < 0:
             raise ValueError(f"--speed {speed!r}: must be >= 0")
+        if foxglove_addr is not None:
+            from services.io.foxglove_live import parse_address
+
+            parse_address(foxglove_addr)
     except ValueError as exc:
         _fatal("soilocp run", str(exc))
     if map_path is not None:
@@ -257,9 +264,13 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
         _fatal("soilocp run", f"--replay {replay}: a directory (ROS 2 bag?) needs --map MAP.yaml")
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
-                      seed=seed, log_dir=log_dir, plain=plain, control=control, ros2_out=ros2_out, ros2_in=ros2_in,
-                      ros2_connect=ros2_eps, ros2_domain=ros2_domain)
-    sys.exit(run_system(opts))
+                      seed=seed, log_dir=log_dir, plain=plain, control=control, foxglove=foxglove_addr,
+                      ros2_out=ros2_out, ros2_in=ros2_in, ros2_connect=ros2_eps, ros2_domain=ros2_domain)
+    try:
+        code = run_system(opts)
+    except ValueError as exc:  # the Foxglove port is taken: nothing was started
+        _fatal("soilocp run", str(exc))
+    sys.exit(code)
 
 
 def _ros2_endpoints(ros2_connect, listen) -> list[str]:

@@ -52,6 +52,7 @@ class RunOptions:
     plain: bool = False
     startup_timeout_s: float = 90.0
     control: Optional[str] = None  # closed loop: the controller service's policy, the vehicle follows it
+    foxglove: Optional[str] = None  # HOST:PORT of a Foxglove WebSocket server serving the vehicle's channels
     ros2_out: bool = False  # also publish the estimates as ROS 2 topics (ros2-out service)
     ros2_in: Optional[str] = None  # map file: the sensors come from the robot's ROS 2 topics (ros2-in service)
     ros2_connect: Optional[list[str]] = None  # the robot's Zenoh router (rmw_zenohd)
@@ -87,6 +88,22 @@ def run_system(opts: RunOptions) -> int:
         interrupted["sig"] = signum
         stop.set()
 
+    fox = None
+    if opts.foxglove is not None:
+        # inside the run, on the run's own session: subscribed before the source starts (nothing
+        # missed, no token to wait for), and no seventh interpreter on a small computer; its Zenoh
+        # callbacks only enqueue, so the live table's subscribers are not held up
+        from services.io.foxglove_live import FoxgloveLive, parse_address
+
+        host, port = parse_address(opts.foxglove)
+        # its warnings (invalid samples, drops) go to a log of their own, not across the live table
+        fox_log = open(log_dir / "foxglove.log", "a", encoding="utf-8")
+        try:
+            fox = FoxgloveLive(host, port, [opts.vehicle_id], log=JsonLog("foxglove", stream=fox_log))
+        except ValueError:  # the port is taken: fail before any process starts
+            fox_log.close()
+            raise
+        console.print(f"soilocp run: Foxglove WebSocket server on {fox.url} (layout: docs/foxglove/soilocp-layout.json)")
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     group = ProcessGroup(log_dir)
     monitor = Monitor(opts.vehicle_id, opts.stale_timeout)
@@ -126,6 +143,8 @@ def run_system(opts: RunOptions) -> int:
         session = _open_monitor_session(connect, group, stop, failures)
         if session is not None:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
+            if fox is not None:
+                fox.attach(session)
             # wait until every pipeline service holds its token (or one dies)
             missing = wait_alive(session, [opts.vehicle_id], want_alive, opts.startup_timeout_s, stop=stop,
                                  dead=group.dead, interval=0.1)
@@ -168,6 +187,9 @@ def run_system(opts: RunOptions) -> int:
         snap = monitor.snapshot()  # final counters: the services' "stopping" health reports
         snap.update({k: snap_running[k] for k in ("est", "age", "stale", "rate", "alive")})
         monitor.detach()
+        if fox is not None:
+            fox.close()
+            fox.log.stream.close()
         if session is not None:
             session.close()
         for s, h in old.items():
@@ -178,6 +200,8 @@ def run_system(opts: RunOptions) -> int:
     if snap["codes"]:
         console.print("rejections by code: " + ", ".join(f"{k}={v}" for k, v in sorted(snap["codes"].items())))
     console.print(f"OCP records received: {snap['count']}; logs in {log_dir}")
+    if fox is not None:
+        console.print("Foxglove: " + ", ".join(f"{k} {v}" for k, v in fox.counts.items()))
     if failures:
         for f in failures:
             console.print(f"[red]FAILED[/red]: {f}")
