@@ -1,14 +1,8 @@
 """Estimates as MCAP (JSON messages with JSON schemas): Foxglove opens them beside the robot's bag.
 
-Per vehicle four channels, log time = the sensor sample's stamp (Unix ns when the source had
-Unix header stamps, so the estimates line up with the bag in Foxglove's timeline):
-
-* ``/soilocp/<vid>/soil_strength``: K, its 1-sigma, K - std and K + std (plot all three), class,
-  class probability, status, reason;
-* ``/soilocp/<vid>/ocp``: mu_T, S_T, S_E, tractive efficiency at S_E, status;
-* ``/soilocp/<vid>/wheels``: per-wheel slip (eq. 1) and net traction mu (eq. 6), wheels 1..4
-  (LR, LF, RF, RR), plus their names;
-* ``/soilocp/<vid>/status``: status and reason only (for a state-transitions panel).
+Per vehicle the four estimate channels of :mod:`soilocp.export.channels` (soil strength K with its
+band, OCPs, per-wheel slip and traction, status), log time = the sensor sample's stamp; the live
+Foxglove server (``soilocp foxglove``) serves the same channels, built by the same functions.
 
 :class:`EstimateMcapWriter` writes one file; :class:`RotatingMcapWriter` keeps a bounded total
 size by starting a new file at ``max_bytes`` and deleting the oldest beyond ``max_files``.
@@ -16,61 +10,10 @@ size by starting a new file at ``max_bytes`` and deleting the oldest beyond ``ma
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import IO, Optional, Union
 
-NS = 1_000_000_000
-WHEEL_NAMES = ["1 left-rear", "2 left-front", "3 right-front", "4 right-rear"]
-
-_NUM = {"type": ["number", "null"]}
-_STR = {"type": ["string", "null"]}
-_BASE = {"vehicle_id": {"type": "string"}, "seq": {"type": "integer"}, "stamp": {"type": "number", "description": "s"}}
-
-
-def _schema(title: str, props: dict, description: str) -> dict:
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, "description": description,
-            "type": "object", "properties": {**_BASE, **props}, "required": list(_BASE) + list(props)}
-
-
-#: channel suffix -> (schema name, JSON schema)
-CHANNEL_SCHEMAS: dict[str, tuple[str, dict]] = {
-    "soil_strength": ("soilocp.SoilStrength", _schema("SoilStrength", {
-        "K": _NUM, "K_std": _NUM, "K_minus_std": _NUM, "K_plus_std": _NUM,
-        "soil_class": _STR, "soil_class_confidence": _NUM, "status": {"type": "string"}, "reason": {"type": "string"},
-    }, "Soil strength K (null: no estimate) with its 1-sigma band")),
-    "ocp": ("soilocp.Ocp", _schema("Ocp", {
-        "mu_T": _NUM, "S_T": _NUM, "S_E": _NUM, "te_at_S_E": _NUM, "status": {"type": "string"},
-    }, "Optimal control parameters: max traction mu_T (eq. 8), its slip S_T (eq. 7), best-efficiency slip S_E (eq. 10)")),
-    "wheels": ("soilocp.Wheels", _schema("Wheels", {
-        "slip": {"type": "array", "items": {"type": "number"}, "minItems": 4, "maxItems": 4},
-        "traction": {"type": "array", "items": {"type": "number"}, "minItems": 4, "maxItems": 4},
-        "wheel_names": {"type": "array", "items": {"type": "string"}},
-    }, "Per-wheel slip (eq. 1) and net traction coefficient mu (eq. 6), wheels 1..4")),
-    "status": ("soilocp.Status", _schema("Status", {"status": {"type": "string"}, "reason": {"type": "string"}},
-                                         "Estimate status: ok | uncertain | holding | no_estimate | stale")),
-}
-
-
-def split_estimate(rec: dict) -> dict[str, dict]:
-    """One OCP record (schemas.pipeline.OcpEstimate as a dict) -> the message of each channel."""
-    base = {"vehicle_id": rec["vehicle_id"], "seq": rec["seq"], "stamp": rec["stamp"]}
-    k, sd = rec.get("soil_strength"), rec.get("soil_strength_std")
-    band = k is not None and sd is not None
-    status, reason = rec.get("status", ""), rec.get("reason", "")
-    return {
-        "soil_strength": {**base, "K": k, "K_std": sd, "K_minus_std": k - sd if band else None,
-                          "K_plus_std": k + sd if band else None, "soil_class": rec.get("soil_class"),
-                          "soil_class_confidence": rec.get("soil_class_confidence"), "status": status, "reason": reason},
-        "ocp": {**base, "mu_T": rec.get("mu_T"), "S_T": rec.get("S_T"), "S_E": rec.get("S_E"),
-                "te_at_S_E": rec.get("te_at_S_E"), "status": status},
-        "wheels": {**base, "slip": list(rec["slip"]), "traction": list(rec["mu"]), "wheel_names": WHEEL_NAMES},
-        "status": {**base, "status": status, "reason": reason},
-    }
-
-
-def topic(vehicle_id: str, suffix: str) -> str:
-    return f"/soilocp/{vehicle_id}/{suffix}"
+from soilocp.export.channels import CHANNEL_SCHEMAS, encode, log_time_ns, split_estimate, topic
 
 
 class EstimateMcapWriter:
@@ -95,15 +38,15 @@ class EstimateMcapWriter:
             name, schema = CHANNEL_SCHEMAS[suffix]
             sid = self._schemas.get(name)
             if sid is None:
-                sid = self._schemas[name] = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
+                sid = self._schemas[name] = self._w.register_schema(name, "jsonschema", encode(schema))
             cid = self._channels[t] = self._w.register_channel(t, "json", sid)
         return cid
 
     def write(self, rec: dict) -> None:
-        t = int(round(float(rec["stamp"]) * NS))
+        t = log_time_ns(rec["stamp"])
         for suffix, msg in split_estimate(rec).items():
             self._w.add_message(self._channel(rec["vehicle_id"], suffix), log_time=t, publish_time=t,
-                                data=json.dumps(msg).encode(), sequence=int(rec["seq"]) & 0xFFFFFFFF)
+                                data=encode(msg), sequence=int(rec["seq"]) & 0xFFFFFFFF)
         self.messages += 1
 
     def tell(self) -> int:
