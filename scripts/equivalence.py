@@ -7,6 +7,7 @@ every output record is compared field by field.
     scripts/equivalence.py                       # main vs the working tree, full drives
     scripts/equivalence.py --ref HEAD~3 --quick  # 8 s drives: a fast check while porting
     scripts/equivalence.py --ref-python /tmp/main/.venv/bin/python   # reuse an env of the ref
+    scripts/equivalence.py --keep /tmp/eq --max-minutes 60            # reuse inputs; a time budget
 
 The drives:
 
@@ -38,6 +39,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -81,6 +83,7 @@ class Result:
     summary_equal: bool = True
     examples: list[str] = field(default_factory=list)
     error: str = ""
+    skipped: bool = False
 
     @property
     def equal(self) -> bool:
@@ -132,6 +135,7 @@ for v in list_variants():
     print(v.name)
 """
 
+COUNT_VARIANTS = "from soilocp.sim.variants import list_variants; print(len(list_variants()))"
 LIST_SCENARIOS = "from soilocp.sim.scenarios import list_scenarios\nfor s in list_scenarios(): print(s.name)"
 
 
@@ -155,9 +159,14 @@ def make_drives(py: str, cwd: Path, inputs: Path, duration: float | None, jobs: 
         sims.append(([py, "-m", "soilocp_cli", "simulate", "--scenario", name, "--mode", "excitation", "--seed", "0",
                       "--vehicle", skid, *dur, "--out", str(log)], []))
         drives.append(Drive(f"skid {name}", "skid-steer", log, ["--vehicle", skid]))
+    # a --keep directory's logs are reused (the same ref simulates the same drives)
+    todo = [cmd for cmd, _ in sims if not Path(cmd[-1]).is_file()]
+    have_variants = len(list(inputs.glob("variant-*.jsonl"))) == int(run([py, "-c", COUNT_VARIANTS], cwd=cwd, env=env).stdout)
     with ThreadPoolExecutor(max(1, jobs)) as ex:
-        futures = [ex.submit(run, cmd, cwd, 3600, env) for cmd, _ in sims]
-        futures.append(ex.submit(run, [py, "-c", SIMULATE_VARIANTS, str(inputs), str(duration or "none")], cwd, 3600, env))
+        futures = [ex.submit(run, cmd, cwd, 3600, env) for cmd in todo]
+        if not have_variants:
+            futures.append(ex.submit(run, [py, "-c", SIMULATE_VARIANTS, str(inputs), str(duration or "none")], cwd, 3600,
+                                     env))
         for f in futures:
             f.result()
     for log in sorted(inputs.glob("variant-*.jsonl")):
@@ -232,15 +241,20 @@ def compare(drive: Drive, ref_out: Path, new_out: Path, ref_summary: str, new_su
     return res
 
 
-def one_drive(drive: Drive, ref_py: str, ref_cwd: Path, outdir: Path) -> Result:
+def one_drive(drive: Drive, ref_py: str, ref_cwd: Path, outdir: Path, deadline: float = math.inf) -> Result:
+    if time.time() > deadline:
+        return Result(drive, error="not run: --max-minutes reached", skipped=True)
     stem = drive.name.replace(" ", "_")
     ref_out, new_out = outdir / f"{stem}.ref.jsonl", outdir / f"{stem}.new.jsonl"
     try:
         ref_summary = estimate(ref_py, ref_cwd, drive, ref_out)
         new_summary = estimate(sys.executable, REPO, drive, new_out)
-        return compare(drive, ref_out, new_out, ref_summary, new_summary)
+        res = compare(drive, ref_out, new_out, ref_summary, new_summary)
     except Exception as exc:  # one failing drive is a row of the report, not the end of it
-        return Result(drive, error=str(exc)[-400:])
+        res = Result(drive, error=str(exc)[-400:])
+    print(f"equivalence: {drive.group} / {drive.name}: {'equal' if res.equal else 'NOT equal'} "
+          f"({res.numbers} numbers, max rel {res.max_rel:.1e})", file=sys.stderr, flush=True)
+    return res
 
 
 def report(results: list[Result], ref: str, elapsed: float) -> str:
@@ -252,21 +266,22 @@ def report(results: list[Result], ref: str, elapsed: float) -> str:
         recs = f"{r.records[0]}" if r.records[0] == r.records[1] else f"{r.records[0]} vs {r.records[1]}"
         rows.append((r.drive.group, r.drive.name, recs, str(r.numbers), str(r.strings), worst, str(r.over),
                      str(r.text_diffs + r.shape_diffs), "same" if r.summary_equal else "DIFFERS",
-                     "equal" if r.equal else ("ERROR" if r.error else "DIFFERENT")))
+                     "equal" if r.equal else ("not run" if r.skipped else "ERROR" if r.error else "DIFFERENT")))
     widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
     fmt = lambda row: "| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |"  # noqa: E731
     lines = [fmt(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *map(fmt, rows)]
     n_eq = sum(r.equal for r in results)
+    n_skip = sum(r.skipped for r in results)
     tot_num = sum(r.numbers for r in results)
     tot_txt = sum(r.strings for r in results)
     worst = max(results, key=lambda r: r.max_rel)
     lines.append("")
-    lines.append(f"{ref} vs working tree: {n_eq}/{len(results)} drives equal; {tot_num} numbers and {tot_txt} "
+    lines.append(f"{ref} vs working tree: {n_eq}/{len(results)} drives equal ({n_skip} not run); {tot_num} numbers and {tot_txt} "
                  f"statuses/reasons/classes/flags compared; largest relative difference {worst.max_rel:.1e} "
                  f"({worst.drive.name}, {worst.max_rel_field or '-'}); tolerance {REL:g} relative + {ABS:g}; "
                  f"{elapsed:.0f} s")
     for r in results:
-        for ex in ([r.error] if r.error else []) + r.examples:
+        for ex in ([r.error] if r.error and not r.skipped else []) + r.examples:
             lines.append(f"  {r.drive.name}: {ex}")
     return "\n".join(lines)
 
@@ -280,7 +295,10 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2, help="drives estimated at once (default 2)")
     ap.add_argument("--keep", help="keep the inputs and outputs in this directory")
     ap.add_argument("--only", help="only drives whose group or name contains this text")
+    ap.add_argument("--max-minutes", type=float, help="start no drive after this many minutes (the rest are "
+                                                      "reported as not run, and the exit status is 1)")
     args = ap.parse_args()
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so that `finally` removes the worktree
     t0 = time.time()
     tmp = Path(tempfile.mkdtemp(prefix="soilocp-equivalence-"))
     wt = None
@@ -295,8 +313,15 @@ def main() -> int:
         if args.only:
             drives = [d for d in drives if args.only in d.group or args.only in d.name]
         print(f"equivalence: {len(drives)} drives through both checkouts", file=sys.stderr)
+        deadline = t0 + 60 * args.max_minutes if args.max_minutes else math.inf
+        # the groups interleaved, so that a time budget still samples every group
+        by_group: dict[str, list[Drive]] = {}
+        for d in drives:
+            by_group.setdefault(d.group, []).append(d)
+        order = [d for i in range(len(drives)) for g in by_group.values() if i < len(g) for d in [g[i]]]
         with ThreadPoolExecutor(max(1, args.jobs)) as ex:
-            results = list(ex.map(lambda d: one_drive(d, ref_py, wt, work / "outputs"), drives))
+            done = dict(zip(map(id, order), ex.map(lambda d: one_drive(d, ref_py, wt, work / "outputs", deadline), order)))
+        results = [done[id(d)] for d in drives]
         print(report(results, args.ref, time.time() - t0))
         return 0 if all(r.equal for r in results) else 1
     finally:

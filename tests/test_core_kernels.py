@@ -147,3 +147,16 @@ def test_constants_kernel_follows_model_copy():
     printed = c.model_copy(update={"bridge_slip": 0.0})
     assert c.kernel.__repr__() != printed.kernel.__repr__()
     assert net_traction_with_derivatives(0.001, 50.0, printed)[0] == pytest.approx(ref.curve("net", 0.001, 50.0, printed)[0], rel=REL)
+
+
+def test_the_core_imports_nothing_above_it():
+    """The core is below the library that calls it: importing it loads no soilocp module but the
+    package itself (and numpy only when an array crosses)."""
+    import json
+    import subprocess
+    import sys
+
+    code = "import sys, json, soilocp._core\nprint(json.dumps(sorted(m for m in sys.modules if m.startswith('soilocp'))))"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == ["soilocp", "soilocp._core"]
