@@ -100,8 +100,9 @@ lengths = st.floats(0.05, 2.0)
     st.lists(st.tuples(st.floats(-30, 30), st.floats(-30, 30), st.floats(-5.0, 40.0)), min_size=1, max_size=6),
 )
 def test_normal_forces_equal_the_pseudo_inverse_reference(v, fs):
-    """The core's (A + u u^T)^-1 - u u^T against numpy's SVD pseudo-inverse; the allowance is
-    relative to the size of the load vector's terms (a lifted wheel's force can be near 0)."""
+    """The core's product with the prepared matrix against the reference's A^+ B (numpy's SVD
+    pseudo-inverse applied to the load vector); the allowance is relative to the size of the load
+    vector's terms (a lifted wheel's force can be near 0)."""
     f = np.array(fs)
     want = ref.normal_forces(v, f)
     scale = v.mass * np.abs(f).sum(axis=1, keepdims=True) * (v.a + v.b + v.c + v.d + v.h) / min(v.a + v.b, v.c + v.d)
@@ -136,8 +137,10 @@ def test_core_refuses_what_the_checks_name():
         ocp_mod.ocp_arrays(np.array([50.0, -1.0]))
     with pytest.raises(ValueError, match="model can evaluate"):
         ocp_mod.ocp_arrays(np.array([1e-320]))
-    with pytest.raises(ValueError, match="geometry h"):
-        _core.NormalForceSolver(0.27, 0.23, 0.25, 0.25, 0.0, 60.0)
+    with pytest.raises(ValueError, match="finite"):
+        _core.NormalForceSolver(np.full((3, 4), np.nan))
+    with pytest.raises(ValueError, match=r"\(3, 4\)"):
+        _core.NormalForceSolver(np.zeros((4, 3)))
 
 
 def test_constants_kernel_follows_model_copy():

@@ -1,5 +1,7 @@
-"""Normal forces on the four wheels from the measured specific force, eqs. 16-25 (solved in the
-compiled core, ``soilocp/_core/src/normal_force.rs``; the checks and eq. 20 live here).
+"""Normal forces on the four wheels from the measured specific force, eqs. 16-25.  The per-vehicle
+matrix is prepared here (A of eq. 23, B's coefficients of eq. 24, LAPACK's SVD pseudo-inverse, once
+per vehicle); the per-sample product F = f M runs in the compiled core
+(``soilocp/_core/src/normal_force.rs``), for one vehicle or a bank.
 
 Corrections (docs/method.md §2-3):
 
@@ -49,10 +51,25 @@ def _geometry(v: VehicleParams) -> tuple[float, float, float, float, float]:
     return vals["a"], vals["b"], vals["c"], vals["d"], vals["h"]
 
 
+def system_matrix(vehicle: VehicleParams) -> np.ndarray:
+    """A of eq. 23 (symmetric, rank 3: A (1,-1,1,-1)^T = 0)."""
+    a, b, c, d, _ = _geometry(vehicle)
+    L, W = a + b, c + d
+    return np.array([[0.0, L, L + W, W], [L, 0.0, W, L + W], [L + W, W, 0.0, L], [W, L + W, L, 0.0]])
+
+
+def load_coefficients(vehicle: VehicleParams) -> np.ndarray:
+    """C (3 x 4) with B = f C: eq. 24's load vector, (V_dot + g) replaced by the measured specific
+    force f (docs/method.md §3)."""
+    a, b, c, d, h = _geometry(vehicle)
+    return vehicle.mass * np.array([[-h, h, h, -h], [h, h, -h, -h], [a + c, b + c, b + d, a + d]])
+
+
 @lru_cache(maxsize=64)
 def _core_solver(vehicle: VehicleParams) -> _core.NormalForceSolver:
-    a, b, c, d, h = _geometry(vehicle)
-    return _core.NormalForceSolver(a, b, c, d, h, vehicle.mass)
+    """The core's solver of one vehicle: F = f M with M = C (A^+)^T (eqs. 21-25, zero warp).  The
+    pseudo-inverse is LAPACK's (numpy's SVD), computed once per vehicle."""
+    return _core.NormalForceSolver(load_coefficients(vehicle) @ np.linalg.pinv(system_matrix(vehicle)).T)
 
 
 def normal_forces(vehicle: VehicleParams, specific_force) -> np.ndarray:
@@ -67,9 +84,9 @@ def normal_forces(vehicle: VehicleParams, specific_force) -> np.ndarray:
 
 
 class NormalForceSolver:
-    """:func:`normal_forces` for one vehicle, A^+ and the load-vector coefficients prepared once
-    (in the core, ``soilocp/_core/src/normal_force.rs``): one call per step for one specific force
-    (3,) or a bank (N, 3)."""
+    """:func:`normal_forces` for one vehicle, its matrix prepared once; the product runs in the core
+    (``soilocp/_core/src/normal_force.rs``): one call per step for one specific force (3,) or a
+    bank (N, 3)."""
 
     def __init__(self, vehicle: VehicleParams):
         self._core = _core_solver(vehicle)

@@ -3,125 +3,28 @@
 //! warp mode), so eq. 25's A^{-1} does not exist and the solution is the zero-warp, minimum-norm
 //! F = A^+ B; and only the specific force f = V_dot + g enters B (eq. 24), not acceleration and
 //! gravity (eq. 20) separately.  Wheels 1 LR, 2 LF, 3 RF, 4 RR.
+//!
+//! B is linear in f (B = f C, C of eq. 24 being 3 x 4), so F = f M with M = C (A^+)^T, one matrix
+//! per vehicle.  M is prepared once per vehicle by the caller (`soilocp.model.normal_force`, with
+//! LAPACK's SVD pseudo-inverse); the per-sample product is here.
 
-/// The vehicle's CoM geometry (m) and mass (kg).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Geometry {
-    pub a: f64,
-    pub b: f64,
-    pub c: f64,
-    pub d: f64,
-    pub h: f64,
-    pub mass: f64,
-}
-
-/// A of eq. 23 (symmetric, rank 3).
-pub fn system_matrix(g: &Geometry) -> [[f64; 4]; 4] {
-    let (l, w) = (g.a + g.b, g.c + g.d);
-    [
-        [0.0, l, l + w, w],
-        [l, 0.0, w, l + w],
-        [l + w, w, 0.0, l],
-        [w, l + w, l, 0.0],
-    ]
-}
-
-/// B of eq. 24 as a linear map of the specific force: B = f @ coeff, coeff (3 x 4).
-fn load_coefficients(g: &Geometry) -> [[f64; 4]; 3] {
-    let (m, h) = (g.mass, g.h);
-    [
-        [-h * m, h * m, h * m, -h * m],
-        [h * m, h * m, -h * m, -h * m],
-        [(g.a + g.c) * m, (g.b + g.c) * m, (g.b + g.d) * m, (g.a + g.d) * m],
-    ]
-}
-
-/// Inverse of a non-singular 4x4 matrix (Gauss-Jordan, partial pivoting).
-fn invert4(m: [[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
-    let mut a = m;
-    let mut inv = [[0.0; 4]; 4];
-    for (i, row) in inv.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for col in 0..4 {
-        let pivot = (col..4).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if a[pivot][col].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(col, pivot);
-        inv.swap(col, pivot);
-        let p = a[col][col];
-        for j in 0..4 {
-            a[col][j] /= p;
-            inv[col][j] /= p;
-        }
-        for r in 0..4 {
-            if r != col {
-                let f = a[r][col];
-                for j in 0..4 {
-                    a[r][j] -= f * a[col][j];
-                    inv[r][j] -= f * inv[col][j];
-                }
-            }
-        }
-    }
-    Some(inv)
-}
-
-/// The Moore-Penrose pseudo-inverse of eq. 23's A.  A is symmetric with null space spanned by
-/// u = (1,-1,1,-1)/2, so A + u u^T is invertible and A^+ = (A + u u^T)^{-1} - u u^T.
-pub fn pseudo_inverse(g: &Geometry) -> Option<[[f64; 4]; 4]> {
-    const U: [f64; 4] = [0.5, -0.5, 0.5, -0.5];
-    let mut m = system_matrix(g);
-    for i in 0..4 {
-        for j in 0..4 {
-            m[i][j] += U[i] * U[j];
-        }
-    }
-    let mut p = invert4(m)?;
-    for i in 0..4 {
-        for j in 0..4 {
-            p[i][j] -= U[i] * U[j];
-        }
-    }
-    Some(p)
-}
-
-/// The zero-warp solution of eqs. 21-25 for one geometry, prepared once: F = f @ map with
-/// map = coeff @ (A^+)^T (B = f @ coeff, eq. 24 with the measured specific force).
+/// The zero-warp solution of eqs. 21-25 for one vehicle: F = f M (M = C (A^+)^T, 3 x 4).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NormalForceMap {
     pub map: [[f64; 4]; 3],
 }
 
 impl NormalForceMap {
-    /// `Err` names the first geometry length that is not finite and > 0.
-    pub fn new(g: &Geometry) -> Result<Self, String> {
-        for (name, v) in [
-            ("a", g.a),
-            ("b", g.b),
-            ("c", g.c),
-            ("d", g.d),
-            ("h", g.h),
-            ("mass", g.mass),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("vehicle geometry {name} must be a finite value > 0, got {v}"));
-            }
-        }
-        let p = pseudo_inverse(g).ok_or("vehicle geometry gives a degenerate eq. 23 system")?;
-        let coeff = load_coefficients(g);
-        let mut map = [[0.0; 4]; 3];
-        for i in 0..3 {
-            for j in 0..4 {
-                map[i][j] = (0..4).map(|l| coeff[i][l] * p[j][l]).sum();
-            }
+    /// `Err` if an entry of M is not finite.
+    pub fn new(map: [[f64; 4]; 3]) -> Result<Self, String> {
+        if map.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(format!("the normal-force map must be finite, got {map:?}"));
         }
         Ok(NormalForceMap { map })
     }
 
-    /// F_z per wheel (N) for one specific force (m/s^2).  Satisfies A F = B, sum F = m f_z and
-    /// F1 + F3 = F2 + F4; a negative wheel (lift-off) is returned, not clipped.
+    /// F_z per wheel (N) for one specific force (m/s^2): sum F = m f_z and F1 + F3 = F2 + F4; a
+    /// negative wheel (lift-off) is returned, not clipped.  Summed in the order f_x, f_y, f_z.
     #[inline]
     pub fn solve(&self, f: [f64; 3]) -> [f64; 4] {
         let m = &self.map;
@@ -133,15 +36,28 @@ impl NormalForceMap {
 mod tests {
     use super::*;
 
-    /// The default rover of soilocp/data/rover.json (docs/method.md §2's "default vehicle").
-    const ROVER: Geometry = Geometry {
-        a: 0.27,
-        b: 0.23,
-        c: 0.25,
-        d: 0.25,
-        h: 0.3,
-        mass: 60.0,
-    };
+    /// M of the default rover (soilocp/data/rover.json: m 60 kg, a 0.27, b 0.23, c = d 0.25,
+    /// h 0.3 m), as `soilocp.model.normal_force` prepares it (numpy's pinv), to the last digit.
+    const ROVER: [[f64; 4]; 3] = [
+        [
+            18.000000000000007,
+            -18.00000000000001,
+            -17.999999999999986,
+            17.999999999999993,
+        ],
+        [
+            -18.000000000000007,
+            -18.000000000000004,
+            17.999999999999996,
+            18.000000000000007,
+        ],
+        [
+            13.800000000000004,
+            16.20000000000001,
+            16.199999999999996,
+            13.80000000000001,
+        ],
+    ];
 
     fn close4(got: [f64; 4], want: [f64; 4], tol: f64) {
         for j in 0..4 {
@@ -156,7 +72,7 @@ mod tests {
     /// docs/method.md §2, the test-vector table (default vehicle).
     #[test]
     fn zero_warp_vectors_of_method_md() {
-        let nf = NormalForceMap::new(&ROVER).unwrap();
+        let nf = NormalForceMap::new(ROVER).unwrap();
         close4(
             nf.solve([0.0, 0.0, 9.80665]),
             [135.3318, 158.8677, 158.8677, 135.3318],
@@ -174,12 +90,12 @@ mod tests {
         );
     }
 
-    /// docs/method.md §3: a 10 degree climb at rest, f = (1.7029, 0, 9.6577).
+    /// docs/method.md §3: a 10 degree climb at rest.
     #[test]
     fn climb_at_rest_of_method_md() {
         let th: f64 = -(10f64.to_radians());
         let g = 9.80665;
-        let nf = NormalForceMap::new(&ROVER).unwrap();
+        let nf = NormalForceMap::new(ROVER).unwrap();
         close4(
             nf.solve([-g * th.sin(), 0.0, g * th.cos()]),
             [163.9281, 125.8018, 125.8018, 163.9281],
@@ -187,39 +103,27 @@ mod tests {
         );
     }
 
-    /// A F = B, sum F = m f_z and no warp, for the default and another geometry.
+    /// sum F = m f_z, the moments of eqs. 16-19 and no warp (docs/method.md §2).
     #[test]
     fn statics_hold_and_warp_is_zero() {
-        let other = Geometry {
-            a: 0.3,
-            b: 0.2,
-            c: 0.22,
-            d: 0.28,
-            h: 0.4,
-            mass: 60.0,
-        };
-        for geo in [ROVER, other] {
-            let nf = NormalForceMap::new(&geo).unwrap();
-            let a = system_matrix(&geo);
-            let coeff = load_coefficients(&geo);
-            for f in [[0.0, 0.0, 9.80665], [2.0, -1.0, 9.0], [-3.0, 2.5, 11.0]] {
-                let fz = nf.solve(f);
-                for i in 0..4 {
-                    let af: f64 = (0..4).map(|j| a[i][j] * fz[j]).sum();
-                    let b: f64 = (0..3).map(|l| f[l] * coeff[l][i]).sum();
-                    assert!((af - b).abs() < 1e-10, "A F = B row {i}: {af} vs {b}");
-                }
-                assert!((fz.iter().sum::<f64>() - geo.mass * f[2]).abs() < 1e-10);
-                assert!((fz[0] + fz[2] - fz[1] - fz[3]).abs() < 1e-10);
-            }
+        let nf = NormalForceMap::new(ROVER).unwrap();
+        let (m, h, a, b, c, d) = (60.0, 0.3, 0.27, 0.23, 0.25, 0.25);
+        for f in [[0.0, 0.0, 9.80665], [2.0, -1.0, 9.0], [-3.0, 2.5, 11.0]] {
+            let fz = nf.solve(f);
+            assert!((fz.iter().sum::<f64>() - m * f[2]).abs() < 1e-10);
+            assert!((fz[0] + fz[2] - fz[1] - fz[3]).abs() < 1e-10);
+            // pitch: sum x_i F_i = -h m f_x with x = (-a, b, b, -a); roll: sum y_i F_i = -h m f_y
+            let pitch = -a * fz[0] + b * fz[1] + b * fz[2] - a * fz[3];
+            let roll = c * fz[0] + c * fz[1] - d * fz[2] - d * fz[3];
+            assert!((pitch + h * m * f[0]).abs() < 1e-10, "pitch moment {pitch}");
+            assert!((roll + h * m * f[1]).abs() < 1e-10, "roll moment {roll}");
         }
     }
 
     #[test]
-    fn bad_geometry_is_named() {
-        let err = NormalForceMap::new(&Geometry { h: 0.0, ..ROVER }).unwrap_err();
-        assert!(err.contains("geometry h"), "{err}");
-        let err = NormalForceMap::new(&Geometry { a: f64::NAN, ..ROVER }).unwrap_err();
-        assert!(err.contains("geometry a"), "{err}");
+    fn a_non_finite_map_is_refused() {
+        let mut bad = ROVER;
+        bad[1][2] = f64::NAN;
+        assert!(NormalForceMap::new(bad).unwrap_err().contains("finite"));
     }
 }

@@ -1,36 +1,39 @@
 //! `soilocp._core.NormalForceSolver`: the zero-warp normal forces (eqs. 16-25, docs/method.md
-//! §2-3) of one geometry for a bank of specific forces in one call.
+//! §2-3) of one vehicle for a bank of specific forces in one call.
 
 use numpy::ndarray::{ArrayD, Axis, IxDyn};
-use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
+use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
-use crate::normal_force::{Geometry, NormalForceMap};
+use crate::normal_force::NormalForceMap;
 
-/// The solver of one vehicle geometry: A^+ and the load vector's coefficients prepared once.
+/// The solver of one vehicle: F = f M, M (3 x 4) prepared by the caller once per vehicle.
 #[pyclass(frozen, module = "soilocp._core")]
 pub struct NormalForceSolver {
-    geometry: Geometry,
     inner: NormalForceMap,
 }
 
 #[pymethods]
 impl NormalForceSolver {
     #[new]
-    #[pyo3(signature = (a, b, c, d, h, mass))]
-    fn py_new(a: f64, b: f64, c: f64, d: f64, h: f64, mass: f64) -> PyResult<Self> {
-        let geometry = Geometry { a, b, c, d, h, mass };
-        let inner = NormalForceMap::new(&geometry).map_err(PyValueError::new_err)?;
-        Ok(NormalForceSolver { geometry, inner })
+    fn py_new(map: PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
+        let m = map.as_array();
+        if m.shape() != [3, 4] {
+            return Err(PyValueError::new_err(format!(
+                "map must have shape (3, 4), got {:?}",
+                m.shape()
+            )));
+        }
+        let rows: [[f64; 4]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m[[i, j]]));
+        let inner = NormalForceMap::new(rows).map_err(PyValueError::new_err)?;
+        Ok(NormalForceSolver { inner })
     }
 
     /// Pickle / deepcopy support (a stage travels to a worker process with its solver).
-    #[allow(clippy::type_complexity)]
-    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, PyType>, (f64, f64, f64, f64, f64, f64)) {
-        let g = slf.get().geometry;
-        (slf.get_type(), (g.a, g.b, g.c, g.d, g.h, g.mass))
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, PyType>, (Bound<'py, PyArray2<f64>>,)) {
+        (slf.get_type(), (Self::map(slf.get(), slf.py()),))
     }
 
     /// F_z per wheel (N; wheels 1 LR, 2 LF, 3 RF, 4 RR) for specific forces of shape (..., 3)
@@ -72,7 +75,7 @@ impl NormalForceSolver {
         Ok(out.into_pyarray(py))
     }
 
-    /// The (3, 4) matrix M with F = f @ M (the solver is linear in the specific force).
+    /// The (3, 4) matrix M with F = f @ M.
     #[getter]
     fn map<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         let rows: Vec<Vec<f64>> = self.inner.map.iter().map(|r| r.to_vec()).collect();
