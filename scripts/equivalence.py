@@ -214,7 +214,7 @@ def _walk(a, b, path: str, res: Result, line: int) -> None:
         diff = abs(a - b)
         scale = max(abs(a), abs(b))
         rel = diff / scale if scale > 0 else math.inf
-        if rel > res.max_rel and diff > ABS:
+        if rel > res.max_rel:
             res.max_rel, res.max_rel_field = rel, name
         if not diff <= rel_tol * scale + ABS:
             res.over += 1
