@@ -11,6 +11,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.position import EstimatePlace, GeoPosition, MapPosition
 from schemas.sensor import VehicleId
 
 PIPELINE_SCHEMA_VERSION = 1
@@ -106,6 +107,11 @@ class ObserverOutput(_Message):
     reset_reason: str = Field(
         default="", description="start | time_gap | stamp_backwards | non_finite_state | state_out_of_physics ('' if no reset)"
     )
+    # the sample's position, passed on so that the soil estimate can say where it was made (docs/map.md)
+    position: Optional[MapPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                            description="The sample's local-frame position (optional)")
+    geo: Optional[GeoPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                       description="The sample's WGS84 position (optional)")
 
 
 class SoilEstimate(_Message):
@@ -123,6 +129,10 @@ class SoilEstimate(_Message):
     last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
+    where: Optional[EstimatePlace] = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="Contact patches of the wheels that informed this estimate (absent without a position or "
+        "without an informing wheel): what the fleet soil map fuses (docs/map.md)")
 
 
 class OcpEstimate(_Message):

@@ -27,6 +27,7 @@ from soilocp.model.files import read_json
 from soilocp.model.normal_force import NormalForceSolver
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from soilocp.map.place import estimate_place
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
 from soilocp.estimation.soil_config import SoilConfig, SoilState
@@ -193,7 +194,10 @@ class ObserverStage:
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
         out = self.bank.step(None, observer_inputs([sample], [forces.normal_force]))  # N = 1: every vehicle
-        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+        msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+        if sample.position is not None or sample.geo is not None:  # for the soil estimate's place (docs/map.md)
+            msg = msg.model_copy(update={"position": sample.position, "geo": sample.geo})
+        return msg
 
 
 @dataclass
@@ -342,7 +346,10 @@ class SoilStage:
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])
-        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+        msg = soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+        if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
+            msg = msg.model_copy(update={"where": estimate_place(self.cfg.vehicle, obs.position, obs.geo, st.used)})
+        return msg
 
 
 def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:

@@ -19,6 +19,7 @@ from soilocp.model.normal_force import STANDARD_GRAVITY, gravity_from_attitude, 
 from soilocp.model.ocp import ocp_from_soil_strength
 from soilocp.sim.scenarios import Scenario
 from soilocp.sim.controller import SweepController
+from soilocp.sim.field import true_position
 from soilocp.sim.sensor_models import SensorSuite, per_side_readings
 from soilocp.sim.truth import TruthRecord
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
@@ -60,7 +61,7 @@ class RoverDrive:
     """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
 
     def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par,
-                 torque_command=None, drawbar_load=None):
+                 torque_command=None, drawbar_load=None, start=None):
         self.sc, self.duration, self.rate, self.mode = sc, duration, rate, mode
         self.v, self.c, self.ctl, self.par, self.vehicle_id = vehicle, constants, ctl, par, vehicle_id
         self.interval = 1.0 / rate
@@ -102,6 +103,10 @@ class RoverDrive:
         self.held_torque: list[float] | None = None  # external torque command over this interval
         self.load = 0.0  # drawbar draft force over this interval, N
         self.drawbar_work = 0.0  # work done against the draft, J (not in the truth record's balance)
+        # true planar position of the CoM (soilocp.sim.field.StartPose; docs/map.md)
+        self.start = start
+        self.px, self.py = (start.x, start.y) if start is not None else (0.0, 0.0)
+        self.heading0 = start.heading if start is not None else 0.0
         self._terrain()
         self.f_used = self._specific_force()
         self.fz = self._fz(self.f_used)
@@ -319,6 +324,9 @@ class RoverDrive:
         # as on the real wheel (the right-Riemann sum h * w_new read it (1 - 1/n_sub) of the true lag)
         self.wheel_angle = [a + 0.5 * h * (wi + wo) for a, wi, wo in zip(self.wheel_angle, w, w0)]
         self.dist += h * V
+        hm = self.heading0 + self.heading + 0.5 * h * r  # midpoint heading of the sub-step
+        self.px += h * V * math.cos(hm)
+        self.py += h * V * math.sin(hm)
         self.heading += h * r
         self.t = t_new
 
@@ -354,6 +362,8 @@ class RoverDrive:
             pitch=self.pitch,
             distance=self.dist,
             heading=self.heading,
+            x=self.px,
+            y=self.py,
             yaw_rate=self.r,
             slip=tup(s),
             mu=tup(mu),
@@ -385,6 +395,8 @@ class RoverDrive:
         )
         if v.drive == "per_side":
             read = per_side_readings(read)
+        if self.start is not None:  # true positions in the samples (a perfect odometry / GNSS)
+            read.update(true_position(self.start, self.px, self.py, self.heading0 + self.heading))
         sample = SensorSample(vehicle_id=self.vehicle_id, seq=seq, stamp=stamp, **read)
         return sample, truth
 
