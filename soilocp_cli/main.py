@@ -15,6 +15,7 @@ from services import commands as services_commands
 from services.bench import run as bench_commands
 from services.fleet import commands as fleet_commands
 from services.io import record as record_commands
+from services.map import commands as map_commands
 from services.security import commands as certs_commands
 from soilocp import __version__
 from soilocp.commands import control, io, offline, physics, sim
@@ -30,6 +31,7 @@ AREAS = (
     bench_commands,  # bench
     record_commands,  # record
     certs_commands,  # certs
+    map_commands,  # map (query, export); the service is `soilocp service map`
 )
 
 
