@@ -62,8 +62,10 @@ class MapStore:
     url: str
     _param = "?"
 
-    def __init__(self, cells: CellConfig, fusion: FusionConfig):
-        self.cell_config, self.fusion = cells, fusion
+    def __init__(self, cells: Optional[CellConfig], fusion: FusionConfig):
+        # no cell config: a reader (soilocp map query/export) that takes the grid the store was built with
+        self._adopt = cells is None
+        self.cell_config, self.fusion = cells or CellConfig(), fusion
         self._local = threading.local()
 
     # --- dialect ---------------------------------------------------------------------------------
@@ -101,6 +103,11 @@ class MapStore:
         want = {"cell_size": f"{self.cell_config.cell_size:g}", "h3_resolution": str(self.cell_config.h3_resolution)}
         cur.execute("SELECT key, value FROM meta")
         have = dict(cur.fetchall())
+        if self._adopt and have:
+            self.cell_config = CellConfig(cell_size=float(have.get("cell_size", want["cell_size"])),
+                                          h3_resolution=int(have.get("h3_resolution", want["h3_resolution"])))
+            want = {"cell_size": f"{self.cell_config.cell_size:g}",
+                    "h3_resolution": str(self.cell_config.h3_resolution)}
         for k, v in want.items():
             if k in have and have[k] != v:
                 c.rollback()
@@ -200,7 +207,7 @@ class MapStore:
 class SqliteStore(MapStore):
     """The embedded default: one SQLite file, WAL, synchronous=FULL."""
 
-    def __init__(self, path: str, cells: CellConfig, fusion: FusionConfig):
+    def __init__(self, path: str, cells: Optional[CellConfig], fusion: FusionConfig):
         super().__init__(cells, fusion)
         self.path = os.path.abspath(path)
         self.url = f"sqlite:{self.path}"
@@ -226,7 +233,7 @@ class PostgresStore(MapStore):
 
     _param = "%s"
 
-    def __init__(self, url: str, cells: CellConfig, fusion: FusionConfig):
+    def __init__(self, url: str, cells: Optional[CellConfig], fusion: FusionConfig):
         super().__init__(cells, fusion)
         self.url = url
         self._init_schema(
@@ -289,8 +296,9 @@ def _redact(url: str) -> str:
 
 
 def open_store(url: str, cells: Optional[CellConfig] = None, fusion: Optional[FusionConfig] = None) -> MapStore:
-    """``sqlite:PATH`` (or a bare path) -> :class:`SqliteStore`; ``postgresql://...`` -> :class:`PostgresStore`."""
-    cells, fusion = cells or CellConfig(), fusion or FusionConfig()
+    """``sqlite:PATH`` (or a bare path) -> :class:`SqliteStore`; ``postgresql://...`` -> :class:`PostgresStore`.
+    Without ``cells`` the store keeps the grid it was built with (a new one gets the defaults)."""
+    fusion = fusion or FusionConfig()
     if url.startswith(("postgresql://", "postgres://")):
         return PostgresStore(url, cells, fusion)
     path = url[len("sqlite:"):] if url.startswith("sqlite:") else url
