@@ -16,8 +16,10 @@ import time
 from collections import Counter
 from typing import Any, Optional
 
+from pydantic_core import to_json
+
 from schemas import keys
-from schemas.map import WGS84, MapCellUpdate, MapQueryReply, MapRejection, MapStatus
+from schemas.map import WGS84, MapCellUpdate, MapRejection, MapStatus
 
 from services.map.config import MapServiceConfig
 from services.runtime.log import JsonLog
@@ -148,9 +150,12 @@ class MapService:
             try:
                 frame, box, limit = parse_query(str(query.selector.parameters))
                 now = time.time()
-                cells, cut = self.store.query_box(frame, box, now, limit or self.cfg.query_limit)
-                rep = MapQueryReply(map_id=self.cfg.map_id, frame=frame, bbox=box, cells=cells, truncated=cut, time=now)
-                query.reply(keys.map_key(self.cfg.map_id, "query"), rep.model_dump_json())
+                cells, cut = self.store.query_box_fields(frame, box, now, limit or self.cfg.query_limit)
+                # the cells come from the store's own fusion (finite, positive by construction): the
+                # MapQueryReply's fields serialised at once (pydantic-core, Rust), not re-validated per query
+                rep = {"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box, "cells": cells,
+                       "truncated": cut, "time": now}
+                query.reply(keys.map_key(self.cfg.map_id, "query"), to_json(rep))
             except ValueError as exc:
                 query.reply_err(str(exc))
             except Exception as exc:

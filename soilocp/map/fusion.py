@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import Iterable, Optional, Sequence
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from schemas.map import MapCell
 from schemas.pipeline import SoilEstimate
@@ -179,24 +179,40 @@ def fuse(ln_k: Sequence[float], var: Sequence[float], seen_at: Sequence[float], 
     return swx / sw, 1.0 / sw
 
 
-def fuse_rows(rows: Sequence[tuple], now: float, ageing_rate: float) -> list[MapCell]:
-    """Cells from store rows ``(cell, frame, cx, cy, vehicle, ln_k, var, n, seen_at)`` sorted by
-    cell: :func:`fuse` per cell."""
+def fused_cells(rows: Sequence[tuple], now: float, ageing_rate: float) -> list[dict]:
+    """Cells (dicts of :class:`MapCell`'s fields, sorted by cell id) from store rows ``(cell,
+    frame, cx, cy, vehicle, ln_k, var, n, seen_at)`` in any order: :func:`fuse` per cell, the
+    vehicles in name order (so the sums, and the floats, do not depend on the row order)."""
+    groups: dict[str, list] = {}
+    for r in rows:
+        g = groups.get(r[0])
+        if g is None:
+            groups[r[0]] = [r]
+        else:
+            g.append(r)
     out = []
-    i, n_rows = 0, len(rows)
     exp, sqrt, z = math.exp, math.sqrt, BAND_Z
-    while i < n_rows:
-        j = i + 1
-        cell = rows[i][0]
-        while j < n_rows and rows[j][0] == cell:
-            j += 1
-        grp = rows[i:j]
-        ln_k, var = fuse([r[5] for r in grp], [r[6] for r in grp], [r[8] for r in grp], now, ageing_rate)
-        s = sqrt(var)
+    q = ageing_rate / 3600.0
+    for cell in sorted(groups):
+        grp = groups[cell]
         r0 = grp[0]
-        out.append(MapCell.model_construct(
-            schema_version=1, cell=cell, frame=r0[1], center=(r0[2], r0[3]), K=exp(ln_k), log_k_std=s,
-            K_lo=exp(ln_k - z * s), K_hi=exp(ln_k + z * s), count=int(sum(r[7] for r in grp)),
-            last_seen=max(r[8] for r in grp), vehicles=sorted(r[4] for r in grp)))
-        i = j
+        if len(grp) == 1:  # one vehicle, the usual case: fuse() of one row, inline
+            var = r0[6] + q * (now - r0[8] if now > r0[8] else 0.0)
+            ln_k, count, last, vehicles = r0[5], r0[7], r0[8], [r0[4]]
+        else:
+            grp.sort(key=lambda r: r[4])
+            ln_k, var = fuse([r[5] for r in grp], [r[6] for r in grp], [r[8] for r in grp], now, ageing_rate)
+            count, last, vehicles = sum(r[7] for r in grp), max(r[8] for r in grp), [r[4] for r in grp]
+        s = sqrt(var)
+        out.append({"schema_version": 1, "cell": cell, "frame": r0[1], "center": (r0[2], r0[3]), "K": exp(ln_k),
+                    "log_k_std": s, "K_lo": exp(ln_k - z * s), "K_hi": exp(ln_k + z * s), "count": count,
+                    "last_seen": last, "vehicles": vehicles})
     return out
+
+
+def fuse_rows(rows: Sequence[tuple], now: float, ageing_rate: float) -> list[MapCell]:
+    """:func:`fused_cells` as validated :class:`MapCell` models (one validation of the whole list)."""
+    return _CELLS.validate_python(fused_cells(rows, now, ageing_rate))
+
+
+_CELLS = TypeAdapter(list[MapCell])

@@ -26,7 +26,7 @@ from typing import Optional
 from schemas.map import MapCell
 
 from soilocp.map.cells import CellConfig
-from soilocp.map.fusion import FusionConfig, Observation, fuse_rows
+from soilocp.map.fusion import _CELLS, FusionConfig, Observation, fuse_rows, fused_cells
 
 _TABLES = [
     "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
@@ -86,7 +86,7 @@ class MapStore:
         return "INSERT INTO cells (cell, frame, cx, cy) VALUES (?, ?, ?, ?) ON CONFLICT (cell) DO NOTHING"
 
     def _box_sql(self) -> str:
-        return _ROWS + "WHERE c.frame = ? AND c.cx BETWEEN ? AND ? AND c.cy BETWEEN ? AND ? ORDER BY c.cell, o.vehicle"
+        return _ROWS + "WHERE c.frame = ? AND c.cx BETWEEN ? AND ? AND c.cy BETWEEN ? AND ?"
 
     def _box_params(self, frame: str, bbox: Sequence[float]) -> tuple:
         xmin, ymin, xmax, ymax = bbox
@@ -141,11 +141,17 @@ class MapStore:
                   ) -> tuple[list[MapCell], bool]:
         """Cells of ``frame`` whose centre lies in ``bbox`` (xmin, ymin, xmax, ymax; lon/lat for
         wgs84), fused and aged to ``now``; and whether the limit cut the list."""
+        cells, cut = self.query_box_fields(frame, bbox, now, limit)
+        return _CELLS.validate_python(cells), cut
+
+    def query_box_fields(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
+                         ) -> tuple[list[dict], bool]:
+        """:meth:`query_box` as plain dicts of MapCell's fields (the service serialises them at once)."""
         cur = self._conn().cursor()
         cur.execute(self._sql(self._box_sql()), self._box_params(frame, bbox))
         rows = cur.fetchall()
         self._end_read()
-        cells = fuse_rows(rows, now, self.fusion.ageing_rate)
+        cells = fused_cells(rows, now, self.fusion.ageing_rate)
         return (cells[:limit], True) if len(cells) > limit else (cells, False)
 
     def cells_by_id(self, ids: Sequence[str], now: float) -> list[MapCell]:
@@ -156,7 +162,7 @@ class MapStore:
         ids = sorted(set(ids))
         for i in range(0, len(ids), 500):
             part = ids[i:i + 500]
-            cur.execute(self._sql(_ROWS + f"WHERE c.cell IN ({', '.join('?' * len(part))}) ORDER BY c.cell, o.vehicle"), part)
+            cur.execute(self._sql(_ROWS + f"WHERE c.cell IN ({', '.join('?' * len(part))})"), part)
             out += cur.fetchall()
         self._end_read()
         return fuse_rows(out, now, self.fusion.ageing_rate)
@@ -166,7 +172,7 @@ class MapStore:
         if frame is None:
             cur.execute(_ROWS + "ORDER BY c.cell, o.vehicle")
         else:
-            cur.execute(self._sql(_ROWS + "WHERE c.frame = ? ORDER BY c.cell, o.vehicle"), (frame,))
+            cur.execute(self._sql(_ROWS + "WHERE c.frame = ?"), (frame,))
         rows = cur.fetchall()
         self._end_read()
         return fuse_rows(rows, now, self.fusion.ageing_rate)
@@ -279,7 +285,7 @@ class PostgresStore(MapStore):
             raise
 
     def _box_sql(self) -> str:
-        return _ROWS + ("WHERE c.frame = ? AND c.geom && ST_MakeEnvelope(?, ?, ?, ?, 0) ORDER BY c.cell, o.vehicle")
+        return _ROWS + ("WHERE c.frame = ? AND c.geom && ST_MakeEnvelope(?, ?, ?, ?, 0)")
 
     def _box_params(self, frame, bbox):
         xmin, ymin, xmax, ymax = bbox
