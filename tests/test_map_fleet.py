@@ -131,3 +131,18 @@ def test_two_live_map_services_converge(drives, tmp_path):
     finally:
         procs.close()
         pg.stop()
+
+
+def test_a_vehicle_that_trusts_the_map_converges_at_once_after_a_terrain_change(drives, tmp_path):
+    """Second pass over bravo's row (gravel -> firm), the same samples through two estimators: one
+    starts its belief from the map on entering each mapped cell, one does not."""
+    from soilocp.analysis.fleet_map import FLEET, second_pass
+
+    st = open_store(f"sqlite:{tmp_path / 'fleet.db'}")
+    up = MapUpdater(st)
+    up.apply(map_items(drives, T0))
+    r = second_pass(st.all_cells(T0 + 60.0), "bravo2", FLEET["bravo"], 23.0, seed=11)
+    print(f"second pass: K within 10 % of {r.k_new:g} for 1 s after {r.with_map_s:.2f} s with the map, "
+          f"{r.without_map_s:.2f} s without ({r.priors_given} cells entered)")
+    assert r.k_new == 300.0 and r.priors_given >= 4
+    assert r.without_map_s >= 3 * r.with_map_s and r.without_map_s > 0.1

@@ -105,3 +105,59 @@ def score_cells(cells: Sequence[MapCell], fld: Field) -> MapScore:
     rows.sort(reverse=True)
     return MapScore(len(cells), float(np.median(errs)) if errs else math.nan,
                     float(np.mean(cover)) if cover else math.nan, [r[1:] for r in rows[:5]])
+
+
+@dataclass
+class PassResult:
+    change_stamp: float  # when the first wheel met the new soil, s
+    k_new: float
+    with_map_s: float  # convergence time after the change, with the map's prior
+    without_map_s: float
+    priors_given: int
+
+
+def convergence_after(stamps: Sequence[float], k_est: Sequence[Optional[float]], t_change: float, k_true: float,
+                      tol: float = 0.10, hold_s: float = 1.0) -> float:
+    """Seconds from ``t_change`` until K is within ``tol`` of ``k_true`` and stays there for
+    ``hold_s`` (inf if never)."""
+    start = None
+    for t, k in zip(stamps, k_est):
+        if t < t_change:
+            continue
+        good = k is not None and abs(k - k_true) <= tol * k_true
+        if good and start is None:
+            start = t
+        elif not good:
+            start = None
+        if start is not None and t - start >= hold_s:
+            return start - t_change
+    return math.inf
+
+
+def second_pass(cells: Sequence[MapCell], vehicle_id: str, start: StartPose, length: float, seed: int,
+                fld: Optional[Field] = None) -> PassResult:
+    """One drive over mapped ground, through two estimators on the very same samples: one that
+    trusts the map (:class:`soilocp.map.prior.MapPrior`) and one that does not; the convergence
+    after the drive's first soil change."""
+    from soilocp.estimation.pipeline import VehiclePipeline
+    from soilocp.map.prior import MapPrior
+    from soilocp.sim.simulator import simulate
+
+    fld = fld or mixed_field()
+    sc = straight_drive(fld, start, length, name=f"second-pass-{vehicle_id}")
+    prior = MapPrior(cells)
+    with_map, without = VehiclePipeline(prior=prior), VehiclePipeline()
+    stamps, k_with, k_without, t_change, k_new = [], [], [], None, None
+    first = None
+    for sample, truth in simulate(sc, seed=seed, start=start, vehicle_id=vehicle_id):
+        if first is None:
+            first = truth.soil_strength
+        if t_change is None and any(k != first for k in truth.wheel_soil_strength):
+            t_change, k_new = truth.stamp, next(k for k in truth.wheel_soil_strength if k != first)
+        stamps.append(sample.stamp)
+        k_with.append(with_map.process_all(sample)[2].soil_strength)
+        k_without.append(without.process_all(sample)[2].soil_strength)
+    if t_change is None:
+        raise ValueError("the drive crosses no soil change")
+    return PassResult(t_change, k_new, convergence_after(stamps, k_with, t_change, k_new),
+                      convergence_after(stamps, k_without, t_change, k_new), prior.entered)

@@ -323,8 +323,10 @@ class SoilStage:
     ln K on gross traction, docs/method.md §4, §9, §11-12): :class:`SlipGate` and
     :class:`soilocp.estimation.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
 
-    def __init__(self, config: PipelineConfig):
+    def __init__(self, config: PipelineConfig, prior=None):
         self.cfg = config
+        # opt-in: prior(obs) -> (ln K, 1-sigma) when the vehicle enters a mapped cell (soilocp.map.prior)
+        self.prior = prior
         self.gate = SlipGate(config, 1)
         self.bank = SoilBank(config.constants, config.soil, 1) if config.soil.method == "bayes" else None
         self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
@@ -336,6 +338,10 @@ class SoilStage:
         Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
         with its probability, and a status that says when K is not determined, not observable, or
         not explained by the traction curve (§11-13), with the reason."""
+        if self.prior is not None and self.bank is not None:
+            start = self.prior(obs)
+            if start is not None:
+                self.bank.start_belief(0, *start)
         ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
@@ -385,11 +391,11 @@ class OcpStage:
 class VehiclePipeline:
     """The four stages composed, for one vehicle: the offline path (``soilocp estimate``)."""
 
-    def __init__(self, config: PipelineConfig | None = None):
+    def __init__(self, config: PipelineConfig | None = None, prior=None):
         self.config = config or PipelineConfig()
         self.normal = NormalForceStage(self.config)
         self.observer = ObserverStage(self.config)
-        self.soil = SoilStage(self.config)
+        self.soil = SoilStage(self.config, prior)
         self.ocp = OcpStage(self.config)
 
     def process_all(self, sample: SensorSample) -> tuple[NormalForces, ObserverOutput, SoilEstimate, OcpEstimate]:

@@ -151,6 +151,14 @@ class SoilBank:
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
 
 
+    def start_belief(self, i: int, log_k: float, log_k_std: float, floor: float = 1e-3) -> None:
+        """Start vehicle i's belief over again from N(log_k, log_k_std^2) on the grid, with a uniform
+        ``floor`` (the fleet map's cell and its band, opt-in: soilocp.map.prior, docs/map.md)."""
+        g = np.exp(-0.5 * ((self.theta - log_k) / max(log_k_std, 1e-3)) ** 2)
+        g = (1.0 - floor) * g / g.sum() + floor / g.size
+        self.p[i], self.p_stay[i], self.w_stay[i], self.stay_llr[i] = g, g, 1.0, 0.0
+        self.stats[i], self.profile[i] = 0.0, 0.0  # the evidence window restarts, as when a change is taken
+
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None,
                span=None, slip_ends=None) -> list[SoilState]:
