@@ -15,7 +15,7 @@ patch from the vehicle geometry; without it every patch is taken at the vehicle'
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -52,14 +52,20 @@ class GeoPosition(_Strict):
         description="Yaw of the body x axis, rad, counter-clockwise from east (ENU; null: unknown)")
 
 
+_X = Annotated[float, Field(ge=-MAX_MAP_COORD, le=MAX_MAP_COORD)]
+_LAT = Annotated[float, Field(ge=-90.0, le=90.0)]
+_LON = Annotated[float, Field(ge=-180.0, le=180.0)]
+_WHEEL = Annotated[int, Field(ge=1, le=4)]
+
+
 class EstimatePlace(_Strict):
     """Where a soil estimate was made: the contact patches of the wheels that informed it (the
     wheels whose slip/traction pairs updated K at this sample), in the local frame and/or WGS84."""
 
-    wheels: tuple[int, ...] = Field(min_length=1, max_length=4,
+    wheels: tuple[_WHEEL, ...] = Field(min_length=1, max_length=4,
                                     description="Wheel numbers (1 LR, 2 LF, 3 RF, 4 RR) that informed the estimate")
     frame: Optional[str] = Field(default=None, pattern=FRAME_PATTERN, description="Local frame of xy (null: none)")
-    xy: Optional[tuple[tuple[float, float], ...]] = Field(
+    xy: Optional[tuple[tuple[_X, _X], ...]] = Field(
         default=None, description="Contact patch per listed wheel, (x, y) m in ``frame``")
-    latlon: Optional[tuple[tuple[float, float], ...]] = Field(
+    latlon: Optional[tuple[tuple[_LAT, _LON], ...]] = Field(
         default=None, description="Contact patch per listed wheel, (latitude, longitude) deg WGS84")

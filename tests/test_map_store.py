@@ -103,7 +103,7 @@ def _bad_payloads():
         (mod(soil_strength=-5.0), "out_of_range"), (mod(soil_strength=1e9), "out_of_range"),
         (mod(log_k_std=0.0), "out_of_range"), (mod(log_k_std=50.0), "out_of_range"),
         (mod(soil_strength=None), "inconsistent"), (mod(where=where2), "inconsistent"),
-        (mod(where=dict(good["where"], wheels=[7])), "inconsistent"),
+        (mod(where=dict(good["where"], wheels=[7])), "out_of_range"),
         (mod(where=dict(good["where"], xy=[[3e7, 0.0]])), "out_of_range"),
         (mod(where={"wheels": [1], "latlon": [[95.0, 0.0]]}), "out_of_range"),
         (mod(vehicle_id="rover2"), "vehicle_mismatch"),

@@ -50,11 +50,18 @@ class CellIndex:
         self._size_txt = f"{self._size:g}"
         self._res = self.config.h3_resolution
         self._h3 = None
+        self._cache: dict[tuple, CellRef] = {}
 
     def local(self, frame: str, x: float, y: float) -> CellRef:
         s = self._size
         ix, iy = math.floor(x / s), math.floor(y / s)
-        return CellRef(f"{frame}/{self._size_txt}/{ix}/{iy}", frame, (ix + 0.5) * s, (iy + 0.5) * s)
+        k = (frame, ix, iy)
+        c = self._cache.get(k)
+        if c is None:  # vehicles stay in a cell for hundreds of estimates: build each cell once
+            if len(self._cache) > 200_000:
+                self._cache.clear()
+            c = self._cache[k] = CellRef(f"{frame}/{self._size_txt}/{ix}/{iy}", frame, (ix + 0.5) * s, (iy + 0.5) * s)
+        return c
 
     def geo(self, lat: float, lon: float) -> CellRef:
         if self._h3 is None:

@@ -113,8 +113,8 @@ def check_estimate(est: SoilEstimate) -> Optional[str]:
                             est.seq)
     if not 0.0 < s <= MAX_LOG_K_STD:
         raise MapInputError("out_of_range", f"log_k_std: {s!r} outside (0, {MAX_LOG_K_STD:g}]", "log_k_std", est.seq)
-    w = est.where
-    if len(set(w.wheels)) != len(w.wheels) or not all(1 <= q <= 4 for q in w.wheels):
+    w = est.where  # coordinates and wheel numbers are range-checked by the schema (schemas.position)
+    if len(set(w.wheels)) != len(w.wheels):
         raise MapInputError("inconsistent", f"where.wheels: {list(w.wheels)} must be distinct wheel numbers 1..4",
                             "where.wheels", est.seq)
     if w.xy is None and w.latlon is None:
@@ -125,11 +125,6 @@ def check_estimate(est: SoilEstimate) -> Optional[str]:
                                 f"where.{name}", est.seq)
     if w.xy is not None and w.frame is None:
         raise MapInputError("inconsistent", "where.xy without where.frame", "where.frame", est.seq)
-    if w.xy is not None and any(abs(c) > 1e7 for p in w.xy for c in p):
-        raise MapInputError("out_of_range", "where.xy: a coordinate beyond 1e7 m", "where.xy", est.seq)
-    if w.latlon is not None and any(not (-90 <= la <= 90 and -180 <= lo <= 180) for la, lo in w.latlon):
-        raise MapInputError("out_of_range", "where.latlon: latitude outside [-90, 90] or longitude outside "
-                            "[-180, 180]", "where.latlon", est.seq)
     return None
 
 

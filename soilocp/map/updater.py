@@ -53,6 +53,7 @@ class MapUpdater:
     def __init__(self, store: MapStore, index: Optional[CellIndex] = None):
         self.store = store
         self.index = index or CellIndex(store.cell_config)
+        self._vids: dict[str, str] = {}  # key -> vehicle id, checked once
 
     def apply(self, items: Sequence[tuple[str, bytes, float]]) -> BatchResult:
         """``items``: (key, payload, received_at).  Commits before it returns (then the batch may be
@@ -63,7 +64,11 @@ class MapUpdater:
         for key, payload, seen_at in items:
             vid = None
             try:
-                vid = vehicle_of_soil_key(key)
+                vid = self._vids.get(key)
+                if vid is None:
+                    vid = vehicle_of_soil_key(key)
+                    if len(self._vids) < 100_000:
+                        self._vids[key] = vid
                 est = parse_estimate(payload, vid)
                 why = check_estimate(est)
             except MapInputError as exc:
