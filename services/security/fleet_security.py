@@ -111,9 +111,12 @@ def fleet_access_control(vehicles: Iterable[str], tools: Iterable[str], maps: It
     maps = [keys.check_map_id(m) for m in maps]
     if not vehicles and not tools:
         raise ValueError("access control: no vehicle and no fleet tool named: every link would be refused")
-    clash = sorted((set(vehicles) & set(tools)) | (set(maps) & (set(vehicles) | set(tools))))
+    clash = sorted(set(vehicles) & set(tools))
     if clash:
-        raise ValueError(f"access control: {clash} named in two roles (vehicle, fleet tool, map)")
+        raise ValueError(f"access control: {clash} named both as vehicle and as fleet tool")
+    clash = sorted(set(maps) & (set(vehicles) | set(tools)))
+    if clash:
+        raise ValueError(f"access control: {clash} named both as map service and as vehicle or fleet tool")
     rules, subjects, policies = [], [], []
     for vid in vehicles:
         own = f"soilocp/{vid}/**"
