@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.sensor import VehicleId
 
@@ -67,13 +67,52 @@ class MapCellUpdate(_MapMessage):
     time: float
 
 
+class MapCellColumns(BaseModel):
+    """Cells as columns (one list per MapCell field, the same length): a box may hold ten thousand
+    cells, and columns cost a fraction of objects to write and to read."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    frame: str
+    cell: list[str]
+    cx: list[float] = Field(description="Cell centres: x m, or longitude deg for wgs84")
+    cy: list[float] = Field(description="y m, or latitude deg")
+    K: list[float]
+    log_k_std: list[float]
+    K_lo: list[float]
+    K_hi: list[float]
+    count: list[int]
+    last_seen: list[float]
+    vehicles: list[list[VehicleId]]
+
+    @model_validator(mode="after")
+    def _same_length(self):
+        n = len(self.cell)
+        bad = [k for k in ("cx", "cy", "K", "log_k_std", "K_lo", "K_hi", "count", "last_seen", "vehicles")
+               if len(getattr(self, k)) != n]
+        if bad:
+            raise ValueError(f"columns {bad} do not have the {n} entries of 'cell'")
+        return self
+
+
 class MapQueryReply(_MapMessage):
     map_id: str = Field(pattern=MAP_ID_PATTERN)
     frame: str
     bbox: tuple[float, float, float, float] = Field(description="xmin, ymin, xmax, ymax (lon/lat deg for wgs84)")
-    cells: list[MapCell] = Field(description="Cells whose centre lies in the box")
+    columns: MapCellColumns = Field(description="Cells whose centre lies in the box, ordered by centre (x, then y), "
+                                    "aged to 'time'")
     truncated: bool = Field(description="True when more cells matched than the limit")
     time: float = Field(description="The time the cells are aged to, s since the epoch")
+
+    @property
+    def cells(self) -> list[MapCell]:
+        """The columns as MapCell models."""
+        return [MapCell(cell=c, frame=self.columns.frame, center=(x, y), K=k, log_k_std=s, K_lo=lo, K_hi=hi,
+                        count=n, last_seen=t, vehicles=v)
+                for c, x, y, k, s, lo, hi, n, t, v in zip(
+                    self.columns.cell, self.columns.cx, self.columns.cy, self.columns.K, self.columns.log_k_std,
+                    self.columns.K_lo, self.columns.K_hi, self.columns.count, self.columns.last_seen,
+                    self.columns.vehicles)]
 
 
 class MapRejection(_MapMessage):

@@ -114,6 +114,7 @@ def test_two_live_map_services_converge(drives, tmp_path):
             status = {m: json.loads(r.ok.payload.to_bytes()) for m in "ab"
                       for r in s.get(keys.map_key(m, "status"), timeout=3) if r.ok is not None}
         a, b = now_cells["a"], now_cells["b"]
+        a, b = sorted(a, key=lambda c: c.cell), sorted(b, key=lambda c: c.cell)
         assert [c.cell for c in a] == [c.cell for c in b] == [c.cell for c in ref.store.all_cells(T0)]
         for ca, cb in zip(a, b):
             # same estimates per (cell, vehicle); only the receive times (the ageing clock) differ by ms

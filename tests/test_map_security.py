@@ -7,14 +7,13 @@ the forbidden message (it must arrive), then a grace period."""
 
 from __future__ import annotations
 
-import json
 import time
 
 import pytest
 
 from map_helpers import estimate
 from schemas import keys
-from schemas.map import MapCellUpdate, MapRejection
+from schemas.map import MapCellUpdate, MapQueryReply, MapRejection
 from test_fleet_security import FLEET_SECURE, GRACE_S, Inbox, SecureFleet, _certs
 from zenoh_helpers import wait_for
 
@@ -82,7 +81,7 @@ def test_map_service_behind_the_secure_fleet_router(fleet):
         # the dashboard reads the map; what it holds is only the two vehicles' own estimates
         reps = [r.ok.payload.to_bytes() for r in dash.get(keys.map_key("fleet", "query") + "?frame=sec;bbox=0,0,30,5",
                                                           timeout=5) if r.ok is not None]
-        got = {c["cell"]: (round(c["K"]), c["vehicles"]) for c in json.loads(reps[0])["cells"]}
+        got = {c.cell: (round(c.K), c.vehicles) for c in MapQueryReply.model_validate_json(reps[0]).cells}
         assert got == {"sec/5/0/0": (50, ["rover1"]), "sec/5/1/0": (80, ["rover2"])}, got
         # a vehicle cannot read the map (vehicles get nothing from the fleet but interest)
         assert [r for r in r1.get(keys.map_key("fleet", "query") + "?frame=sec;bbox=0,0,30,5", timeout=2)

@@ -57,8 +57,9 @@ def test_cells_fuse_vehicles_and_keep_each_vehicles_latest(tmp_path):
     assert res.applied == {"rover1": (3, 3)} and res.cells == ["f/5/0/0"] and not res.refused
     res = up.apply([item(estimate("rover2", 7, 60.0, 0.1))])
     (c,) = st.query_box("f", (0, 0, 5, 5), NOW)[0]
-    t = 1_800_000_000.0  # when the map received them; aged to NOW at the default rate
-    lk, var = fuse([math.log(50.0), math.log(60.0)], [0.04, 0.01], [t, t], NOW, FusionConfig().ageing_rate)
+    t = 1_800_000_000.0  # when the map received them: fused then, and the fused variance aged to NOW
+    lk, var = fuse([math.log(50.0), math.log(60.0)], [0.04, 0.01], [t, t], t, 0.0)
+    var += FusionConfig().ageing_rate * (NOW - t) / 3600.0
     assert c.K == pytest.approx(math.exp(lk)) and c.log_k_std == pytest.approx(math.sqrt(var))
     assert c.K_lo == pytest.approx(math.exp(lk - BAND_Z * math.sqrt(var)))
     assert c.count == 4 and c.vehicles == ["rover1", "rover2"] and c.last_seen == 1_800_000_000.0

@@ -169,7 +169,7 @@ def run_map_bench(quick: bool = False, log: Callable[[str], None] = print) -> di
             lib_ms, lib_cpu = [], []
             for _ in range(queries):
                 t, c = time.perf_counter(), time.process_time()
-                tst.query_box_fields("bench", box, time.time())
+                tst.query_columns("bench", box, time.time())
                 lib_ms.append(1e3 * (time.perf_counter() - t))
                 lib_cpu.append(1e3 * (time.process_time() - c))
             tst.close()
@@ -191,8 +191,9 @@ def run_map_bench(quick: bool = False, log: Callable[[str], None] = print) -> di
                 t = time.process_time()
                 rep = [MapQueryReply.model_validate_json(b) for b in got]
                 parse_ms.append(1e3 * (time.process_time() - t))
-                if not rep or len(rep[0].cells) != len(cells):
-                    raise RuntimeError(f"query answered {len(rep[0].cells) if rep else 'nothing'}, want {len(cells)}")
+                if not rep or len(rep[0].columns.cell) != len(cells):
+                    raise RuntimeError(f"query answered {len(rep[0].columns.cell) if rep else 'nothing'}, "
+                                       f"want {len(cells)}")
             out["query_zenoh"] = _percentiles(zen_ms)
             out["reply_bytes"] = len(got[0])
             out["client_parse_cpu"] = _percentiles(parse_ms)

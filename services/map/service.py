@@ -150,10 +150,10 @@ class MapService:
             try:
                 frame, box, limit = parse_query(str(query.selector.parameters))
                 now = time.time()
-                cells, cut = self.store.query_box_fields(frame, box, now, limit or self.cfg.query_limit)
-                # the cells come from the store's own fusion (finite, positive by construction): the
+                cols, cut = self.store.query_columns(frame, box, now, limit or self.cfg.query_limit)
+                # the columns come from the store's own fusion (finite, positive by construction): the
                 # MapQueryReply's fields serialised at once (pydantic-core, Rust), not re-validated per query
-                rep = {"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box, "cells": cells,
+                rep = {"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box, "columns": cols,
                        "truncated": cut, "time": now}
                 query.reply(keys.map_key(self.cfg.map_id, "query"), to_json(rep))
             except ValueError as exc:

@@ -174,40 +174,54 @@ def fuse(ln_k: Sequence[float], var: Sequence[float], seen_at: Sequence[float], 
     return swx / sw, 1.0 / sw
 
 
-def fused_cells(rows: Sequence[tuple], now: float, ageing_rate: float) -> list[dict]:
-    """Cells (dicts of :class:`MapCell`'s fields, sorted by cell id) from store rows ``(cell,
-    frame, cx, cy, vehicle, ln_k, var, n, seen_at)`` in any order: :func:`fuse` per cell, the
-    vehicles in name order (so the sums, and the floats, do not depend on the row order)."""
+def fuse_cells(rows: Sequence[tuple], ageing_rate: float) -> list[tuple]:
+    """Each cell's fused state at its own last-seen time from store rows ``(cell, frame, cx, cy,
+    vehicle, ln_k, var, n, seen_at)`` in any order: ``(cell, ln K, its variance, count, last seen,
+    vehicles)``, :func:`fuse` over the cell's vehicles in name order.  A function of the cell's rows
+    alone (not of when or in which batches they arrived), so two services agree.
+
+    The store keeps this per cell, written in the transaction that changed the cell; a reply ages it
+    to its own time as one estimate, sigma^2 + q (now - last seen) (:func:`aged_columns`).  For one
+    vehicle that is :func:`fuse` at ``now`` exactly; for several it is wider (adding q dt to the fused
+    variance exceeds fusing the aged variances): the reported band errs on the safe side."""
     groups: dict[str, list] = {}
     for r in rows:
-        g = groups.get(r[0])
-        if g is None:
-            groups[r[0]] = [r]
-        else:
-            g.append(r)
+        groups.setdefault(r[0], []).append(r)
     out = []
-    exp, sqrt, z = math.exp, math.sqrt, BAND_Z
-    q = ageing_rate / 3600.0
     for cell in sorted(groups):
-        grp = groups[cell]
-        r0 = grp[0]
-        if len(grp) == 1:  # one vehicle, the usual case: fuse() of one row, inline
-            var = r0[6] + q * (now - r0[8] if now > r0[8] else 0.0)
-            ln_k, count, last, vehicles = r0[5], r0[7], r0[8], [r0[4]]
-        else:
-            grp.sort(key=lambda r: r[4])
-            ln_k, var = fuse([r[5] for r in grp], [r[6] for r in grp], [r[8] for r in grp], now, ageing_rate)
-            count, last, vehicles = sum(r[7] for r in grp), max(r[8] for r in grp), [r[4] for r in grp]
-        s = sqrt(var)
-        out.append({"schema_version": 1, "cell": cell, "frame": r0[1], "center": (r0[2], r0[3]), "K": exp(ln_k),
-                    "log_k_std": s, "K_lo": exp(ln_k - z * s), "K_hi": exp(ln_k + z * s), "count": count,
-                    "last_seen": last, "vehicles": vehicles})
+        grp = sorted(groups[cell], key=lambda r: r[4])
+        last = max(r[8] for r in grp)
+        ln_k, var = fuse([r[5] for r in grp], [r[6] for r in grp], [r[8] for r in grp], last, ageing_rate)
+        out.append((cell, ln_k, var, sum(r[7] for r in grp), last, [r[4] for r in grp]))
     return out
 
 
-def fuse_rows(rows: Sequence[tuple], now: float, ageing_rate: float) -> list[MapCell]:
-    """:func:`fused_cells` as validated :class:`MapCell` models (one validation of the whole list)."""
-    return _CELLS.validate_python(fused_cells(rows, now, ageing_rate))
+def aged_columns(rows: Sequence[tuple], frame: str, now: float, ageing_rate: float) -> dict:
+    """Reply columns (schemas.map.MapCellColumns) from stored cells ``(cell, cx, cy, ln_k, var, t,
+    n, last_seen, vehicles)``: each cell's fused variance aged to ``now`` (:func:`fuse_cells`),
+    vectorised (a box may hold ten thousand cells)."""
+    import numpy as np
+
+    if not rows:
+        return {"frame": frame, "cell": [], "cx": [], "cy": [], "K": [], "log_k_std": [], "K_lo": [], "K_hi": [],
+                "count": [], "last_seen": [], "vehicles": []}
+    cell, cx, cy, ln_k, var, t, n, last, veh = zip(*rows)
+    lk = np.asarray(ln_k, dtype=float)
+    s = np.sqrt(np.asarray(var, dtype=float) + (ageing_rate / 3600.0) * np.maximum(now - np.asarray(t, dtype=float), 0.0))
+    return {"frame": frame, "cell": list(cell), "cx": list(cx), "cy": list(cy), "K": np.exp(lk).tolist(),
+            "log_k_std": s.tolist(), "K_lo": np.exp(lk - BAND_Z * s).tolist(), "K_hi": np.exp(lk + BAND_Z * s).tolist(),
+            "count": list(n), "last_seen": list(last), "vehicles": [v.split(",") for v in veh]}
+
+
+def cells_of_columns(cols: dict) -> list[MapCell]:
+    """:class:`MapCell` models of reply columns (one validation of the whole list)."""
+    f = cols["frame"]
+    return _CELLS.validate_python([
+        {"cell": c, "frame": f, "center": (x, y), "K": k, "log_k_std": s, "K_lo": lo, "K_hi": hi, "count": n,
+         "last_seen": t, "vehicles": v}
+        for c, x, y, k, s, lo, hi, n, t, v in zip(cols["cell"], cols["cx"], cols["cy"], cols["K"], cols["log_k_std"],
+                                                  cols["K_lo"], cols["K_hi"], cols["count"], cols["last_seen"],
+                                                  cols["vehicles"])])
 
 
 _CELLS = TypeAdapter(list[MapCell])

@@ -26,12 +26,14 @@ from typing import Optional
 from schemas.map import MapCell
 
 from soilocp.map.cells import CellConfig
-from soilocp.map.fusion import _CELLS, FusionConfig, Observation, fuse_rows, fused_cells
+from soilocp.map.fusion import FusionConfig, Observation, aged_columns, cells_of_columns, fuse_cells
 
 _TABLES = [
     "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+    # ln_k .. vehicles: the cell's fused state at time t (fusion.fuse_cells), written with every change
     "CREATE TABLE IF NOT EXISTS cells (cell TEXT PRIMARY KEY, frame TEXT NOT NULL, cx DOUBLE PRECISION NOT NULL, "
-    "cy DOUBLE PRECISION NOT NULL{geom})",
+    "cy DOUBLE PRECISION NOT NULL, ln_k DOUBLE PRECISION, var DOUBLE PRECISION, t DOUBLE PRECISION, n BIGINT, "
+    "last_seen DOUBLE PRECISION, vehicles TEXT{geom})",
     "CREATE TABLE IF NOT EXISTS obs (cell TEXT NOT NULL, vehicle TEXT NOT NULL, ln_k DOUBLE PRECISION NOT NULL, "
     "var DOUBLE PRECISION NOT NULL, seq BIGINT NOT NULL, stamp DOUBLE PRECISION NOT NULL, "
     "seen_at DOUBLE PRECISION NOT NULL, n BIGINT NOT NULL, PRIMARY KEY (cell, vehicle)){without_rowid}",
@@ -50,6 +52,8 @@ _UPSERT_VEHICLE = (
     "last_seq = excluded.last_seq, applied = vehicles.applied + excluded.applied")
 _ROWS = ("SELECT c.cell, c.frame, c.cx, c.cy, o.vehicle, o.ln_k, o.var, o.n, o.seen_at FROM cells c "
          "JOIN obs o ON o.cell = c.cell ")
+_FUSED = "SELECT cell, cx, cy, ln_k, var, t, n, last_seen, vehicles FROM cells WHERE n IS NOT NULL "
+_SET_FUSED = "UPDATE cells SET ln_k = ?, var = ?, t = ?, n = ?, last_seen = ?, vehicles = ? WHERE cell = ?"
 
 
 class StoreError(RuntimeError):
@@ -86,7 +90,7 @@ class MapStore:
         return "INSERT INTO cells (cell, frame, cx, cy) VALUES (?, ?, ?, ?) ON CONFLICT (cell) DO NOTHING"
 
     def _box_sql(self) -> str:
-        return _ROWS + "WHERE c.frame = ? AND c.cx BETWEEN ? AND ? AND c.cy BETWEEN ? AND ?"
+        return _FUSED + "AND frame = ? AND cx BETWEEN ? AND ? AND cy BETWEEN ? AND ?"
 
     def _box_params(self, frame: str, bbox: Sequence[float]) -> tuple:
         xmin, ymin, xmax, ymax = bbox
@@ -131,51 +135,71 @@ class MapStore:
             cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
                                                       o.seen_at, n, gap) for o, n in batch])
             cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
+            self._refresh(cur, batch)
             c.commit()
         except BaseException:
             c.rollback()
             raise
 
-    # --- reading ---------------------------------------------------------------------------------
-    def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                  ) -> tuple[list[MapCell], bool]:
-        """Cells of ``frame`` whose centre lies in ``bbox`` (xmin, ymin, xmax, ymax; lon/lat for
-        wgs84), fused and aged to ``now``; and whether the limit cut the list."""
-        cells, cut = self.query_box_fields(frame, bbox, now, limit)
-        return _CELLS.validate_python(cells), cut
-
-    def query_box_fields(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                         ) -> tuple[list[dict], bool]:
-        """:meth:`query_box` as plain dicts of MapCell's fields (the service serialises them at once)."""
-        cur = self._conn().cursor()
-        cur.execute(self._sql(self._box_sql()), self._box_params(frame, bbox))
-        rows = cur.fetchall()
-        self._end_read()
-        cells = fused_cells(rows, now, self.fusion.ageing_rate)
-        return (cells[:limit], True) if len(cells) > limit else (cells, False)
-
-    def cells_by_id(self, ids: Sequence[str], now: float) -> list[MapCell]:
-        if not ids:
-            return []
-        cur = self._conn().cursor()
-        out = []
-        ids = sorted(set(ids))
+    def _refresh(self, cur, batch) -> None:
+        """Re-fuse the batch's cells from their rows, in the same transaction (fusion.fuse_cells)."""
+        ids = sorted({o.cell.cell for o, _n in batch})
+        rows = []
         for i in range(0, len(ids), 500):
             part = ids[i:i + 500]
             cur.execute(self._sql(_ROWS + f"WHERE c.cell IN ({', '.join('?' * len(part))})"), part)
-            out += cur.fetchall()
+            rows += cur.fetchall()
+        cur.executemany(self._sql(_SET_FUSED), [(lk, v, last, n, last, ",".join(veh), cell) for cell, lk, v, n, last, veh
+                                                in fuse_cells(rows, self.fusion.ageing_rate)])
+
+    # --- reading ---------------------------------------------------------------------------------
+    def query_columns(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
+                      ) -> tuple[dict, bool]:
+        """Cells of ``frame`` whose centre lies in ``bbox`` (xmin, ymin, xmax, ymax; lon/lat for
+        wgs84), ordered by centre (x, then y) and aged to ``now``, as reply columns
+        (fusion.aged_columns); and whether ``limit`` cut them."""
+        cur = self._conn().cursor()
+        # ordered by position: the box index's own order (no sort); centres are distinct within a frame
+        cur.execute(self._sql(self._box_sql() + " ORDER BY cx, cy LIMIT ?"), (*self._box_params(frame, bbox), limit + 1))
+        rows = cur.fetchall()
         self._end_read()
-        return fuse_rows(out, now, self.fusion.ageing_rate)
+        cut = len(rows) > limit
+        return aged_columns(rows[:limit], frame, now, self.fusion.ageing_rate), cut
+
+    def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
+                  ) -> tuple[list[MapCell], bool]:
+        """:meth:`query_columns` as MapCell models."""
+        cols, cut = self.query_columns(frame, bbox, now, limit)
+        return cells_of_columns(cols), cut
+
+    def cells_by_id(self, ids: Sequence[str], now: float) -> list[MapCell]:
+        out: list[MapCell] = []
+        cur = self._conn().cursor()
+        ids = sorted(set(ids))
+        for i in range(0, len(ids), 500):
+            part = ids[i:i + 500]
+            cur.execute(self._sql(_FUSED.replace("cell, cx", "frame, cell, cx")
+                                  + f"AND cell IN ({', '.join('?' * len(part))}) ORDER BY cell"), part)
+            out += self._by_frame(cur.fetchall(), now)
+        self._end_read()
+        return sorted(out, key=lambda c: c.cell)
 
     def all_cells(self, now: float, frame: Optional[str] = None) -> list[MapCell]:
         cur = self._conn().cursor()
+        q = _FUSED.replace("cell, cx", "frame, cell, cx")
         if frame is None:
-            cur.execute(_ROWS + "ORDER BY c.cell, o.vehicle")
+            cur.execute(q + "ORDER BY cell")
         else:
-            cur.execute(self._sql(_ROWS + "WHERE c.frame = ?"), (frame,))
-        rows = cur.fetchall()
+            cur.execute(self._sql(q + "AND frame = ? ORDER BY cell"), (frame,))
+        out = self._by_frame(cur.fetchall(), now)
         self._end_read()
-        return fuse_rows(rows, now, self.fusion.ageing_rate)
+        return sorted(out, key=lambda c: c.cell)
+
+    def _by_frame(self, rows, now: float) -> list[MapCell]:
+        frames: dict[str, list] = {}
+        for r in rows:
+            frames.setdefault(r[0], []).append(tuple(r[1:]))
+        return [c for f, rs in frames.items() for c in cells_of_columns(aged_columns(rs, f, now, self.fusion.ageing_rate))]
 
     def ledger(self) -> dict[str, tuple[int, int]]:
         """{vehicle: (last committed seq, committed estimates)}."""
@@ -221,7 +245,9 @@ class SqliteStore(MapStore):
         if not os.path.isdir(d):
             raise StoreError(f"{self.url}: directory {d!r} does not exist")
         self._init_schema(without_rowid=" WITHOUT ROWID",
-                          extra=["CREATE INDEX IF NOT EXISTS cells_box ON cells (frame, cx, cy)"])
+                          # covering: a box query reads the index alone, in its order
+                          extra=["CREATE INDEX IF NOT EXISTS cells_box ON cells (frame, cx, cy, cell, ln_k, var, t, n, "
+                                 "last_seen, vehicles)"])
 
     def _connect(self):
         try:
@@ -279,13 +305,14 @@ class PostgresStore(MapStore):
                 cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
                                                           o.seen_at, n, gap) for o, n in batch])
                 cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
+                self._refresh(cur, batch)
             c.commit()
         except BaseException:
             c.rollback()
             raise
 
     def _box_sql(self) -> str:
-        return _ROWS + ("WHERE c.frame = ? AND c.geom && ST_MakeEnvelope(?, ?, ?, ?, 0)")
+        return _FUSED + "AND frame = ? AND geom && ST_MakeEnvelope(?, ?, ?, ?, 0)"
 
     def _box_params(self, frame, bbox):
         xmin, ymin, xmax, ymax = bbox
