@@ -16,7 +16,6 @@ nor to a power cut); PostgreSQL commits are durable by its own WAL (``synchronou
 
 from __future__ import annotations
 
-import json
 import os
 import sqlite3
 import threading
@@ -340,8 +339,3 @@ def open_store(url: str, cells: Optional[CellConfig] = None, fusion: Optional[Fu
     if not path:
         raise StoreError("empty store path: give sqlite:PATH or postgresql://...")
     return SqliteStore(path, cells, fusion)
-
-
-def store_config_json(store: MapStore) -> str:
-    return json.dumps({"url": _redact(store.url), "cells": store.cell_config.model_dump(),
-                       "fusion": store.fusion.model_dump()})
