@@ -191,3 +191,40 @@ def test_rejections_status_query_and_export(tmp_path):
         assert bad.returncode == 1 and "no router answered" in bad.stderr
     finally:
         procs.close()
+
+
+@pytest.mark.e2e
+def test_live_vehicle_services_feed_the_map(tmp_path):
+    """`soilocp run --synthetic mixed` with a start pose (SOILOCP_START_POSE): the live observer and
+    soil-strength services carry the places, the map service fuses them; its cells hold sand then
+    gravel along the drive."""
+    from soilocp.sim.scenarios import get_scenario
+
+    procs = Procs(tmp_path / "logs")
+    ep = endpoint(free_port())
+    try:
+        procs.spawn("router", ["router", "--listen", ep])
+        procs.spawn("map", ["service", "map", "--map-id", "live", "--connect", ep, "--store", f"sqlite:{tmp_path / 'm.db'}"])
+        with client(ep) as s:
+            assert _map_alive(s, "live"), procs.tail("map")
+        vport = free_port()
+        run = procs.spawn("rover", ["run", "--synthetic", "mixed", "--vehicle-id", "rover1", "--duration", "24",
+                                    "--listen", endpoint(vport), "--plain"],
+                          env={"SOILOCP_START_POSE": "field:0,0,0", "SOILOCP_ROUTER_CONNECT": ep})
+        run.wait(240)
+        assert run.returncode == 0, procs.tail("rover", 40)
+        time.sleep(1.0)
+        st = open_store(f"sqlite:{tmp_path / 'm.db'}")
+        cells = {c.cell: c for c in st.all_cells(time.time(), "field")}
+        st.close()
+        print({k: (round(c.K, 1), round(c.K_lo, 1), round(c.K_hi, 1), c.count) for k, c in cells.items()})
+        segs = get_scenario("mixed").segments
+        sand, gravel = segs[0].soil_strength, segs[1].soil_strength
+        # the drive runs along y = 0: wheels on both sides of it, cell rows iy = -1 and 0
+        for ix, k_true in ((1, sand), (3, gravel)):
+            for iy in (-1, 0):
+                c = cells[f"field/5/{ix}/{iy}"]
+                assert abs(c.K / k_true - 1) < 0.15 and c.K_lo <= k_true <= c.K_hi, c
+                assert c.vehicles == ["rover1"]
+    finally:
+        procs.close()

@@ -113,3 +113,27 @@ def true_position(start: StartPose, x: float, y: float, heading: float) -> dict:
         lat, lon = local_to_geo(start.geo_origin, x, y)
         out["geo"] = GeoPosition(latitude=lat, longitude=lon, heading=heading)
     return out
+
+
+#: Environment: the synthetic vehicle's start pose (``soilocp run --synthetic`` / ``soilocp service
+#: vehicle --scenario``), e.g. ``field:0,7.5,0`` or ``field:0,7.5,0@47.0,8.0``: its samples then carry positions.
+ENV_START_POSE = "SOILOCP_START_POSE"
+
+
+def parse_start_pose(text: str) -> StartPose:
+    """``FRAME:X,Y[,HEADING][@LAT,LON]`` -> StartPose (m, m, rad; the WGS84 origin of the frame).
+    ValueError says what is wrong."""
+    frame, sep, rest = str(text).partition(":")
+    if not sep:
+        raise ValueError(f"start pose {text!r}: expected FRAME:X,Y[,HEADING][@LAT,LON], e.g. field:0,7.5,0")
+    pose, _, geo = rest.partition("@")
+    try:
+        nums = [float(q) for q in pose.split(",")]
+        origin = tuple(float(q) for q in geo.split(",")) if geo else None
+    except ValueError:
+        raise ValueError(f"start pose {text!r}: X, Y, HEADING and LAT, LON must be numbers") from None
+    if len(nums) not in (2, 3) or (origin is not None and len(origin) != 2):
+        raise ValueError(f"start pose {text!r}: expected FRAME:X,Y[,HEADING][@LAT,LON]")
+    if origin is not None and not (-90 <= origin[0] <= 90 and -180 <= origin[1] <= 180):
+        raise ValueError(f"start pose {text!r}: the origin must be a WGS84 latitude, longitude")
+    return StartPose(frame=frame, x=nums[0], y=nums[1], heading=nums[2] if len(nums) == 3 else 0.0, geo_origin=origin)
