@@ -4,7 +4,7 @@ export (:mod:`soilocp.export.mcap_out`) and the live WebSocket server (``service
 Per vehicle, JSON messages with JSON schemas, log time = the sensor sample's stamp (Unix ns when the
 source had Unix header stamps, so the estimates line up with the robot's bag in Foxglove's timeline):
 
-Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``; the MCAP export writes these):
+Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``):
 
 * ``/soilocp/<vid>/soil_strength``: K, its 1-sigma, K - std and K + std (plot all three), class,
   class probability, status, reason;
@@ -13,7 +13,7 @@ Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``; the MC
   (LR, LF, RF, RR), plus their names;
 * ``/soilocp/<vid>/status``: status and reason only (for a state-transitions panel).
 
-Sensor channel (from one ``schemas.sensor.SensorSample``; the live server adds it):
+Sensor channel (from one ``schemas.sensor.SensorSample``):
 
 * ``/soilocp/<vid>/sensors``: the sample as the robot sent it (specific force, roll, pitch, yaw
   rate, wheel speeds and torques, ground speed).
@@ -43,9 +43,9 @@ def _schema(title: str, props: dict, description: str) -> dict:
             "type": "object", "properties": {**_BASE, **props}, "required": list(_BASE) + list(props)}
 
 
-#: The channels made from one OCP record (what ``soilocp estimate --out E.mcap`` and ``soilocp record`` write).
+#: The channels made from one OCP record.
 ESTIMATE_CHANNELS = ("soil_strength", "ocp", "wheels", "status")
-#: The channels made from one sensor sample (live only: the robot's own bag holds its sensors).
+#: The channels made from one sensor sample (the MCAP export and the live server both carry them).
 SENSOR_CHANNELS = ("sensors",)
 
 #: channel suffix -> (schema name, JSON schema)
