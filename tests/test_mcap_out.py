@@ -89,3 +89,23 @@ def test_rotating_writer_bounds_file_size_and_count(tmp_path, logs):
     with open(files[-1], "rb") as f:
         last = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/soilocp/rover1/status"])][-1]
     assert last["seq"] == recs[-1]["seq"] and 0 < total < len(recs)
+
+
+def test_withheld_k_keeps_the_sensor_channel(tmp_path):
+    """A log whose provenance cannot identify K: the estimate channels say no_estimate, the sensor
+    channel still holds every sample as it was."""
+    from soilocp.ingest.align import Provenance
+
+    log = tmp_path / "s.jsonl"
+    log.write_text("".join(s.model_dump_json() + "\n" for s, _ in simulate("sand", duration=2.0, seed=3)))
+    Provenance(source="test", ground_speed="absent", identifiable=False, reasons=["no ground speed"]).write(log)
+    r = CliRunner().invoke(main, ["estimate", str(log), "--out", str(tmp_path / "E.mcap")])
+    assert r.exit_code == 0, r.output
+    with open(tmp_path / "E.mcap", "rb") as f:
+        got: dict[str, list] = {}
+        for _, ch, m in make_reader(f).iter_messages():
+            got.setdefault(ch.topic.rsplit("/", 1)[1], []).append((m.log_time, json.loads(m.data)))
+    samples = [json.loads(x) for x in log.read_text().splitlines()]
+    assert [m for _, m in got["sensors"]] == samples
+    assert [t for t, _ in got["sensors"]] == [t for t, _ in got["soil_strength"]] == [round(s["stamp"] * 1e9) for s in samples]
+    assert {(m["K"], m["status"]) for _, m in got["soil_strength"]} == {(None, "no_estimate")}
