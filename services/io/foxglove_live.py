@@ -23,31 +23,15 @@ from typing import Any, Optional
 import click
 
 from schemas import keys
-from schemas.pipeline import OcpEstimate
-from schemas.sensor import parse_sensor_line
+from services.io.streams import STREAMS, decode, selectors
 from services.runtime.log import JsonLog
 from services.runtime.worker import BoundedWorker
-from soilocp.export.channels import (
-    CHANNEL_SCHEMAS,
-    ESTIMATE_CHANNELS,
-    SENSOR_CHANNELS,
-    encode,
-    log_time_ns,
-    split_estimate,
-    split_sensor,
-    topic,
-)
+from soilocp.export.channels import CHANNEL_SCHEMAS, encode, log_time_ns, split_estimate, split_sensor, topic
 
 QUEUE_MAX = 10_000  # samples; ~50 s of one vehicle's sensors and OCPs at 100 Hz
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
 DEFAULT_ADDRESS = f"{DEFAULT_HOST}:{DEFAULT_PORT}"
-
-#: what each subscribed stream becomes: (key builder per vehicle, fleet selector, channels)
-_STREAMS = {
-    "ocp": (keys.ocp, keys.any_vehicle_ocp, ESTIMATE_CHANNELS),
-    "sensors": (keys.raw, keys.any_vehicle_raw, SENSOR_CHANNELS),
-}
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -119,12 +103,10 @@ class FoxgloveLive:
     def attach(self, session) -> list[str]:
         """Subscribe on ``session`` and start the worker; returns the key expressions subscribed."""
         self._worker.start()
-        selectors = []
-        for kind, (per_vehicle, fleet, _suffixes) in _STREAMS.items():
-            for sel in ([per_vehicle(v) for v in self.vehicle_ids] or [fleet()]):
-                selectors.append(sel)
-                self._subs.append(session.declare_subscriber(sel, self._callback(kind)))
-        return selectors
+        streams = selectors(self.vehicle_ids)
+        for kind, sel in streams:
+            self._subs.append(session.declare_subscriber(sel, self._callback(kind)))
+        return [sel for _kind, sel in streams]
 
     def _callback(self, kind: str):
         counts, offer = self.counts, self._worker.offer
@@ -138,18 +120,13 @@ class FoxgloveLive:
     def _handle(self, item: tuple[str, str, bytes]) -> None:
         kind, key, payload = item
         vid, _rest = keys.split_key(key)
-        suffixes = _STREAMS[kind][2]
+        suffixes = STREAMS[kind][2]
         channels = [self._channel(vid, s) for s in suffixes]
         if not any(ch.has_sinks() for ch in channels):
             self.counts["unwatched"] += 1
             return
         try:
-            if kind == "ocp":
-                data = OcpEstimate.model_validate_json(payload).model_dump()
-            else:
-                data = parse_sensor_line(payload).model_dump()
-            if data["vehicle_id"] != vid:
-                raise ValueError(f"vehicle_id {data['vehicle_id']!r} on the key of vehicle {vid!r}")
+            data = decode(kind, key, payload)
         except ValueError as exc:
             self.counts["invalid"] += 1
             if self.counts["invalid"] <= 5:

@@ -23,8 +23,6 @@ from typing import Optional
 import click
 
 from schemas import keys
-from schemas.pipeline import OcpEstimate
-from schemas.sensor import parse_sensor_line
 
 from services.runtime.config import DEFAULT_ENDPOINT
 
@@ -32,13 +30,9 @@ from services.runtime.log import JsonLog
 
 from services.runtime.process import open_session
 
-QUEUE_MAX = 10_000  # OCP records and sensor samples; ~50 s of one vehicle at 100 Hz
+from services.io.streams import decode, selectors
 
-#: stream -> (key builder per vehicle, fleet selector): the streams the live Foxglove server serves
-_STREAMS = {
-    "ocp": (keys.ocp, keys.any_vehicle_ocp),
-    "sensors": (keys.raw, keys.any_vehicle_raw),
-}
+QUEUE_MAX = 10_000  # OCP records and sensor samples; ~50 s of one vehicle at 100 Hz
 
 
 def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_bytes: int, max_files: int,
@@ -81,13 +75,7 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
             except queue.Empty:
                 continue
             try:
-                if kind == "ocp":
-                    data = OcpEstimate.model_validate_json(payload).model_dump()
-                else:
-                    data = parse_sensor_line(payload).model_dump()
-                vid, _rest = keys.split_key(key)
-                if data["vehicle_id"] != vid:
-                    raise ValueError(f"vehicle_id {data['vehicle_id']!r} on the key of vehicle {vid!r}")
+                data = decode(kind, key, payload)
             except ValueError as exc:
                 counts["invalid"] += 1
                 if counts["invalid"] <= 5:
@@ -100,9 +88,8 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
                 writer.write_sensor(data)
                 counts["sensors"] += 1
 
-    streams = [(kind, sel) for kind, (per_vehicle, fleet) in _STREAMS.items()
-               for sel in ([per_vehicle(v) for v in vehicle_ids] or [fleet()])]
-    selectors = [sel for _kind, sel in streams]
+    streams = selectors(vehicle_ids)
+    keys_subscribed = [sel for _kind, sel in streams]
     session = open_session("client", connect, [], multicast=False, stop=stop, log=log)
     if session is None:
         writer.close()
@@ -112,7 +99,7 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
     subs = []
     try:
         subs = [session.declare_subscriber(sel, callback(kind)) for kind, sel in streams]
-        log.info("recording", keys=selectors, out=out, max_bytes=max_bytes, max_files=max_files)
+        log.info("recording", keys=keys_subscribed, out=out, max_bytes=max_bytes, max_files=max_files)
         t_end = None if duration is None else time.monotonic() + duration
         last = dict(counts)
         while not stop.is_set():
