@@ -14,6 +14,7 @@ import click
 from services import commands as services_commands
 from services.bench import run as bench_commands
 from services.fleet import commands as fleet_commands
+from services.io import foxglove_live as foxglove_commands
 from services.io import record as record_commands
 from services.map import commands as map_commands
 from services.security import commands as certs_commands
@@ -30,6 +31,7 @@ AREAS = (
     fleet_commands,  # fleet, dashboard
     bench_commands,  # bench
     record_commands,  # record
+    foxglove_commands,  # foxglove
     certs_commands,  # certs
     map_commands,  # map (query, export); the service is `soilocp service map`
 )
