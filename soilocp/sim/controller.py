@@ -52,9 +52,12 @@ class ControllerParams:
     #: Speed set-point 0: the robot turns on the spot at ``turn_rate`` (a skid turn; cruise mode).
     turn_in_place: bool = False
     #: Accelerate and brake: speed set-point speed x (1 + speed_swing sin(2 pi t / speed_swing_period)),
-    #: so that the longitudinal force balance (docs/method.md §15) sees the mass and torque scale.
+    #: so that the longitudinal force balance (docs/method.md §15) sees the mass and torque scale.  In a
+    #: traction test the swing alternates with the sweep: one swing period of driving (every wheel holds
+    #: the speed, no sweep), then ``swing_sweep_time`` s of the traction test at the constant speed.
     speed_swing: float = 0.0
     speed_swing_period: float = 4.0
+    swing_sweep_time: float = 4.0
 
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
@@ -112,8 +115,13 @@ class SweepController:
         ctl, R, h, sc = self.ctl, self.v.wheel_radius, self.h, self.sc
         ramp = smoothstep(t / ctl.ramp_time) if ctl.ramp_time > 0 else 1.0
         v_ref = sc.speed * ramp
+        swinging = False
         if ctl.speed_swing > 0:
-            v_ref *= 1.0 + ctl.speed_swing * math.sin(2.0 * math.pi * t / ctl.speed_swing_period)
+            cycle = ctl.speed_swing_period + (ctl.swing_sweep_time if self.mode == "excitation" else 0.0)
+            phase = t % cycle
+            if phase < ctl.speed_swing_period:
+                swinging = True
+                v_ref *= 1.0 + ctl.speed_swing * math.sin(2.0 * math.pi * phase / ctl.speed_swing_period)
         if ctl.turn_in_place:
             v_ref = 0.0
         if ctl.reverse:
@@ -140,7 +148,7 @@ class SweepController:
             self.slip_cmd = None
             return [clamp(v_ref - r_c * yi) / R for yi in self.ys]
         # excitation: the leading axle sweeps driving slip, the trailing one holds the speed by braking
-        s_cmd = sc.sweep.slip_at(t) * ramp
+        s_cmd = 0.0 if swinging else sc.sweep.slip_at(t) * ramp
         # the governor acts on the cycle-mean speed, not on the excursions within one sweep
         self.v_mean += h / ctl.governor_tau * (V - self.v_mean)
         over = (ctl.direction * self.v_mean - sc.speed) / sc.speed - ctl.governor_deadband
@@ -164,7 +172,7 @@ class SweepController:
             v_hold = max(v_hold, V * (1.0 - ctl.brake_slip_limit))
         out = []
         for sweeping, yi in zip(self.sweeping, self.ys):
-            if sweeping:
+            if sweeping and not swinging:
                 out.append(clamp(V - r_c * yi) / (R * (1.0 - s_cmd)))
             else:
                 out.append(clamp(v_hold - r_c * yi) / R)
