@@ -33,7 +33,7 @@ def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, secon
     return t, f_x, omega, logged, v
 
 
-def _run(stream, cfg=TorqueScaleConfig()):
+def _run(stream, cfg=TorqueScaleConfig(enabled=True)):
     t, f_x, omega, logged, v = stream
     bank = TorqueScaleBank(V, cfg, 0.05, 1)
     ix = np.array([0])
@@ -66,7 +66,7 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
     """The robust-mix traction test: its speed swings within each sweep, but motion resistance swings
     with the slip, so its windows are left out (max_slip) and the scale stays the prior."""
     var = get_variant("nominal")
-    bank = TorqueScaleBank(V, TorqueScaleConfig(), 0.05, 1)
+    bank = TorqueScaleBank(V, TorqueScaleConfig(enabled=True), 0.05, 1)
     ix = np.array([0])
     for s, _ in var.simulate(0, duration=15.0):
         m, sd = bank.step(ix, [s.stamp], [s.specific_force[0]], [s.pitch], [s.yaw_rate], [s.wheel_speed],
