@@ -77,3 +77,29 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
 def test_disabled_it_is_the_prior():
     est = _run(_balance_stream(1.08, accel=0.8, seconds=10.0), TorqueScaleConfig(enabled=False))
     assert np.all(est[:, 0] == 1.0) and np.all(est[:, 1] == 0.05)
+
+
+def test_the_pipeline_learns_a_payload_and_the_batched_path_matches():
+    """Offline (VehiclePipeline, the live stages' code) and batched path through the same kernel: the
+    payload drive's torques are scaled by the learnt k (m / m' = 0.8 for +25 %), the nominal drive's stay."""
+    from soilocp.estimation.batch import BatchPipeline
+    from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+
+    cfg = PipelineConfig()
+    drives = {"p": [s.model_copy(update={"vehicle_id": "p"}) for s, _ in get_variant("payload+25-accel-brake").simulate(0, duration=12.0)],
+              "n": [s.model_copy(update={"vehicle_id": "n"}) for s, _ in get_variant("nominal").simulate(0, duration=12.0)]}
+    singles = {n: VehiclePipeline(cfg) for n in drives}
+    batch = BatchPipeline(cfg, 2)
+    last = {}
+    for k in range(len(drives["p"])):
+        samples = [drives["p"][k], drives["n"][k]]
+        ref = [singles[n].process_all(s) for n, s in zip(drives, samples)]
+        out = batch.step(np.array([0, 1]), samples, [r[0].normal_force for r in ref])
+        for o, (nf, ob, so, oc) in zip(out, ref):
+            assert o.status == oc.status and o.reason == oc.reason
+            for name in ("soil_strength", "soil_strength_std"):
+                a, b = getattr(o, name), getattr(oc, name)
+                assert (a is None and b is None) or a == pytest.approx(b, rel=1e-9, abs=1e-9)
+        last = {n: r[1] for n, r in zip(drives, ref)}
+    assert last["p"].torque_scale < 0.95 and last["p"].torque_scale_std < 0.045
+    assert last["n"].torque_scale == 1.0 and last["n"].torque_scale_std is None

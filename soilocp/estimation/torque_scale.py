@@ -39,9 +39,7 @@ class TorqueScaleConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    enabled: bool = Field(
-        False, description="Learn the torque scale online (False: k = 1 +- soil.gross_scale_sigma always).  Off by "
-        "default: on the simulated accelerate/brake drives it still reads k 2-5 % low (docs/robustness.md, issue 27)")
+    enabled: bool = Field(True, description="Learn the torque scale online (False: k = 1 +- soil.gross_scale_sigma always)")
     window: float = Field(1.0, gt=0, description="s: the force balance is taken over window means")
     min_speed: float = Field(0.2, gt=0, description="m/s: slower windows are left out (static friction, stall)")
     max_yaw_rate: float = Field(0.1, gt=0, description="rad/s: a skid turn spends torque on scrubbing the wheels sideways")
@@ -80,8 +78,9 @@ class TorqueScaleBank:
             return inputs, None
         m, sd = self.step(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
                           inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed)
-        if np.any(m != 1.0):
-            inputs = dataclasses.replace(inputs, wheel_torque=inputs.wheel_torque * m[:, None])
+        if np.all(m == 1.0) and np.all(sd == self.prior_sigma):  # never learnt: exactly the configured prior
+            return inputs, None
+        inputs = dataclasses.replace(inputs, wheel_torque=inputs.wheel_torque * m[:, None])
         return inputs, sd / m
 
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
