@@ -76,6 +76,7 @@ class TorqueScaleBank:
         the soil estimator's scale prior, or None while the state is off (the prior stays the config's)."""
         if not self.cfg.enabled or self.prior_sigma <= 0:
             return inputs, None
+        inputs.check()  # the observer's own named errors for a bad shape or value, before any arithmetic here
         m, sd = self.step(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
                           inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed)
         if np.all(m == 1.0) and np.all(sd == self.prior_sigma):  # never learnt: exactly the configured prior
