@@ -6,7 +6,8 @@ Eq. TC (:func:`soilocp.model.force_balance.longitudinal_balance`, the function `
 calibrate-torque`` fits offline) holds for the means over a window: y = k x - F_MR with
 x = sum T_log / R and y = m f_x + I_w sum omega_dot / R.  Per vehicle the state is (k, F_MR), a
 Kalman filter stepped once per window (``window`` s of samples, trapezoid means as the offline
-fit's, cut at stamp gaps), where the balance holds (moving at >= ``min_speed``, straight, finite):
+fit's, cut at stamp gaps), where the balance holds with a slow F_MR (moving at >= ``min_speed``,
+straight, every wheel's slip within ``max_slip``, finite):
 
 * k: prior N(1, ``SoilConfig.gross_scale_sigma``), a random walk of ``scale_walk`` per sqrt(s);
 * F_MR: the motion resistance (and an accelerometer bias times m), a random walk of
