@@ -102,6 +102,14 @@ class ObserverOutput(_Message):
         default=(False,) * 4, description="Per wheel: one of its speed and torque streams refreshes slowly and the other is "
         "read at every sample, so K learns at the refreshes only, not from the observer's prediction between them"
     )
+    torque_scale: float = Field(
+        default=1.0, gt=0, description="The common torque scale (motor constant x 1 / mass) the logged torques were "
+        "multiplied by before this step: learnt online from the force balance (soilocp.estimation.torque_scale)"
+    )
+    torque_scale_std: Optional[float] = Field(
+        default=None, ge=0, description="Its posterior 1-sigma, relative; None: the soil estimator's prior "
+        "(soil.gross_scale_sigma), i.e. the online scale is off"
+    )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")
     reset_reason: str = Field(

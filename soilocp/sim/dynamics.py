@@ -116,8 +116,10 @@ class RoverDrive:
         segs = self.sc.segments
         if len(segs) == 1 and hasattr(self, "seg"):
             return
-        starts, d = self._starts, self.dist
-        seg_wheels = [max(bisect.bisect_right(starts, d + xi) - 1, 0) for xi in self.xs]
+        # the segments are laid out along the path: backwards in reverse, where the rear wheels lead
+        sgn = self.ctl.direction
+        starts, d = self._starts, sgn * self.dist
+        seg_wheels = [max(bisect.bisect_right(starts, d + sgn * xi) - 1, 0) for xi in self.xs]
         seg_com = max(bisect.bisect_right(starts, d) - 1, 0)
         if hasattr(self, "seg") and seg_com == self.seg and seg_wheels == self.seg_wheels:
             return
@@ -173,6 +175,12 @@ class RoverDrive:
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
         Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz, cv = ([0.0] * 4 for _ in range(11))
+        # the truth in the frame of travel (eq. 1 and the traction law as for forward travel, mirrored)
+        s_tr, g_tr, mu_tr = ([0.0] * 4 for _ in range(3))
+        # a wheel's direction of travel is the one its drive commands: backwards in a reverse drive, and
+        # on the spot, each side its own way.  (Not the sign of V_i: a robot that rolls back on a climb
+        # before its wheels grip still "drives forward", and eq. 1 then reads |S| > 1, as it should.)
+        back = [ctl.reverse or (ctl.turn_in_place and q < 0.0) for q in w_ref]
         # skid steer: the two wheels of a side are chained to one motor (one speed per side)
         units = ((0, 1), (2, 3)) if v.drive == "per_side" else ((0,), (1,), (2,), (3,))
         hkp, hR, inv_h = h * kp, h * R, 1.0 / h
@@ -222,6 +230,15 @@ class RoverDrive:
                 dg = tdg[j] + fr * (tdg[j + 1] - tdg[j])
                 mu = tmu[j] + fr * (tmu[j + 1] - tmu[j])
                 dmu = tdmu[j] + fr * (tdmu[j + 1] - tdmu[j])
+                # travel backwards (V_i < 0): the same drive mirrored (x -> -x).  Eq. 1 for the direction
+                # of travel gives the driving slip S_d = -s; net traction is odd (eq. 6), so the body force
+                # -mu(S_d) Fz = mu(s) Fz is unchanged, but the motion resistance (eq. 4, even in S) now
+                # opposes backward travel: the wheel's eq. 13 sees -g(S_d) = mu(s) - r(|s|) = 2 mu - g.
+                if back[i]:
+                    g, dg = 2.0 * mu - g, 2.0 * dmu - dg
+                    s_tr[i], g_tr[i], mu_tr[i] = -s, -g, -mu
+                else:
+                    s_tr[i], g_tr[i], mu_tr[i] = s, g, mu
                 tr = kp * (w_ref[i] - wi) + t_int[i] if held is None else held[i]
                 if tr > tmax:
                     T, kpe = tmax, 0.0
@@ -318,7 +335,7 @@ class RoverDrive:
         self.acc = (V - V0) / h
         self.w, self.V, self.r = w, V, r
         self.torque = tq[:]
-        self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
+        self.slips, self.gross, self.mus = s_tr, g_tr, mu_tr
         self.f_used, self.fz = f, fz[:]
         # trapezoid rule: the encoder's count difference is then the interval's mean speed to O(h^2),
         # as on the real wheel (the right-Riemann sum h * w_new read it (1 - 1/n_sub) of the true lag)

@@ -10,7 +10,11 @@ corrected, docs/method.md §2-3), slip eq. 1 with the standstill floor of :mod:`
 Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
 
 * slip of wheel i, eq. 1: S_i = (omega_i R_w - V_i) / max(|omega_i R_w|, |V_i|, floor), with the
-  ground speed at the wheel V_i = V - psi_dot * y_i (differential steering);
+  ground speed at the wheel V_i = V - psi_dot * y_i (differential steering); for a wheel whose drive
+  travels backwards (``ControllerParams.reverse``, or one side of a turn on the spot) eq. 1 for that
+  direction, -S_i, and the drive mirrored: the same body force, the resistance opposing backward
+  travel (dynamics.RoverDrive._substep); the truth reports slip, mu, gross traction and resistance
+  in the frame of travel;
 * wheel i, eq. 13: I_w omega_i' = T_i - R_w (mu_i + r_i) Fz_i: the wheel sees gross traction;
 * body, longitudinal: m V' = sum(mu_i Fz_i) - m g sin(grade) (net traction already contains
   the motion resistance; -g sin(grade) is the x component of gravity, eq. 20 with pitch = -grade);
