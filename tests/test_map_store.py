@@ -211,3 +211,43 @@ def test_postgresql_postgis_store_gives_the_same_cells(tmp_path, pg):
     res = post.apply([item(p, "a") for p, _c in _bad_payloads()])
     assert len(res.refused) == len(_bad_payloads()) and store.obs_rows() == before
     store.close()
+
+
+def _reply_equals_columns(store, frame, box, now, limit=100_000):
+    from schemas.map import MapCellColumns
+
+    text, n, cut = store.query_json(frame, box, now, limit)
+    got = MapCellColumns.model_validate_json(text)  # the reply's own schema
+    want, want_cut = store.query_columns(frame, box, now, limit)
+    assert (n, cut) == (len(want["cell"]), want_cut)
+    for name in ("cell", "cx", "cy", "count", "last_seen", "vehicles"):
+        assert getattr(got, name) == want[name], name
+    for name in ("K", "log_k_std", "K_lo", "K_hi"):
+        assert getattr(got, name) == pytest.approx(want[name], rel=1e-12), name
+    return n
+
+
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_box_replies_from_memory_follow_every_commit(tmp_path, backend, request):
+    """query_json (the map service's replies, laid out in memory) equals the database's own box
+    query after each commit: new cells, changed cells, ageing, limits, unknown frames."""
+    store = (_sqlite(tmp_path) if backend == "sqlite"
+             else open_store(request.getfixturevalue("pg").new_database("replies")))
+    up = MapUpdater(store)
+    items = _fleet_items(seed=5, n=240)
+    box, limit_box = (0.0, 0.0, 40.0, 40.0), (5.0, 5.0, 20.0, 20.0)
+    assert _reply_equals_columns(store, "f", box, NOW) == 0
+    seen = []
+    for i in range(0, len(items), 60):  # every batch adds cells and changes some already laid out
+        up.apply(items[i:i + 60])
+        seen.append(_reply_equals_columns(store, "f", box, NOW + i))
+        _reply_equals_columns(store, "f", limit_box, NOW + 3600 * i)
+    assert seen[-1] > seen[0] > 0
+    assert _reply_equals_columns(store, "f", box, NOW, limit=3) == 3
+    assert store.query_json("f", box, NOW, limit=3)[2]
+    assert _reply_equals_columns(store, "elsewhere", box, NOW) == 0
+    # another connection (a second reader, a restarted service) lays out the same cells
+    other = open_store(store.url)
+    assert other.query_json("f", box, NOW + 1)[0] == store.query_json("f", box, NOW + 1)[0]
+    other.close()
+    store.close()
