@@ -30,10 +30,17 @@ class MapPrior:
     def __init__(self, cells: Sequence[MapCell], cell_config: Optional[CellConfig] = None,
                  vehicle: VehicleParams = DEFAULT_VEHICLE, min_count: int = 1):
         self.index = CellIndex(cell_config or CellConfig())
+        self.min_count = min_count
         self.cells = {c.cell: c for c in cells if c.count >= min_count}
         self.ahead = vehicle.b  # CoM to the front axle, m
         self.current: Optional[str] = None
         self.entered = 0  # priors given
+
+    def update_cells(self, cells: Sequence[MapCell]) -> None:
+        """Replace the cells (a newer answer of the map around the vehicle); one assignment, so a
+        thread may call it while another steps the estimator.  The cell the vehicle is in is not
+        entered again."""
+        self.cells = {c.cell: c for c in cells if c.count >= self.min_count}
 
     def __call__(self, obs: ObserverOutput) -> Optional[tuple[float, float]]:
         p, g = obs.position, obs.geo
