@@ -176,16 +176,17 @@ class MapStore:
 
     def changed_cells(self, since: int) -> tuple[int, list[tuple]]:
         """The current commit number and the cells a commit numbered >= ``since`` changed (all cells
-        for since < 0): ``(frame, cell, cx, cy, ln_k, var, t, n, last_seen, vehicles)``.  ``>=``: a
-        commit of another writer of a shared database may carry the number last seen."""
+        for since < 0; none while the number is still ``since``): ``(frame, cell, cx, cy, ln_k, var, t, n,
+        last_seen, vehicles)``.  ``>=``: a commit of another writer of a shared database may carry
+        the number last seen."""
         cur = self._conn().cursor()
         cur.execute("SELECT MAX(ver) FROM cells")
         ver = int(cur.fetchone()[0] or 0)
         if since < 0:
             cur.execute(_CHANGED)
-        elif ver >= since:
+        elif ver > since:  # nothing committed since: nothing to read (the common case of a query)
             cur.execute(self._sql(_CHANGED + "AND ver >= ?"), (since,))
-        rows = cur.fetchall() if since < 0 or ver >= since else []
+        rows = cur.fetchall() if since < 0 or ver > since else []
         self._end_read()
         return ver, rows
 
