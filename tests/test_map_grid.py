@@ -19,21 +19,24 @@ from soilocp.map.updater import MapUpdater
 from soilocp.model.ocp import ocp_from_soil_strength
 
 
+def _grid_class(schema_data: bytes):
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    for fd in descriptor_pb2.FileDescriptorSet.FromString(schema_data).file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName("foxglove.Grid"))
+
+
 def decode_grids(path) -> dict[str, object]:
     """{topic: decoded foxglove.Grid} of an MCAP file, decoded from the schema in the file."""
-    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
     from mcap.reader import make_reader
 
     out = {}
     with open(path, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages():
             assert (schema.name, schema.encoding, channel.message_encoding) == ("foxglove.Grid", "protobuf", "protobuf")
-            fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
-            pool = descriptor_pool.DescriptorPool()
-            for fd in fds.file:
-                pool.Add(fd)
-            cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
-            out[channel.topic] = cls.FromString(message.data)
+            out[channel.topic] = _grid_class(schema.data).FromString(message.data)
     return out
 
 
@@ -83,15 +86,6 @@ def test_export_foxglove_grid_equals_the_maps_cells(tmp_path):
     assert filled == len(places)
     (gg,) = np.frombuffer(grids["/soilmap/fleet/g/grid"].data, dtype="<f4").reshape(1, 1, 5)[0]
     assert gg[1] == pytest.approx(300.0, rel=1e-6) and not math.isnan(gg[0])
-
-
-def _grid_class(schema_data: bytes):
-    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-
-    pool = descriptor_pool.DescriptorPool()
-    for fd in descriptor_pb2.FileDescriptorSet.FromString(schema_data).file:
-        pool.Add(fd)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName("foxglove.Grid"))
 
 
 async def _watch_grids(port: int, topic: str, until, deadline: float) -> list:
