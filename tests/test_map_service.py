@@ -228,3 +228,50 @@ def test_live_vehicle_services_feed_the_map(tmp_path):
                 assert c.vehicles == ["rover1"]
     finally:
         procs.close()
+
+
+def test_live_soil_strength_starts_from_the_map(tmp_path):
+    """Opt-in map prior, real processes: a map service holds cells along the drive (K = 123, a value
+    no soil of the drive has); `soilocp run` with SOILOCP_MAP_PRIOR=<map id>: the soil-strength
+    service asks the map for the cells around the vehicle and starts its belief from them as the
+    vehicle enters each (counted in its health, logged with the map's K)."""
+    from map_helpers import item
+    from soilocp.map.updater import MapUpdater
+
+    db = tmp_path / "m.db"
+    st = open_store(f"sqlite:{db}")
+    MapUpdater(st).apply([item(estimate("mapper", i + 1, 123.0, 0.1, xy=((x + 2.5, y + 2.5),), frame="field"))
+                          for i, (x, y) in enumerate((x, y) for x in range(-10, 100, 5) for y in (-10, -5, 0, 5))])
+    st.close()
+    procs = Procs(tmp_path / "logs")
+    ep = endpoint(free_port())
+    try:
+        procs.spawn("router", ["router", "--listen", ep])
+        procs.spawn("map", ["service", "map", "--map-id", "m", "--connect", ep, "--store", f"sqlite:{db}"])
+        with client(ep) as s:
+            assert _map_alive(s, "m"), procs.tail("map")
+            status: list[dict] = []
+            sub = s.declare_subscriber(keys.status("rover1", "soil-strength"),
+                                       lambda x: status.append(json.loads(x.payload.to_bytes())))
+            run = procs.spawn("rover", ["run", "--synthetic", "mixed", "--vehicle-id", "rover1", "--duration", "18",
+                                        "--listen", endpoint(free_port()), "--plain", "--log-dir", str(tmp_path / "run")],
+                              env={"SOILOCP_START_POSE": "field:0,0,0", "SOILOCP_ROUTER_CONNECT": ep,
+                                   "SOILOCP_MAP_PRIOR": "m"})
+            run.wait(240)
+            sub.undeclare()
+        assert run.returncode == 0, procs.tail("rover", 40)
+        (log,) = list((tmp_path / "run").rglob("soil-strength*.log"))
+        events = [json.loads(line) for line in log.read_text().splitlines() if line.startswith("{")]
+        asked = [e for e in events if e.get("event") == "map_prior_cells"]
+        used = [e for e in events if e.get("event") == "map_prior_used"]
+        assert asked and asked[0]["cells"] >= 20 and asked[0]["frame"] == "field", log.read_text()[-2000:]
+        # at 1 m/s over ~18 s: the front axle enters the 5 m cells at x = 5, 10, 15 m (the map's answer
+        # may come after the first), once each, not at every wobble over the border y = 0
+        assert len(used) >= 2, log.read_text()[-2000:]
+        assert all(e["K"] == pytest.approx(123.0, rel=1e-6) and e["cell"].startswith("field/5/") for e in used)
+        assert len({e["cell"].rsplit("/", 2)[1] for e in used}) == len(used)  # one entry per column
+        details = [h["detail"] for h in status if "map_prior_entered" in h.get("detail", {})]
+        assert details and max(d["map_prior_entered"] for d in details) >= 1, status[-1:] if status else "no status"
+        assert max(d["map_prior_queries"] for d in details) >= 1
+    finally:
+        procs.close()

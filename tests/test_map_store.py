@@ -211,3 +211,76 @@ def test_postgresql_postgis_store_gives_the_same_cells(tmp_path, pg):
     res = post.apply([item(p, "a") for p, _c in _bad_payloads()])
     assert len(res.refused) == len(_bad_payloads()) and store.obs_rows() == before
     store.close()
+
+
+def _reply_equals_columns(store, frame, box, now, limit=100_000):
+    from schemas.map import MapCellColumns
+
+    text, n, cut = store.query_json(frame, box, now, limit)
+    got = MapCellColumns.model_validate_json(text)  # the reply's own schema
+    want, want_cut = store.query_columns(frame, box, now, limit)
+    assert (n, cut) == (len(want["cell"]), want_cut)
+    for name in ("cell", "cx", "cy", "count", "last_seen", "vehicles"):
+        assert getattr(got, name) == want[name], name
+    for name in ("K", "log_k_std", "K_lo", "K_hi"):
+        assert getattr(got, name) == pytest.approx(want[name], rel=1e-12), name
+    return n
+
+
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_box_replies_from_memory_follow_every_commit(tmp_path, backend, request):
+    """query_json (the map service's replies, laid out in memory) equals the database's own box
+    query after each commit: new cells, changed cells, ageing, limits, unknown frames."""
+    store = (_sqlite(tmp_path) if backend == "sqlite"
+             else open_store(request.getfixturevalue("pg").new_database("replies")))
+    up = MapUpdater(store)
+    items = _fleet_items(seed=5, n=240)
+    box, limit_box = (0.0, 0.0, 40.0, 40.0), (5.0, 5.0, 20.0, 20.0)
+    assert _reply_equals_columns(store, "f", box, NOW) == 0
+    seen = []
+    for i in range(0, len(items), 60):  # every batch adds cells and changes some already laid out
+        up.apply(items[i:i + 60])
+        seen.append(_reply_equals_columns(store, "f", box, NOW + i))
+        _reply_equals_columns(store, "f", limit_box, NOW + 3600 * i)
+    assert seen[-1] > seen[0] > 0
+    assert _reply_equals_columns(store, "f", box, NOW, limit=3) == 3
+    assert store.query_json("f", box, NOW, limit=3)[2]
+    assert _reply_equals_columns(store, "elsewhere", box, NOW) == 0
+    # another connection (a second reader, a restarted service) lays out the same cells
+    other = open_store(store.url)
+    assert other.query_json("f", box, NOW + 1)[0] == store.query_json("f", box, NOW + 1)[0]
+    other.close()
+    store.close()
+
+
+def test_map_prior_enters_new_ground_once_not_each_wobble_over_a_border():
+    """MapPrior along a cell border (y = 0, the front axle wandering ±5 cm): the belief starts from
+    the map on entering ground it has not just left, not at every crossing of the border."""
+    from types import SimpleNamespace
+
+    from schemas.map import MapCell
+    from soilocp.map.prior import MapPrior
+
+    def cell(ix, iy, k):
+        return MapCell(cell=f"f/5/{ix}/{iy}", frame="f", center=(5 * ix + 2.5, 5 * iy + 2.5), K=k, log_k_std=0.1,
+                       K_lo=k * 0.8, K_hi=k * 1.2, count=3, last_seen=NOW, vehicles=["a"])
+
+    cells = [cell(ix, iy, 50.0 + 10 * ix + iy) for ix in range(4) for iy in (-1, 0)]
+    prior = MapPrior(cells, CellConfig(cell_size=5.0))
+    got = []
+    for i in range(1500):  # 15 m at 1 cm a step, y flipping sign every 7 steps
+        x, y = 0.01 * i, 0.05 if (i // 7) % 2 else -0.05
+        start = prior(SimpleNamespace(position=SimpleNamespace(frame="f", x=x - prior.ahead, y=y, heading=0.0), geo=None))
+        if start is not None:
+            got.append((round(x, 2), round(math.exp(start[0]), 6)))
+    # once for each of the two cells at the border in each 5 m column: 6 restarts, not ~200
+    assert sorted(k for _x, k in got) == [49.0, 50.0, 59.0, 60.0, 69.0, 70.0]
+    assert [x for x, _k in got][::2] == [0.0, 5.0, 10.0] and prior.entered == 6
+
+    def at(x, y):
+        return prior(SimpleNamespace(position=SimpleNamespace(frame="f", x=x - prior.ahead, y=y, heading=0.0), geo=None))
+
+    # on into the next column: new ground; back into the cell just left 3 m from where it was
+    # left (a turn, not a wobble): new ground again, from the map
+    assert at(15.5, 0.05) is not None and prior.current == "f/5/3/0"
+    assert at(12.0, 0.05) is not None and prior.current == "f/5/2/0" and prior.entered == 8

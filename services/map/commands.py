@@ -141,21 +141,36 @@ def map_query(store_url, connect, map_id, frame, bbox, timeout, as_json) -> None
 
 @map_group.command("export")
 @_with_common
-@click.option("--geojson", "out", required=True, type=click.Path(dir_okay=False), help="Output GeoJSON file.")
-def map_export(store_url, connect, map_id, frame, bbox, timeout, out) -> None:
-    """Write the cells as a GeoJSON FeatureCollection of polygons (K, band, mu_T, count, vehicles)."""
+@click.option("--geojson", "out", type=click.Path(dir_okay=False), help="Output GeoJSON file.")
+@click.option("--foxglove-grid", "grid_out", type=click.Path(dir_okay=False),
+              help="Output MCAP file: a foxglove.Grid (mu_T, K, band) per local frame, for Foxglove's 3D panel.")
+def map_export(store_url, connect, map_id, frame, bbox, timeout, out, grid_out) -> None:
+    """Write the cells as a GeoJSON FeatureCollection of polygons (K, band, mu_T, count, vehicles)
+    and/or as a Foxglove grid of each local frame in an MCAP file."""
     from soilocp.map.geojson import feature_collection
 
+    if not out and not grid_out:
+        click.echo("soilocp map export: give --geojson FILE and/or --foxglove-grid FILE.mcap", err=True)
+        sys.exit(2)
     box = _bbox(bbox)
     try:
         cells = _cells(store_url, connect, map_id, frame, box, timeout)
     except (ValueError, RuntimeError) as exc:
         click.echo(f"soilocp map export: {exc}", err=True)
         sys.exit(1)
-    with open(out, "w", encoding="utf-8") as f:
-        json.dump(feature_collection(cells), f)
-        f.write("\n")
-    click.echo(f"{out}: {len(cells)} cell(s)")
+    if out:
+        with open(out, "w", encoding="utf-8") as f:
+            json.dump(feature_collection(cells), f)
+            f.write("\n")
+        click.echo(f"{out}: {len(cells)} cell(s)")
+    if grid_out:
+        import time
+
+        from soilocp.export.mcap_out import write_map_grids
+
+        topics = write_map_grids(grid_out, map_id, cells, time.time())
+        click.echo(f"{grid_out}: {len(topics)} grid(s) {' '.join(topics)}"
+                   + (" (WGS84 cells have no grid: use --geojson)" if any(c.frame == "wgs84" for c in cells) else ""))
 
 
 COMMANDS = [map_group]

@@ -142,6 +142,10 @@ class MapService:
                                             received_at=r.received_at).model_dump_json())
 
     def _reader(self) -> None:
+        try:
+            self.store.prepare_replies()
+        except Exception as exc:  # the first query tries again, and answers with the error
+            self.log.error("query_prepare_failed", error=f"{type(exc).__name__}: {exc}"[:300])
         while not self.stop.is_set():
             try:
                 query = self.queries.get(timeout=0.1)
@@ -150,12 +154,12 @@ class MapService:
             try:
                 frame, box, limit = parse_query(str(query.selector.parameters))
                 now = time.time()
-                cols, cut = self.store.query_columns(frame, box, now, limit or self.cfg.query_limit)
-                # the columns come from the store's own fusion (finite, positive by construction): the
-                # MapQueryReply's fields serialised at once (pydantic-core, Rust), not re-validated per query
-                rep = {"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box, "columns": cols,
-                       "truncated": cut, "time": now}
-                query.reply(keys.map_key(self.cfg.map_id, "query"), to_json(rep))
+                # the columns come from the store's own fusion (finite, positive by construction), written
+                # as JSON from memory (soilocp.map.replies): MapQueryReply's fields, not re-validated per query
+                cols, _n, cut = self.store.query_json(frame, box, now, limit or self.cfg.query_limit)
+                head = to_json({"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box,
+                                "truncated": cut, "time": now}).decode()
+                query.reply(keys.map_key(self.cfg.map_id, "query"), f'{head[:-1]},"columns":{cols}}}')
             except ValueError as exc:
                 query.reply_err(str(exc))
             except Exception as exc:

@@ -129,3 +129,34 @@ class RotatingMcapWriter:
         if self._w is not None:
             self._w.close()
             self._w = None
+
+
+def write_map_grids(output: Union[str, Path], map_id: str, cells, stamp: float) -> list[str]:
+    """The map's cells of each local frame as one ``foxglove.Grid`` message (channels.map_grid_message)
+    on ``/soilmap/<map_id>/<frame>/grid``, log time ``stamp``; returns the topics written.  WGS84
+    (H3) cells have no grid and are left out."""
+    from foxglove.messages import Grid
+    from mcap.writer import CompressionType, Writer
+
+    from schemas.map import WGS84
+    from soilocp.export.channels import map_grid_message, map_grid_topic
+    from soilocp.map.grid import raster
+
+    frames: dict[str, list] = {}
+    for c in cells:
+        if c.frame != WGS84:
+            frames.setdefault(c.frame, []).append(c)
+    schema = Grid.get_schema()
+    t = log_time_ns(stamp)
+    with open(output, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start(profile="", library="soilocp")
+        sid = w.register_schema(schema.name, schema.encoding, schema.data)
+        out = []
+        for frame in sorted(frames):
+            tp = map_grid_topic(map_id, frame)
+            cid = w.register_channel(tp, "protobuf", sid)
+            w.add_message(cid, log_time=t, publish_time=t, data=map_grid_message(raster(frames[frame]), stamp).encode())
+            out.append(tp)
+        w.finish()
+    return out

@@ -3,7 +3,8 @@ outgrows one machine.  Same tables, same upsert, same fusion (:mod:`soilocp.map.
 
 Tables::
 
-    cells(cell PK, frame, cx, cy)                       a cell and its centre (PostGIS: + geom, GiST index)
+    cells(cell PK, frame, cx, cy, <fused state>, ver)   a cell, its centre (PostGIS: + geom, GiST index), its
+                                                        fused state, and the commit number that last changed it
     obs(cell, vehicle, ln_k, var, seq, stamp, seen_at, n)   PK (cell, vehicle): the vehicle's latest estimate there
     vehicles(vehicle PK, last_seq, applied)             the committed-updates ledger per vehicle
     meta(key PK, value)                                 cell size and H3 resolution: a store refuses another grid
@@ -32,7 +33,7 @@ _TABLES = [
     # ln_k .. vehicles: the cell's fused state at time t (fusion.fuse_cells), written with every change
     "CREATE TABLE IF NOT EXISTS cells (cell TEXT PRIMARY KEY, frame TEXT NOT NULL, cx DOUBLE PRECISION NOT NULL, "
     "cy DOUBLE PRECISION NOT NULL, ln_k DOUBLE PRECISION, var DOUBLE PRECISION, t DOUBLE PRECISION, n BIGINT, "
-    "last_seen DOUBLE PRECISION, vehicles TEXT{geom})",
+    "last_seen DOUBLE PRECISION, vehicles TEXT, ver BIGINT{geom})",
     "CREATE TABLE IF NOT EXISTS obs (cell TEXT NOT NULL, vehicle TEXT NOT NULL, ln_k DOUBLE PRECISION NOT NULL, "
     "var DOUBLE PRECISION NOT NULL, seq BIGINT NOT NULL, stamp DOUBLE PRECISION NOT NULL, "
     "seen_at DOUBLE PRECISION NOT NULL, n BIGINT NOT NULL, PRIMARY KEY (cell, vehicle)){without_rowid}",
@@ -52,7 +53,8 @@ _UPSERT_VEHICLE = (
 _ROWS = ("SELECT c.cell, c.frame, c.cx, c.cy, o.vehicle, o.ln_k, o.var, o.n, o.seen_at FROM cells c "
          "JOIN obs o ON o.cell = c.cell ")
 _FUSED = "SELECT cell, cx, cy, ln_k, var, t, n, last_seen, vehicles FROM cells WHERE n IS NOT NULL "
-_SET_FUSED = "UPDATE cells SET ln_k = ?, var = ?, t = ?, n = ?, last_seen = ?, vehicles = ? WHERE cell = ?"
+_SET_FUSED = "UPDATE cells SET ln_k = ?, var = ?, t = ?, n = ?, last_seen = ?, vehicles = ?, ver = ? WHERE cell = ?"
+_CHANGED = "SELECT frame, cell, cx, cy, ln_k, var, t, n, last_seen, vehicles FROM cells WHERE n IS NOT NULL "
 
 
 class StoreError(RuntimeError):
@@ -101,6 +103,10 @@ class MapStore:
         cur = c.cursor()
         for t in _TABLES:
             cur.execute(t.format(geom=geom, without_rowid=without_rowid))
+        cur.execute("SELECT * FROM cells WHERE 1 = 0")
+        if "ver" not in [d[0] for d in cur.description]:  # a store made before the change counter
+            cur.execute("ALTER TABLE cells ADD COLUMN ver BIGINT")
+        cur.execute("CREATE INDEX IF NOT EXISTS cells_ver ON cells (ver)")
         for q in extra:
             cur.execute(q)
         want = {"cell_size": f"{self.cell_config.cell_size:g}", "h3_resolution": str(self.cell_config.h3_resolution)}
@@ -148,8 +154,11 @@ class MapStore:
             part = ids[i:i + 500]
             cur.execute(self._sql(_ROWS + f"WHERE c.cell IN ({', '.join('?' * len(part))})"), part)
             rows += cur.fetchall()
-        cur.executemany(self._sql(_SET_FUSED), [(lk, v, last, n, last, ",".join(veh), cell) for cell, lk, v, n, last, veh
-                                                in fuse_cells(rows, self.fusion.ageing_rate)])
+        # the commit's number marks the cells it changed (ReplyCache reads them back)
+        cur.execute("SELECT MAX(ver) FROM cells")
+        ver = int(cur.fetchone()[0] or 0) + 1
+        cur.executemany(self._sql(_SET_FUSED), [(lk, v, last, n, last, ",".join(veh), ver, cell)
+                                                for cell, lk, v, n, last, veh in fuse_cells(rows, self.fusion.ageing_rate)])
 
     # --- reading ---------------------------------------------------------------------------------
     def query_columns(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
@@ -164,6 +173,41 @@ class MapStore:
         self._end_read()
         cut = len(rows) > limit
         return aged_columns(rows[:limit], frame, now, self.fusion.ageing_rate), cut
+
+    def changed_cells(self, since: int) -> tuple[int, list[tuple]]:
+        """The current commit number and the cells a commit numbered >= ``since`` changed (all cells
+        for since < 0; none while the number is still ``since``): ``(frame, cell, cx, cy, ln_k, var, t, n,
+        last_seen, vehicles)``.  ``>=``: a commit of another writer of a shared database may carry
+        the number last seen."""
+        cur = self._conn().cursor()
+        cur.execute("SELECT MAX(ver) FROM cells")
+        ver = int(cur.fetchone()[0] or 0)
+        if since < 0:
+            cur.execute(_CHANGED)
+        elif ver > since:  # nothing committed since: nothing to read (the common case of a query)
+            cur.execute(self._sql(_CHANGED + "AND ver >= ?"), (since,))
+        rows = cur.fetchall() if since < 0 or ver > since else []
+        self._end_read()
+        return ver, rows
+
+    def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
+                   ) -> tuple[str, int, bool]:
+        """:meth:`query_columns` as the JSON of the reply's ``columns`` (schemas.map.MapCellColumns),
+        their number and whether ``limit`` cut them; from memory, kept up to date from the cells'
+        commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
+        return self._replies().columns_json(frame, bbox, now, limit)
+
+    def _replies(self):
+        from soilocp.map.replies import ReplyCache
+
+        cache = getattr(self._local, "replies", None)
+        if cache is None:
+            cache = self._local.replies = ReplyCache(self)
+        return cache
+
+    def prepare_replies(self) -> None:
+        """Lay out the stored cells for :meth:`query_json` on this thread now, not at its first query."""
+        self._replies().prepare()
 
     def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
                   ) -> tuple[list[MapCell], bool]:
