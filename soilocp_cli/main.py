@@ -16,6 +16,7 @@ from services.bench import run as bench_commands
 from services.fleet import commands as fleet_commands
 from services.io import foxglove_live as foxglove_commands
 from services.io import record as record_commands
+from services.map import commands as map_commands
 from services.security import commands as certs_commands
 from soilocp import __version__
 from soilocp.commands import control, io, offline, physics, sim
@@ -32,6 +33,7 @@ AREAS = (
     record_commands,  # record
     foxglove_commands,  # foxglove
     certs_commands,  # certs
+    map_commands,  # map (query, export); the service is `soilocp service map`
 )
 
 

@@ -1,7 +1,7 @@
 """The Foxglove layout shipped in docs/ cannot rot: every panel is placed, every topic it references
-is a channel soilocp publishes, and every message path resolves to numbers in real messages (the
-MCAP export of a simulated drive for the estimate channels, the live sensor messages for the
-sensor channel)."""
+is a channel soilocp publishes, and every message path resolves to numbers in real messages: the
+MCAP export of a simulated drive, which holds every channel (the estimates and the sensors), so the
+layout opens that file with no empty panel."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
-from soilocp.export.channels import split_sensor, topics
+from soilocp.export.channels import topics
 from soilocp.sim.simulator import simulate
 from soilocp_cli.main import main
 
@@ -56,20 +56,16 @@ def _resolve(message: dict, fields: str):
 
 @pytest.fixture(scope="module")
 def published(tmp_path_factory) -> dict[str, list[dict]]:
-    """Real messages per topic: the estimate MCAP of a simulated drive, and the sensor channel's messages."""
+    """Real messages per topic: the MCAP export of a simulated drive, nothing else."""
     d = tmp_path_factory.mktemp("layout")
     log = d / "s.jsonl"
-    samples = [s for s, _ in simulate("sand", duration=6.0, seed=1, vehicle_id=VID)]
-    log.write_text("".join(s.model_dump_json() + "\n" for s in samples))
+    log.write_text("".join(s.model_dump_json() + "\n" for s, _ in simulate("sand", duration=6.0, seed=1, vehicle_id=VID)))
     r = CliRunner().invoke(main, ["estimate", str(log), "--out", str(d / "E.mcap")])
     assert r.exit_code == 0, r.output
     out: dict[str, list[dict]] = {}
     with open(d / "E.mcap", "rb") as f:
         for _s, ch, m in make_reader(f).iter_messages():
             out.setdefault(ch.topic, []).append(json.loads(m.data))
-    for s in samples:
-        for suffix, msg in split_sensor(s.model_dump()).items():
-            out.setdefault(f"/soilocp/{VID}/{suffix}", []).append(msg)
     return out
 
 
@@ -85,7 +81,7 @@ def test_layout_topics_are_published_channels_and_paths_resolve(published):
     paths = _message_paths(layout)
     assert paths
     ours = set(topics(VID))
-    assert set(published) == ours  # the MCAP export's four channels plus the sensor channel
+    assert set(published) == ours  # the MCAP export holds every channel, the sensors included
     used = set()
     for kind, path in paths:
         topic, _, fields = path.partition(".")

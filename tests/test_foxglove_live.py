@@ -24,7 +24,7 @@ from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
 pytestmark = [pytest.mark.timeout(240), pytest.mark.e2e]
 
 VID = "rover1"
-# the MCAP export's four channels (tests/test_mcap_out.py) and the sensors
+# the channels of the MCAP export (tests/test_mcap_out.py): four estimate channels and the sensors
 EXPECTED = {f"/soilocp/{VID}/{s}" for s in ("soil_strength", "ocp", "wheels", "status", "sensors")}
 # foxglove-sdk (0.30) speaks the Foxglove WebSocket protocol under this name: the protocol of
 # foxglove.websocket.v1, renamed; the old name is refused at the handshake (HTTP 400)

@@ -23,31 +23,16 @@ from typing import Any, Optional
 import click
 
 from schemas import keys
-from schemas.pipeline import OcpEstimate
-from schemas.sensor import parse_sensor_line
+from services.io.streams import STREAMS, decode, selectors
 from services.runtime.log import JsonLog
 from services.runtime.worker import BoundedWorker
-from soilocp.export.channels import (
-    CHANNEL_SCHEMAS,
-    ESTIMATE_CHANNELS,
-    SENSOR_CHANNELS,
-    encode,
-    log_time_ns,
-    split_estimate,
-    split_sensor,
-    topic,
-)
+from soilocp.export.channels import (CHANNEL_SCHEMAS, encode, log_time_ns, map_grid_message, map_grid_topic,
+                                     split_estimate, split_sensor, topic)
 
 QUEUE_MAX = 10_000  # samples; ~50 s of one vehicle's sensors and OCPs at 100 Hz
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
 DEFAULT_ADDRESS = f"{DEFAULT_HOST}:{DEFAULT_PORT}"
-
-#: what each subscribed stream becomes: (key builder per vehicle, fleet selector, channels)
-_STREAMS = {
-    "ocp": (keys.ocp, keys.any_vehicle_ocp, ESTIMATE_CHANNELS),
-    "sensors": (keys.raw, keys.any_vehicle_raw, SENSOR_CHANNELS),
-}
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -75,16 +60,26 @@ class FoxgloveLive:
     """
 
     def __init__(self, host: str, port: int, vehicle_ids: tuple[str, ...] | list[str] = (), *,
-                 log: Optional[JsonLog] = None, name: str = "soilocp", queue_max: int = QUEUE_MAX):
+                 log: Optional[JsonLog] = None, name: str = "soilocp", queue_max: int = QUEUE_MAX,
+                 maps: tuple[str, ...] | list[str] = (), map_frames: tuple[str, ...] | list[str] = ()):
         import foxglove
 
         self.vehicle_ids = [keys.check_vehicle_id(v) for v in vehicle_ids]
+        # fleet soil maps served as a foxglove.Grid per local frame (docs/map.md): their cells, as the
+        # map service's committed updates (soilmap/<id>/cells) and a first query per map_frames bring them
+        self.maps = [keys.check_map_id(m) for m in maps]
+        self.map_frames = list(map_frames)
+        self._map_cells: dict[tuple[str, str], dict[str, Any]] = {}
+        self._grid_dirty: set[tuple[str, str]] = set()
+        self._grid_logged: dict[tuple[str, str], float] = {}
         self.log = log or JsonLog("foxglove")
         self._foxglove = foxglove
         # a context of our own: no global channel registry shared with anything else in the process
         self._ctx = foxglove.Context()
         self._channels: dict[tuple[str, str], Any] = {}
         self.counts = {"received": 0, "served": 0, "unwatched": 0, "invalid": 0, "dropped": 0, "errors": 0}
+        if self.maps:
+            self.counts.update(map_updates=0, grids=0)
         self._lock = threading.Lock()  # channels are made on the worker and read by close()
         for vid in self.vehicle_ids:
             for suffix in CHANNEL_SCHEMAS:
@@ -116,15 +111,72 @@ class FoxgloveLive:
                     schema=self._foxglove.Schema(name=name, encoding="jsonschema", data=encode(schema)))
         return ch
 
+    def _grid_channel(self, map_id: str, frame: str):
+        key = ("@map", map_grid_topic(map_id, frame))  # '@': no vehicle id has it
+        ch = self._channels.get(key)
+        if ch is None:
+            from foxglove.messages import Grid
+
+            sch = Grid.get_schema()
+            with self._lock:
+                ch = self._channels[key] = self._foxglove.Channel(
+                    key[1], message_encoding="protobuf", context=self._ctx,
+                    schema=self._foxglove.Schema(name=sch.name, encoding=sch.encoding, data=sch.data))
+        return ch
+
     def attach(self, session) -> list[str]:
         """Subscribe on ``session`` and start the worker; returns the key expressions subscribed."""
         self._worker.start()
-        selectors = []
-        for kind, (per_vehicle, fleet, _suffixes) in _STREAMS.items():
-            for sel in ([per_vehicle(v) for v in self.vehicle_ids] or [fleet()]):
-                selectors.append(sel)
-                self._subs.append(session.declare_subscriber(sel, self._callback(kind)))
-        return selectors
+        streams = selectors(self.vehicle_ids)
+        streams += [("map", keys.map_key(m, "cells")) for m in self.maps]
+        for kind, sel in streams:
+            self._subs.append(session.declare_subscriber(sel, self._callback(kind)))
+        for m in self.maps:  # the map as it is now; the updates then keep it current
+            for frame in self.map_frames:
+                sel = f"{keys.map_key(m, 'query')}?frame={frame};bbox=-1e7,-1e7,1e7,1e7"
+                for r in session.get(sel, timeout=10):
+                    if r.ok is not None:
+                        self._worker.offer(("map_reply", str(r.ok.key_expr), r.ok.payload.to_bytes()))
+                    else:
+                        self.log.warning("map_query_failed", map_id=m, frame=frame, error=r.err.payload.to_string()[:200])
+        return [sel for _kind, sel in streams]
+
+    def tick(self) -> None:
+        """Log the map grids due (call about twice a second): a changed grid at most once a second,
+        and every grid watched again every 2 s, so a client that subscribes late sees the map."""
+        if self.maps:
+            self._worker.offer(("tick", "", b""))
+
+    def _handle_map(self, kind: str, key: str, payload: bytes) -> None:
+        from schemas.map import WGS84, MapCellUpdate, MapQueryReply
+
+        if kind != "tick":
+            map_id = key.split("/")[1]
+            try:
+                cells = (MapCellUpdate.model_validate_json(payload).cells if kind == "map"
+                         else MapQueryReply.model_validate_json(payload).cells)
+            except ValueError as exc:
+                self.counts["invalid"] += 1
+                self.log.warning("invalid_map_message", key=key, error=str(exc)[:200])
+                return
+            self.counts["map_updates"] += 1
+            for c in cells:
+                if c.frame != WGS84:  # H3 cells are not a raster
+                    self._map_cells.setdefault((map_id, c.frame), {})[c.cell] = c
+                    self._grid_dirty.add((map_id, c.frame))
+        from soilocp.map.grid import raster
+
+        now = time.time()
+        for mf, cells_by_id in self._map_cells.items():
+            last = self._grid_logged.get(mf, 0.0)
+            due = (mf in self._grid_dirty and now - last >= 1.0) or now - last >= 2.0
+            ch = self._grid_channel(*mf)
+            if not due or not ch.has_sinks():
+                continue
+            ch.log(map_grid_message(raster(list(cells_by_id.values())), now).encode(), log_time=log_time_ns(now))
+            self._grid_dirty.discard(mf)
+            self._grid_logged[mf] = now
+            self.counts["grids"] += 1
 
     def _callback(self, kind: str):
         counts, offer = self.counts, self._worker.offer
@@ -137,19 +189,17 @@ class FoxgloveLive:
 
     def _handle(self, item: tuple[str, str, bytes]) -> None:
         kind, key, payload = item
+        if kind in ("map", "map_reply", "tick"):
+            self._handle_map(kind, key, payload)
+            return
         vid, _rest = keys.split_key(key)
-        suffixes = _STREAMS[kind][2]
+        suffixes = STREAMS[kind][2]
         channels = [self._channel(vid, s) for s in suffixes]
         if not any(ch.has_sinks() for ch in channels):
             self.counts["unwatched"] += 1
             return
         try:
-            if kind == "ocp":
-                data = OcpEstimate.model_validate_json(payload).model_dump()
-            else:
-                data = parse_sensor_line(payload).model_dump()
-            if data["vehicle_id"] != vid:
-                raise ValueError(f"vehicle_id {data['vehicle_id']!r} on the key of vehicle {vid!r}")
+            data = decode(kind, key, payload)
         except ValueError as exc:
             self.counts["invalid"] += 1
             if self.counts["invalid"] <= 5:
@@ -187,12 +237,13 @@ class FoxgloveLive:
 
 
 def run_foxglove(connect: list[str], vehicle_ids: list[str], host: str, port: int, *,
-                 duration: Optional[float] = None, log: Optional[JsonLog] = None) -> int:
+                 duration: Optional[float] = None, log: Optional[JsonLog] = None, maps: tuple[str, ...] = (),
+                 map_frames: tuple[str, ...] = ()) -> int:
     """``soilocp foxglove``: serve until SIGINT/SIGTERM (or ``duration`` s); 0 when stopped cleanly."""
     from services.runtime.process import install_stop_handlers, open_session, watch_parent
 
     log = log or JsonLog("foxglove")
-    live = FoxgloveLive(host, port, vehicle_ids, log=log)  # ValueError: port taken, bad id
+    live = FoxgloveLive(host, port, vehicle_ids, log=log, maps=maps, map_frames=map_frames)  # ValueError: port, id
     click.echo(f"soilocp foxglove: {live.url} (in Foxglove: Open connection, Foxglove WebSocket; "
                "layout docs/foxglove/soilocp-layout.json)", err=True)
     stop = threading.Event()
@@ -210,6 +261,7 @@ def run_foxglove(connect: list[str], vehicle_ids: list[str], host: str, port: in
         while not stop.wait(0.5):
             if t_end is not None and time.monotonic() >= t_end:
                 break
+            live.tick()
             if live.counts != last:  # progress for operators (and tests)
                 last = dict(live.counts)
                 log.info("progress", **last)
@@ -229,7 +281,12 @@ def run_foxglove(connect: list[str], vehicle_ids: list[str], host: str, port: in
 @click.option("--port", type=click.IntRange(0, 65535), default=DEFAULT_PORT, show_default=True,
               help="WebSocket port (0: any free port, printed).")
 @click.option("--duration", type=float, help="Stop after this many seconds (default: at SIGINT/SIGTERM).")
-def foxglove_cmd(vehicle_ids, connect, host, port, duration) -> None:
+@click.option("--map", "maps", multiple=True,
+              help="Also serve this fleet soil map's cells as a foxglove.Grid per local frame (repeatable).")
+@click.option("--map-frame", "map_frames", multiple=True,
+              help="Local frame whose cells are asked of the map service at start (repeatable); else the grid "
+                   "fills from the cells updated while serving.")
+def foxglove_cmd(vehicle_ids, connect, host, port, duration, maps, map_frames) -> None:
     """Serve the live estimates and sensors of a vehicle or the fleet to Foxglove (WebSocket)."""
     import sys
 
@@ -242,7 +299,7 @@ def foxglove_cmd(vehicle_ids, connect, host, port, duration) -> None:
         check_client_tls(eps)
         if duration is not None and not duration > 0:
             raise ValueError(f"--duration {duration!r}: must be > 0 s")
-        code = run_foxglove(eps, list(vehicle_ids), host, port, duration=duration)
+        code = run_foxglove(eps, list(vehicle_ids), host, port, duration=duration, maps=maps, map_frames=map_frames)
     except (ValueError, ConfigError) as exc:
         click.echo(f"soilocp foxglove: error: {exc}", err=True)
         sys.exit(2)

@@ -22,12 +22,30 @@ ENV_LISTEN = "SOILOCP_LISTEN"
 ENV_MODE = "SOILOCP_MODE"
 ENV_LOG_LEVEL = "SOILOCP_LOG_LEVEL"
 ENV_STALE_TIMEOUT = "SOILOCP_STALE_TIMEOUT"
+#: The soil-strength service starts its belief from this fleet soil map (a map id, or the JSON of MapPriorConfig)
+ENV_MAP_PRIOR = "SOILOCP_MAP_PRIOR"
 #: Set to 1 by ``soilocp run`` for its children: stop when the parent process goes away.
 ENV_EXIT_WITH_PARENT = "SOILOCP_EXIT_WITH_PARENT"
 
 
 class ConfigError(Exception):
     """A fatal configuration problem: the process prints one line and exits with status 2."""
+
+
+class MapPriorConfig(BaseModel):
+    """Opt-in: the soil-strength service asks this fleet soil map for the cells around the vehicle
+    and starts its belief from a cell's K and band when the vehicle enters it (docs/map.md §4)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    map_id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,64}$", description="The map service's id (soilmap/<map_id>/...)")
+    radius_m: float = Field(200.0, gt=0, le=100_000, description="Half-side of the box asked around the vehicle, m")
+    refresh_s: float = Field(10.0, gt=0, le=3600, description="Ask again this often (new cells), or on leaving "
+                             "the middle half of the last box")
+    min_count: int = Field(1, ge=1, description="A cell seen by fewer estimates is not trusted")
+    cell_size: float = Field(5.0, ge=0.1, le=10_000, description="The map's square cell side, m (its --cell-size)")
+    h3_resolution: int = Field(12, ge=0, le=15, description="The map's H3 resolution (its --h3-resolution)")
+    timeout_s: float = Field(2.0, gt=0, le=60, description="Wait this long for the map service's reply")
 
 
 class ServiceConfig(BaseModel):
@@ -51,6 +69,8 @@ class ServiceConfig(BaseModel):
                                    "parsing (4 KiB: 5x the largest valid sample; services.stages.gateway)")
     connect_retry_s: float = Field(1.0, gt=0, le=60, description="Client: wait per connection attempt to the router")
     pipeline_config: Optional[str] = Field(None, description="Path of the physics PipelineConfig file (null: defaults)")
+    map_prior: Optional[MapPriorConfig] = Field(None, description="Soil-strength: start the belief from a fleet "
+                                                "soil map (opt-in; env SOILOCP_MAP_PRIOR)")
 
     @field_validator("connect", "listen")
     @classmethod
@@ -143,6 +163,15 @@ def load_service_config(
             values["stale_timeout_s"] = float(raw)
         except ValueError:
             raise ConfigError(f"{ENV_STALE_TIMEOUT}={raw!r} is not a number of seconds") from None
+    if env.get(ENV_MAP_PRIOR, "").strip():
+        raw = env[ENV_MAP_PRIOR].strip()
+        if raw.startswith("{"):
+            try:
+                values["map_prior"] = json.loads(raw)
+            except json.JSONDecodeError as exc:
+                raise ConfigError(f"{ENV_MAP_PRIOR}: not valid JSON: {exc.msg}") from None
+        else:
+            values["map_prior"] = {"map_id": raw}
     for k, v in (overrides or {}).items():
         if v is not None and v != () and v != []:
             values[k] = list(v) if isinstance(v, tuple) else v

@@ -7,9 +7,11 @@ from services.stages.gateway import GatewayService
 from services.stages.graph import BY_NAME
 from services.stages.observer import ObserverService
 from services.stages.ocp import OcpService
+from services.stages.soil_map_prior import SoilStrengthService
 from services.stages.stage_service import StageService
 
-SPECIAL: dict[str, type[StageService]] = {cls.name: cls for cls in (GatewayService, ObserverService, OcpService)}
+SPECIAL: dict[str, type[StageService]] = {cls.name: cls for cls in (GatewayService, ObserverService, OcpService,
+                                                                     SoilStrengthService)}
 
 
 def stage_service(name: str) -> type[StageService]:

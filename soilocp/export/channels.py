@@ -4,7 +4,7 @@ export (:mod:`soilocp.export.mcap_out`) and the live WebSocket server (``service
 Per vehicle, JSON messages with JSON schemas, log time = the sensor sample's stamp (Unix ns when the
 source had Unix header stamps, so the estimates line up with the robot's bag in Foxglove's timeline):
 
-Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``; the MCAP export writes these):
+Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``):
 
 * ``/soilocp/<vid>/soil_strength``: K, its 1-sigma, K - std and K + std (plot all three), class,
   class probability, status, reason;
@@ -13,10 +13,15 @@ Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``; the MC
   (LR, LF, RF, RR), plus their names;
 * ``/soilocp/<vid>/status``: status and reason only (for a state-transitions panel).
 
-Sensor channel (from one ``schemas.sensor.SensorSample``; the live server adds it):
+Sensor channel (from one ``schemas.sensor.SensorSample``):
 
 * ``/soilocp/<vid>/sensors``: the sample as the robot sent it (specific force, roll, pitch, yaw
   rate, wheel speeds and torques, ground speed).
+
+Fleet soil map channel (from a map's cells, :mod:`soilocp.map.grid`):
+
+* ``/soilmap/<map_id>/<frame>/grid``: ``foxglove.Grid`` (protobuf, the SDK's schema) of one local
+  frame's cells, fields mu_T, K, K_lo, K_hi, log_k_std, for the 3D panel and planners.
 """
 
 from __future__ import annotations
@@ -43,9 +48,9 @@ def _schema(title: str, props: dict, description: str) -> dict:
             "type": "object", "properties": {**_BASE, **props}, "required": list(_BASE) + list(props)}
 
 
-#: The channels made from one OCP record (what ``soilocp estimate --out E.mcap`` and ``soilocp record`` write).
+#: The channels made from one OCP record.
 ESTIMATE_CHANNELS = ("soil_strength", "ocp", "wheels", "status")
-#: The channels made from one sensor sample (live only: the robot's own bag holds its sensors).
+#: The channels made from one sensor sample (the MCAP export and the live server both carry them).
 SENSOR_CHANNELS = ("sensors",)
 
 #: channel suffix -> (schema name, JSON schema)
@@ -120,3 +125,29 @@ def split_sensor(sample: dict) -> dict[str, dict]:
         "yaw_rate": sample["yaw_rate"], "wheel_speed": list(sample["wheel_speed"]),
         "wheel_torque": list(sample["wheel_torque"]), "ground_speed": sample["ground_speed"],
     }}
+
+
+def map_grid_topic(map_id: str, frame: str) -> str:
+    """The fleet soil map's grid of one local frame (``foxglove.Grid``, protobuf)."""
+    return f"/soilmap/{map_id}/{frame}/grid"
+
+
+def map_grid_message(r, stamp: float):
+    """A :class:`soilocp.map.grid.MapRaster` as a ``foxglove.Grid`` (the SDK's message; ``.encode()``
+    gives its protobuf bytes, ``Grid.get_schema()`` the schema): float32 fields mu_T, K, K_lo, K_hi,
+    log_k_std per cell, NaN where the map holds no cell, frame_id = the map frame."""
+    from foxglove.messages import (Grid, PackedElementField, PackedElementFieldNumericType, Pose, Quaternion,
+                                   Timestamp, Vector2, Vector3)
+
+    from soilocp.map.grid import FIELDS
+
+    rows, cols, nf = r.values.shape
+    sec = int(stamp // 1)
+    return Grid(
+        timestamp=Timestamp(sec=sec, nsec=int(round((stamp - sec) * NS)) % NS), frame_id=r.frame,
+        pose=Pose(position=Vector3(x=r.origin[0], y=r.origin[1], z=0.0), orientation=Quaternion(x=0, y=0, z=0, w=1)),
+        column_count=cols, cell_size=Vector2(x=r.cell_size, y=r.cell_size), row_stride=cols * nf * 4, cell_stride=nf * 4,
+        fields=[PackedElementField(name=n, offset=4 * i, type=PackedElementFieldNumericType.Float32)
+                for i, n in enumerate(FIELDS)],
+        data=r.values.astype("<f4").tobytes())
+

@@ -1,8 +1,10 @@
-"""Estimates as MCAP (JSON messages with JSON schemas): Foxglove opens them beside the robot's bag.
+"""Estimates and sensors as MCAP (JSON messages with JSON schemas): Foxglove opens them beside the
+robot's bag, with the layout of ``docs/foxglove/``.
 
-Per vehicle the four estimate channels of :mod:`soilocp.export.channels` (soil strength K with its
-band, OCPs, per-wheel slip and traction, status), log time = the sensor sample's stamp; the live
-Foxglove server (``soilocp foxglove``) serves the same channels, built by the same functions.
+Per vehicle every channel of :mod:`soilocp.export.channels`: the four estimate channels (soil
+strength K with its band, OCPs, per-wheel slip and traction, status) from each OCP record, and the
+sensor channel from each sensor sample, log time = the sample's own stamp; the live Foxglove server
+(``soilocp foxglove``) serves the same channels, built by the same functions.
 
 :class:`EstimateMcapWriter` writes one file; :class:`RotatingMcapWriter` keeps a bounded total
 size by starting a new file at ``max_bytes`` and deleting the oldest beyond ``max_files``.
@@ -13,11 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import IO, Optional, Union
 
-from soilocp.export.channels import CHANNEL_SCHEMAS, encode, log_time_ns, split_estimate, topic
+from soilocp.export.channels import CHANNEL_SCHEMAS, encode, log_time_ns, split_estimate, split_sensor, topic
 
 
 class EstimateMcapWriter:
-    """Write OCP records to one MCAP file (or binary stream); channels are made per vehicle on first use."""
+    """Write OCP records (:meth:`write`) and sensor samples (:meth:`write_sensor`) to one MCAP file (or
+    binary stream); channels are made per vehicle on first use."""
 
     def __init__(self, output: Union[str, Path, IO[bytes]], chunk_size: int = 256 * 1024):
         from mcap.writer import CompressionType, Writer
@@ -29,7 +32,8 @@ class EstimateMcapWriter:
         self._w.start(profile="", library="soilocp")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self.messages = 0
+        self.messages = 0  # OCP records
+        self.samples = 0  # sensor samples
 
     def _channel(self, vid: str, suffix: str) -> int:
         t = topic(vid, suffix)
@@ -42,12 +46,21 @@ class EstimateMcapWriter:
             cid = self._channels[t] = self._w.register_channel(t, "json", sid)
         return cid
 
+    def _add(self, src: dict, messages: dict[str, dict]) -> None:
+        t = log_time_ns(src["stamp"])
+        for suffix, msg in messages.items():
+            self._w.add_message(self._channel(src["vehicle_id"], suffix), log_time=t, publish_time=t,
+                                data=encode(msg), sequence=int(src["seq"]) & 0xFFFFFFFF)
+
     def write(self, rec: dict) -> None:
-        t = log_time_ns(rec["stamp"])
-        for suffix, msg in split_estimate(rec).items():
-            self._w.add_message(self._channel(rec["vehicle_id"], suffix), log_time=t, publish_time=t,
-                                data=encode(msg), sequence=int(rec["seq"]) & 0xFFFFFFFF)
+        """One OCP record (``schemas.pipeline.OcpEstimate`` as a dict) -> the estimate channels."""
+        self._add(rec, split_estimate(rec))
         self.messages += 1
+
+    def write_sensor(self, sample: dict) -> None:
+        """One sensor sample (``schemas.sensor.SensorSample`` as a dict) -> the sensor channel."""
+        self._add(sample, split_sensor(sample))
+        self.samples += 1
 
     def tell(self) -> int:
         return self._fh.tell()
@@ -79,7 +92,8 @@ class RotatingMcapWriter:
         self.index = 0
         self.files: list[Path] = []
         self._w: Optional[EstimateMcapWriter] = None
-        self.messages = 0
+        self.messages = 0  # OCP records
+        self.samples = 0  # sensor samples
 
     def _open(self) -> None:
         path = self.dir / f"{self.stem}_{self.index:04d}.mcap"
@@ -91,16 +105,58 @@ class RotatingMcapWriter:
             old = self.files.pop(0)
             old.unlink(missing_ok=True)
 
-    def write(self, rec: dict) -> None:
+    def _current(self) -> EstimateMcapWriter:
         if self._w is None:
             self._open()
-        self._w.write(rec)
-        self.messages += 1
+        return self._w
+
+    def _rotate_if_full(self) -> None:
         if self._w.tell() >= self.max_bytes:
             self._w.close()
             self._w = None
+
+    def write(self, rec: dict) -> None:
+        self._current().write(rec)
+        self.messages += 1
+        self._rotate_if_full()
+
+    def write_sensor(self, sample: dict) -> None:
+        self._current().write_sensor(sample)
+        self.samples += 1
+        self._rotate_if_full()
 
     def close(self) -> None:
         if self._w is not None:
             self._w.close()
             self._w = None
+
+
+def write_map_grids(output: Union[str, Path], map_id: str, cells, stamp: float) -> list[str]:
+    """The map's cells of each local frame as one ``foxglove.Grid`` message (channels.map_grid_message)
+    on ``/soilmap/<map_id>/<frame>/grid``, log time ``stamp``; returns the topics written.  WGS84
+    (H3) cells have no grid and are left out."""
+    from foxglove.messages import Grid
+    from mcap.writer import CompressionType, Writer
+
+    from schemas.map import WGS84
+    from soilocp.export.channels import map_grid_message, map_grid_topic
+    from soilocp.map.grid import raster
+
+    frames: dict[str, list] = {}
+    for c in cells:
+        if c.frame != WGS84:
+            frames.setdefault(c.frame, []).append(c)
+    schema = Grid.get_schema()
+    t = log_time_ns(stamp)
+    with open(output, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start(profile="", library="soilocp")
+        sid = w.register_schema(schema.name, schema.encoding, schema.data)
+        out = []
+        for frame in sorted(frames):
+            tp = map_grid_topic(map_id, frame)
+            cid = w.register_channel(tp, "protobuf", sid)
+            w.add_message(cid, log_time=t, publish_time=t, data=map_grid_message(raster(frames[frame]), stamp).encode())
+            out.append(tp)
+        w.finish()
+    return out

@@ -35,6 +35,7 @@ class Stream:
     stamps: np.ndarray  # int64 ns
     values: dict[str, np.ndarray]  # field -> (n,) or (n, k)
     max_age: float
+    optional: bool = False  # where the vehicle is: attached where fresh, never a reason to skip a tick
 
     def __post_init__(self) -> None:
         self.stamps = np.asarray(self.stamps, dtype=np.int64)
@@ -58,6 +59,8 @@ def align(streams: list[Stream], rate_hz: float) -> Aligned:
     still fresh (beyond that every tick would be stale).  A skipped tick counts one reason: the
     first stale stream, as ``"stale <name>"``.
     """
+    optional = [s for s in streams if s.optional]
+    streams = [s for s in streams if not s.optional]
     if not streams:
         raise ValueError("nothing to align: no streams")
     for s in streams:
@@ -69,7 +72,7 @@ def align(streams: list[Stream], rate_hz: float) -> Aligned:
     if n <= 0:
         raise ValueError("the streams do not overlap in time: " + ", ".join(
             f"{s.name} {s.stamps[0] / NS:.3f}..{s.stamps[-1] / NS:.3f} s" for s in streams))
-    return pick(streams, start, 0, n, rate_hz)
+    return pick(streams + optional, start, 0, n, rate_hz)
 
 
 def tick_count(start: int, end: int, rate_hz: float) -> int:
@@ -89,6 +92,8 @@ def pick(streams: list[Stream], start: int, first: int, n: int, rate_hz: float) 
     skipped, counted under the first stale stream).  The bag import calls it once for the whole
     log (:func:`align`), the live reader (:mod:`soilocp.ingest.live`) once per batch of ticks that
     no later message can change; both get the same ticks, seqs and values."""
+    optional = [s for s in streams if s.optional]  # positions: attached where fresh, never skip a tick
+    streams = [s for s in streams if not s.optional]
     ticks = tick_stamps(start, first, n, rate_hz)
     keep = np.ones(n, dtype=bool)
     skipped: Counter = Counter()
@@ -105,7 +110,19 @@ def pick(streams: list[Stream], start: int, first: int, n: int, rate_hz: float) 
     for s, idx in zip(streams, picks):
         for k, v in s.values.items():
             values[k] = np.asarray(v)[idx[keep]]
-    return Aligned(ticks[keep], first + np.flatnonzero(keep), values, n, skipped)
+    kept = ticks[keep]
+    for s in optional:  # fresh value or none (NaN), per kept tick
+        idx = np.searchsorted(s.stamps, kept, side="right") - 1
+        fresh = (idx >= 0) & (kept - s.stamps[np.maximum(idx, 0)] <= int(round(s.max_age * NS))) if s.stamps.size \
+            else np.zeros(kept.size, dtype=bool)
+        for k, v in s.values.items():
+            v = np.asarray(v)
+            if not s.stamps.size:
+                values[k] = np.full(kept.size, np.nan if v.dtype != object else None, dtype=v.dtype)
+                continue
+            col = v[np.maximum(idx, 0)]
+            values[k] = np.where(fresh, col, None) if v.dtype == object else np.where(fresh, col, np.nan)
+    return Aligned(kept, first + np.flatnonzero(keep), values, n, skipped)
 
 
 @dataclass
@@ -169,10 +186,27 @@ def samples_from_aligned(al: Aligned, vehicle_id: str, skipped: Counter) -> Iter
                 wheel_speed=tuple(float(x) for x in v["wheel_speed"][i]),
                 wheel_torque=tuple(float(x) for x in v["wheel_torque"][i]),
                 ground_speed=None if np.isnan(v["ground_speed"][i]) else float(v["ground_speed"][i]),
+                **sample_position(v, i),
             )
         except ValidationError as exc:
             first = exc.errors(include_url=False)[0]
             skipped[f"out of the sensor contract: {'.'.join(str(p) for p in first['loc'])}: {first['msg']}"] += 1
+
+
+def sample_position(v: dict, i: int) -> dict:
+    """The optional position fields of tick i (schemas.position), where the aligned values hold them."""
+    out: dict = {}
+    if "position_x" in v and not np.isnan(v["position_x"][i]):
+        from schemas.position import MapPosition
+
+        h = float(v["position_heading"][i])
+        out["position"] = MapPosition(frame=str(v["position_frame"][i]), x=float(v["position_x"][i]),
+                                      y=float(v["position_y"][i]), heading=None if math.isnan(h) else h)
+    if "latitude" in v and not np.isnan(v["latitude"][i]):
+        from schemas.position import GeoPosition
+
+        out["geo"] = GeoPosition(latitude=float(v["latitude"][i]), longitude=float(v["longitude"][i]))
+    return out
 
 
 def in_time_order(stamps) -> np.ndarray:

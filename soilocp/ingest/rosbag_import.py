@@ -32,11 +32,14 @@ import numpy as np
 from soilocp.ingest.align import (NS, Provenance, Stream, align_and_write, complementary_tilt, in_time_order,
                                   order_reason)
 from soilocp.ingest.mapfile import TopicMap
+from soilocp.ingest.positions import position_stream, read_position
 
 EXPECTED_TYPES = {
     "imu": ("sensor_msgs/msg/Imu",),
     "joint_states": ("sensor_msgs/msg/JointState",),
     "ground_speed": ("nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistStamped"),
+    "position": ("nav_msgs/msg/Odometry",),
+    "geo": ("sensor_msgs/msg/NavSatFix",),
 }
 PROGRESS_MIN_MESSAGES = 20_000  # a bar below this would only flicker
 
@@ -182,15 +185,17 @@ def message_stamp(msg, receive_ns: int, tmap: TopicMap) -> int:
 
 
 def convert_message(key: str, r: TopicReader, msg, msgtype: str, st: int, tmap: TopicMap, seen_joints: set) -> None:
-    """One deserialised message of map role ``key`` (imu | joint_states | ground_speed) into its
+    """One deserialised message of map role ``key`` (imu | joint_states | ground_speed | position | geo) into its
     reader's row, or dropped with a reason.  Bag import and live reader call this same function."""
     if key == "imu":
         _imu(r, msg, st)
     elif key == "joint_states":
         js = tmap.joint_states
         _joints(r, msg, st, js.wheels, js.effort_scale, seen_joints)
-    else:
+    elif key == "ground_speed":
         _ground_speed(r, msg, st, msgtype)
+    else:  # position (Odometry pose) or geo (NavSatFix): soilocp.ingest.positions
+        read_position(key, r, msg, st)
 
 
 def _progress(total: int, label: str):
@@ -214,6 +219,9 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
     wanted = {"imu": tmap.imu, "joint_states": tmap.joint_states}
     if tmap.ground_speed is not None:
         wanted["ground_speed"] = tmap.ground_speed
+    for opt in ("position", "geo"):  # optional streams of where the vehicle is (docs/map.md)
+        if getattr(tmap, opt) is not None:
+            wanted[opt] = getattr(tmap, opt)
     issues = BagIssues()
     try:
         reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
@@ -236,9 +244,10 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
                     raise BagImportError(
                         f"{m.topic}: message type {c.msgtype} cannot feed {key} (map key {key}.topic): "
                         f"needs {' or '.join(EXPECTED_TYPES[key])}")
-            conns += cs
+            conns += [c for c in cs if c not in conns]
             types[m.topic] = cs[0].msgtype
-            readers[m.topic] = (key, TopicReader(key, m.topic, issues, strict))
+            # one topic may feed two roles (an Odometry's twist and its pose): one reader per role
+            readers.setdefault(m.topic, []).append((key, TopicReader(key, m.topic, issues, strict)))
         total = sum(c.msgcount for c in conns)
         js = tmap.joint_states
         seen_joints: set = set()
@@ -248,9 +257,10 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
             bar.start()
         try:
             for n, (conn, log_time, raw) in enumerate(reader.messages(connections=conns), 1):
-                key, r = readers[conn.topic]
                 msg = reader.deserialize(raw, conn.msgtype)
-                convert_message(key, r, msg, conn.msgtype, message_stamp(msg, log_time, tmap), tmap, seen_joints)
+                st = message_stamp(msg, log_time, tmap)
+                for key, r in readers[conn.topic]:
+                    convert_message(key, r, msg, conn.msgtype, st, tmap, seen_joints)
                 if bar and n % 2000 == 0:
                     bar.update(task, completed=n)
         finally:
@@ -303,7 +313,10 @@ def note_identifiability(tmap: TopicMap, prov: Provenance) -> None:
 def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
     prov = Provenance(source="rosbag2")
     streams = []
-    for topic, (key, r) in readers.items():
+    for topic, key, r in ((t, k, r) for t, roles in readers.items() for k, r in roles):
+        if key in ("position", "geo"):
+            streams.append(position_stream(key, r, tmap))
+            continue
         st, rows = r.in_order()
         if not rows:
             raise BagImportError(f"{topic}: no usable message (map key {key}.topic): all were dropped, see the reasons")
