@@ -173,6 +173,8 @@ class ObserverBank:
         self.last_stamp = np.full(n, np.nan)
         self.rejections = np.zeros((n, N_MEAS), dtype=int)
         self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
+        #: wheel-speed states re-anchored to a rejected reading at low speed (:meth:`_anchor`)
+        self.anchored = 0
         # the raw readings (wheel speeds, ground speed, torques): which are new measurements, and when
         self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
         self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
@@ -219,6 +221,33 @@ class ObserverBank:
             self.rejections[ix[j]] = 0
             reasons[j] = why
             self.resets_by_reason[why] += 1
+
+    def _anchor(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: np.ndarray) -> None:
+        """At low speed a rejected wheel-speed reading re-anchors its wheel's speed state (in place, x (k, n),
+        P (k, n, n), readings z (k, 7), rejected rows (k, 7)): the state takes the reading, its variance the
+        reading's, its correlations none.
+
+        Below ``anchor_speed`` the wheel equation (eq. 13) is stiff (docs/method.md §10) and the traction
+        state that balances the torque is itself poorly known (a stall: slip ~1, any soil): the prediction
+        leaves the encoder within a step, the gate rejects the encoder, and the filtered speed ran away (the
+        closed-loop stall on firm soil: 7 rad/s against 0.48) and fed K a wrong slip.  The encoder is the
+        one measurement of the wheel's speed; the gate protects against its outliers at speed, where a
+        spike is a few sigma of a slow state, not at a stall.  Counted in :attr:`anchored`."""
+        L = self.layout
+        wheels = rejected[:, 2:6]
+        if not wheels.any():
+            return
+        low = ((np.abs(z[:, 2:6]) * self.vehicle.wheel_radius < self.cfg.anchor_speed)
+               & (np.abs(x[:, L.v]) < self.cfg.anchor_speed)[:, None])
+        rows, w = np.nonzero(wheels & low)
+        if rows.size == 0:
+            return
+        col = L.omega.start + w
+        x[rows, col] = z[rows, 2 + w]
+        P[rows, col, :] = 0.0
+        P[rows, :, col] = 0.0
+        P[rows, col, col] = self._r[2]
+        self.anchored += int(rows.size)
 
     def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
         """One predict / gated update (eq. 35, standard form) for the vehicles ``idx`` (None: all)."""
@@ -304,6 +333,8 @@ class ObserverBank:
                                                    cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
             rejected[run] = (available & ~keep).sum(axis=1)
+            if cfg.anchor_speed > 0:
+                self._anchor(xr, Pr, z, available & ~keep)
             xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
             if every:
                 x, P = xr, Pr

@@ -8,14 +8,14 @@ Per wheel and sample, from the observer's filtered speeds and gross traction:
   is their mirror image (docs/method.md, Conventions): slip S = d (R_w omega - V_i) / max(|V_i|,
   |R_w omega|, floor) is > 0 when the wheel drives in its direction of travel, and its gross
   traction in that frame is d times the body-frame one;
-* an **unusable** code, 0 where the wheel may inform K, else the first that applies of
+* an **unusable** code, 0 where the wheel may inform K, else the first that applies of ``skid_turn``,
   ``slip_beyond_eq1`` (|S| > 1: the rim and the ground under it move in opposite directions; eq. 1
   is bounded by 1 by definition), ``stopped_unpowered`` (the body moves, the wheel stands, and no
   torque acts on it: no slip the wheel's torque balance explains), ``stall`` (the ground speed is
   near zero while a torque acts: slip is ~1 at any soil and creep is beyond the curve's
-  calibration), ``skid_turn`` (the vehicle turns about a point within its track: the sides' rims
-  turn in opposite directions or the inner wheels' ground speed reverses; the wheels slide sideways,
-  eq. 12's lateral resistance, which the longitudinal model does not describe; measured in
+  calibration).  ``skid_turn``: the vehicle turns about a point within its track (the sides' rims
+  turn in opposite directions, or the inner wheels' ground speed reverses); the wheels slide
+  sideways, eq. 12's lateral resistance, which the longitudinal model does not describe (measured in
   docs/robustness.md, "Skid turns").
 
 The codes are integers so that the kernels stay arrays; :data:`REASONS` names them, and the soil
@@ -89,11 +89,11 @@ def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_
     yaw, v = np.abs(yaw_rate), np.abs(body_speed)
     skid = (((left * right < 0) & (np.minimum(np.abs(left), np.abs(right)) > lim.rim_turning))
             | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
-    code[skid] = SKID_TURN
     powered = np.abs(gross) > lim.gross_idle
     code[(v[:, None] < lim.stall_speed) & powered] = STALL
     code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
     code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
+    code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
     return code
 
 
