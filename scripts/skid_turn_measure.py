@@ -10,6 +10,7 @@ ground reverses) or outside it, and the lateral sliding of the wheels, tan(alpha
 max(a, b) / |V|.
 
 Run:  .venv/bin/python scripts/skid_turn_measure.py [--duration 20]
+      .venv/bin/python scripts/skid_turn_measure.py --warthog ../shared/data/real   (the real logs, by turn)
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 from soilocp.estimation.estimate import estimate_lines  # noqa: E402
 from soilocp.estimation.pipeline import PipelineConfig  # noqa: E402
@@ -77,11 +79,43 @@ def summarize(rows) -> list[str]:
     return out
 
 
+def warthog_turns(data: Path) -> list[str]:
+    """The Warthog logs' records by how the robot turns (raw sensor fields, as scripts/real_log_honesty.py):
+    about a point within the track (its skid_turn condition), on an arc (|yaw rate| > 0.1 rad/s, the centre
+    outside the track), or straight; statuses, and K's median and spread where one is reported."""
+    import real_log_honesty as rl
+
+    by = collections.defaultdict(list)
+    for _, samples, cfg in rl.warthog(data):
+        recs = list(estimate_lines((__import__("json").dumps(x) for x in samples), cfg))
+        small = rl.torque_threshold(samples)
+        for x, rec in zip(samples, recs):
+            if "skid_turn" in rl.conditions(x, cfg.vehicle, small):
+                kind = "in place (centre within the track)"
+            elif abs(x["yaw_rate"]) > rl.YAW_TURNING:
+                kind = "arc"
+            else:
+                kind = "straight"
+            by[kind].append(rec)
+    out = ["| turn | records | model_mismatch | with K | K median | K p10-p90 | statuses |", "|---|---|---|---|---|---|---|"]
+    for kind, recs in by.items():
+        ks = np.array([r["soil_strength"] for r in recs if r["soil_strength"] is not None])
+        st = collections.Counter(r["status"] for r in recs)
+        mm = st.get("model_mismatch", 0) / len(recs)
+        kk = (f"{np.median(ks):.0f} | {np.percentile(ks, 10):.0f}-{np.percentile(ks, 90):.0f}" if ks.size else "- | -")
+        out.append(f"| {kind} | {len(recs)} | {100 * mm:.1f} % | {ks.size} | {kk} | {dict(st)} |")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--drive", action="append", choices=list(DRIVES))
+    ap.add_argument("--warthog", type=Path, help="instead: the Warthog logs in this real-log directory, by turn")
     args = ap.parse_args(argv)
+    if args.warthog:
+        print("\n".join(warthog_turns(args.warthog)))
+        return 0
     for name in args.drive or list(DRIVES):
         print(f"## {name}\n")
         print("\n".join(summarize(run(name, args.duration))) + "\n", flush=True)
