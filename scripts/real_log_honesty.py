@@ -169,6 +169,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=default_data(), help="the shared real-log directory")
     ap.add_argument("--seconds", help="only this window of each log, START:END seconds from its first stamp")
     ap.add_argument("--only", choices=("warthog", "borealtc"), help="one data set only")
+    ap.add_argument("--log", action="append", help="only this log (e.g. warthog_asphalt_20240925, husky_SNOW_00)")
     ap.add_argument("--json", type=Path, help="also write the counts (per log and in total) here")
     args = ap.parse_args(argv)
     seconds = tuple(float(x) for x in args.seconds.split(":")) if args.seconds else None
@@ -182,6 +183,8 @@ def main(argv=None) -> int:
         sources.append(borealtc(args.data, seconds))
     for source in sources:
         for name, samples, cfg in source:
+            if args.log and name not in args.log:
+                continue
             per_log[name] = count(samples, cfg)
             for cond, row in per_log[name].items():
                 total.setdefault(cond, collections.Counter()).update(row)
