@@ -222,10 +222,12 @@ class ObserverBank:
             reasons[j] = why
             self.resets_by_reason[why] += 1
 
-    def _anchor(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: np.ndarray) -> None:
+    def _anchor(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: np.ndarray, available: np.ndarray) -> None:
         """At low speed a rejected wheel-speed reading re-anchors its wheel's speed state (in place, x (k, n),
         P (k, n, n), readings z (k, 7), rejected rows (k, 7)): the state takes the reading, its variance the
-        reading's, its correlations none.
+        reading's, its correlations none.  So does the last reading of a wheel whose reading is not new now
+        (``available`` (k, 7) False: a repeat) when the state has left it by more than ``anchor_speed`` / 3 in
+        rim speed (the same closed-loop stall: single samples of 3.7 rad/s against an encoder's 1.19).
 
         Below ``anchor_speed`` the wheel equation (eq. 13) is stiff (docs/method.md §10) and the traction
         state that balances the torque is itself poorly known (a stall: slip ~1, any soil): the prediction
@@ -234,10 +236,12 @@ class ObserverBank:
         one measurement of the wheel's speed; the gate protects against its outliers at speed, where a
         spike is a few sigma of a slow state, not at a stall.  Counted in :attr:`anchored`."""
         L = self.layout
-        wheels = rejected[:, 2:6]
+        r_w = self.vehicle.wheel_radius
+        away = np.abs(x[:, L.omega] - z[:, 2:6]) * r_w > self.cfg.anchor_speed / 3.0
+        wheels = rejected[:, 2:6] | (~available[:, 2:6] & away)
         if not wheels.any():
             return
-        low = ((np.abs(z[:, 2:6]) * self.vehicle.wheel_radius < self.cfg.anchor_speed)
+        low = ((np.abs(z[:, 2:6]) * r_w < self.cfg.anchor_speed)
                & (np.abs(x[:, L.v]) < self.cfg.anchor_speed)[:, None])
         rows, w = np.nonzero(wheels & low)
         if rows.size == 0:
@@ -334,7 +338,7 @@ class ObserverBank:
             self.rejections[rows] = counts
             rejected[run] = (available & ~keep).sum(axis=1)
             if cfg.anchor_speed > 0:
-                self._anchor(xr, Pr, z, available & ~keep)
+                self._anchor(xr, Pr, z, available & ~keep, available)
             xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
             if every:
                 x, P = xr, Pr
