@@ -125,15 +125,16 @@ def test_usability_codes():
 def test_out_of_model_wheels_make_no_ok_record_and_are_counted(grass_drive):
     """A simulated traction test (ok records), then its wheel speeds read backwards under the moving body:
     the wheels are beyond eq. 1, no record is ok, each says why, and the summary counts them."""
-    samples = [s if s.stamp < 6.0 else s.model_copy(update={"wheel_speed": (-2.0,) * 4}) for s, _ in grass_drive]
+    rng = np.random.default_rng(1)  # encoder noise: a constant reading would be a held one
+    samples = [s if s.stamp < 6.0 else s.model_copy(update={"wheel_speed": tuple(-2.0 + 0.02 * rng.standard_normal(4))})
+               for s, _ in grass_drive]
     summary = EstimateSummary()
     recs = list(estimate_lines((s.model_dump_json() for s in samples), PipelineConfig(), summary=summary))
     assert any(r["status"] == "ok" for r in recs if r["stamp"] < 6.0)
     tail = [r for r in recs if r["stamp"] >= 6.2]
     assert tail and not [r for r in tail if r["status"] == "ok"]
-    # (a constant reading is a held one after a while, so the observer strays from it: flagged on most records)
     flagged = [r for r in tail if "slip_beyond_eq1" in r["unusable"]]
-    assert len(flagged) >= 0.6 * len(tail)
+    assert len(flagged) >= 0.9 * len(tail)
     held = [r for r in flagged if r["status"] == "holding"]
     assert held and all("beyond eq. 1" in r["reason"] and r["held_for_s"] >= 0.15 for r in held)
     assert summary.unusable.get("slip_beyond_eq1", 0) >= len(flagged)
