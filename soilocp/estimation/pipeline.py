@@ -31,7 +31,7 @@ from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
 from soilocp.estimation.soil_config import SoilConfig, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
-from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, travel_direction, wheel_usability
+from soilocp.estimation.wheel_usability import SLIP_BEYOND_EQ1, travel_direction, wheel_usability
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 __all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
@@ -307,10 +307,10 @@ class SlipGate:
                         (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
         measured = ob.ground_speed_measured
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
-        # a wheel's own codes judge its measured speed and torque: between a slow stream's refreshes the
-        # filtered speed is a prediction (at 5 Hz its slip passed +-1 between refreshes), and a held wheel
-        # informs no K anyway; a skid turn is the vehicle's (the yaw rate is read at every sample)
-        unusable = np.where(held & (unusable != SKID_TURN), 0, unusable)
+        # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is
+        # a prediction (at 5 Hz its slip passed +-1, and a side's rim crossed zero: a 'skid turn' on the last
+        # record of wheel-speed-5hz took its convergence from 0.71 to 7.1 s), and a held wheel informs no K anyway
+        unusable = np.where(held, 0, unusable)
         return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
                           ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends,
                           np.where(measured[:, None], unusable, 0))
