@@ -18,7 +18,9 @@ Per wheel and sample, from the observer's filtered speeds and gross traction:
   sideways, eq. 12's lateral resistance, which the longitudinal model does not describe (measured in
   docs/robustness.md, "Skid turns").
 
-The codes are integers so that the kernels stay arrays; :data:`REASONS` names them, and the soil
+The pipeline's slip gate keeps the codes only where the wheel's speed and torque readings are new
+(between a slow stream's refreshes the filtered speed is a prediction, and a held wheel informs no K
+anyway).  The codes are integers so that the kernels stay arrays; :data:`REASONS` names them, and the soil
 kernel counts them (:attr:`soilocp.estimation.soil_strength.SoilBank.unusable_by_reason`).
 """
 
