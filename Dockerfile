@@ -8,6 +8,8 @@
 # Dependencies: if deploy/wheelhouse/ holds wheels (scripts/build-images.sh puts them there with
 # `pip wheel` on the host) they are installed with --no-index: no network at build time.
 # Otherwise pip fetches them from the package index (a machine with internet).
+# soilocp itself comes as a wheel built on the host into deploy/soilocp-wheel/ (its Rust core is
+# compiled there by maturin): the image has no Rust toolchain.
 # Few instructions on purpose: each one is a layer commit, slow on some storage drivers.
 ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE}
@@ -34,20 +36,19 @@ RUN set -eu; \
 
 # Deployment configs and the health check land flat in /tmp/src, then move to /etc/soilocp
 # (soilocp's own JSON for --config, native Zenoh JSON5 for ZENOH_CONFIG / zenohd).
-COPY pyproject.toml README.md deploy/healthcheck.py deploy/fleet/ deploy/vehicle-two-unit/ deploy/zenoh/ /tmp/src/
-COPY soilocp/ /tmp/src/soilocp/
-COPY schemas/ /tmp/src/schemas/
-COPY services/ /tmp/src/services/
-COPY soilocp_cli/ /tmp/src/soilocp_cli/
+COPY deploy/healthcheck.py deploy/fleet/ deploy/vehicle-two-unit/ deploy/zenoh/ /tmp/src/
+COPY deploy/soilocp-wheel/ /tmp/dist/
 RUN set -eu; \
+    whl="$(ls /tmp/dist/soilocp-*.whl 2>/dev/null | head -n 1)"; \
+    [ -n "$whl" ] || { echo "no soilocp wheel in deploy/soilocp-wheel/: build it on the host with scripts/build-images.sh" >&2; exit 1; }; \
     if ls /tmp/wheelhouse/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /tmp/wheelhouse"; else offline=""; fi; \
-    pip install $offline /tmp/src; \
+    pip install $offline "$whl"; \
     mkdir -p /etc/soilocp; \
     install -d -o soilocp -g soilocp -m 0700 /etc/soilocp/certs; \
     mv /tmp/src/*.json /tmp/src/*.json5 /etc/soilocp/; \
     { echo '#!/opt/soilocp/bin/python3'; tail -n +2 /tmp/src/healthcheck.py; } > /usr/local/bin/soilocp-healthcheck; \
     chmod 0755 /usr/local/bin/soilocp-healthcheck; \
-    rm -rf /tmp/src /tmp/wheelhouse; \
+    rm -rf /tmp/src /tmp/dist /tmp/wheelhouse; \
     soilocp --version
 
 USER soilocp

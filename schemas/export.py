@@ -13,6 +13,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from schemas.map import MapCellUpdate, MapQueryReply, MapRejection, MapStatus
 from schemas.messages import OcpReply, Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from schemas.sensor import SENSOR_SCHEMA_ID, SensorSample
@@ -30,6 +31,10 @@ MESSAGE_MODELS: dict[type[BaseModel], str] = {
     SlipSetpoint: "soilocp/<vid>/control/slip",
     Rejection: "soilocp/<vid>/rejected",
     ServiceHealth: "soilocp/<vid>/status/<service> (publication and queryable reply)",
+    MapCellUpdate: "soilmap/<map_id>/cells",
+    MapQueryReply: "soilmap/<map_id>/query (queryable reply)",
+    MapRejection: "soilmap/<map_id>/rejected",
+    MapStatus: "soilmap/<map_id>/status (publication and queryable reply)",
 }
 
 

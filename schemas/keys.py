@@ -116,6 +116,7 @@ status = _service_key("status", "Health/status of one service")
 vehicle_alive_all = _vehicle_key("alive/*", "Every liveliness token of one vehicle")
 vehicle_status_all = _vehicle_key("status/*", "Every status key of one vehicle")
 any_vehicle_ocp = _fleet_selector("ocp", "Every vehicle's OCP")
+any_vehicle_raw = _fleet_selector("sensors/raw", "Every vehicle's raw sensor input")
 any_vehicle_alive = _fleet_selector("alive/*", "Every liveliness token of the fleet")
 any_vehicle_status = _fleet_selector("status/*", "Every status key of the fleet")
 any_vehicle_rejected = _fleet_selector("rejected", "Every vehicle's rejections")
@@ -143,3 +144,26 @@ def service_of_alive_key(key: str) -> tuple[str, str]:
     if head != "alive" or not service:
         raise ValueError(f"key {key!r} is not a liveliness key ({ROOT}/<vid>/alive/<service>)")
     return vid, check_service(service)
+
+
+# --- the fleet soil map (docs/map.md): its own root, so soilocp/*/... never matches it --------
+MAP_ROOT = "soilmap"
+_MAP_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+
+def check_map_id(map_id: object) -> str:
+    """Return ``map_id`` if it is a valid map id ([A-Za-z0-9_-]{1,64}); ValueError otherwise."""
+    if not isinstance(map_id, str) or not _MAP_ID_RE.fullmatch(map_id):
+        raise ValueError(f"map id {map_id!r} is invalid: it must match [A-Za-z0-9_-]{{1,64}} (it becomes a key chunk)")
+    return map_id
+
+
+def map_key(map_id: str, tail: str) -> str:
+    """``soilmap/<map_id>/<tail>``, tail one of cells, query, rejected, status, alive."""
+    if tail not in ("cells", "query", "rejected", "status", "alive"):
+        raise ValueError(f"map key tail {tail!r} is not one of cells, query, rejected, status, alive")
+    return f"{MAP_ROOT}/{check_map_id(map_id)}/{tail}"
+
+
+any_vehicle_soil = _fleet_selector("soil", "Every vehicle's soil estimate (the map service's input)")
+

@@ -11,6 +11,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.position import EstimatePlace, GeoPosition, MapPosition
 from schemas.sensor import VehicleId
 
 PIPELINE_SCHEMA_VERSION = 1
@@ -101,11 +102,24 @@ class ObserverOutput(_Message):
         default=(False,) * 4, description="Per wheel: one of its speed and torque streams refreshes slowly and the other is "
         "read at every sample, so K learns at the refreshes only, not from the observer's prediction between them"
     )
+    torque_scale: float = Field(
+        default=1.0, gt=0, description="The common torque scale (motor constant x 1 / mass) the logged torques were "
+        "multiplied by before this step: learnt online from the force balance (soilocp.estimation.torque_scale)"
+    )
+    torque_scale_std: Optional[float] = Field(
+        default=None, ge=0, description="Its posterior 1-sigma, relative; None: the soil estimator's prior "
+        "(soil.gross_scale_sigma), i.e. the online scale is off"
+    )
     rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
     reset: bool = Field(description="True if the filter was (re)initialised at this sample")
     reset_reason: str = Field(
         default="", description="start | time_gap | stamp_backwards | non_finite_state | state_out_of_physics ('' if no reset)"
     )
+    # the sample's position, passed on so that the soil estimate can say where it was made (docs/map.md)
+    position: Optional[MapPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                            description="The sample's local-frame position (optional)")
+    geo: Optional[GeoPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                       description="The sample's WGS84 position (optional)")
 
 
 class SoilEstimate(_Message):
@@ -132,6 +146,10 @@ class SoilEstimate(_Message):
     )
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
+    where: Optional[EstimatePlace] = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="Contact patches of the wheels that informed this estimate (absent without a position or "
+        "without an informing wheel): what the fleet soil map fuses (docs/map.md)")
 
 
 class OcpEstimate(_Message):

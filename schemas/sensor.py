@@ -12,6 +12,8 @@ from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
 
+from schemas.position import GeoPosition, MapPosition
+
 SENSOR_SCHEMA_ID = "soilocp.sensor_sample/1"
 VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 
@@ -79,6 +81,14 @@ class SensorSample(BaseModel):
         "has no independent ground-speed sensor (wheel odometry is not one): slip (eq. 1) and K are then not "
         "identifiable and the estimates say so",
     )
+    # Optional (absent from logs without positions, and then left out of the JSON): where the vehicle is,
+    # so that each soil estimate can say where it was made (schemas.position, docs/map.md).
+    position: Optional[MapPosition] = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="CoM position in a named local map frame (m) and heading, e.g. from nav_msgs/Odometry; optional")
+    geo: Optional[GeoPosition] = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="CoM position, WGS84 latitude/longitude (deg) and heading, e.g. from sensor_msgs/NavSatFix; optional")
 
 
 def format_validation_error(exc: ValidationError) -> str:

@@ -9,7 +9,9 @@
 # 2. deploy/wheelhouse/: every dependency wheel (+ the build backend) by `pip wheel` on the host
 #    (requirements read from pyproject.toml),
 #    reusing the wheels already there when they still satisfy the requirements (no index query);
-# 3. `docker build` of the Dockerfile as SOILOCP_IMAGE (default soilocp:local).
+# 3. deploy/soilocp-wheel/: soilocp's own wheel, `pip wheel` of the repository on the host (maturin
+#    compiles the Rust core with the host's cargo; the image has no Rust), offline from the wheelhouse;
+# 4. `docker build` of the Dockerfile as SOILOCP_IMAGE (default soilocp:local).
 # Environment: BASE_IMAGE, SOILOCP_IMAGE, PYTHON (interpreter whose pip builds the wheels; must be
 # the base image's CPython minor version; default .venv/bin/python, else python3).
 # Prints the time of each step.
@@ -22,7 +24,7 @@ build_opts=()
 for arg in "$@"; do
     case "$arg" in
         --no-cache) build_opts+=(--no-cache) ;;
-        -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
         *) echo "build-images: unknown argument $arg" >&2; exit 2 ;;
     esac
 done
@@ -78,7 +80,17 @@ fi
 echo "build-images: $(ls "$wheelhouse"/*.whl | wc -l) wheels, $(du -sh "$wheelhouse" | cut -f1) in deploy/wheelhouse"
 t2=$(date +%s)
 
-# --- 3. image -------------------------------------------------------------------------------
+# --- 3. soilocp's wheel -------------------------------------------------------------------------
+# rustup's cargo may not be on a non-login shell's PATH
+[[ -x "$HOME/.cargo/bin/cargo" ]] && export PATH="$HOME/.cargo/bin:$PATH"
+command -v cargo >/dev/null || { echo "build-images: cargo not found: soilocp's Rust core is built on the host (README)" >&2; exit 1; }
+dist="$root/deploy/soilocp-wheel"
+rm -f "$dist"/*.whl
+"$PYTHON" -m pip wheel -q --no-deps --no-index --find-links "$wheelhouse" -w "$dist" "$root"
+echo "build-images: $(cd "$dist" && ls *.whl)"
+t2w=$(date +%s)
+
+# --- 4. image -------------------------------------------------------------------------------
 old_id="$(docker image inspect --format '{{.Id}}' "$image" 2>/dev/null || true)"
 docker build -q --force-rm "${build_opts[@]}" --build-arg BASE_IMAGE="$base" -t "$image" "$root" >/dev/null
 new_id="$(docker image inspect --format '{{.Id}}' "$image")"
@@ -87,5 +99,5 @@ if [[ -n "$old_id" && "$old_id" != "$new_id" ]]; then
     docker rmi "$old_id" >/dev/null 2>&1 || true
 fi
 t3=$(date +%s)
-echo "build-images: $image from $base: base $((t1 - t0)) s, wheels $((t2 - t1)) s, image $((t3 - t2)) s, total $((t3 - t0)) s"
+echo "build-images: $image from $base: base $((t1 - t0)) s, wheels $((t2 - t1)) s, soilocp wheel $((t2w - t2)) s, image $((t3 - t2w)) s, total $((t3 - t0)) s"
 docker image ls "$image"

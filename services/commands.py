@@ -43,6 +43,14 @@ def _service_class(name: str):
         from services.io.sensor_source import VehicleService
 
         return VehicleService
+    if name == "ros2-in":
+        from services.ros2.ros2_in import Ros2InService
+
+        return Ros2InService
+    if name == "ros2-out":
+        from services.ros2.ros2_out import Ros2OutService
+
+        return Ros2OutService
     from services.stages.registry import stage_service
 
     return stage_service(name)
@@ -69,8 +77,13 @@ def _service_class(name: str):
 @click.option("--control", metavar="CONTROLLER",
               help="controller: the set-point policy (ocp_traction, ocp_efficiency, fixed_<slip>, speed); "
                    "vehicle: follow that controller's set-points (closed loop, --scenario only).")
+@click.option("--ros2-map", type=click.Path(dir_okay=False), help="ros2-in: the topic map file (as for soilocp import).")
+@click.option("--ros2-connect", multiple=True,
+              help="ros2-in / ros2-out: the robot's Zenoh router (rmw_zenohd), repeatable; default tcp/127.0.0.1:7447.")
+@click.option("--ros2-domain", type=int, help="ros2-in / ros2-out: ROS domain id; default $ROS_DOMAIN_ID or 0.")
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
-                scenario, replay, speed, duration, rate, seed, wait_timeout, control) -> None:
+                scenario, replay, speed, duration, rate, seed, wait_timeout, control, ros2_map, ros2_connect,
+                ros2_domain) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
     from services.runtime.config import ConfigError, load_service_config
     from services.runtime.service import run_service
@@ -109,6 +122,20 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                 describe = f"scenario {scenario}"
             kwargs = dict(source=source, speed=speed, describe=describe, inbox=inbox,
                           wait_for=wait if wait_timeout > 0 else (), wait_timeout_s=wait_timeout)
+        elif name in ("ros2-in", "ros2-out"):
+            from services.runtime.config import check_endpoint
+
+            eps = [check_endpoint(ep) for ep in ros2_connect] or [ROS2_DEFAULT_ENDPOINT]
+            kwargs = dict(ros2_connect=eps, domain_id=_ros_domain(ros2_domain))
+            if name == "ros2-in":
+                from soilocp.ingest import load_map
+
+                if ros2_map is None:
+                    raise ConfigError("ros2-in needs --ros2-map MAP.yaml (the topic map file)")
+                kwargs.update(tmap=load_map(ros2_map), wait_for=PIPELINE_SERVICES if wait_timeout > 0 else (),
+                              wait_timeout_s=wait_timeout)
+            elif ros2_map is not None:
+                raise ConfigError("--ros2-map is an option of the ros2-in service only")
         elif scenario or replay:
             raise ConfigError("--scenario/--replay are options of the vehicle service only")
         elif name == "controller":
@@ -120,6 +147,23 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
         _fatal(prefix, str(exc))
     except ValueError as exc:
         _fatal(prefix, str(exc))
+
+
+#: rmw_zenoh's router (rmw_zenohd) listens here by default
+ROS2_DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _ros_domain(value) -> int:
+    """--ros2-domain, else $ROS_DOMAIN_ID (as ROS 2 itself reads it), else 0."""
+    if value is None:
+        env = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        try:
+            value = int(env) if env else 0
+        except ValueError:
+            raise ValueError(f"ROS_DOMAIN_ID={env!r}: not an integer") from None
+    if not 0 <= value <= 232:
+        raise ValueError(f"ROS domain id {value}: must be 0..232")
+    return value
 
 
 @click.command("router")
@@ -154,15 +198,43 @@ def router_cmd(config_path, listen, connect) -> None:
 @click.option("--control", metavar="CONTROLLER",
               help="Close the loop: run the controller service with this policy (ocp_traction, ocp_efficiency, "
                    "fixed_<slip>, speed); the synthetic vehicle follows its slip set-points.")
+@click.option("--foxglove", "foxglove_addr", is_flag=False, flag_value="127.0.0.1:8765", metavar="[HOST:PORT]",
+              help="Serve the vehicle's estimates and sensors to Foxglove on a WebSocket (default 127.0.0.1:8765; "
+                   "port 0: any free one).")
+@click.option("--ros2", "ros2_out", is_flag=True,
+              help="Also publish the estimates as ROS 2 topics (rmw_zenoh) on the robot's router: "
+                   "/soilocp/<vid>/estimate and /diagnostics (docs/ros2.md).")
+@click.option("--ros2-in", "ros2_in", metavar="MAP.yaml", type=click.Path(exists=True, dir_okay=False),
+              help="Take the sensors from the robot's ROS 2 topics (rmw_zenoh), mapped as for soilocp import; "
+                   "the map's vehicle_id is used.")
+@click.option("--ros2-connect", multiple=True, metavar="ENDPOINT",
+              help="The robot's Zenoh router (rmw_zenohd) for --ros2 / --ros2-in; default tcp/127.0.0.1:7447 "
+                   "(then give --listen another port for soilocp's own router).")
+@click.option("--ros2-domain", type=int, help="ROS domain id for --ros2 / --ros2-in; default $ROS_DOMAIN_ID or 0.")
 def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
-            plain, control) -> None:
+            plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect, ros2_domain) -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs."""
     from schemas import keys
 
     from services.supervisor.run import RunOptions, run_system
 
-    if (scenario is None) == (replay is None):
-        _fatal("soilocp run", "give exactly one of --synthetic SCENARIO or --replay FILE")
+    if sum(x is not None for x in (scenario, replay, ros2_in)) != 1:
+        _fatal("soilocp run", "give exactly one of --synthetic SCENARIO, --replay FILE or --ros2-in MAP.yaml")
+    ros2_eps: list[str] = []
+    if ros2_out or ros2_in:
+        try:
+            ros2_eps = _ros2_endpoints(ros2_connect, listen)
+            ros2_domain = _ros_domain(ros2_domain)
+            if ros2_in is not None:
+                from soilocp.ingest import load_map
+
+                vehicle_id = load_map(ros2_in).vehicle_id
+                if control is not None:
+                    raise ValueError("--control needs --synthetic SCENARIO (the robot's topics cannot follow set-points)")
+        except ValueError as exc:
+            _fatal("soilocp run", str(exc))
+    elif ros2_connect or ros2_domain is not None:
+        _fatal("soilocp run", "--ros2-connect / --ros2-domain need --ros2 or --ros2-in")
     try:
         keys.check_vehicle_id(vehicle_id)
         if control is not None:
@@ -180,6 +252,10 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
             raise ValueError(f"--duration {duration!r}: must be > 0 s")
         if speed < 0:
             raise ValueError(f"--speed {speed!r}: must be >= 0")
+        if foxglove_addr is not None:
+            from services.io.foxglove_live import parse_address
+
+            parse_address(foxglove_addr)
     except ValueError as exc:
         _fatal("soilocp run", str(exc))
     if map_path is not None:
@@ -188,8 +264,27 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
         _fatal("soilocp run", f"--replay {replay}: a directory (ROS 2 bag?) needs --map MAP.yaml")
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
-                      seed=seed, log_dir=log_dir, plain=plain, control=control)
-    sys.exit(run_system(opts))
+                      seed=seed, log_dir=log_dir, plain=plain, control=control, foxglove=foxglove_addr,
+                      ros2_out=ros2_out, ros2_in=ros2_in, ros2_connect=ros2_eps, ros2_domain=ros2_domain)
+    try:
+        code = run_system(opts)
+    except ValueError as exc:  # the Foxglove port is taken: nothing was started
+        _fatal("soilocp run", str(exc))
+    sys.exit(code)
+
+
+def _ros2_endpoints(ros2_connect, listen) -> list[str]:
+    """The robot's router endpoints; it cannot be the address soilocp's own router listens on."""
+    from services.runtime.config import DEFAULT_ENDPOINT, check_endpoint
+    from services.supervisor.run import client_endpoints
+
+    eps = [check_endpoint(ep) for ep in ros2_connect] or [ROS2_DEFAULT_ENDPOINT]
+    ours = set(client_endpoints(list(listen) or [DEFAULT_ENDPOINT]))
+    clash = [ep for ep in eps if ep in ours]
+    if clash:
+        raise ValueError(f"the robot's router {clash[0]} is where soilocp's own router would listen: give "
+                         "--listen another endpoint (e.g. --listen tcp/127.0.0.1:7448)")
+    return eps
 
 
 def _import_for_replay(bag: str, map_path: str, log_dir):

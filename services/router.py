@@ -10,7 +10,7 @@ import os
 import threading
 from typing import Any, Optional
 
-from services.security.fleet_security import (ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
+from services.security.fleet_security import (ENV_FLEET_MAPS, ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
 from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
@@ -90,20 +90,24 @@ def _security_settings(out: dict[str, Any], env: dict[str, str]) -> None:
     if acl is None and not env.get(ENV_FLEET_VEHICLES):
         return
     acl = dict(acl or {})
-    unknown = set(acl) - {"vehicles", "tools"}
+    unknown = set(acl) - {"vehicles", "tools", "maps"}
     if unknown:
-        raise ConfigError(f"router setting access_control: unknown key(s) {sorted(unknown)} (vehicles, tools)")
+        raise ConfigError(f"router setting access_control: unknown key(s) {sorted(unknown)} (vehicles, tools, maps)")
     if env.get(ENV_FLEET_VEHICLES):
         acl["vehicles"] = _split_list(env[ENV_FLEET_VEHICLES])
     if env.get(ENV_FLEET_TOOLS):
         acl["tools"] = _split_list(env[ENV_FLEET_TOOLS])
+    if env.get(ENV_FLEET_MAPS):  # the fleet soil map's services (docs/map.md)
+        acl["maps"] = _split_list(env[ENV_FLEET_MAPS])
     acl.setdefault("vehicles", [])
     acl.setdefault("tools", ["dashboard"])
     try:
-        fleet_access_control(acl["vehicles"], acl["tools"])
+        fleet_access_control(acl["vehicles"], acl["tools"], acl.get("maps", ()))
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"router setting access_control: {exc}") from None
     out["access_control"] = {"vehicles": list(acl["vehicles"]), "tools": list(acl["tools"])}
+    if acl.get("maps"):
+        out["access_control"]["maps"] = list(acl["maps"])
 
 
 def run_router(settings: dict[str, Any]) -> int:
@@ -120,7 +124,8 @@ def run_router(settings: dict[str, Any]) -> int:
         apply_tls(conf, settings["tls"], listener=any(ep.startswith("tls/") for ep in settings["listen"]))
         apply_fleet_link_qos(conf)
     if settings.get("access_control") is not None:
-        apply_access_control(conf, settings["access_control"]["vehicles"], settings["access_control"]["tools"])
+        apply_access_control(conf, settings["access_control"]["vehicles"], settings["access_control"]["tools"],
+                             settings["access_control"].get("maps", ()))
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:

@@ -12,7 +12,9 @@ PROCESS_COMMAND_NAMES = ("service", "router")
 
 def command_group(args: list[str]) -> click.Group:
     """The group that serves ``args`` (the command line without the program name)."""
-    if args and args[0] in PROCESS_COMMAND_NAMES:
+    if args[:2] == ["service", "map"]:  # the fleet soil map service: its own options (docs/map.md)
+        from services.map.commands import process_main as main
+    elif args and args[0] in PROCESS_COMMAND_NAMES:
         from soilocp_cli.process import main
     else:
         from soilocp_cli.main import main

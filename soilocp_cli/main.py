@@ -14,7 +14,9 @@ import click
 from services import commands as services_commands
 from services.bench import run as bench_commands
 from services.fleet import commands as fleet_commands
+from services.io import foxglove_live as foxglove_commands
 from services.io import record as record_commands
+from services.map import commands as map_commands
 from services.security import commands as certs_commands
 from soilocp import __version__
 from soilocp.commands import control, io, offline, physics, sim
@@ -29,7 +31,9 @@ AREAS = (
     fleet_commands,  # fleet, dashboard
     bench_commands,  # bench
     record_commands,  # record
+    foxglove_commands,  # foxglove
     certs_commands,  # certs
+    map_commands,  # map (query, export); the service is `soilocp service map`
 )
 
 

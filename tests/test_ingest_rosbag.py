@@ -218,10 +218,10 @@ def test_imu_without_orientation_uses_gyro_and_accelerometer(tmp_path, map_file)
     assert abs(np.median(est_pitch - true_pitch)) < 0.02  # rad: the slope's pitch, not zero
 
 
-def test_readme_map_is_the_shipped_ros2_map():
+def test_documented_map_is_the_shipped_ros2_map():
     root = Path(__file__).resolve().parents[1]
-    readme = (root / "README.md").read_text()
-    section = readme.split("## Your robot's data", 1)[1].split("\n## ", 1)[0]
+    page = (root / "docs" / "import.md").read_text()  # "Your robot's data" on the docs site
+    section = page.split("## The map file", 1)[1].split("\n## ", 1)[0]
     block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
     assert block == (root / "docs" / "maps" / "ros2-robot.yaml").read_text()
     assert load_map(root / "docs" / "maps" / "ros2-robot.yaml").joint_states.wheels[0] == "rear_left_wheel"

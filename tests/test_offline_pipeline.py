@@ -91,7 +91,7 @@ def test_pipeline_config_errors_name_the_file_and_field(tmp_path):
 
 def test_stage_composition_equals_pipeline(mixed_drive):
     from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
-    from soilocp.estimation.validation import parse_sample
+    from soilocp.validation import parse_sample
 
     cfg = PipelineConfig()
     stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpStage(cfg)

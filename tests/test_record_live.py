@@ -1,5 +1,6 @@
-"""``soilocp record``: a real router, real recorder processes, OCP records published by a client
-session; the recorder's MCAP files (rotated, bounded) hold exactly what was published."""
+"""``soilocp record``: a real router, real recorder processes, OCP records and sensor samples
+published by a client session; the recorder's MCAP files (rotated, bounded) hold exactly what was
+published, on the five channels of the live Foxglove server."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from mcap.reader import make_reader
 
 from schemas import keys
 from schemas.pipeline import OcpEstimate
+from soilocp.export.channels import topics
+from soilocp.sim.simulator import simulate
 
 from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
 
@@ -24,17 +27,29 @@ def _ocp(vid: str, seq: int) -> bytes:
                        mu=(0.1, 0.2, 0.2, 0.1), slip=(0.05, 0.3, 0.3, 0.05)).model_dump_json().encode()
 
 
-def _messages(files, topic_suffix="soil_strength"):
+def _messages(files, topic_suffix="soil_strength", log_time=False):
     out = []
     for p in files:
         with open(p, "rb") as f:
             for _s, ch, m in make_reader(f).iter_messages():
                 if ch.topic.endswith(topic_suffix):
-                    out.append((ch.topic, json.loads(m.data)))
+                    out.append((ch.topic, json.loads(m.data)) + ((m.log_time,) if log_time else ()))
+    return out
+
+
+def _topics(files) -> set[str]:
+    out = set()
+    for p in files:
+        with open(p, "rb") as f:
+            out |= {c.topic for c in make_reader(f).get_summary().channels.values()}
     return out
 
 
 def test_record_fleet_and_one_vehicle_with_rotation(tmp_path):
+    # the sensor samples of a simulated drive per vehicle, published on its raw key
+    samples = {v: [s for s, _ in simulate("sand", duration=3.0, seed=i, vehicle_id=v)]
+               for i, v in enumerate(("rover1", "rover2"))}
+    assert all(len(x) == 300 for x in samples.values())
     ep = endpoint(free_port())
     procs = Procs(tmp_path / "logs")
     try:
@@ -48,19 +63,24 @@ def test_record_fleet_and_one_vehicle_with_rotation(tmp_path):
             import zenoh
 
             # BLOCK: a burst of puts on a loaded machine must not be dropped by congestion control
-            pubs = {v: s.declare_publisher(keys.ocp(v), congestion_control=zenoh.CongestionControl.BLOCK)
-                    for v in ("rover1", "rover2")}
-            for v, p in pubs.items():  # both recorders' subscriptions have reached this session
+            block = zenoh.CongestionControl.BLOCK
+            pubs = {v: s.declare_publisher(keys.ocp(v), congestion_control=block) for v in ("rover1", "rover2")}
+            raw = {v: s.declare_publisher(keys.raw(v), congestion_control=block) for v in ("rover1", "rover2")}
+            for v, p in list(pubs.items()) + list(raw.items()):  # both recorders' subscriptions have reached this session
                 assert wait_for(lambda p=p: p.matching_status.matching, 30), v
             for seq in range(300):
-                for v, p in pubs.items():
-                    p.put(_ocp(v, seq))
-            s.put(keys.ocp("rover1"), b'{"not": "an ocp record"}', congestion_control=zenoh.CongestionControl.BLOCK)
-            for p in pubs.values():
+                for v in pubs:
+                    raw[v].put(samples[v][seq].model_dump_json())
+                    pubs[v].put(_ocp(v, seq))
+            s.put(keys.ocp("rover1"), b'{"not": "an ocp record"}', congestion_control=block)
+            # a valid sample on another vehicle's key: not that vehicle's data, not written
+            s.put(keys.raw("rover1"), samples["rover2"][0].model_dump_json(), congestion_control=block)
+            for p in list(pubs.values()) + list(raw.values()):
                 p.undeclare()
         # stop once every record has reached the recorder (puts are asynchronous)
-        assert wait_for(lambda: '"written": 600, "invalid": 1' in procs.log_text("rec_fleet"), 60), procs.log_text("rec_fleet")
-        assert wait_for(lambda: '"written": 300' in procs.log_text("rec_one"), 60), procs.log_text("rec_one")
+        assert wait_for(lambda: '"written": 600, "sensors": 600, "invalid": 2' in procs.log_text("rec_fleet"), 60), \
+            procs.log_text("rec_fleet")
+        assert wait_for(lambda: '"written": 300, "sensors": 300' in procs.log_text("rec_one"), 60), procs.log_text("rec_one")
         for name in ("rec_fleet", "rec_one"):
             procs.procs[name].send_signal(signal.SIGTERM)
         for name in ("rec_fleet", "rec_one"):
@@ -69,16 +89,25 @@ def test_record_fleet_and_one_vehicle_with_rotation(tmp_path):
         procs.close()
     fleet_files = sorted(tmp_path.glob("fleet_*.mcap"))
     assert len(fleet_files) == 1  # 64 MB default: no rotation
+    assert _topics(fleet_files) == set(topics("rover1")) | set(topics("rover2"))  # 5 channels per vehicle
     got = _messages(fleet_files)
     by_vid = {v: [m["seq"] for t, m in got if t == f"/soilocp/{v}/soil_strength"] for v in ("rover1", "rover2")}
     assert by_vid == {"rover1": list(range(300)), "rover2": list(range(300))}
-    assert '"invalid": 1' in procs.log_text("rec_fleet")
+    # the sensor messages are the published samples: every value, and the sample's stamp as log time
+    sens = _messages(fleet_files, "sensors", log_time=True)
+    for v in ("rover1", "rover2"):
+        mine = [(m, t) for topic, m, t in sens if topic == f"/soilocp/{v}/sensors"]
+        assert [m for m, _ in mine] == [json.loads(x.model_dump_json()) for x in samples[v]]
+        assert [t for _, t in mine] == [round(x.stamp * 1e9) for x in samples[v]]
+    assert '"invalid": 2' in procs.log_text("rec_fleet")
     one = sorted(tmp_path.glob("one_*.mcap"))
     assert len(one) > 1  # rotated at ~20 kB
+    assert _topics(one) == set(topics("rover2"))
     got = _messages(one)
     assert {t for t, _ in got} == {"/soilocp/rover2/soil_strength"}
     assert [m["seq"] for _, m in got] == list(range(300))
     assert got[-1][1]["K"] == pytest.approx(52.99) and got[-1][1]["K_minus_std"] == pytest.approx(50.99)
+    assert [m for _, m in _messages(one, "sensors")] == [json.loads(x.model_dump_json()) for x in samples["rover2"]]
 
 
 def test_soilocp_run_replays_a_bag_with_its_map(tmp_path):

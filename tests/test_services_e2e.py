@@ -247,8 +247,9 @@ def _hostile_payloads(good: list[dict], vid: str, at: int) -> list[tuple[str, by
         ("", b"\xff\xfe\x00garbage", "malformed_json"),
         ("", b"", "malformed_json"),
         ("", b"[1, 2, 3]", "malformed_json"),
-        ("", b"[" * 30000 + b"]" * 30000, "malformed_json"),
-        ("", js(mod(seq=0)).replace(b'"seq": 0', b'"seq": ' + b"9" * 5000), "malformed_json"),
+        ("", b"[" * 2000 + b"]" * 2000, "malformed_json"),  # nesting beyond the parser's depth, within 4 KiB
+        ("", b"[" * 30000 + b"]" * 30000, "too_large"),  # refused before parsing (max_payload_bytes)
+        ("", js(mod(seq=0)).replace(b'"seq": 0', b'"seq": ' + b"9" * 5000), "too_large"),
         ("", js(mod()).replace(b'"ground_speed": ', b'"ground_speed": NaN, "x": '), "non_finite"),
         ("", js(mod(roll=0.0)).replace(b'"roll": 0.0', b'"roll": 1e999'), "non_finite"),
         ("", js(mod(wheel_torque=[1e9, 0.0, 0.0, 0.0])), "out_of_range"),
@@ -326,6 +327,7 @@ def test_hostile_samples_rejected_with_reasons_and_good_ocps_unchanged(router, p
         h = ServiceHealth.model_validate_json(payload)
         assert (h.rejected, h.published, h.errors, h.dropped) == (len(expected_codes), len(lines), 0, 0)
         assert h.detail["rejected_schema"] == expected_codes.count("schema")
+        assert h.detail["rejected_too_large"] == expected_codes.count("too_large")
     assert all(procs.alive().values()), procs.alive()
 
 

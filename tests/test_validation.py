@@ -3,7 +3,7 @@
 import pytest
 
 from schemas.sensor import SensorSample
-from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 
 def sample(seq, stamp):

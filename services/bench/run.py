@@ -308,10 +308,22 @@ def render(report: dict[str, Any], console) -> None:
               help="A baseline report (--json of an earlier run): print each figure's before/after ratio.")
 @click.option("--report", "saved", type=click.Path(dir_okay=False),
               help="Do not run: render this saved report (with --compare, compare it to the baseline).")
+@click.option("--map", "map_row", is_flag=True,
+              help="Only the fleet soil map's row: updates/s one map service sustains, query p99 of a 1 km² box.")
 def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int],
-          compare_to: Optional[str], saved: Optional[str]) -> None:
+          compare_to: Optional[str], saved: Optional[str], map_row: bool = False) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
+
+    if map_row:  # the map's own section (services/bench/map.py)
+        from services.bench.map import render_map, run_map_bench
+
+        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        row = {"machine": machine_info(), "map": run_map_bench(quick, log=lambda m: console.print(m, style="dim"))}
+        render_map(row["map"], console)
+        if json_out:
+            Path(json_out).write_text(json.dumps(json_safe(row), indent=1, allow_nan=False))
+        return
 
     from services.bench.compare import compare, load_report, render_compare
 

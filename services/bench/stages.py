@@ -51,7 +51,7 @@ def simulate_drive(vehicle_id: str, duration: float, rate: float = 100.0, scenar
 def stage_costs(samples: Sequence[SensorSample], config=None) -> dict[str, dict[str, Any]]:
     """Microseconds per sample of each stage over ``samples`` (one vehicle, in order)."""
     from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
-    from soilocp.estimation.validation import SampleValidator, parse_sample
+    from soilocp.validation import SampleValidator, parse_sample
 
     if not samples:
         raise ValueError("samples: need at least one sample to time the stages")

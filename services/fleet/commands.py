@@ -19,8 +19,9 @@ import click
 ENV_CONNECT = "SOILOCP_CONNECT"
 
 
-def _endpoints(connect: tuple[str, ...]) -> list[str]:
-    """--connect (repeatable) > SOILOCP_CONNECT (comma-separated) > the default router endpoint."""
+def tool_endpoints(connect: tuple[str, ...]) -> list[str]:
+    """Where a fleet tool (fleet status, dashboard, foxglove) connects: --connect (repeatable) >
+    SOILOCP_CONNECT (comma-separated) > the default router endpoint; each endpoint checked."""
     from services.runtime.config import DEFAULT_ENDPOINT, check_endpoint
 
     eps = list(connect) or [e.strip() for e in os.environ.get(ENV_CONNECT, "").split(",") if e.strip()] \
@@ -155,7 +156,7 @@ def fleet_status_cmd(connect, timeout, watch, as_json) -> None:
     from services.security.fleet_security import check_client_tls
 
     try:
-        eps = _endpoints(connect)
+        eps = tool_endpoints(connect)
         check_client_tls(eps)
         if not (timeout > 0):
             raise ValueError(f"--timeout {timeout!r}: must be > 0 s")
@@ -181,7 +182,7 @@ def dashboard_cmd(port, host, connect, constants_path, poll) -> None:
     from services.security.fleet_security import check_client_tls
 
     try:
-        eps = _endpoints(connect)
+        eps = tool_endpoints(connect)
         check_client_tls(eps)
         if not (poll > 0):
             raise ValueError(f"--poll {poll!r}: must be > 0 s")

@@ -1,11 +1,15 @@
-"""``soilocp record``: the live OCP stream of one vehicle or a fleet -> MCAP files for Foxglove.
+"""``soilocp record``: the live OCP and sensor streams of one vehicle or a fleet -> MCAP files for
+Foxglove.
 
-A client session subscribes to ``soilocp/<vid>/ocp`` (``--vehicle-id``, repeatable) or to every
-vehicle's (``soilocp/*/ocp``); each valid record is written through the library's MCAP writer
-(:mod:`soilocp.export.mcap_out`, the same channels as ``soilocp estimate --out E.mcap``) into
-rotating files of bounded size.  The Zenoh callback only enqueues (bounded; the oldest record is
-dropped and counted when the disk falls behind), a worker thread writes.  SIGINT / SIGTERM close
-the current file properly (a readable MCAP with its summary) and exit 0.
+A client session subscribes to ``soilocp/<vid>/ocp`` and ``soilocp/<vid>/sensors/raw``
+(``--vehicle-id``, repeatable) or to every vehicle's (``soilocp/*/...``); each valid OCP record and
+sensor sample is written through the library's MCAP writer (:mod:`soilocp.export.mcap_out`: the
+channels of ``soilocp estimate --out E.mcap`` and of the live Foxglove server) into rotating files
+of bounded size.  A payload that fails its contract (``OcpEstimate``, ``SensorSample``), or whose
+vehicle id is not its key's, is counted (``invalid``) and not written.  The Zenoh callbacks only
+enqueue (bounded; the oldest item is dropped and counted when the disk falls behind), a worker
+thread writes.  SIGINT / SIGTERM close the current file properly (a readable MCAP with its summary)
+and exit 0.
 """
 
 from __future__ import annotations
@@ -19,7 +23,6 @@ from typing import Optional
 import click
 
 from schemas import keys
-from schemas.pipeline import OcpEstimate
 
 from services.runtime.config import DEFAULT_ENDPOINT
 
@@ -27,7 +30,9 @@ from services.runtime.log import JsonLog
 
 from services.runtime.process import open_session
 
-QUEUE_MAX = 10_000  # records; ~100 s of one vehicle at 100 Hz
+from services.io.streams import decode, selectors
+
+QUEUE_MAX = 10_000  # OCP records and sensor samples; ~50 s of one vehicle at 100 Hz
 
 
 def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_bytes: int, max_files: int,
@@ -39,19 +44,19 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
         keys.check_vehicle_id(vid)
     writer = RotatingMcapWriter(out, max_bytes=max_bytes, max_files=max_files)
     stop = threading.Event()
-    q: "queue.Queue[bytes]" = queue.Queue(maxsize=QUEUE_MAX)
-    counts = {"written": 0, "invalid": 0, "dropped": 0}
+    q: "queue.Queue[tuple[str, str, bytes]]" = queue.Queue(maxsize=QUEUE_MAX)
+    # written: OCP records; sensors: sensor samples
+    counts = {"written": 0, "sensors": 0, "invalid": 0, "dropped": 0}
 
     def on_signal(_sig, _frame):
         stop.set()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
-    def on_sample(sample) -> None:
-        payload = bytes(sample.payload.to_bytes())
+    def enqueue(item: tuple[str, str, bytes]) -> None:
         while True:
             try:
-                q.put_nowait(payload)
+                q.put_nowait(item)
                 return
             except queue.Full:
                 try:
@@ -60,23 +65,31 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
                 except queue.Empty:
                     pass
 
+    def callback(kind: str):
+        return lambda sample: enqueue((kind, str(sample.key_expr), bytes(sample.payload.to_bytes())))
+
     def worker() -> None:
         while not (stop.is_set() and q.empty()):
             try:
-                payload = q.get(timeout=0.1)
+                kind, key, payload = q.get(timeout=0.1)
             except queue.Empty:
                 continue
             try:
-                rec = OcpEstimate.model_validate_json(payload).model_dump()
+                data = decode(kind, key, payload)
             except ValueError as exc:
                 counts["invalid"] += 1
                 if counts["invalid"] <= 5:
-                    log.warning("invalid_ocp_record", error=str(exc)[:200])
+                    log.warning("invalid_sample", key=key, error=str(exc)[:200])
                 continue
-            writer.write(rec)
-            counts["written"] += 1
+            if kind == "ocp":
+                writer.write(data)
+                counts["written"] += 1
+            else:
+                writer.write_sensor(data)
+                counts["sensors"] += 1
 
-    selectors = [keys.ocp(v) for v in vehicle_ids] or [keys.any_vehicle_ocp()]
+    streams = selectors(vehicle_ids)
+    keys_subscribed = [sel for _kind, sel in streams]
     session = open_session("client", connect, [], multicast=False, stop=stop, log=log)
     if session is None:
         writer.close()
@@ -85,8 +98,8 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
     th.start()
     subs = []
     try:
-        subs = [session.declare_subscriber(k, on_sample) for k in selectors]
-        log.info("recording", keys=selectors, out=out, max_bytes=max_bytes, max_files=max_files)
+        subs = [session.declare_subscriber(sel, callback(kind)) for kind, sel in streams]
+        log.info("recording", keys=keys_subscribed, out=out, max_bytes=max_bytes, max_files=max_files)
         t_end = None if duration is None else time.monotonic() + duration
         last = dict(counts)
         while not stop.is_set():
@@ -118,7 +131,7 @@ def run_record(connect: list[str], vehicle_ids: list[str], out: str, *, max_byte
 @click.option("--max-files", type=int, default=10, show_default=True, help="Keep at most this many files (oldest deleted)")
 @click.option("--duration", type=float, help="Stop after this many seconds (default: at SIGINT/SIGTERM)")
 def record_cmd(out, vehicle_ids, connect, max_mb, max_files, duration) -> None:
-    """Record the live OCP estimates of one vehicle or the fleet to rotating MCAP files (Foxglove)."""
+    """Record the live estimates and sensors of one vehicle or the fleet to rotating MCAP files (Foxglove)."""
     import sys
 
     try:

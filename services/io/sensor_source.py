@@ -65,9 +65,14 @@ def scenario_source(scenario: str, vehicle_id: str, *, duration: Optional[float]
 
     Not a generator itself: a bad scenario name or argument raises ValueError here, at startup.
     """
+    import os
+
+    from soilocp.sim.field import ENV_START_POSE, parse_start_pose
     from soilocp.sim.simulator import simulate  # the simulator is only needed for this source
 
-    samples = simulate(scenario, duration=duration, rate=rate, seed=seed, vehicle_id=vehicle_id)
+    # SOILOCP_START_POSE: the vehicle drives in a map frame and its samples carry positions (docs/map.md)
+    start = parse_start_pose(os.environ[ENV_START_POSE]) if os.environ.get(ENV_START_POSE) else None
+    samples = simulate(scenario, duration=duration, rate=rate, seed=seed, vehicle_id=vehicle_id, start=start)
     return ((sample.model_dump_json().encode(), sample.stamp) for sample, _truth in samples)
 
 

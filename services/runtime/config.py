@@ -47,7 +47,8 @@ class ServiceConfig(BaseModel):
     join_timeout_s: float = Field(0.2, gt=0, description="Observer: give up on a sample's normal forces after this")
     history_size: int = Field(1000, ge=1, le=1_000_000, description="OCP publisher: estimates kept for ?last / ?since")
     status_period_s: float = Field(1.0, gt=0, le=3600, description="Period of the health publication")
-    max_payload_bytes: int = Field(65536, ge=256, description="Gateway: larger raw payloads are rejected")
+    max_payload_bytes: int = Field(4096, ge=256, description="Gateway: larger raw payloads are rejected before "
+                                   "parsing (4 KiB: 5x the largest valid sample; services.stages.gateway)")
     connect_retry_s: float = Field(1.0, gt=0, le=60, description="Client: wait per connection attempt to the router")
     pipeline_config: Optional[str] = Field(None, description="Path of the physics PipelineConfig file (null: defaults)")
 

@@ -76,12 +76,13 @@ def certs_show(files) -> None:
 @certs_group.command("acl")
 @click.option("--vehicle", "vehicles", multiple=True, required=True, help="Vehicle id admitted (repeatable).")
 @click.option("--tool", "tools", multiple=True, help="Fleet tool certificate name (repeatable); default dashboard.")
-def certs_acl(vehicles, tools) -> None:
+@click.option("--map", "maps", multiple=True, help="Map service id = its certificate name (repeatable; docs/map.md).")
+def certs_acl(vehicles, tools, maps) -> None:
     """Print the fleet router's access_control section (for a native zenohd configuration)."""
     from services.security.fleet_security import fleet_access_control
 
     try:
-        click.echo(json.dumps(fleet_access_control(vehicles, tools or ("dashboard",)), indent=2))
+        click.echo(json.dumps(fleet_access_control(vehicles, tools or ("dashboard",), maps), indent=2))
     except ValueError as exc:
         _fail(str(exc))
 

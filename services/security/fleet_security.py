@@ -10,8 +10,12 @@ dropped, and a transport whose certificate names nobody below matches no policy 
   interest of fleet tools (subscriptions, queries, liveliness queries): nothing another vehicle or
   a tool published, so one vehicle cannot read another's data through the fleet.
 * fleet tools (dashboard, fleet CLI, recorder; CN from ``tools``): subscribe, query and take
-  liveliness under ``soilocp/**``, and receive what that returns; never put, delete, reply,
-  declare a queryable or a liveliness token.
+  liveliness under ``soilocp/**`` and the soil map's ``soilmap/**``, and receive what that
+  returns; never put, delete, reply, declare a queryable or a liveliness token.
+* map services (CN = the map id, from ``maps``; docs/map.md): read like a tool (the vehicles' soil
+  estimates), and publish, answer queries and hold their token only under ``soilmap/<id>/**``.
+  A vehicle cannot write the map: it writes only its own estimates, and the map service checks
+  that each estimate names the vehicle of the key it came on.
 
 Key matching: Zenoh allows a message when a rule's key expression *includes* the message's key,
 so the interest forwarded to a vehicle (``soilocp/*/ocp``) needs ``soilocp/**``, while what a
@@ -34,13 +38,17 @@ ENV_TLS_KEY = "SOILOCP_TLS_KEY"
 #: Environment of the fleet router: the vehicle ids (= certificate CNs) it admits, comma-separated.
 ENV_FLEET_VEHICLES = "SOILOCP_FLEET_VEHICLES"
 ENV_FLEET_TOOLS = "SOILOCP_FLEET_TOOLS"
+ENV_FLEET_MAPS = "SOILOCP_FLEET_MAPS"  # map ids (= certificate CNs) of the fleet's map services
 
 ALL = "soilocp/**"
+#: The fleet soil map's keys (schemas.keys.MAP_ROOT): fleet tools read them, a map service writes its own.
+MAPS = "soilmap/**"
 _VEHICLE_IN = ["put", "delete", "declare_subscriber", "declare_queryable", "reply", "liveliness_token",
                "declare_liveliness_subscriber", "query", "liveliness_query"]
 _VEHICLE_OUT = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 _TOOL_IN = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 _TOOL_OUT = ["put", "delete", "reply", "declare_queryable", "liveliness_token", "declare_subscriber"]
+_MAP_IN = ["put", "delete", "declare_queryable", "reply", "liveliness_token"]
 
 
 @dataclass(frozen=True)
@@ -96,15 +104,19 @@ def _rule(rid: str, messages: list[str], flow: str, key_exprs: list[str]) -> dic
     return {"id": rid, "messages": messages, "flows": [flow], "permission": "allow", "key_exprs": key_exprs}
 
 
-def fleet_access_control(vehicles: Iterable[str], tools: Iterable[str]) -> dict[str, Any]:
-    """The fleet router's ``access_control`` section for these vehicle ids and tool names."""
+def fleet_access_control(vehicles: Iterable[str], tools: Iterable[str], maps: Iterable[str] = ()) -> dict[str, Any]:
+    """The fleet router's ``access_control`` section for these vehicle ids, tool names and map ids."""
     vehicles = [keys.check_vehicle_id(v) for v in vehicles]
     tools = [keys.check_vehicle_id(t) for t in tools]
+    maps = [keys.check_map_id(m) for m in maps]
     if not vehicles and not tools:
         raise ValueError("access control: no vehicle and no fleet tool named: every link would be refused")
     clash = sorted(set(vehicles) & set(tools))
     if clash:
         raise ValueError(f"access control: {clash} named both as vehicle and as fleet tool")
+    clash = sorted(set(maps) & (set(vehicles) | set(tools)))
+    if clash:
+        raise ValueError(f"access control: {clash} named both as map service and as vehicle or fleet tool")
     rules, subjects, policies = [], [], []
     for vid in vehicles:
         own = f"soilocp/{vid}/**"
@@ -112,15 +124,24 @@ def fleet_access_control(vehicles: Iterable[str], tools: Iterable[str]) -> dict[
         subjects.append({"id": f"vehicle-{vid}", "cert_common_names": [vid]})
         policies.append({"id": f"vehicle-{vid}", "rules": [f"{vid}-in", f"{vid}-out"], "subjects": [f"vehicle-{vid}"]})
     if tools:
-        rules += [_rule("tools-in", _TOOL_IN, "ingress", [ALL]), _rule("tools-out", _TOOL_OUT, "egress", [ALL])]
+        rules += [_rule("tools-in", _TOOL_IN, "ingress", [ALL, MAPS]),
+                  _rule("tools-out", _TOOL_OUT, "egress", [ALL, MAPS])]
         subjects.append({"id": "tools", "cert_common_names": list(tools)})
         policies.append({"id": "tools", "rules": ["tools-in", "tools-out"], "subjects": ["tools"]})
+    for m in maps:
+        own = f"{keys.MAP_ROOT}/{m}/**"
+        rules += [_rule(f"map-{m}-read", _TOOL_IN, "ingress", [ALL]),
+                  _rule(f"map-{m}-write", _MAP_IN, "ingress", [own]),
+                  _rule(f"map-{m}-out", _TOOL_OUT + ["query"], "egress", [ALL, own])]
+        subjects.append({"id": f"map-{m}", "cert_common_names": [m]})
+        policies.append({"id": f"map-{m}", "rules": [f"map-{m}-read", f"map-{m}-write", f"map-{m}-out"],
+                         "subjects": [f"map-{m}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
 
-def apply_access_control(conf, vehicles: Iterable[str], tools: Iterable[str]) -> None:
-    conf.insert_json5("access_control", json.dumps(fleet_access_control(vehicles, tools)))
+def apply_access_control(conf, vehicles: Iterable[str], tools: Iterable[str], maps: Iterable[str] = ()) -> None:
+    conf.insert_json5("access_control", json.dumps(fleet_access_control(vehicles, tools, maps)))
 
 
 def check_client_tls(endpoints: Iterable[str], env: Optional[dict[str, str]] = None) -> Optional[TlsFiles]:

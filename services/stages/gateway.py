@@ -2,9 +2,11 @@
 
 Input ``soilocp/<vid>/sensors/raw``; output ``soilocp/<vid>/sensors/clean`` (SensorSample JSON)
 and ``soilocp/<vid>/rejected`` (Rejection JSON).  The checks are the library's
-(:func:`soilocp.estimation.validation.parse_sample`, :class:`soilocp.estimation.validation.SampleValidator`), the same
-that ``soilocp estimate`` applies offline, plus two transport checks: payload size and key.
-Nothing a sender puts on the raw key can crash it: every failure becomes a Rejection.
+(:func:`soilocp.validation.parse_sample`, :class:`soilocp.validation.SampleValidator`), the same
+that ``soilocp estimate`` applies offline, plus two transport checks: payload size (before any
+parsing) and key.  Nothing a sender puts on the raw key can crash it: every failure becomes a
+Rejection, counted per code in the service's health (``rejected_too_large``, ...).  The process
+imports neither numpy nor the estimation package (tests/test_gateway_lean.py).
 """
 
 from __future__ import annotations
@@ -15,28 +17,37 @@ from typing import Any, Optional, Union
 from schemas import keys
 from schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
 from schemas.sensor import SensorSample
-from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 from services.runtime.worker import WorkItem
 from services.stages.graph import BY_NAME
 from services.stages.stage_service import StageService
 
 
-def _peek(payload: bytes, name: str) -> Any:
-    """Best-effort read of one top-level field of a rejected payload (for the Rejection)."""
+#: Default byte limit of a raw payload.  The largest valid SensorSample (a 64-character vehicle id,
+#: every number at full float precision) is about 550 bytes as compact JSON and 750 pretty-printed,
+#: so 4 KiB leaves a 5x margin for any writer's formatting; beyond it the gateway refuses the payload
+#: before parsing it (``too_large``).  Parsing is what a hostile payload costs below the limit: a 4 KiB
+#: array of numbers is rejected in ~0.1 ms, a 64 KiB one (the former limit) in ~13 ms, so a stream of
+#: them would have stalled the chain (docs/services.md).
+DEFAULT_MAX_PAYLOAD_BYTES = 4096
+
+
+def _peek(payload: bytes) -> dict:
+    """Best-effort read of the top-level fields of a rejected payload (for the Rejection): one parse."""
     import json
 
     try:
         obj = json.loads(payload)
     except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
-    return obj.get(name) if isinstance(obj, dict) else None
+        return {}
+    return obj if isinstance(obj, dict) else {}
 
 
 class RawSampleChecker:
     """The gateway's decision for one vehicle, without any transport: sample or Rejection."""
 
-    def __init__(self, vehicle_id: str, *, max_payload_bytes: int = 65536):
+    def __init__(self, vehicle_id: str, *, max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES):
         self.vehicle_id = keys.check_vehicle_id(vehicle_id)
         self.raw_key = keys.raw(vehicle_id)
         self.max_payload_bytes = int(max_payload_bytes)
@@ -64,10 +75,11 @@ class RawSampleChecker:
                                    received_at)
 
     def _rejection(self, code: str, message: str, seq, payload: bytes, key: str, received_at: float) -> Rejection:
-        if seq is None and len(payload) <= self.max_payload_bytes:
-            s = _peek(payload, "seq")
+        fields = _peek(payload) if len(payload) <= self.max_payload_bytes else {}
+        if seq is None:
+            s = fields.get("seq")
             seq = s if isinstance(s, int) and not isinstance(s, bool) and s >= 0 else None
-        stamp = _peek(payload, "stamp") if len(payload) <= self.max_payload_bytes else None
+        stamp = fields.get("stamp")
         stamp = float(stamp) if isinstance(stamp, (int, float)) and not isinstance(stamp, bool) else None
         if stamp is not None and not (stamp == stamp and abs(stamp) < float("inf")):
             stamp = None

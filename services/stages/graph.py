@@ -97,5 +97,5 @@ BY_NAME: dict[str, StageSpec] = {s.name: s for s in PIPELINE}
 #: The rows the batched service implements in one process (it also is the OCP publisher).
 BATCHED_STAGES: tuple[str, ...] = PIPELINE_SERVICES[1:-1]
 #: Processes that are not pipeline stages but hold liveliness tokens too.
-OTHER_SERVICES: tuple[str, ...] = ("vehicle", "controller")
+OTHER_SERVICES: tuple[str, ...] = ("vehicle", "controller", "ros2-in", "ros2-out")
 ALL_SERVICES: tuple[str, ...] = PIPELINE_SERVICES + OTHER_SERVICES

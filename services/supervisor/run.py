@@ -52,6 +52,11 @@ class RunOptions:
     plain: bool = False
     startup_timeout_s: float = 90.0
     control: Optional[str] = None  # closed loop: the controller service's policy, the vehicle follows it
+    foxglove: Optional[str] = None  # HOST:PORT of a Foxglove WebSocket server serving the vehicle's channels
+    ros2_out: bool = False  # also publish the estimates as ROS 2 topics (ros2-out service)
+    ros2_in: Optional[str] = None  # map file: the sensors come from the robot's ROS 2 topics (ros2-in service)
+    ros2_connect: Optional[list[str]] = None  # the robot's Zenoh router (rmw_zenohd)
+    ros2_domain: int = 0
 
 
 def client_endpoints(listen: list[str]) -> list[str]:
@@ -83,6 +88,22 @@ def run_system(opts: RunOptions) -> int:
         interrupted["sig"] = signum
         stop.set()
 
+    fox = None
+    if opts.foxglove is not None:
+        # inside the run, on the run's own session: subscribed before the source starts (nothing
+        # missed, no token to wait for), and no seventh interpreter on a small computer; its Zenoh
+        # callbacks only enqueue, so the live table's subscribers are not held up
+        from services.io.foxglove_live import FoxgloveLive, parse_address
+
+        host, port = parse_address(opts.foxglove)
+        # its warnings (invalid samples, drops) go to a log of their own, not across the live table
+        fox_log = open(log_dir / "foxglove.log", "a", encoding="utf-8")
+        try:
+            fox = FoxgloveLive(host, port, [opts.vehicle_id], log=JsonLog("foxglove", stream=fox_log))
+        except ValueError:  # the port is taken: fail before any process starts
+            fox_log.close()
+            raise
+        console.print(f"soilocp run: Foxglove WebSocket server on {fox.url} (layout: docs/foxglove/soilocp-layout.json)")
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     group = ProcessGroup(log_dir)
     monitor = Monitor(opts.vehicle_id, opts.stale_timeout)
@@ -108,6 +129,13 @@ def run_system(opts: RunOptions) -> int:
                 args += ["--pipeline-config", opts.pipeline_config]
             group.start(name, args)
         want_alive = set(PIPELINE_SERVICES)
+        ros2_args = ["--ros2-domain", str(opts.ros2_domain)]
+        for ep in opts.ros2_connect or []:
+            ros2_args += ["--ros2-connect", ep]
+        if opts.ros2_out:
+            group.start("ros2-out", ["service", "ros2-out", *common, *ros2_args,
+                                     "--stale-timeout", str(opts.stale_timeout)])
+            want_alive.add("ros2-out")
         if opts.control:
             group.start("controller", ["service", "controller", *common, "--control", opts.control,
                                        "--stale-timeout", str(opts.stale_timeout)])
@@ -115,6 +143,8 @@ def run_system(opts: RunOptions) -> int:
         session = _open_monitor_session(connect, group, stop, failures)
         if session is not None:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
+            if fox is not None:
+                fox.attach(session)
             # wait until every pipeline service holds its token (or one dies)
             missing = wait_alive(session, [opts.vehicle_id], want_alive, opts.startup_timeout_s, stop=stop,
                                  dead=group.dead, interval=0.1)
@@ -128,18 +158,22 @@ def run_system(opts: RunOptions) -> int:
                                 + ",".join(sorted(s for _v, s in missing)))
             if not failures and not stop.is_set():
                 vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
-                if opts.scenario:
+                if opts.ros2_in:
+                    vargs = ["service", "ros2-in", *common, *ros2_args, "--ros2-map", str(opts.ros2_in),
+                             "--wait-timeout", "10"]
+                elif opts.scenario:
                     vargs += ["--scenario", opts.scenario, "--seed", str(opts.seed)]
                     if opts.control:
                         vargs += ["--control", opts.control, "--stale-timeout", str(opts.stale_timeout)]
                 else:
                     vargs += ["--replay", str(opts.replay)]
-                if opts.duration is not None:
+                if opts.duration is not None and not opts.ros2_in:  # a live robot ends when the run does
                     vargs += ["--duration", str(opts.duration)]
-                vehicle = group.start("vehicle", vargs)
+                vehicle = group.start(vargs[1], vargs)
                 t_drive = time.monotonic()
                 console.print(f"soilocp run: all services alive after {t_drive - t_start:.1f} s; driving "
-                              + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"))
+                              + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"
+                                 if opts.replay else f"from ROS 2 topics ({opts.ros2_in})"))
                 failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
     finally:
         snap_running = monitor.snapshot()  # what the table showed last, before anything stops
@@ -153,6 +187,9 @@ def run_system(opts: RunOptions) -> int:
         snap = monitor.snapshot()  # final counters: the services' "stopping" health reports
         snap.update({k: snap_running[k] for k in ("est", "age", "stale", "rate", "alive")})
         monitor.detach()
+        if fox is not None:
+            fox.close()
+            fox.log.stream.close()
         if session is not None:
             session.close()
         for s, h in old.items():
@@ -163,6 +200,8 @@ def run_system(opts: RunOptions) -> int:
     if snap["codes"]:
         console.print("rejections by code: " + ", ".join(f"{k}={v}" for k, v in sorted(snap["codes"].items())))
     console.print(f"OCP records received: {snap['count']}; logs in {log_dir}")
+    if fox is not None:
+        console.print("Foxglove: " + ", ".join(f"{k} {v}" for k, v in fox.counts.items()))
     if failures:
         for f in failures:
             console.print(f"[red]FAILED[/red]: {f}")
@@ -273,6 +312,8 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
             # the source stops itself after the duration; this is only the safety net (slow start)
             if opts.duration is not None and elapsed >= opts.duration + 15.0:
                 break
+            if opts.ros2_in and opts.duration is not None and elapsed >= opts.duration:
+                break  # a robot's topics do not end: the run's duration does
             if source_done_at is not None and now - source_done_at > 1.0:
                 # drained: the OCP stream has gone quiet (a loaded machine may lag the source by
                 # seconds), or a bound in case nothing comes out at all

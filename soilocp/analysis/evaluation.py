@@ -53,6 +53,10 @@ class SegmentResult:
     std_rel: tuple = field(default=(), repr=False)  # those K_std / K values, to pool segments (not in the JSON)
     #: settled samples with status "ok" and K more than UNFLAGGED_ERROR_REL off (a confident wrong number)
     confident_wrong: int = 0
+    #: settled samples that report K with a status other than "ok", and how many of them name
+    #: ``reason_names`` in their reason (evaluate_records' argument; 0 when not asked)
+    flagged: int = 0
+    flagged_named: int = 0
 
     def passes(self) -> dict[str, bool]:
         t = TARGETS
@@ -76,8 +80,10 @@ def _segments(stamps: np.ndarray, k_true: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = TARGETS["settle_s"]) -> list[SegmentResult]:
-    """Join truth and estimates on (vehicle_id, seq) and score each terrain segment."""
+def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = TARGETS["settle_s"],
+                     reason_names: str = "") -> list[SegmentResult]:
+    """Join truth and estimates on (vehicle_id, seq) and score each terrain segment.  With
+    ``reason_names``, also count the flagged settled records whose reason names it."""
     est_by_key = {(e["vehicle_id"], e["seq"]): e for e in estimates}
     rows = [(t, est_by_key.get((t["vehicle_id"], t["seq"]))) for t in truth]
     if not rows:
@@ -144,6 +150,9 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         band_hits = np.abs(k_set[banded] - kt) <= 2.0 * k_std[banded]
         status_ok = np.array([bool(e) and e["status"] == "ok" for _, e in seg])[settled]
         confident_wrong = int(np.sum(status_ok & np.isfinite(rel_settled) & (rel_settled > UNFLAGGED_ERROR_REL)))
+        flagged_recs = [e for (_, e), ok in zip(seg, settled)
+                        if ok and e and e["status"] != "ok" and e.get("soil_strength") is not None]
+        named = sum(reason_names.lower() in str(e.get("reason", "")).lower() for e in flagged_recs) if reason_names else 0
 
         cls_ok = [bool(e and e.get("soil_class") == t.get("soil_class")) for (t, e), ok in zip(seg, settled) if ok]
         results.append(
@@ -168,6 +177,8 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
                 std_rel_median=float(np.median(k_std[banded] / k_set[banded])) if banded.any() else None,
                 std_rel=tuple((k_std[banded] / k_set[banded]).tolist()),
                 confident_wrong=confident_wrong,
+                flagged=len(flagged_recs),
+                flagged_named=int(named),
             )
         )
     return results

@@ -39,6 +39,7 @@ from typing import Literal
 
 import numpy as np
 
+from soilocp.model.force_balance import longitudinal_balance
 from soilocp.model.normal_force import gravity_from_attitude
 from soilocp.model.vehicle import VehicleParams
 
@@ -142,7 +143,7 @@ def fit_torque_constant(samples: Iterable, vehicle: VehicleParams,
     """Fit eq. TC (module doc) to a sensor log: k, F_MR, their std, the residual."""
     sel = selection or TorqueSelection()
     c = _columns(samples)
-    R, m = vehicle.wheel_radius, vehicle.mass
+    R = vehicle.wheel_radius
     have_gs = np.isfinite(c["ground_speed"])
     if sel.accel == "ground_speed" and not have_gs.any():
         raise ValueError("accel='ground_speed' needs a ground speed in the log, and this one has none")
@@ -177,8 +178,9 @@ def fit_torque_constant(samples: Iterable, vehicle: VehicleParams,
         else:
             g_x = gravity_from_attitude(0.0, c["pitch"][s])[:, 0]
             f_x = (c["ground_speed"][i1 - 1] - c["ground_speed"][i0]) / dt + mean(g_x)
-        X.append(mean(c["torque"][s].sum(axis=1)) / R)
-        Y.append(m * f_x + vehicle.wheel_inertia * omega_dot / R)
+        x, y = longitudinal_balance(f_x, omega_dot, mean(c["torque"][s].sum(axis=1)), vehicle)
+        X.append(float(x))
+        Y.append(float(y))
         F.append(f_x)
     n = len(X)
     base = dict(windows_used=n, windows_total=len(wins), excluded=excluded, accel=sel.accel, window_s=sel.window)

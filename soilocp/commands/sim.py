@@ -48,11 +48,14 @@ def _print_scenarios() -> None:
 @click.option("--noiseless", is_flag=True, help="Exact truth through the sensors (no noise, bias or quantisation).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None, help="Sensor log to write (JSON Lines, SensorSample).")
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, help="Truth log to write (JSON Lines, TruthRecord).")
+@click.option("--start", "start_pose", metavar="FRAME:X,Y[,HEADING][@LAT,LON]", default=None,
+              help="Start pose in a map frame: the samples carry true positions (docs/map.md).")
 def simulate(
     scenario_name, list_only, duration, rate, seed, vehicle_path, constants_path, mode,
-    sweep_min, sweep_max, sweep_period, sweep_dwell, vehicle_id, noiseless, out_path, truth_path,
+    sweep_min, sweep_max, sweep_period, sweep_dwell, vehicle_id, noiseless, out_path, truth_path, start_pose=None,
 ):  # fmt: skip
     """Drive the simulated rover over a scenario; write the sensor log (and the ground truth)."""
+    from soilocp.sim.field import parse_start_pose
     from soilocp.sim.simulator import simulate as run_simulation
 
     if list_only:
@@ -83,6 +86,7 @@ def simulate(
             noise=SensorNoise.noiseless() if noiseless else None,
             vehicle_id=vehicle_id,
             sweep=sw,
+            start=parse_start_pose(start_pose) if start_pose else None,
         )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc

@@ -27,6 +27,7 @@ from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.model.ocp import ocp_arrays
 from soilocp.estimation.pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
 from soilocp.estimation.soil_strength import SoilBank
+from soilocp.estimation.torque_scale import TorqueScaleBank
 
 
 class BatchPipeline:
@@ -41,6 +42,7 @@ class BatchPipeline:
         self.observer = ObserverBank(cfg.vehicle, cfg.observer, self.n_vehicles)
         self.gate = SlipGate(cfg, self.n_vehicles)
         self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
+        self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles)
 
     @staticmethod
     def inputs_from_samples(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
@@ -50,12 +52,12 @@ class BatchPipeline:
     def step(self, idx, samples: Sequence[SensorSample], normal_forces: Sequence) -> list[OcpEstimate]:
         """One sample per vehicle in ``idx`` (same order): the OCP record of each."""
         ix = check_index(idx, self.n_vehicles)
-        inputs = observer_inputs(samples, normal_forces)
+        inputs, scale_sigma = self.scale.apply(ix, observer_inputs(samples, normal_forces))
         ob = self.observer.step(ix, inputs)
         inp = self.gate.step(ix, inputs.stamp, ob)
         states = self.soil.update(ix, inputs.stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed,
-                                  inp.ground_stale, inp.span, inp.slip_ends, inp.unusable)
+                                  inp.ground_stale, inp.span, inp.slip_ends, scale_sigma, unusable=inp.unusable)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
         ocp = ocp_arrays(ks, self.config.constants)
         out = []

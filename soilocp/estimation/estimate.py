@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import IO, Callable, Iterable, Iterator, Optional
 
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
-from soilocp.estimation.validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 
 @dataclass

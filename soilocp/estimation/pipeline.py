@@ -27,10 +27,12 @@ from soilocp.model.files import read_json
 from soilocp.model.normal_force import NormalForceSolver
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from soilocp.map.place import estimate_place
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
 from soilocp.estimation.soil_config import SoilConfig, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
+from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.estimation.wheel_usability import SLIP_BEYOND_EQ1, travel_direction, wheel_usability
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
@@ -46,6 +48,7 @@ class PipelineConfig(BaseModel):
     constants: ModelConstants = DEFAULT_CONSTANTS
     observer: ObserverConfig = Field(default_factory=ObserverConfig)
     soil: SoilConfig = Field(default_factory=SoilConfig)
+    torque_scale: TorqueScaleConfig = Field(default_factory=TorqueScaleConfig)
     slip_deadband: float = Field(DEFAULT_DEADBAND, ge=0, description="m/s below which slip is not informative (eq. 1)")
     slip_floor: float = Field(DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s")
 
@@ -128,9 +131,11 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
     )
 
 
-def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int) -> ObserverOutput:
+def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int,
+                     torque_scale: float = 1.0, torque_scale_std: float | None = None) -> ObserverOutput:
     """The j-th vehicle of a kernel output (arrays (k, 4) per wheel, (k,) per vehicle) as the
-    ObserverOutput message."""
+    ObserverOutput message, with the online torque scale the torques were multiplied by and its relative
+    1-sigma (None: the state is off)."""
     # one tuple per field (callgrind: fewer instructions than one stacked array's tolist, and
     # pydantic takes tuples for the Quad fields without a conversion)
     return ObserverOutput(
@@ -148,6 +153,7 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
         interval_rim_end=_quad(out.interval_rim_end[j]), interval_ground_start=_quad(out.interval_ground_start[j]),
         interval_ground_end=_quad(out.interval_ground_end[j]), interval_rim_sigma=_quad(out.interval_rim_sigma[j]),
         interval_learning=_bools(out.interval_learning[j]),
+        torque_scale=torque_scale, torque_scale_std=torque_scale_std,
     )
 
 
@@ -178,6 +184,7 @@ class ObserverStage:
 
     def __init__(self, config: PipelineConfig):
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
+        self.scale = TorqueScaleBank(config.vehicle, config.torque_scale, config.soil.gross_scale_sigma, 1)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
         """One predict + gated update of the observer (eqs. 26-35 with the §7 state).
@@ -193,8 +200,16 @@ class ObserverStage:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        out = self.bank.step(None, observer_inputs([sample], [forces.normal_force]))  # N = 1: every vehicle
-        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+        inputs, scale_sigma = self.scale.apply(_ZERO, observer_inputs([sample], [forces.normal_force]))
+        out = self.bank.step(None, inputs)  # N = 1: every vehicle
+        if scale_sigma is None:
+            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
+        else:
+            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, float(self.scale.theta[0, 0]),
+                                   float(scale_sigma[0]))
+        if sample.position is not None or sample.geo is not None:  # for the soil estimate's place (docs/map.md)
+            msg = msg.model_copy(update={"position": sample.position, "geo": sample.geo})
+        return msg
 
 
 @dataclass
@@ -342,8 +357,10 @@ class SoilStage:
     ln K on gross traction, docs/method.md §4, §9, §11-12): :class:`SlipGate` and
     :class:`soilocp.estimation.soil_strength.SoilBank` with N = 1 (or the paper's rule, ``method="paper"``)."""
 
-    def __init__(self, config: PipelineConfig):
+    def __init__(self, config: PipelineConfig, prior=None):
         self.cfg = config
+        # opt-in: prior(obs) -> (ln K, 1-sigma) when the vehicle enters a mapped cell (soilocp.map.prior)
+        self.prior = prior
         self.gate = SlipGate(config, 1)
         self.bank = SoilBank(config.constants, config.soil, 1) if config.soil.method == "bayes" else None
         self.paper = PaperSoilEstimator(config.constants, config.soil) if self.bank is None else None
@@ -355,17 +372,26 @@ class SoilStage:
         Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
         with its probability, and a status that says when K is not determined, not observable, or
         not explained by the traction curve (§11-13), with the reason."""
+        if self.prior is not None and self.bank is not None:
+            start = self.prior(obs)
+            if start is not None:
+                self.bank.start_belief(0, *start)
         ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
-                                  inp.speed, inp.ground_stale, inp.span, inp.slip_ends, inp.unusable)[0]
+                                  inp.speed, inp.ground_stale, inp.span, inp.slip_ends,
+                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]),
+                                  unusable=inp.unusable)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])
-        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+        msg = soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+        if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
+            msg = msg.model_copy(update={"where": estimate_place(self.cfg.vehicle, obs.position, obs.geo, st.used)})
+        return msg
 
 
 def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:
@@ -402,11 +428,11 @@ class OcpStage:
 class VehiclePipeline:
     """The four stages composed, for one vehicle: the offline path (``soilocp estimate``)."""
 
-    def __init__(self, config: PipelineConfig | None = None):
+    def __init__(self, config: PipelineConfig | None = None, prior=None):
         self.config = config or PipelineConfig()
         self.normal = NormalForceStage(self.config)
         self.observer = ObserverStage(self.config)
-        self.soil = SoilStage(self.config)
+        self.soil = SoilStage(self.config, prior)
         self.ocp = OcpStage(self.config)
 
     def process_all(self, sample: SensorSample) -> tuple[NormalForces, ObserverOutput, SoilEstimate, OcpEstimate]:

@@ -154,14 +154,23 @@ class SoilBank:
         self._scale_c = 1.0 + cfg.gross_scale_sigma * np.linspace(-4.0, 4.0, 25)
         self._scale_log_prior = -0.5 * np.linspace(-4.0, 4.0, 25) ** 2
         self._lean_since = np.full(n, np.nan)  # stamp since which the data lean to a wrong torque constant
+        self.scale_prior = np.full(n, cfg.gross_scale_sigma)  # the scale's 1-sigma: the prior, or the online state's
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
         #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
 
+    def start_belief(self, i: int, log_k: float, log_k_std: float, floor: float = 1e-3) -> None:
+        """Start vehicle i's belief over again from N(log_k, log_k_std^2) on the grid, with a uniform
+        ``floor`` (the fleet map's cell and its band, opt-in: soilocp.map.prior, docs/map.md)."""
+        g = np.exp(-0.5 * ((self.theta - log_k) / max(log_k_std, 1e-3)) ** 2)
+        g = (1.0 - floor) * g / g.sum() + floor / g.size
+        self.p[i], self.p_stay[i], self.w_stay[i], self.stay_llr[i] = g, g, 1.0, 0.0
+        self.stats[i], self.profile[i] = 0.0, 0.0  # the evidence window restarts, as when a change is taken
+
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None,
-               span=None, slip_ends=None, unusable=None) -> list[SoilState]:
+               span=None, slip_ends=None, scale_sigma=None, unusable=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
@@ -176,9 +185,11 @@ class SoilBank:
         :mod:`soilocp.estimation.refresh_traction`) weighs that interval's exponent, at most 1; 0 or None:
         the sample's;
         ``slip_ends`` (k, 4, 2): such a pair's slip at its interval's start and end: its mean gross traction
-        is compared with the curve averaged over that slip path (Simpson's rule); ``unusable`` (k, 4) int: a
-        wheel the longitudinal model does not describe now (:mod:`soilocp.estimation.wheel_usability`'s code,
-        0: usable): it informs no K, the record is never ``ok`` and says why, and the code is counted
+        is compared with the curve averaged over that slip path (Simpson's rule); ``scale_sigma`` (k,) or None:
+        the torque scale's relative 1-sigma now (the online state, :mod:`soilocp.estimation.torque_scale`,
+        whose mean the torques already carry), instead of the prior ``gross_scale_sigma``; ``unusable`` (k, 4)
+        int: a wheel the longitudinal model does not describe now (:mod:`soilocp.estimation.wheel_usability`'s
+        code, 0: usable): it informs no K, the record is never ``ok`` and says why, and the code is counted
         (:attr:`unusable_by_reason`)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
@@ -309,9 +320,12 @@ class SoilBank:
                                obs[upd][u], dt, exp_used, span_used)
         self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix] = p, p_stay, w_stay, stay_llr
         self.stats[ix], self.profile[ix] = stats, prof
+        if scale_sigma is not None:
+            self.scale_prior[ix] = np.asarray(scale_sigma, dtype=float).reshape(k)
         fresh = np.flatnonzero(upd | taken)
         if fresh.size:
-            self.scale_sys[ix[fresh]] = self._scale_shift(prof[fresh])
+            self.scale_sys[ix[fresh]] = self._scale_shift(prof[fresh], None if scale_sigma is None
+                                                          else self.scale_prior[ix[fresh]])
         return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, stale, ident, stats,
                                dt, k_report, self.scale_sys[ix], codes)
 
@@ -394,7 +408,7 @@ class SoilBank:
         prof[rows, 0] += np.add.reduceat(wh * obs_used[:, None], starts, axis=0)
         prof[rows, 1] += np.add.reduceat(wh * h, starts, axis=0)
 
-    def _scale_shift(self, prof) -> np.ndarray:
+    def _scale_shift(self, prof, sigma=None) -> np.ndarray:
         """The systematic 1-sigma of ln K from a scale error c common to every observed coefficient (the
         torque constant), and c's posterior mean and 1-sigma: (k, 3) (docs/method.md §9, "The band").
 
@@ -417,7 +431,10 @@ class SoilBank:
         sensitivity at the estimate (d ln K = eps sum w h_K h / sum w h_K^2, earlier releases)
         understated it on both sides: torque-10 read firm 300 as 203 with a 1-sigma of 0.14,
         torque+10 as 1009 with 0.26; without the data's say (the prior's +-2 sigma alone), nominal firm
-        soil's band reached 300..1300."""
+        soil's band reached 300..1300.  ``sigma`` (k,): each vehicle's scale 1-sigma (the online torque scale's
+        posterior) instead of ``gross_scale_sigma``."""
+        if sigma is not None:
+            return self._scale_shift_each(prof, np.asarray(sigma, dtype=float))
         if self.cfg.gross_scale_sigma <= 0:
             return np.tile([0.0, 1.0, 0.0], (prof.shape[0], 1))
         c = self._scale_c
@@ -433,6 +450,25 @@ class SoilBank:
                         np.sqrt(np.maximum(post @ c**2 - c_mean**2, 0.0))], axis=1)
         # no samples in the window: every c fits alike, theta* is the grid's first node: no term
         out[~prof[:, 1].any(axis=1)] = (0.0, 1.0, self.cfg.gross_scale_sigma)
+        return out
+
+    def _scale_shift_each(self, prof, sigma: np.ndarray) -> np.ndarray:
+        """:meth:`_scale_shift` with a 1-sigma per vehicle (k,): the nodes 1 + sigma z, the same prior in z."""
+        z = np.linspace(-4.0, 4.0, self._scale_c.size)
+        c = 1.0 + sigma[:, None] * z[None, :]  # (k, C)
+        cc = c[:, :, None]
+        misfit = cc * (cc * prof[:, None, 1] - 2.0 * prof[:, None, 0])
+        theta, m = self._profile_argmin(misfit)
+        log_post = self._scale_log_prior - 0.5 * m
+        post = np.exp(log_post - log_post.max(axis=1, keepdims=True))
+        post /= post.sum(axis=1, keepdims=True)
+        shift2 = (theta - theta[:, z.size // 2, None]) ** 2
+        c_mean = (post * c).sum(axis=1)
+        out = np.stack([np.sqrt((post * shift2).sum(axis=1)), c_mean,
+                        np.sqrt(np.maximum((post * c**2).sum(axis=1) - c_mean**2, 0.0))], axis=1)
+        empty = ~prof[:, 1].any(axis=1)
+        out[empty] = np.stack([np.zeros(empty.sum()), np.ones(empty.sum()), sigma[empty]], axis=1)
+        out[sigma <= 0] = (0.0, 1.0, 0.0)
         return out
 
     def _profile_argmin(self, f) -> tuple[np.ndarray, np.ndarray]:
@@ -475,7 +511,7 @@ class SoilBank:
             sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (_scale_shift)
             # how long the data have leant to a wrong torque constant: a window that spans two soils leans
             # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
-            if abs(c_mean - 1.0) <= max(2.0 * c_std, cfg.gross_scale_sigma):
+            if abs(c_mean - 1.0) <= max(2.0 * c_std, self.scale_prior[v]):
                 self._lean_since[v] = np.nan
             elif not self._lean_since[v] <= st:  # none yet (NaN), or a restarted clock: it starts now
                 self._lean_since[v] = st
@@ -494,7 +530,7 @@ class SoilBank:
                 # the data's scale without its posterior spread: across drives it moves by more than that
                 # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
                 reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
-                          f"{cfg.gross_scale_sigma:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
+                          f"{self.scale_prior[v]:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
                           "where the traction curve is flat in K")
                 if st - self._lean_since[v] >= cfg.evidence_window:
                     reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"

@@ -35,6 +35,7 @@ class Stream:
     stamps: np.ndarray  # int64 ns
     values: dict[str, np.ndarray]  # field -> (n,) or (n, k)
     max_age: float
+    optional: bool = False  # where the vehicle is: attached where fresh, never a reason to skip a tick
 
     def __post_init__(self) -> None:
         self.stamps = np.asarray(self.stamps, dtype=np.int64)
@@ -58,6 +59,8 @@ def align(streams: list[Stream], rate_hz: float) -> Aligned:
     still fresh (beyond that every tick would be stale).  A skipped tick counts one reason: the
     first stale stream, as ``"stale <name>"``.
     """
+    optional = [s for s in streams if s.optional]
+    streams = [s for s in streams if not s.optional]
     if not streams:
         raise ValueError("nothing to align: no streams")
     for s in streams:
@@ -65,12 +68,33 @@ def align(streams: list[Stream], rate_hz: float) -> Aligned:
             raise ValueError(f"{s.name}: no usable messages")
     start = max(int(s.stamps[0]) for s in streams)
     end = min(int(s.stamps[-1]) + int(s.max_age * NS) for s in streams)
-    period = NS / rate_hz
-    n = int(math.floor((end - start) / period)) + 1 if end >= start else 0
+    n = tick_count(start, end, rate_hz)
     if n <= 0:
         raise ValueError("the streams do not overlap in time: " + ", ".join(
             f"{s.name} {s.stamps[0] / NS:.3f}..{s.stamps[-1] / NS:.3f} s" for s in streams))
-    ticks = start + np.round(np.arange(n) * period).astype(np.int64)
+    return pick(streams + optional, start, 0, n, rate_hz)
+
+
+def tick_count(start: int, end: int, rate_hz: float) -> int:
+    """Ticks of ``rate_hz`` from ``start`` up to and including ``end`` (ns)."""
+    period = NS / rate_hz
+    return int(math.floor((end - start) / period)) + 1 if end >= start else 0
+
+
+def tick_stamps(start: int, first: int, n: int, rate_hz: float) -> np.ndarray:
+    """Stamps (ns) of ticks ``first .. first + n - 1`` of the clock that starts at ``start``."""
+    return start + np.round(np.arange(first, first + n) * (NS / rate_hz)).astype(np.int64)
+
+
+def pick(streams: list[Stream], start: int, first: int, n: int, rate_hz: float) -> Aligned:
+    """Ticks ``first .. first + n - 1`` of the clock that starts at ``start``: for each stream the
+    newest value stamped at or before the tick, unless older than its max age (then the tick is
+    skipped, counted under the first stale stream).  The bag import calls it once for the whole
+    log (:func:`align`), the live reader (:mod:`soilocp.ingest.live`) once per batch of ticks that
+    no later message can change; both get the same ticks, seqs and values."""
+    optional = [s for s in streams if s.optional]  # positions: attached where fresh, never skip a tick
+    streams = [s for s in streams if not s.optional]
+    ticks = tick_stamps(start, first, n, rate_hz)
     keep = np.ones(n, dtype=bool)
     skipped: Counter = Counter()
     picks = []
@@ -86,7 +110,19 @@ def align(streams: list[Stream], rate_hz: float) -> Aligned:
     for s, idx in zip(streams, picks):
         for k, v in s.values.items():
             values[k] = np.asarray(v)[idx[keep]]
-    return Aligned(ticks[keep], np.flatnonzero(keep), values, n, skipped)
+    kept = ticks[keep]
+    for s in optional:  # fresh value or none (NaN), per kept tick
+        idx = np.searchsorted(s.stamps, kept, side="right") - 1
+        fresh = (idx >= 0) & (kept - s.stamps[np.maximum(idx, 0)] <= int(round(s.max_age * NS))) if s.stamps.size \
+            else np.zeros(kept.size, dtype=bool)
+        for k, v in s.values.items():
+            v = np.asarray(v)
+            if not s.stamps.size:
+                values[k] = np.full(kept.size, np.nan if v.dtype != object else None, dtype=v.dtype)
+                continue
+            col = v[np.maximum(idx, 0)]
+            values[k] = np.where(fresh, col, None) if v.dtype == object else np.where(fresh, col, np.nan)
+    return Aligned(kept, first + np.flatnonzero(keep), values, n, skipped)
 
 
 @dataclass
@@ -150,10 +186,27 @@ def samples_from_aligned(al: Aligned, vehicle_id: str, skipped: Counter) -> Iter
                 wheel_speed=tuple(float(x) for x in v["wheel_speed"][i]),
                 wheel_torque=tuple(float(x) for x in v["wheel_torque"][i]),
                 ground_speed=None if np.isnan(v["ground_speed"][i]) else float(v["ground_speed"][i]),
+                **sample_position(v, i),
             )
         except ValidationError as exc:
             first = exc.errors(include_url=False)[0]
             skipped[f"out of the sensor contract: {'.'.join(str(p) for p in first['loc'])}: {first['msg']}"] += 1
+
+
+def sample_position(v: dict, i: int) -> dict:
+    """The optional position fields of tick i (schemas.position), where the aligned values hold them."""
+    out: dict = {}
+    if "position_x" in v and not np.isnan(v["position_x"][i]):
+        from schemas.position import MapPosition
+
+        h = float(v["position_heading"][i])
+        out["position"] = MapPosition(frame=str(v["position_frame"][i]), x=float(v["position_x"][i]),
+                                      y=float(v["position_y"][i]), heading=None if math.isnan(h) else h)
+    if "latitude" in v and not np.isnan(v["latitude"][i]):
+        from schemas.position import GeoPosition
+
+        out["geo"] = GeoPosition(latitude=float(v["latitude"][i]), longitude=float(v["longitude"][i]))
+    return out
 
 
 def in_time_order(stamps) -> np.ndarray:
@@ -198,26 +251,34 @@ def order_reason(stamps, keep: np.ndarray, i: int) -> tuple[str, str]:
     return "jumps ahead (later than the messages after it)", f"by {(stamps[i] - nxt) / NS:.3f} s"
 
 
-def complementary_tilt(t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarray, tau: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def complementary_tilt(t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarray, tau: float = 1.0,
+                       prev: Optional[tuple[int, float, float]] = None) -> tuple[np.ndarray, np.ndarray]:
     """Roll and pitch (REP-103: pitch > 0 nose down) for an IMU without orientation output.
 
     Complementary filter: the gyro (body rates ~ Euler rates at small tilt) carries the fast part,
     the accelerometer's gravity direction (eq. 20 inverted at rest: pitch = atan2(-f_x, sqrt(f_y^2 +
     f_z^2)), roll = atan2(f_y, f_z)) the slow part, crossover time constant ``tau`` seconds.
     Accelerations of the body leak into the slow part; that is the known limit of this estimate.
+    ``prev`` = (stamp ns, roll, pitch) of the sample before ``t_ns[0]``: the live reader filters
+    message by message and gets what one call over the whole log gives.
     """
     n = len(t_ns)
     roll = np.empty(n)
     pitch = np.empty(n)
     acc_roll = np.arctan2(acc[:, 1], acc[:, 2])
     acc_pitch = np.arctan2(-acc[:, 0], np.hypot(acc[:, 1], acc[:, 2]))
-    r, p = float(acc_roll[0]) if n else 0.0, float(acc_pitch[0]) if n else 0.0
+    if prev is None:
+        r, p = float(acc_roll[0]) if n else 0.0, float(acc_pitch[0]) if n else 0.0
+        t_prev = int(t_ns[0]) if n else 0
+    else:
+        t_prev, r, p = prev
     for i in range(n):
-        if i:
-            dt = max((int(t_ns[i]) - int(t_ns[i - 1])) / NS, 0.0)
+        if i or prev is not None:
+            dt = max((int(t_ns[i]) - int(t_prev)) / NS, 0.0)
             a = tau / (tau + dt)
             r = a * (r + gyro[i, 0] * dt) + (1 - a) * acc_roll[i]
             p = a * (p + gyro[i, 1] * dt) + (1 - a) * acc_pitch[i]
+        t_prev = int(t_ns[i])
         roll[i], pitch[i] = r, p
     return roll, pitch
 

@@ -94,11 +94,18 @@ def write_bag(
             if i % odom_every == 0:
                 lin = Vec(x=s.ground_speed, y=0.0, z=0.0)
                 if types["/odom"] == "nav_msgs/msg/Odometry":
+                    # a sample with a position: the pose in its map frame (the header names the frame)
+                    p = s.position
+                    oq = _quat(s.roll, s.pitch, p.heading) if p is not None and p.heading is not None else (qx, qy, qz, qw)
+                    oh = hdr()
+                    if p is not None:
+                        oh.frame_id = p.frame
                     od = T["nav_msgs/msg/Odometry"](
-                        header=hdr(), child_frame_id="base_link",
+                        header=oh, child_frame_id="base_link",
                         pose=T["geometry_msgs/msg/PoseWithCovariance"](
-                            pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
-                                                             orientation=Quat(x=qx, y=qy, z=qz, w=qw)), covariance=zeros36),
+                            pose=T["geometry_msgs/msg/Pose"](
+                                position=T["geometry_msgs/msg/Point"](x=p.x if p else 0.0, y=p.y if p else 0.0, z=0.0),
+                                orientation=Quat(x=oq[0], y=oq[1], z=oq[2], w=oq[3])), covariance=zeros36),
                         twist=T["geometry_msgs/msg/TwistWithCovariance"](
                             twist=T["geometry_msgs/msg/Twist"](linear=lin, angular=Vec(x=0.0, y=0.0, z=s.yaw_rate)),
                             covariance=zeros36))
@@ -106,6 +113,14 @@ def write_bag(
                     od = T["geometry_msgs/msg/TwistStamped"](
                         header=hdr(), twist=T["geometry_msgs/msg/Twist"](linear=lin, angular=Vec(x=0.0, y=0.0, z=s.yaw_rate)))
                 put("/odom", i, ns, od, types["/odom"])
+            if s.geo is not None and i % odom_every == 0:  # GNSS at the odometry's rate
+                if "/fix" not in conns:
+                    conns["/fix"] = w.add_connection("/fix", "sensor_msgs/msg/NavSatFix", typestore=ts)
+                fix = T["sensor_msgs/msg/NavSatFix"](
+                    header=hdr(), status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+                    latitude=s.geo.latitude, longitude=s.geo.longitude, altitude=0.0,
+                    position_covariance=zeros9, position_covariance_type=0)
+                put("/fix", i, ns, fix, "sensor_msgs/msg/NavSatFix")
     return Path(path)
 
 

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from schemas.sensor import VEHICLE_ID_PATTERN
 
-DEFAULT_MAX_AGE = {"imu": 0.05, "joint_states": 0.1, "ground_speed": 0.25, "wheels": 0.5}
+DEFAULT_MAX_AGE = {"imu": 0.05, "joint_states": 0.1, "ground_speed": 0.25, "wheels": 0.5, "position": 0.5, "geo": 1.5}
 
 
 class _Strict(BaseModel):
@@ -63,6 +63,25 @@ class JointStatesMap(_Strict):
 class GroundSpeedMap(_Strict):
     topic: str = Field(min_length=1)
     max_age: float = Field(DEFAULT_MAX_AGE["ground_speed"], gt=0)
+
+
+class PositionMap(_Strict):
+    """Optional: the vehicle's pose in a local map frame from ``nav_msgs/Odometry`` (pose.pose:
+    x, y and the yaw of its orientation).  A stale or absent pose leaves a sample without position
+    (it is never a reason to skip a tick)."""
+
+    topic: str = Field(min_length=1)
+    #: The map frame's name; None: the messages' header.frame_id.
+    frame: Optional[str] = Field(None, pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    max_age: float = Field(DEFAULT_MAX_AGE["position"], gt=0)
+
+
+class GeoMap(_Strict):
+    """Optional: WGS84 latitude/longitude from ``sensor_msgs/NavSatFix`` (messages without a fix,
+    status.status < 0, are dropped with their reason)."""
+
+    topic: str = Field(min_length=1)
+    max_age: float = Field(DEFAULT_MAX_AGE["geo"], gt=0)
 
 
 class CsvImuMap(_Strict):
@@ -111,6 +130,8 @@ class TopicMap(_Strict):
     imu: Optional[ImuMap] = None
     joint_states: Optional[JointStatesMap] = None
     ground_speed: Optional[GroundSpeedMap] = None
+    position: Optional[PositionMap] = None  # nav_msgs/Odometry pose: where, for the fleet soil map (docs/map.md)
+    geo: Optional[GeoMap] = None  # sensor_msgs/NavSatFix
     csv: Optional[CsvMap] = None
 
     @field_validator("vehicle_id", mode="before")

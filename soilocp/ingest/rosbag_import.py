@@ -25,17 +25,21 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
 from soilocp.ingest.align import (NS, Provenance, Stream, align_and_write, complementary_tilt, in_time_order,
                                   order_reason)
 from soilocp.ingest.mapfile import TopicMap
+from soilocp.ingest.positions import position_stream, read_position
 
 EXPECTED_TYPES = {
     "imu": ("sensor_msgs/msg/Imu",),
     "joint_states": ("sensor_msgs/msg/JointState",),
     "ground_speed": ("nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistStamped"),
+    "position": ("nav_msgs/msg/Odometry",),
+    "geo": ("sensor_msgs/msg/NavSatFix",),
 }
 PROGRESS_MIN_MESSAGES = 20_000  # a bar below this would only flicker
 
@@ -76,8 +80,9 @@ def _quat_roll_pitch(x: float, y: float, z: float, w: float) -> tuple[float, flo
     return roll, pitch
 
 
-class _TopicReader:
-    """Collects one topic's values, dropping bad messages with a reason."""
+class TopicReader:
+    """Collects one topic's values, dropping bad messages with a reason (the bag import and the
+    live ROS 2 reader, :mod:`soilocp.ingest.live`, both fill one per mapped topic)."""
 
     def __init__(self, key: str, topic: str, issues: BagIssues, strict: bool):
         self.key, self.topic, self.issues, self.strict = key, topic, issues, strict
@@ -118,7 +123,7 @@ class _TopicReader:
         self.rows.append(row)
 
 
-def _imu(r: _TopicReader, msg, st: int) -> None:
+def _imu(r: TopicReader, msg, st: int) -> None:
     if not r.accept_stamp(st):
         return
     la, av, q = msg.linear_acceleration, msg.angular_velocity, msg.orientation
@@ -135,7 +140,7 @@ def _imu(r: _TopicReader, msg, st: int) -> None:
     r.keep(st, (la.x, la.y, la.z, av.x, av.y, av.z, roll, pitch, has_q))
 
 
-def _joints(r: _TopicReader, msg, st: int, wheels: tuple[str, ...], scale: float, seen: set) -> None:
+def _joints(r: TopicReader, msg, st: int, wheels: tuple[str, ...], scale: float, seen: set) -> None:
     names = list(msg.name)
     seen.update(names)
     if not r.accept_stamp(st):
@@ -162,7 +167,7 @@ def _joints(r: _TopicReader, msg, st: int, wheels: tuple[str, ...], scale: float
     r.keep(st, (*speeds, *torques))
 
 
-def _ground_speed(r: _TopicReader, msg, st: int, msgtype: str) -> None:
+def _ground_speed(r: TopicReader, msg, st: int, msgtype: str) -> None:
     if not r.accept_stamp(st):
         return
     if msgtype == "nav_msgs/msg/Odometry":
@@ -171,6 +176,26 @@ def _ground_speed(r: _TopicReader, msg, st: int, msgtype: str) -> None:
         name, v = "twist.linear.x", msg.twist.linear.x
     if r.check_finite(st, {name: v}):
         r.keep(st, (v,))
+
+
+def message_stamp(msg, receive_ns: int, tmap: TopicMap) -> int:
+    """The message's time on the map's clock: its header stamp, or (``clock: receive``) when it
+    was received (the bag's log time; for the live reader, its arrival)."""
+    return _stamp_ns(msg.header) if tmap.clock == "header" else int(receive_ns)
+
+
+def convert_message(key: str, r: TopicReader, msg, msgtype: str, st: int, tmap: TopicMap, seen_joints: set) -> None:
+    """One deserialised message of map role ``key`` (imu | joint_states | ground_speed | position | geo) into its
+    reader's row, or dropped with a reason.  Bag import and live reader call this same function."""
+    if key == "imu":
+        _imu(r, msg, st)
+    elif key == "joint_states":
+        js = tmap.joint_states
+        _joints(r, msg, st, js.wheels, js.effort_scale, seen_joints)
+    elif key == "ground_speed":
+        _ground_speed(r, msg, st, msgtype)
+    else:  # position (Odometry pose) or geo (NavSatFix): soilocp.ingest.positions
+        read_position(key, r, msg, st)
 
 
 def _progress(total: int, label: str):
@@ -194,6 +219,9 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
     wanted = {"imu": tmap.imu, "joint_states": tmap.joint_states}
     if tmap.ground_speed is not None:
         wanted["ground_speed"] = tmap.ground_speed
+    for opt in ("position", "geo"):  # optional streams of where the vehicle is (docs/map.md)
+        if getattr(tmap, opt) is not None:
+            wanted[opt] = getattr(tmap, opt)
     issues = BagIssues()
     try:
         reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
@@ -216,9 +244,10 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
                     raise BagImportError(
                         f"{m.topic}: message type {c.msgtype} cannot feed {key} (map key {key}.topic): "
                         f"needs {' or '.join(EXPECTED_TYPES[key])}")
-            conns += cs
+            conns += [c for c in cs if c not in conns]
             types[m.topic] = cs[0].msgtype
-            readers[m.topic] = (key, _TopicReader(key, m.topic, issues, strict))
+            # one topic may feed two roles (an Odometry's twist and its pose): one reader per role
+            readers.setdefault(m.topic, []).append((key, TopicReader(key, m.topic, issues, strict)))
         total = sum(c.msgcount for c in conns)
         js = tmap.joint_states
         seen_joints: set = set()
@@ -227,17 +256,11 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
         if bar:
             bar.start()
         try:
-            header_clock = tmap.clock == "header"
             for n, (conn, log_time, raw) in enumerate(reader.messages(connections=conns), 1):
-                key, r = readers[conn.topic]
                 msg = reader.deserialize(raw, conn.msgtype)
-                st = _stamp_ns(msg.header) if header_clock else int(log_time)
-                if key == "imu":
-                    _imu(r, msg, st)
-                elif key == "joint_states":
-                    _joints(r, msg, st, js.wheels, js.effort_scale, seen_joints)
-                else:
-                    _ground_speed(r, msg, st, conn.msgtype)
+                st = message_stamp(msg, log_time, tmap)
+                for key, r in readers[conn.topic]:
+                    convert_message(key, r, msg, conn.msgtype, st, tmap, seen_joints)
                 if bar and n % 2000 == 0:
                     bar.update(task, completed=n)
         finally:
@@ -254,38 +277,51 @@ def read_bag(path: str | Path, tmap: TopicMap, *, strict: bool = False, progress
     return readers, types, issues
 
 
-def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
-    prov = Provenance(source="rosbag2")
-    streams = []
-    for topic, (key, r) in readers.items():
-        st, rows = r.in_order()
-        if not rows:
-            raise BagImportError(f"{topic}: no usable message (map key {key}.topic): all were dropped, see the reasons")
-        if key == "imu":
-            a = np.asarray([row[:8] for row in rows], dtype=float)
-            has_q = np.asarray([row[8] for row in rows], dtype=bool)
-            roll, pitch = a[:, 6], a[:, 7]
-            if tmap.imu.attitude == "estimate" or not has_q.all():
-                roll, pitch = complementary_tilt(st, a[:, 3:6], a[:, 0:3])
-                prov.attitude = "gyro+accelerometer (complementary filter)"
-            vals = {"specific_force": a[:, 0:3], "yaw_rate": a[:, 5], "roll": roll, "pitch": pitch}
-            streams.append(Stream(f"imu ({topic})", st, vals, tmap.imu.max_age))
-        elif key == "joint_states":
-            a = np.asarray(rows, dtype=float)
-            streams.append(Stream(f"joint_states ({topic})", st, {"wheel_speed": a[:, :4], "wheel_torque": a[:, 4:]},
-                                  tmap.joint_states.max_age))
-            if len(set(tmap.joint_states.wheels)) < 4:
-                prov.drive = "per_side"
-        else:
-            a = np.asarray(rows, dtype=float)
-            streams.append(Stream(f"ground_speed ({topic})", st, {"ground_speed": a[:, 0]}, tmap.ground_speed.max_age))
+def topic_stream(key: str, topic: str, st: np.ndarray, rows: list, tmap: TopicMap, prov: Provenance,
+                 tilt_prev: Optional[tuple[int, float, float]] = None) -> Stream:
+    """The stream of one topic's kept rows (stamps ``st``, in order); notes in ``prov`` what the
+    rows say about the log (attitude from gyro + accelerometer, per-side drive).  ``tilt_prev``:
+    the complementary filter's state before these rows (live reader, batch by batch)."""
+    if key == "imu":
+        a = np.asarray([row[:8] for row in rows], dtype=float)
+        has_q = np.asarray([row[8] for row in rows], dtype=bool)
+        roll, pitch = a[:, 6], a[:, 7]
+        if tmap.imu.attitude == "estimate" or not has_q.all():
+            roll, pitch = complementary_tilt(st, a[:, 3:6], a[:, 0:3], prev=tilt_prev)
+            prov.attitude = "gyro+accelerometer (complementary filter)"
+        vals = {"specific_force": a[:, 0:3], "yaw_rate": a[:, 5], "roll": roll, "pitch": pitch}
+        return Stream(f"imu ({topic})", st, vals, tmap.imu.max_age)
+    a = np.asarray(rows, dtype=float)
+    if key == "joint_states":
+        if len(set(tmap.joint_states.wheels)) < 4:
+            prov.drive = "per_side"
+        vals = {"wheel_speed": a[:, :4], "wheel_torque": a[:, 4:]}
+        if tmap.ground_speed is None:  # no independent ground speed: null in the log
+            vals["ground_speed"] = np.full(len(rows), np.nan)
+        return Stream(f"joint_states ({topic})", st, vals, tmap.joint_states.max_age)
+    return Stream(f"ground_speed ({topic})", st, {"ground_speed": a[:, 0]}, tmap.ground_speed.max_age)
+
+
+def note_identifiability(tmap: TopicMap, prov: Provenance) -> None:
+    """What the map alone says the chain cannot identify (no ground speed: slip and K)."""
     if tmap.ground_speed is None:
-        # no independent ground speed: null in the log, and the chain says K is not identifiable
-        js = next(s for s in streams if s.name.startswith("joint_states"))
-        js.values["ground_speed"] = np.full(len(js.values["wheel_speed"]), np.nan)
         prov.ground_speed = "absent"
         prov.identifiable = False
         prov.reasons.append("no independent ground speed in the source (slip, eq. 1, needs it)")
+
+
+def _streams(readers: dict, tmap: TopicMap) -> tuple[list[Stream], Provenance]:
+    prov = Provenance(source="rosbag2")
+    streams = []
+    for topic, key, r in ((t, k, r) for t, roles in readers.items() for k, r in roles):
+        if key in ("position", "geo"):
+            streams.append(position_stream(key, r, tmap))
+            continue
+        st, rows = r.in_order()
+        if not rows:
+            raise BagImportError(f"{topic}: no usable message (map key {key}.topic): all were dropped, see the reasons")
+        streams.append(topic_stream(key, topic, st, rows, tmap, prov))
+    note_identifiability(tmap, prov)
     return streams, prov
 
 

@@ -12,7 +12,7 @@ import json
 import math
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
 from soilocp.model.files import read_json
 
@@ -70,6 +70,22 @@ class ModelConstants(BaseModel):
         if v == 0 or not math.isfinite(v):
             raise ValueError(f"beta must be finite and non-zero (it divides eq. 10), got {v!r}")
         return v
+
+    # (the numbers it was built from, the compiled core's Constants): kept with the numbers because
+    # model_copy(update=...) copies private attributes without re-validating
+    _kernel: tuple | None = PrivateAttr(default=None)
+
+    @property
+    def kernel(self):
+        """These constants as the compiled core's ``soilocp._core.Constants`` (built once)."""
+        key = (self.C1, self.C2, self.C3, self.C4, self.C5, self.C6, self.alpha, self.beta, self.bridge_slip)
+        cached = self._kernel
+        if cached is None or cached[0] != key:
+            from soilocp import _core
+
+            cached = (key, _core.Constants(*key))
+            self._kernel = cached
+        return cached[1]
 
 
 DEFAULT_CONSTANTS = ModelConstants()

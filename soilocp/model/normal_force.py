@@ -1,4 +1,7 @@
-"""Normal forces on the four wheels from the measured specific force, eqs. 16-25.
+"""Normal forces on the four wheels from the measured specific force, eqs. 16-25.  The per-vehicle
+matrix is prepared here (A of eq. 23, B's coefficients of eq. 24, LAPACK's SVD pseudo-inverse, once
+per vehicle); the per-sample product F = f M runs in the compiled core
+(``soilocp/_core/src/normal_force.rs``), for one vehicle or a bank.
 
 Corrections (docs/method.md §2-3):
 
@@ -19,6 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from soilocp import _core
 from soilocp.model.checks import as_float_array, positive_scalar
 from soilocp.model.vehicle import VehicleParams
 
@@ -48,41 +52,24 @@ def _geometry(v: VehicleParams) -> tuple[float, float, float, float, float]:
 
 
 def system_matrix(vehicle: VehicleParams) -> np.ndarray:
-    """A of eq. 23 (rank 3: A (1,-1,1,-1)^T = 0)."""
+    """A of eq. 23 (symmetric, rank 3: A (1,-1,1,-1)^T = 0)."""
     a, b, c, d, _ = _geometry(vehicle)
     L, W = a + b, c + d
-    return np.array(
-        [
-            [0.0, L, L + W, W],
-            [L, 0.0, W, L + W],
-            [L + W, W, 0.0, L],
-            [W, L + W, L, 0.0],
-        ]
-    )
+    return np.array([[0.0, L, L + W, W], [L, 0.0, W, L + W], [L + W, W, 0.0, L], [W, L + W, L, 0.0]])
 
 
-def load_vector(vehicle: VehicleParams, specific_force) -> np.ndarray:
-    """B of eq. 24 with (V_dot + g) replaced by the measured specific force f; shape (..., 4)."""
+def load_coefficients(vehicle: VehicleParams) -> np.ndarray:
+    """C (3 x 4) with B = f C: eq. 24's load vector, (V_dot + g) replaced by the measured specific
+    force f (docs/method.md §3)."""
     a, b, c, d, h = _geometry(vehicle)
-    f = as_float_array("specific_force", specific_force)
-    if f.shape[-1:] != (3,):
-        raise ValueError(f"specific_force must have shape (..., 3), got shape {f.shape}")
-    m = vehicle.mass
-    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
-    return m * np.stack(
-        [
-            -fx * h + fy * h + fz * (a + c),
-            fx * h + fy * h + fz * (b + c),
-            fx * h - fy * h + fz * (b + d),
-            -fx * h - fy * h + fz * (a + d),
-        ],
-        axis=-1,
-    )
+    return vehicle.mass * np.array([[-h, h, h, -h], [h, h, -h, -h], [a + c, b + c, b + d, a + d]])
 
 
 @lru_cache(maxsize=64)
-def _pinv_cached(vehicle: VehicleParams) -> np.ndarray:
-    return np.linalg.pinv(system_matrix(vehicle))
+def _core_solver(vehicle: VehicleParams) -> _core.NormalForceSolver:
+    """The core's solver of one vehicle: F = f M with M = C (A^+)^T (eqs. 21-25, zero warp).  The
+    pseudo-inverse is LAPACK's (numpy's SVD), computed once per vehicle."""
+    return _core.NormalForceSolver(load_coefficients(vehicle) @ np.linalg.pinv(system_matrix(vehicle)).T)
 
 
 def normal_forces(vehicle: VehicleParams, specific_force) -> np.ndarray:
@@ -93,26 +80,23 @@ def normal_forces(vehicle: VehicleParams, specific_force) -> np.ndarray:
     negative (lift-off) under extreme specific force: that is reported, not clipped, so that a
     caller can flag it.
     """
-    B = load_vector(vehicle, specific_force)
-    return B @ _pinv_cached(vehicle).T
+    return NormalForceSolver(vehicle)(specific_force)
 
 
 class NormalForceSolver:
-    """:func:`normal_forces` for one vehicle with A^+ and the load-vector coefficients prepared
-    once: the per-sample hot path of the normal-force stage (same numbers, tested)."""
+    """:func:`normal_forces` for one vehicle, its matrix prepared once; the product runs in the core
+    (``soilocp/_core/src/normal_force.rs``): one call per step for one specific force (3,) or a
+    bank (N, 3)."""
 
     def __init__(self, vehicle: VehicleParams):
-        a, b, c, d, h = _geometry(vehicle)
-        m = vehicle.mass
-        # B = m * (fx * [-h, h, h, -h] + fy * [h, h, -h, -h] + fz * [a+c, b+c, b+d, a+d])  (eq. 24)
-        coeff = m * np.array([[-h, h, h, -h], [h, h, -h, -h], [a + c, b + c, b + d, a + d]])
-        self._map = coeff @ _pinv_cached(vehicle).T  # F = f @ (coeff @ A^+T)
+        self._core = _core_solver(vehicle)
 
     def __call__(self, specific_force) -> np.ndarray:
-        f = np.asarray(specific_force, dtype=float)
-        if f.shape[-1:] != (3,) or not np.all(np.isfinite(f)):
-            _reject_specific_force(f)
-        return f @ self._map
+        try:
+            return self._core.solve(np.asarray(specific_force, dtype=float))
+        except (TypeError, ValueError):
+            _reject_specific_force(specific_force)
+            raise
 
 
 def _reject_specific_force(f) -> None:

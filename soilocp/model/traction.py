@@ -23,13 +23,17 @@ print (with the jump).
 
 With the paper's C5 = -5 the motion resistance is negative at low slip for K below ~125
 (docs/method.md §8): this is the model, not a bug, so nothing here asserts r >= 0.
+
+The law itself is written once, in the compiled core (``soilocp/_core/src/traction.rs``); these
+functions check their arguments, broadcast them and call it, so that the simulator, the
+estimators and the analysis tools share one definition.
 """
 
 from __future__ import annotations
 
-
 import numpy as np
 
+from soilocp import _core
 from soilocp.model.checks import as_float_array, positive
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
@@ -47,90 +51,14 @@ def _inputs(slip, soil_strength) -> tuple[np.ndarray, np.ndarray]:
     return s, k
 
 
-def _amplitude(k: np.ndarray, c: ModelConstants) -> np.ndarray:
-    """C1 * (1 - exp(-C2 K)): the soil-strength factor shared by eqs. 3, 5, 6, 8."""
-    return c.C1 * -np.expm1(-c.C2 * k)
+def _scalar(a: np.ndarray):
+    """A 0-d result as a numpy float, as numpy's own arithmetic on 0-d arrays returns it."""
+    return a[()] if a.ndim == 0 else a
 
 
-# One-sided (s >= 0) printed curves and their derivatives.  Each returns (value, d/ds, d/dK), or
-# (value, None, None) with ``derivs=False`` (the OCPs need values only: issue 11's hot path).
-def _gross_pos(s, k, c, derivs=True):
-    amp = _amplitude(k, c)
-    e = np.exp(-c.C3 * s)
-    val = amp * (1.0 - e) + c.C4
-    if not derivs:
-        return val, None, None
-    d_s = amp * c.C3 * e
-    d_k = c.C1 * c.C2 * np.exp(-c.C2 * k) * (1.0 - e)
-    return val, d_s, d_k
-
-
-def _resist_pos(s, k, c, derivs=True):
-    sq = np.sqrt(k)
-    val = c.C5 / k + c.C4 + c.C6 * s / sq
-    if not derivs:
-        return val, None, None
-    d_s = np.full_like(val, 0.0) + c.C6 / sq
-    d_k = -c.C5 / k**2 - 0.5 * c.C6 * s / (k * sq)
-    return val, d_s, d_k
-
-
-def _net_pos(s, k, c, derivs=True):
-    g, gs, gk = _gross_pos(s, k, c, derivs)
-    r, rs, rk = _resist_pos(s, k, c, derivs)
-    if not derivs:
-        return g - r, None, None
-    return g - r, gs - rs, gk - rk
-
-
-def _odd_bridged(one_sided, slip, soil_strength, c: ModelConstants):
-    """Odd extension of a one-sided curve, with the linear bridge of docs/method.md §8 near S=0."""
-    s, k = _inputs(slip, soil_strength)
-    return _odd_bridged_unchecked(one_sided, s, k, c)
-
-
-def _odd_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants, derivs: bool = True):
-    sign = np.where(s < 0, -1.0, 1.0)
-    a = np.abs(s)
-    b = c.bridge_slip
-    val, d_s, d_k = one_sided(a, k, c, derivs)
-    if b > 0:
-        inside = a < b
-        if np.any(inside):
-            vb, _, kb = one_sided(np.full_like(a, b), k, c, derivs)
-            frac = a / b
-            val = np.where(inside, vb * frac, val)
-            if derivs:
-                d_s = np.where(inside, vb / b, d_s)
-                d_k = np.where(inside, kb * frac, d_k)
-    if not derivs:
-        return sign * val, None, None
-    return sign * val, d_s, sign * d_k
-
-
-def _even_bridged_unchecked(one_sided, s: np.ndarray, k: np.ndarray, c: ModelConstants):
-    """Even extension of a one-sided curve (docs/method.md §11), with the same linear bridge as
-    :func:`_odd_bridged_unchecked` inside |S| < bridge_slip, so that it vanishes at zero slip
-    (a wheel at rest feels no resistance torque).  Returns (value, d/dS, d/dK)."""
-    sign = np.where(s < 0, -1.0, 1.0)
-    val, d_s, d_k = _odd_bridged_unchecked(one_sided, np.abs(s), k, c)
-    return val, sign * d_s, d_k
-
-
-def _gross_unchecked(s: np.ndarray, k: np.ndarray, c: ModelConstants):
-    """g = mu + r (eq. 2 with docs/method.md §11): net traction odd (eq. 6), resistance even (eq. 4).
-
-    Written as eq. 3's odd extension plus 2 r(|S|) on the braking side, which is the same sum
-    (-mu(|S|) + r(|S|) = -g(|S|) + 2 r(|S|)) but keeps eq. 3 and its d/dK exact for S > 0, where
-    d g/dK is a tiny difference of large terms at high K."""
-    g, g_s, g_k = _odd_bridged_unchecked(_gross_pos, s, k, c)
-    braking = s < 0
-    if np.any(braking):
-        r, r_s, r_k = _even_bridged_unchecked(_resist_pos, s, k, c)
-        g = np.where(braking, g + 2.0 * r, g)
-        g_s = np.where(braking, g_s + 2.0 * r_s, g_s)
-        g_k = np.where(braking, g_k + 2.0 * r_k, g_k)
-    return g, g_s, g_k
+def _curve(kind: str, s: np.ndarray, k: np.ndarray, c: ModelConstants):
+    """(value, d/dS, d/dK) of one curve for float arrays that broadcast together, from the core."""
+    return tuple(_scalar(a) for a in _core.traction_curve(kind, s, k, c.kernel))
 
 
 def net_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -139,31 +67,33 @@ def net_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTA
     mu = +-[C1 (1 - e^{-C2 K}) (1 - e^{-+C3 S}) - (C5/K +- C6 S / sqrt(K))]  (upper sign S > 0).
     Departs from the print only inside |S| < bridge_slip (docs/method.md §8, linear bridge).
     """
-    return _odd_bridged(_net_pos, slip, soil_strength, constants)[0]
+    s, k = _inputs(slip, soil_strength)
+    return _scalar(_core.traction_value("net", s, k, constants.kernel))
 
 
 def gross_traction(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """Gross traction coefficient F_GT / W = mu + r (eq. 2): eq. 3 for S > 0; for a braking wheel
     -mu(|S|) + r(|S|) (docs/method.md §11, not eq. 3's printed lower branch); bridged near S = 0."""
-    return _gross_unchecked(*_inputs(slip, soil_strength), constants)[0]
+    s, k = _inputs(slip, soil_strength)
+    return _scalar(_core.traction_value("gross", s, k, constants.kernel))
 
 
 def motion_resistance(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """Motion-resistance coefficient F_MR / W, eq. 4 with |S| (docs/method.md §11): even in S, it
     opposes travel for both slip signs, so that g = mu + r (eq. 2); bridged near S = 0."""
     s, k = _inputs(slip, soil_strength)
-    return _even_bridged_unchecked(_resist_pos, s, k, constants)[0]
+    return _scalar(_core.traction_value("resistance", s, k, constants.kernel))
 
 
 def net_traction_with_derivatives(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """eq. 6 and its partial derivatives: (mu, d mu/dS, d mu/dK).  Used by the estimators."""
-    return _odd_bridged(_net_pos, slip, soil_strength, constants)
+    return _curve("net", *_inputs(slip, soil_strength), constants)
 
 
 def gross_traction_with_derivatives(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
     """g = mu + r (eq. 2, §11) and its partial derivatives: (g, d g/dS, d g/dK).  For S > 0 this is
     eq. 3 and d g/dK > 0 (monotone in K); for a braking wheel d g/dK can take either sign."""
-    return _gross_unchecked(*_inputs(slip, soil_strength), constants)
+    return _curve("gross", *_inputs(slip, soil_strength), constants)
 
 
 def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -178,26 +108,10 @@ def tractive_efficiency(slip, soil_strength, constants: ModelConstants = DEFAULT
     if np.any((s <= 0) | (s >= 1)):
         bad = s[(s <= 0) | (s >= 1)].ravel()[:4].tolist()
         raise ValueError(f"slip must be in (0, 1) for tractive efficiency (eq. 9), got {bad}")
-    return tractive_efficiency_unchecked(s, k, constants)
-
-
-def tractive_efficiency_unchecked(s: np.ndarray, k: np.ndarray, constants: ModelConstants) -> np.ndarray:
-    """Eq. 9, TE = (mu / g)(1 - S), for validated float arrays (0 < S < 1, K > 0) that broadcast:
-    the one definition behind :func:`tractive_efficiency` and the OCP kernel's hot path.  While
-    driving, g is eq. 3 and mu = g - r (eq. 6 = eq. 3 - eq. 4), so eq. 3 is evaluated once."""
-    g = _odd_bridged_unchecked(_gross_pos, s, k, constants, False)[0]
-    r = _odd_bridged_unchecked(_resist_pos, s, k, constants, False)[0]
-    return (g - r) / g * (1.0 - s)
+    return _scalar(_core.tractive_efficiency(s, k, constants.kernel))
 
 
 def curve_unchecked(kind: str, slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants):
     """(value, d/dS, d/dK) of the ``gross`` (eq. 3) or ``net`` (eq. 6) curve, for validated float
     arrays that already broadcast: the estimators' hot loop, which checks its inputs once."""
-    if kind == "gross":
-        return _gross_unchecked(slip, soil_strength, constants)
-    return _odd_bridged_unchecked(_net_pos, slip, soil_strength, constants)
-
-
-def net_traction_unchecked(slip: np.ndarray, soil_strength: np.ndarray, constants: ModelConstants) -> np.ndarray:
-    """Eq. 6's value alone (no derivatives) for validated float arrays: the OCPs' mu_T (eq. 8)."""
-    return _odd_bridged_unchecked(_net_pos, slip, soil_strength, constants, False)[0]
+    return _curve(kind, np.asarray(slip, dtype=float), np.asarray(soil_strength, dtype=float), constants)

@@ -19,6 +19,7 @@ from soilocp.model.normal_force import STANDARD_GRAVITY, gravity_from_attitude, 
 from soilocp.model.ocp import ocp_from_soil_strength
 from soilocp.sim.scenarios import Scenario
 from soilocp.sim.controller import SweepController
+from soilocp.sim.field import true_position
 from soilocp.sim.sensor_models import SensorSuite, per_side_readings
 from soilocp.sim.truth import TruthRecord
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
@@ -60,7 +61,7 @@ class RoverDrive:
     """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
 
     def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par,
-                 torque_command=None, drawbar_load=None):
+                 torque_command=None, drawbar_load=None, start=None):
         self.sc, self.duration, self.rate, self.mode = sc, duration, rate, mode
         self.v, self.c, self.ctl, self.par, self.vehicle_id = vehicle, constants, ctl, par, vehicle_id
         self.interval = 1.0 / rate
@@ -102,6 +103,10 @@ class RoverDrive:
         self.held_torque: list[float] | None = None  # external torque command over this interval
         self.load = 0.0  # drawbar draft force over this interval, N
         self.drawbar_work = 0.0  # work done against the draft, J (not in the truth record's balance)
+        # true planar position of the CoM (soilocp.sim.field.StartPose; docs/map.md)
+        self.start = start
+        self.px, self.py = (start.x, start.y) if start is not None else (0.0, 0.0)
+        self.heading0 = start.heading if start is not None else 0.0
         self._terrain()
         self.f_used = self._specific_force()
         self.fz = self._fz(self.f_used)
@@ -111,8 +116,10 @@ class RoverDrive:
         segs = self.sc.segments
         if len(segs) == 1 and hasattr(self, "seg"):
             return
-        starts, d = self._starts, self.dist
-        seg_wheels = [max(bisect.bisect_right(starts, d + xi) - 1, 0) for xi in self.xs]
+        # the segments are laid out along the path: backwards in reverse, where the rear wheels lead
+        sgn = self.ctl.direction
+        starts, d = self._starts, sgn * self.dist
+        seg_wheels = [max(bisect.bisect_right(starts, d + sgn * xi) - 1, 0) for xi in self.xs]
         seg_com = max(bisect.bisect_right(starts, d) - 1, 0)
         if hasattr(self, "seg") and seg_com == self.seg and seg_wheels == self.seg_wheels:
             return
@@ -168,6 +175,12 @@ class RoverDrive:
         tabs = self.k_tabs
         span, inv_step, last = self.table.SPAN, 1.0 / self.table.STEP, self.table.n - 1
         Fw, BV, Br, inv, gs, mus, tq, traw, ss, fz, cv = ([0.0] * 4 for _ in range(11))
+        # the truth in the frame of travel (eq. 1 and the traction law as for forward travel, mirrored)
+        s_tr, g_tr, mu_tr = ([0.0] * 4 for _ in range(3))
+        # a wheel's direction of travel is the one its drive commands: backwards in a reverse drive, and
+        # on the spot, each side its own way.  (Not the sign of V_i: a robot that rolls back on a climb
+        # before its wheels grip still "drives forward", and eq. 1 then reads |S| > 1, as it should.)
+        back = [ctl.reverse or (ctl.turn_in_place and q < 0.0) for q in w_ref]
         # skid steer: the two wheels of a side are chained to one motor (one speed per side)
         units = ((0, 1), (2, 3)) if v.drive == "per_side" else ((0,), (1,), (2,), (3,))
         hkp, hR, inv_h = h * kp, h * R, 1.0 / h
@@ -217,6 +230,15 @@ class RoverDrive:
                 dg = tdg[j] + fr * (tdg[j + 1] - tdg[j])
                 mu = tmu[j] + fr * (tmu[j + 1] - tmu[j])
                 dmu = tdmu[j] + fr * (tdmu[j + 1] - tdmu[j])
+                # travel backwards (V_i < 0): the same drive mirrored (x -> -x).  Eq. 1 for the direction
+                # of travel gives the driving slip S_d = -s; net traction is odd (eq. 6), so the body force
+                # -mu(S_d) Fz = mu(s) Fz is unchanged, but the motion resistance (eq. 4, even in S) now
+                # opposes backward travel: the wheel's eq. 13 sees -g(S_d) = mu(s) - r(|s|) = 2 mu - g.
+                if back[i]:
+                    g, dg = 2.0 * mu - g, 2.0 * dmu - dg
+                    s_tr[i], g_tr[i], mu_tr[i] = -s, -g, -mu
+                else:
+                    s_tr[i], g_tr[i], mu_tr[i] = s, g, mu
                 tr = kp * (w_ref[i] - wi) + t_int[i] if held is None else held[i]
                 if tr > tmax:
                     T, kpe = tmax, 0.0
@@ -313,12 +335,15 @@ class RoverDrive:
         self.acc = (V - V0) / h
         self.w, self.V, self.r = w, V, r
         self.torque = tq[:]
-        self.slips, self.gross, self.mus = ss[:], gs[:], mus[:]
+        self.slips, self.gross, self.mus = s_tr, g_tr, mu_tr
         self.f_used, self.fz = f, fz[:]
         # trapezoid rule: the encoder's count difference is then the interval's mean speed to O(h^2),
         # as on the real wheel (the right-Riemann sum h * w_new read it (1 - 1/n_sub) of the true lag)
         self.wheel_angle = [a + 0.5 * h * (wi + wo) for a, wi, wo in zip(self.wheel_angle, w, w0)]
         self.dist += h * V
+        hm = self.heading0 + self.heading + 0.5 * h * r  # midpoint heading of the sub-step
+        self.px += h * V * math.cos(hm)
+        self.py += h * V * math.sin(hm)
         self.heading += h * r
         self.t = t_new
 
@@ -354,6 +379,8 @@ class RoverDrive:
             pitch=self.pitch,
             distance=self.dist,
             heading=self.heading,
+            x=self.px,
+            y=self.py,
             yaw_rate=self.r,
             slip=tup(s),
             mu=tup(mu),
@@ -385,6 +412,8 @@ class RoverDrive:
         )
         if v.drive == "per_side":
             read = per_side_readings(read)
+        if self.start is not None:  # true positions in the samples (a perfect odometry / GNSS)
+            read.update(true_position(self.start, self.px, self.py, self.heading0 + self.heading))
         sample = SensorSample(vehicle_id=self.vehicle_id, seq=seq, stamp=stamp, **read)
         return sample, truth
 

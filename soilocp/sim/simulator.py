@@ -10,7 +10,11 @@ corrected, docs/method.md §2-3), slip eq. 1 with the standstill floor of :mod:`
 Model (wheels 1 LR, 2 LF, 3 RF, 4 RR; body x forward, y left, z up, REP-103):
 
 * slip of wheel i, eq. 1: S_i = (omega_i R_w - V_i) / max(|omega_i R_w|, |V_i|, floor), with the
-  ground speed at the wheel V_i = V - psi_dot * y_i (differential steering);
+  ground speed at the wheel V_i = V - psi_dot * y_i (differential steering); for a wheel whose drive
+  travels backwards (``ControllerParams.reverse``, or one side of a turn on the spot) eq. 1 for that
+  direction, -S_i, and the drive mirrored: the same body force, the resistance opposing backward
+  travel (dynamics.RoverDrive._substep); the truth reports slip, mu, gross traction and resistance
+  in the frame of travel;
 * wheel i, eq. 13: I_w omega_i' = T_i - R_w (mu_i + r_i) Fz_i: the wheel sees gross traction;
 * body, longitudinal: m V' = sum(mu_i Fz_i) - m g sin(grade) (net traction already contains
   the motion resistance; -g sin(grade) is the x component of gravity, eq. 20 with pitch = -grade);
@@ -52,6 +56,7 @@ from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.sim.scenarios import MODES, Scenario, SweepParams, get_scenario
 from soilocp.sim.controller import DEFAULT_CONTROLLER, ControllerParams
 from soilocp.sim.dynamics import RoverDrive
+from soilocp.sim.field import StartPose
 from soilocp.sim.sensor_models import SensorNoise
 from soilocp.sim.truth import TruthRecord
 from soilocp.model.slip import DEFAULT_FLOOR
@@ -108,6 +113,7 @@ def simulate(
     params: SimParams = DEFAULT_SIM,
     wheel_torque_command: Callable[[SensorSample], Sequence[float]] | None = None,
     drawbar_load: Callable[[float, float], float] | None = None,
+    start: StartPose | None = None,
 ) -> Iterator[tuple[SensorSample, TruthRecord]]:
     """Drive ``scenario`` and yield ``(SensorSample, TruthRecord)`` pairs lazily, one per sensor
     sample at ``stamp = seq / rate`` (seq 0 = at rest at t = 0), for ``duration`` seconds
@@ -126,6 +132,10 @@ def simulate(
     * ``drawbar_load(t, V)`` is a towed load's draft force (N >= 0) at time t and speed V, held over each
       interval; it opposes the motion like friction (F tanh(V / _LOAD_EPS)), so a stalled
       rover is not pulled backwards (``_LOAD_EPS`` = 0.05 m/s).
+
+    ``start`` (a :class:`soilocp.sim.field.StartPose`) puts the drive in a map frame: the samples
+    then carry the true position and heading (and latitude/longitude with a ``geo_origin``); the
+    truth's x, y are always integrated (from (0, 0), heading 0 without a start).
     """
     sc = get_scenario(scenario)
     _check_args(duration, rate, seed, mode, vehicle_id)
@@ -151,5 +161,6 @@ def simulate(
         par=params,
         torque_command=wheel_torque_command,
         drawbar_load=drawbar_load,
+        start=start,
     )
     return run.samples()

@@ -34,6 +34,8 @@ class TruthRecord(BaseModel):
     pitch: float = Field(description="True pitch, rad (REP-103, > 0 nose down; < 0 on a climb)")
     distance: float = Field(description="Distance travelled by the CoM, m")
     heading: float = Field(description="Yaw angle relative to the start, rad")
+    x: float = Field(default=0.0, description="CoM x in the drive's map frame, m (the start pose's; 0 at the start by default)")
+    y: float = Field(default=0.0, description="CoM y in the drive's map frame, m")
     yaw_rate: float = Field(description="True yaw rate, rad/s, > 0 turning left")
     slip: _F4 = Field(description="Slip per wheel, eq. 1 with V_i = V - yaw_rate*y_i (> 0 driving)")
     mu: _F4 = Field(description="Net traction coefficient per wheel, eq. 6 (F_DP / Fz)")

@@ -5,7 +5,8 @@ A :class:`Variant` changes what the simulator does or what the sensors report wh
 estimator keeps its NOMINAL vehicle and default configuration:
 
 * the drive itself: controller mode, slip sweep, rear axle mirroring the front's slip (§12),
-  S-turns, sample rate;
+  S-turns, sample rate, travel backwards, a skid steer turning on the spot or on arcs, a speed
+  set-point that accelerates and brakes, a grade, a towed draft that stalls the robot;
 * the true vehicle (:class:`VehicleChange`): wheel radius, mass and CoM differ from the nominal
   ones the estimator uses;
 * the sensor stream (stream transforms): Unix-epoch stamps, torque scale, IMU bias, channels
@@ -33,7 +34,7 @@ from schemas.sensor import SensorSample
 from soilocp.model.constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
 from soilocp.sim.scenarios import Scenario, Segment, SweepParams
 from soilocp.sim.controller import ControllerParams, DEFAULT_CONTROLLER
-from soilocp.sim.simulator import simulate
+from soilocp.sim.simulator import DEFAULT_SIM, SimParams, simulate
 from soilocp.sim.truth import TruthRecord
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -54,6 +55,30 @@ ROBUST_DRIVE = Scenario(
     ),
     duration=42.0,
 )
+
+#: Cruise down a 12 deg slope over the same soils: the only slip is the braking slip the grade asks
+#: for (mu ~ -0.21 on every wheel), so K is not identifiable.
+SLOPE_DRIVE = Scenario(
+    "robust-mix-descent",
+    "the robust-mix soils on a 12 deg descent, 10 m each at 1 m/s, constant speed",
+    tuple(Segment(s.soil_class, s.soil_strength, s.length, grade=-math.radians(12.0)) for s in ROBUST_DRIVE.segments),
+    duration=42.0,
+    mode="cruise",
+)
+
+#: A skid steer turning on the spot over loam (K = 100).
+SPOT_DRIVE = Scenario("loam-spot", "loam (K=100), turning on the spot", (Segment("loam", 100.0),), duration=20.0,
+                      mode="cruise")
+
+#: Firm soil (K = 300) at 0.5 m/s, towing a draft that ends in a stall.
+DRAFT_DRIVE = Scenario("firm-draft", "firm (K=300) at 0.5 m/s with a towed load", (Segment("firm", REFERENCE_SOILS["firm"]),),
+                       speed=0.5, duration=30.0, mode="cruise")
+
+#: The vehicle changes of a skid steer (docs/maps/skid-steer-rover.json): one motor per side.
+SKID_STEER = (("drive", "per_side"), ("wheel_speed_reading", "interval_mean"))
+#: A skid steer's wheels slide sideways in a turn: eq. 12's lateral resistance mu_y 0.5 (the default
+#: 0.2 is a differentially steered rover's), so that turning asks each wheel for |mu| ~ mu_y.
+SKID_SIM = SimParams(lateral_resistance=0.5)
 
 
 # --- stream transforms (one sample in, one out; state per run) -----------------------------------
@@ -142,6 +167,25 @@ StreamTransform = EpochStamps | TorqueScale | ImuBias | HeldChannel
 
 
 @dataclass(frozen=True)
+class Draft:
+    """A towed load's draft (N, opposing the motion; simulator's ``drawbar_load``): 0 until
+    ``start`` s, then rising smoothly to ``fraction`` x mu_T x the robot's weight over ``ramp`` s
+    and held.  Above 1 the wheels cannot pull it: the robot stalls while they spin."""
+
+    fraction: float = 1.3
+    start: float = 5.0
+    ramp: float = 10.0
+
+    def load(self, vehicle: VehicleParams, soil_strength: float, constants: ModelConstants):
+        from soilocp.model.ocp import ocp_from_soil_strength
+        from soilocp.model.normal_force import STANDARD_GRAVITY
+        from soilocp.sim.controller import smoothstep
+
+        full = self.fraction * ocp_from_soil_strength(soil_strength, constants).mu_T * vehicle.mass * STANDARD_GRAVITY
+        return lambda t, v: full * smoothstep((t - self.start) / self.ramp)
+
+
+@dataclass(frozen=True)
 class VehicleChange:
     """The TRUE vehicle relative to the nominal one the estimator uses: mass (and yaw inertia)
     x ``mass``, CoM-to-rear-axle distance a x ``com`` (wheelbase kept: b = L - a), CoM height
@@ -184,12 +228,24 @@ class Variant:
     controller: ControllerParams = DEFAULT_CONTROLLER
     vehicle: VehicleChange = field(default_factory=VehicleChange)
     transforms: tuple[StreamTransform, ...] = ()
+    #: The robot itself, known to the estimator too (its vehicle file): updates of the nominal
+    #: vehicle, e.g. SKID_STEER.  The VehicleChange is the unknown on top of it.
+    robot: tuple[tuple[str, str], ...] = ()
+    draft: Optional[Draft] = None
+    sim: SimParams = DEFAULT_SIM  #: the simulator's settings (a skid steer's lateral resistance, eq. 12)
+    #: What a flagged record's reason must name where K is limited or not identifiable (the table
+    #: checks it on the settled samples); "" = not checked.
+    reason_names: str = ""
 
     def rng(self, seed: int) -> np.random.Generator:
         return np.random.default_rng([int(seed), zlib.crc32(self.name.encode())])
 
+    def known_vehicle(self, nominal: VehicleParams = DEFAULT_VEHICLE) -> VehicleParams:
+        """The vehicle the estimator is configured with: the nominal one with ``robot``'s updates."""
+        return nominal.model_copy(update=dict(self.robot)) if self.robot else nominal
+
     def true_vehicle(self, nominal: VehicleParams = DEFAULT_VEHICLE) -> VehicleParams:
-        return self.vehicle.apply(nominal)
+        return self.vehicle.apply(self.known_vehicle(nominal))
 
     def simulate(
         self,
@@ -203,9 +259,12 @@ class Variant:
         stamps (seq / rate), the sample carries the variant's."""
         rng = self.rng(seed)
         maps = [t.bind(rng) for t in self.transforms]
+        true = self.true_vehicle(nominal)
+        draft = self.draft and self.draft.load(true, self.scenario.segments[0].soil_strength, constants)
         pairs = simulate(
-            self.scenario, duration=duration, rate=self.rate, seed=seed, vehicle=self.true_vehicle(nominal),
-            constants=constants, mode=self.mode, sweep=self.sweep, controller=self.controller,
+            self.scenario, duration=duration, rate=self.rate, seed=seed, vehicle=true,
+            constants=constants, mode=self.mode, sweep=self.sweep, controller=self.controller, drawbar_load=draft,
+            params=self.sim,
         )  # fmt: skip
         for sample, truth in pairs:
             for m in maps:
@@ -268,6 +327,29 @@ VARIANTS: dict[str, Variant] = {
         Variant("s-turns", "S-turns during the traction test: yaw rate 0.3 sin(2 pi t / 4 s) rad/s",
                 controller=ControllerParams(s_turn_rate=0.3, s_turn_period=4.0)),
         Variant("cruise", "constant speed, no traction test: slip ~0, K not identifiable", "no", mode="cruise"),
+        # issue 27: reversing, skid turns, an unknown payload or motor constant, a descent, a stall
+        Variant("reverse", "traction test travelling backwards at 1 m/s: the rear (leading) axle sweeps, the front brakes",
+                controller=ControllerParams(reverse=True)),
+        Variant("reverse-braking", "the reverse traction test while the speed set-point swings 0.5..1.5 m/s every 4 s "
+                "(accelerates and brakes)", controller=ControllerParams(reverse=True, speed_swing=0.5)),
+        Variant("skid-spot-turn", "skid steer (one motor per side) turning on the spot at 0.6 rad/s on loam (K=100)", "no",
+                scenario=SPOT_DRIVE, robot=SKID_STEER, sim=SKID_SIM, controller=ControllerParams(turn_in_place=True, turn_rate=0.6)),
+        Variant("skid-arcs", "skid steer on a 2.5 m arc (0.4 rad/s at 1 m/s) during the traction test", robot=SKID_STEER, sim=SKID_SIM,
+                controller=ControllerParams(turn_rate=0.4)),
+        Variant("payload+25-accel-brake", "true mass +25 % (a payload the vehicle file does not know); the speed "
+                "set-point swings 0.5..1.5 m/s every 4 s", vehicle=VehicleChange(mass=1.25),
+                controller=ControllerParams(speed_swing=0.5)),
+        _limited("payload+25", "true mass +25 % (a payload the vehicle file does not know), constant speed",
+                 "mass (a common gross-traction scale)", vehicle=VehicleChange(mass=1.25), reason_names="torque scale"),
+        Variant("motor+8-accel-brake", "motor constant 8 % above the vehicle file's (torque reads true / 1.08); the speed "
+                "set-point swings 0.5..1.5 m/s every 4 s", transforms=(TorqueScale(1.0 / 1.08),),
+                controller=ControllerParams(speed_swing=0.5)),
+        _limited("motor+8", "motor constant 8 % above the vehicle file's (torque reads true / 1.08), constant speed",
+                 "torque scale", transforms=(TorqueScale(1.0 / 1.08),), reason_names="torque scale"),
+        Variant("slope-cruise-12", "cruise down a 12 deg slope over the four soils: only the grade's braking slip", "no",
+                scenario=SLOPE_DRIVE),
+        Variant("stall-draft", "firm soil (K=300) at 0.5 m/s towing a draft that rises to 1.3 x mu_T x weight: "
+                "the robot stalls (V < 0.1 m/s) with its wheels spinning", "no", scenario=DRAFT_DRIVE, draft=Draft()),
     )
 }
 

@@ -55,6 +55,7 @@ class DashboardHub:
         self.stop_event = threading.Event()
         self.session = None
         self.monitor: Optional[FleetMonitor] = None
+        self.tracks = None  # services.fleet.map_view.TrackRecorder, once connected
         self.connected_at: Optional[float] = None
         self._thread: Optional[threading.Thread] = None
 
@@ -72,6 +73,9 @@ class DashboardHub:
             return
         self.session = session
         self.monitor = FleetMonitor(session, self.state, poll_period_s=self.poll_period_s).start()
+        from services.fleet.map_view import TrackRecorder  # the map view's vehicle tracks (docs/map.md)
+
+        self.tracks = TrackRecorder(session).start()
         self.connected_at = time.time()
 
     def close(self) -> None:
@@ -80,6 +84,8 @@ class DashboardHub:
             self._thread.join(timeout=3.0)
         if self.monitor is not None:
             self.monitor.stop()
+        if getattr(self, "tracks", None) is not None:
+            self.tracks.stop()
         if self.session is not None:
             self.session.close()
             self.session = None
@@ -172,8 +178,30 @@ def create_app(hub: DashboardHub):
         return StreamingResponse(stream(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 
+    async def map_page(_request: Request):
+        return FileResponse(STATIC_DIR / "map.html", headers={"Cache-Control": "no-store"})
+
+    async def api_map(request: Request):
+        """The fleet soil map around ?frame=F (wgs84 default);bbox=xmin,ymin,xmax,ymax;map=ID (fleet)."""
+        from services.fleet.map_view import map_view
+        from services.map.service import parse_query
+
+        q = request.query_params
+        frame = q.get("frame", "wgs84")
+        box = q.get("bbox") or ("-180,-90,180,90" if frame == "wgs84" else "-1e6,-1e6,1e6,1e6")
+        try:
+            keys.check_map_id(q.get("map", "fleet"))
+            frame, bbox, _ = parse_query(f"frame={frame};bbox={box}")
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        view = await asyncio.to_thread(map_view, hub.session, getattr(hub, "tracks", None), q.get("map", "fleet"),
+                                       frame, bbox)
+        return _json(view)
+
     routes = [
         Route("/", index),
+        Route("/map", map_page),
+        Route("/api/map", api_map),
         Route("/api/vehicles", api_vehicles),
         Route("/api/vehicles/{vehicle_id}", api_vehicle),
         Route("/api/constants", api_constants),

@@ -1,7 +1,9 @@
 """Validation of raw sensor samples beyond the schema: the checks that need per-vehicle history.
 
 Used by the live gateway and by the offline ``soilocp estimate`` alike, so both reject the same
-samples for the same reasons.  Each rejection carries a machine-readable ``code``.
+samples for the same reasons.  Each rejection carries a machine-readable ``code``.  A lean module
+(json, math, pydantic and the sensor schema): the gateway process imports it without numpy or the
+estimation package.
 """
 
 from __future__ import annotations

@@ -1,0 +1,229 @@
+"""``soilocp foxglove`` and ``soilocp run --foxglove``: the live estimates and sensors of one vehicle
+or a fleet, served to Foxglove over its WebSocket protocol by ``foxglove-sdk`` (not a hand-written
+server).
+
+A Zenoh subscriber on ``soilocp/<vid>/ocp`` and ``soilocp/<vid>/sensors/raw`` (``--vehicle-id``,
+repeatable) or on every vehicle's (``soilocp/*/...``) only enqueues; one worker drains the bounded
+queue (a full queue drops the newest sample and counts it), validates each payload against its
+contract and logs it on the channels of :mod:`soilocp.export.channels` (the MCAP export's channels,
+built by the same functions, plus the sensor channel), with log time = the sample's own stamp.
+A payload that fails its contract, or whose vehicle id is not its key's, is counted and not served.
+While no Foxglove client subscribes to a vehicle's channels its samples are not even parsed.
+
+``soilocp run --foxglove`` runs the same :class:`FoxgloveLive` inside the run, on the run's own
+client session (see :func:`services.supervisor.run.run_system`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Optional
+
+import click
+
+from schemas import keys
+from services.io.streams import STREAMS, decode, selectors
+from services.runtime.log import JsonLog
+from services.runtime.worker import BoundedWorker
+from soilocp.export.channels import CHANNEL_SCHEMAS, encode, log_time_ns, split_estimate, split_sensor, topic
+
+QUEUE_MAX = 10_000  # samples; ~50 s of one vehicle's sensors and OCPs at 100 Hz
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
+DEFAULT_ADDRESS = f"{DEFAULT_HOST}:{DEFAULT_PORT}"
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, ``[IPv6]:PORT``, ``:PORT`` or ``PORT`` (these two on 127.0.0.1) -> (host, port);
+    ValueError says why."""
+    s = str(text).strip()
+    host, _sep, port_s = s.rpartition(":")
+    host = host or DEFAULT_HOST
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    try:
+        port = int(port_s)
+    except ValueError:
+        port = -1
+    if not host or not 0 <= port <= 65535:
+        raise ValueError(f"Foxglove address {text!r}: expected HOST:PORT (port 0-65535, 0 = any free port), "
+                         f"e.g. {DEFAULT_ADDRESS}")
+    return host, port
+
+
+class FoxgloveLive:
+    """A Foxglove WebSocket server (started at construction) fed by a Zenoh session (:meth:`attach`).
+
+    ``vehicle_ids`` empty: every vehicle, its channels made when its first sample arrives;
+    otherwise those vehicles' channels are advertised at once.
+    """
+
+    def __init__(self, host: str, port: int, vehicle_ids: tuple[str, ...] | list[str] = (), *,
+                 log: Optional[JsonLog] = None, name: str = "soilocp", queue_max: int = QUEUE_MAX):
+        import foxglove
+
+        self.vehicle_ids = [keys.check_vehicle_id(v) for v in vehicle_ids]
+        self.log = log or JsonLog("foxglove")
+        self._foxglove = foxglove
+        # a context of our own: no global channel registry shared with anything else in the process
+        self._ctx = foxglove.Context()
+        self._channels: dict[tuple[str, str], Any] = {}
+        self.counts = {"received": 0, "served": 0, "unwatched": 0, "invalid": 0, "dropped": 0, "errors": 0}
+        self._lock = threading.Lock()  # channels are made on the worker and read by close()
+        for vid in self.vehicle_ids:
+            for suffix in CHANNEL_SCHEMAS:
+                self._channel(vid, suffix)
+        try:
+            self.server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx)
+        except RuntimeError as exc:  # FoxgloveError: port taken, unknown host
+            raise ValueError(f"Foxglove server on {host}:{port}: {exc}") from None
+        self.host = host
+        self._worker = BoundedWorker("foxglove", self._handle, queue_max, self._dropped, self._failed)
+        self._subs: list[Any] = []
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
+
+    def _channel(self, vid: str, suffix: str):
+        ch = self._channels.get((vid, suffix))
+        if ch is None:
+            name, schema = CHANNEL_SCHEMAS[suffix]
+            with self._lock:
+                ch = self._channels[(vid, suffix)] = self._foxglove.Channel(
+                    topic(vid, suffix), message_encoding="json", context=self._ctx,
+                    schema=self._foxglove.Schema(name=name, encoding="jsonschema", data=encode(schema)))
+        return ch
+
+    def attach(self, session) -> list[str]:
+        """Subscribe on ``session`` and start the worker; returns the key expressions subscribed."""
+        self._worker.start()
+        streams = selectors(self.vehicle_ids)
+        for kind, sel in streams:
+            self._subs.append(session.declare_subscriber(sel, self._callback(kind)))
+        return [sel for _kind, sel in streams]
+
+    def _callback(self, kind: str):
+        counts, offer = self.counts, self._worker.offer
+
+        def on_sample(sample) -> None:
+            counts["received"] += 1
+            offer((kind, str(sample.key_expr), sample.payload.to_bytes()))
+
+        return on_sample
+
+    def _handle(self, item: tuple[str, str, bytes]) -> None:
+        kind, key, payload = item
+        vid, _rest = keys.split_key(key)
+        suffixes = STREAMS[kind][2]
+        channels = [self._channel(vid, s) for s in suffixes]
+        if not any(ch.has_sinks() for ch in channels):
+            self.counts["unwatched"] += 1
+            return
+        try:
+            data = decode(kind, key, payload)
+        except ValueError as exc:
+            self.counts["invalid"] += 1
+            if self.counts["invalid"] <= 5:
+                self.log.warning("invalid_sample", key=key, error=str(exc)[:200])
+            return
+        messages = split_estimate(data) if kind == "ocp" else split_sensor(data)
+        t = log_time_ns(data["stamp"])
+        for ch, suffix in zip(channels, suffixes):
+            ch.log(encode(messages[suffix]), log_time=t)
+        self.counts["served"] += 1
+
+    def _dropped(self, _item: Any) -> None:
+        self.counts["dropped"] += 1
+        n = self.counts["dropped"]
+        if n <= 10 or n % 1000 == 0:
+            self.log.warning("queue_full_drop", dropped_total=n)
+
+    def _failed(self, item: Any, exc: BaseException) -> None:
+        self.counts["errors"] += 1
+        if self.counts["errors"] <= 20:
+            self.log.error("processing_error", key=item[1], error=f"{type(exc).__name__}: {exc}"[:300])
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # already gone with its session
+                pass
+        self._subs.clear()
+        self._worker.stop()
+        self.server.stop()
+        with self._lock:
+            for ch in self._channels.values():
+                ch.close()
+
+
+def run_foxglove(connect: list[str], vehicle_ids: list[str], host: str, port: int, *,
+                 duration: Optional[float] = None, log: Optional[JsonLog] = None) -> int:
+    """``soilocp foxglove``: serve until SIGINT/SIGTERM (or ``duration`` s); 0 when stopped cleanly."""
+    from services.runtime.process import install_stop_handlers, open_session, watch_parent
+
+    log = log or JsonLog("foxglove")
+    live = FoxgloveLive(host, port, vehicle_ids, log=log)  # ValueError: port taken, bad id
+    click.echo(f"soilocp foxglove: {live.url} (in Foxglove: Open connection, Foxglove WebSocket; "
+               "layout docs/foxglove/soilocp-layout.json)", err=True)
+    stop = threading.Event()
+    install_stop_handlers(stop, log)
+    watch_parent(stop, log)
+    session = None
+    try:
+        session = open_session("client", connect, [], multicast=False, stop=stop, log=log)
+        if session is None:
+            return 0
+        selectors = live.attach(session)
+        log.info("serving", url=live.url, keys=selectors, vehicle_ids=vehicle_ids or "all")
+        t_end = None if duration is None else time.monotonic() + duration
+        last = dict(live.counts)
+        while not stop.wait(0.5):
+            if t_end is not None and time.monotonic() >= t_end:
+                break
+            if live.counts != last:  # progress for operators (and tests)
+                last = dict(live.counts)
+                log.info("progress", **last)
+    finally:
+        live.close()
+        if session is not None:
+            session.close()
+    log.info("stopped", **live.counts)
+    return 0
+
+
+@click.command("foxglove")
+@click.option("--vehicle-id", "vehicle_ids", multiple=True,
+              help="Vehicle to serve (repeatable); default: every vehicle, as it appears")
+@click.option("--connect", multiple=True, help="Router endpoint (repeatable); env SOILOCP_CONNECT; default tcp/127.0.0.1:7447.")
+@click.option("--host", default=DEFAULT_HOST, show_default=True, help="Address the WebSocket server binds to.")
+@click.option("--port", type=click.IntRange(0, 65535), default=DEFAULT_PORT, show_default=True,
+              help="WebSocket port (0: any free port, printed).")
+@click.option("--duration", type=float, help="Stop after this many seconds (default: at SIGINT/SIGTERM).")
+def foxglove_cmd(vehicle_ids, connect, host, port, duration) -> None:
+    """Serve the live estimates and sensors of a vehicle or the fleet to Foxglove (WebSocket)."""
+    import sys
+
+    from services.fleet.commands import tool_endpoints
+    from services.runtime.config import ConfigError
+    from services.security.fleet_security import check_client_tls
+
+    try:
+        eps = tool_endpoints(connect)
+        check_client_tls(eps)
+        if duration is not None and not duration > 0:
+            raise ValueError(f"--duration {duration!r}: must be > 0 s")
+        code = run_foxglove(eps, list(vehicle_ids), host, port, duration=duration)
+    except (ValueError, ConfigError) as exc:
+        click.echo(f"soilocp foxglove: error: {exc}", err=True)
+        sys.exit(2)
+    sys.exit(code)
+
+
+COMMANDS = [foxglove_cmd]

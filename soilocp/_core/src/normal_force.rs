@@ -1,0 +1,129 @@
+//! Normal forces on the four wheels from the measured specific force, eqs. 16-25, with the
+//! corrections of docs/method.md §2-3: the 4x4 A of eq. 23 has rank 3 (A (1,-1,1,-1)^T = 0, the
+//! warp mode), so eq. 25's A^{-1} does not exist and the solution is the zero-warp, minimum-norm
+//! F = A^+ B; and only the specific force f = V_dot + g enters B (eq. 24), not acceleration and
+//! gravity (eq. 20) separately.  Wheels 1 LR, 2 LF, 3 RF, 4 RR.
+//!
+//! B is linear in f (B = f C, C of eq. 24 being 3 x 4), so F = f M with M = C (A^+)^T, one matrix
+//! per vehicle.  M is prepared once per vehicle by the caller (`soilocp.model.normal_force`, with
+//! LAPACK's SVD pseudo-inverse); the per-sample product is here.
+
+/// The zero-warp solution of eqs. 21-25 for one vehicle: F = f M (M = C (A^+)^T, 3 x 4).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NormalForceMap {
+    pub map: [[f64; 4]; 3],
+}
+
+impl NormalForceMap {
+    /// `Err` if an entry of M is not finite.
+    pub fn new(map: [[f64; 4]; 3]) -> Result<Self, String> {
+        if map.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(format!("the normal-force map must be finite, got {map:?}"));
+        }
+        Ok(NormalForceMap { map })
+    }
+
+    /// F_z per wheel (N) for one specific force (m/s^2): sum F = m f_z and F1 + F3 = F2 + F4; a
+    /// negative wheel (lift-off) is returned, not clipped.  Summed in the order f_x, f_y, f_z.
+    #[inline]
+    pub fn solve(&self, f: [f64; 3]) -> [f64; 4] {
+        let m = &self.map;
+        std::array::from_fn(|j| f[0] * m[0][j] + f[1] * m[1][j] + f[2] * m[2][j])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// M of the default rover (soilocp/data/rover.json: m 60 kg, a 0.27, b 0.23, c = d 0.25,
+    /// h 0.3 m), as `soilocp.model.normal_force` prepares it (numpy's pinv), to the last digit.
+    const ROVER: [[f64; 4]; 3] = [
+        [
+            18.000000000000007,
+            -18.00000000000001,
+            -17.999999999999986,
+            17.999999999999993,
+        ],
+        [
+            -18.000000000000007,
+            -18.000000000000004,
+            17.999999999999996,
+            18.000000000000007,
+        ],
+        [
+            13.800000000000004,
+            16.20000000000001,
+            16.199999999999996,
+            13.80000000000001,
+        ],
+    ];
+
+    fn close4(got: [f64; 4], want: [f64; 4], tol: f64) {
+        for j in 0..4 {
+            assert!(
+                (got[j] - want[j]).abs() <= tol,
+                "wheel {}: got {got:?}, want {want:?}",
+                j + 1
+            );
+        }
+    }
+
+    /// docs/method.md §2, the test-vector table (default vehicle).
+    #[test]
+    fn zero_warp_vectors_of_method_md() {
+        let nf = NormalForceMap::new(ROVER).unwrap();
+        close4(
+            nf.solve([0.0, 0.0, 9.80665]),
+            [135.3318, 158.8677, 158.8677, 135.3318],
+            5e-5,
+        );
+        close4(
+            nf.solve([2.0, 0.0, 9.80665]),
+            [171.3318, 122.8677, 122.8677, 171.3318],
+            5e-5,
+        );
+        close4(
+            nf.solve([0.0, 1.5, 9.80665]),
+            [108.3318, 131.8677, 185.8677, 162.3318],
+            5e-5,
+        );
+    }
+
+    /// docs/method.md §3: a 10 degree climb at rest.
+    #[test]
+    fn climb_at_rest_of_method_md() {
+        let th: f64 = -(10f64.to_radians());
+        let g = 9.80665;
+        let nf = NormalForceMap::new(ROVER).unwrap();
+        close4(
+            nf.solve([-g * th.sin(), 0.0, g * th.cos()]),
+            [163.9281, 125.8018, 125.8018, 163.9281],
+            5e-5,
+        );
+    }
+
+    /// sum F = m f_z, the moments of eqs. 16-19 and no warp (docs/method.md §2).
+    #[test]
+    fn statics_hold_and_warp_is_zero() {
+        let nf = NormalForceMap::new(ROVER).unwrap();
+        let (m, h, a, b, c, d) = (60.0, 0.3, 0.27, 0.23, 0.25, 0.25);
+        for f in [[0.0, 0.0, 9.80665], [2.0, -1.0, 9.0], [-3.0, 2.5, 11.0]] {
+            let fz = nf.solve(f);
+            assert!((fz.iter().sum::<f64>() - m * f[2]).abs() < 1e-10);
+            assert!((fz[0] + fz[2] - fz[1] - fz[3]).abs() < 1e-10);
+            // pitch: sum x_i F_i = -h m f_x with x = (-a, b, b, -a); roll: sum y_i F_i = -h m f_y
+            let pitch = -a * fz[0] + b * fz[1] + b * fz[2] - a * fz[3];
+            let roll = c * fz[0] + c * fz[1] - d * fz[2] - d * fz[3];
+            assert!((pitch + h * m * f[0]).abs() < 1e-10, "pitch moment {pitch}");
+            assert!((roll + h * m * f[1]).abs() < 1e-10, "roll moment {roll}");
+        }
+    }
+
+    #[test]
+    fn a_non_finite_map_is_refused() {
+        let mut bad = ROVER;
+        bad[1][2] = f64::NAN;
+        assert!(NormalForceMap::new(bad).unwrap_err().contains("finite"));
+    }
+}

@@ -1,0 +1,105 @@
+"""The online torque scale (soilocp.estimation.torque_scale): eq. TC through the one library function
+(soilocp.model.force_balance), learnt where the robot accelerates or brakes, the prior elsewhere."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
+from soilocp.model.force_balance import longitudinal_balance
+from soilocp.model.vehicle import DEFAULT_VEHICLE
+from soilocp.sim.variants import get_variant
+
+V = DEFAULT_VEHICLE
+
+
+def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, seconds: float = 40.0, rate: float = 100.0,
+                    seed: int = 0):
+    """Samples that satisfy eq. TC exactly (true torque = k_true x logged) with a constant F_MR, wheels
+    rolling without slip at the speed 1 + accel-driven swing, and noisy readings."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    w = 2.0 * math.pi / 4.0
+    a = accel * np.sin(w * t)
+    v = 1.0 + accel / w * (1.0 - np.cos(w * t))
+    omega = np.repeat((v / V.wheel_radius)[:, None], 4, axis=1)
+    omega_dot_sum = 4.0 * a / V.wheel_radius
+    torque_true = (V.mass * a + resistance) * V.wheel_radius + V.wheel_inertia * omega_dot_sum
+    logged = np.repeat((torque_true / k_true / 4.0)[:, None], 4, axis=1) + rng.normal(0, 0.05, (t.size, 4))
+    f_x = a + rng.normal(0, 0.02, t.size)
+    return t, f_x, omega, logged, v
+
+
+def _run(stream, cfg=TorqueScaleConfig(enabled=True)):
+    t, f_x, omega, logged, v = stream
+    bank = TorqueScaleBank(V, cfg, 0.05, 1)
+    ix = np.array([0])
+    out = [bank.step(ix, [t[i]], [f_x[i]], [0.0], [0.0], omega[i][None], logged[i][None], [v[i]]) for i in range(t.size)]
+    return np.array([(m[0], s[0]) for m, s in out])
+
+
+def test_the_offline_fit_and_the_online_state_share_eq_tc():
+    x, y = longitudinal_balance(0.5, 4.0, 12.0, V)
+    assert x == pytest.approx(12.0 / V.wheel_radius)
+    assert y == pytest.approx(V.mass * 0.5 + V.wheel_inertia * 4.0 / V.wheel_radius)
+
+
+@pytest.mark.parametrize("k_true", [1.08, 0.8])
+def test_it_converges_to_the_scale_where_the_robot_accelerates_and_brakes(k_true):
+    est = _run(_balance_stream(k_true, accel=0.8))
+    assert est[-1, 0] == pytest.approx(k_true, rel=0.015)
+    assert est[-1, 1] < 0.02  # the posterior narrowed from the prior's 0.05
+    assert abs(est[-1, 0] - k_true) < 2.5 * est[-1, 1]
+    # and it started from the prior
+    assert est[0, 0] == 1.0 and est[0, 1] == pytest.approx(0.05)
+
+
+def test_at_constant_speed_it_stays_the_prior():
+    est = _run(_balance_stream(1.08, accel=0.0))
+    assert np.all(est[:, 0] == 1.0) and np.allclose(est[:, 1], 0.05)
+
+
+def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
+    """The robust-mix traction test: its speed swings within each sweep, but motion resistance swings
+    with the slip, so its windows are left out (max_slip) and the scale stays the prior."""
+    var = get_variant("nominal")
+    bank = TorqueScaleBank(V, TorqueScaleConfig(enabled=True), 0.05, 1)
+    ix = np.array([0])
+    for s, _ in var.simulate(0, duration=15.0):
+        m, sd = bank.step(ix, [s.stamp], [s.specific_force[0]], [s.pitch], [s.yaw_rate], [s.wheel_speed],
+                          [s.wheel_torque], [s.ground_speed])
+    assert m[0] == 1.0 and sd[0] == pytest.approx(0.05)
+
+
+def test_disabled_it_is_the_prior():
+    est = _run(_balance_stream(1.08, accel=0.8, seconds=10.0), TorqueScaleConfig(enabled=False))
+    assert np.all(est[:, 0] == 1.0) and np.all(est[:, 1] == 0.05)
+
+
+def test_the_pipeline_learns_a_payload_and_the_batched_path_matches():
+    """Offline (VehiclePipeline, the live stages' code) and batched path through the same kernel: the
+    payload drive's torques are scaled by the learnt k (m / m' = 0.8 for +25 %), the nominal drive's stay."""
+    from soilocp.estimation.batch import BatchPipeline
+    from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+
+    cfg = PipelineConfig()
+    drives = {"p": [s.model_copy(update={"vehicle_id": "p"}) for s, _ in get_variant("payload+25-accel-brake").simulate(0, duration=12.0)],
+              "n": [s.model_copy(update={"vehicle_id": "n"}) for s, _ in get_variant("nominal").simulate(0, duration=12.0)]}
+    singles = {n: VehiclePipeline(cfg) for n in drives}
+    batch = BatchPipeline(cfg, 2)
+    last = {}
+    for k in range(len(drives["p"])):
+        samples = [drives["p"][k], drives["n"][k]]
+        ref = [singles[n].process_all(s) for n, s in zip(drives, samples)]
+        out = batch.step(np.array([0, 1]), samples, [r[0].normal_force for r in ref])
+        for o, (nf, ob, so, oc) in zip(out, ref):
+            assert o.status == oc.status and o.reason == oc.reason
+            for name in ("soil_strength", "soil_strength_std"):
+                a, b = getattr(o, name), getattr(oc, name)
+                assert (a is None and b is None) or a == pytest.approx(b, rel=1e-9, abs=1e-9)
+        last = {n: r[1] for n, r in zip(drives, ref)}
+    assert last["p"].torque_scale < 0.95 and last["p"].torque_scale_std < 0.045
+    assert last["n"].torque_scale == 1.0 and last["n"].torque_scale_std is None
