@@ -125,7 +125,8 @@ class ObserverOutput(_Message):
 class SoilEstimate(_Message):
     """Soil strength K from per-wheel slip (eq. 1) and observed traction (eqs. 36-37, corrected)."""
 
-    slip: Quad = Field(description="Slip per wheel from the filtered speeds (eq. 1), > 0 driving")
+    slip: Quad = Field(description="Slip per wheel from the filtered speeds (eq. 1), in the wheel's direction of "
+                       "travel: > 0 driving, < 0 braking, forwards or backwards (docs/method.md §17)")
     informative: tuple[bool, bool, bool, bool] = Field(description="Wheel used for the K update this step")
     soil_strength: Optional[float] = Field(description="K estimate (null: no estimate)")
     soil_strength_std: Optional[float] = Field(description="1-sigma uncertainty of K")
@@ -135,6 +136,14 @@ class SoilEstimate(_Message):
     status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
     last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
+    held_for_s: Optional[float] = Field(
+        default=None, description="Age of K, s: time since the last sample that informed it (0: this one); null "
+        "without K. A held K's band widens with this age"
+    )
+    unusable: tuple[str, str, str, str] = Field(
+        default=("", "", "", ""), description="Per wheel, why the longitudinal model does not describe it now and it "
+        "informs no K: slip_beyond_eq1 | stopped_unpowered | stall | skid_turn ('' usable; docs/method.md §17)"
+    )
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
     where: Optional[EstimatePlace] = Field(
@@ -159,3 +168,7 @@ class OcpEstimate(_Message):
     mu: Quad = Field(description="Observed net traction per wheel")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
     slip: Quad = Field(description="Slip per wheel (eq. 1)")
+    held_for_s: Optional[float] = Field(default=None, description="Age of K, s (the soil estimate's held_for_s)")
+    unusable: tuple[str, str, str, str] = Field(
+        default=("", "", "", ""), description="Per wheel: why it informs no K now (the soil estimate's unusable)"
+    )

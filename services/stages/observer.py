@@ -116,4 +116,6 @@ class ObserverService(StageService):
 
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
         resets = {f"reset_{why}": n for why, n in self.stages[vehicle_id].bank.resets_by_reason.items() if n}
-        return {"detail": {**self.counters[vehicle_id].detail, **resets, "join_pending": self.joiners[vehicle_id].pending()}}
+        bank = self.stages[vehicle_id].bank
+        return {"detail": {**self.counters[vehicle_id].detail, **resets, "wheel_speed_anchored": bank.anchored,
+                           "join_pending": self.joiners[vehicle_id].pending()}}

@@ -59,7 +59,8 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     rate = summary.estimates / dt if dt > 0 else float("inf")
     click.echo(
         f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
-        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses}; observer resets {summary.resets} -> {out}",
+        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses}; observer resets {summary.resets}; "
+        f"wheels out of model {summary.unusable} -> {out}",
         err=True,
     )
     for lineno, error in summary.stage_errors[:20]:

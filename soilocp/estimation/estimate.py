@@ -27,6 +27,8 @@ class EstimateSummary:
     stage_errors: list[tuple[int, str]] = field(default_factory=list)
     #: observer resets by reason, over all vehicles (start, time_gap, non_finite_state, ...)
     resets: dict[str, int] = field(default_factory=dict)
+    #: wheel-samples the longitudinal model did not describe (no K from them), by reason (docs/method.md §17)
+    unusable: dict[str, int] = field(default_factory=dict)
 
 
 def estimate_lines(
@@ -67,6 +69,9 @@ def estimate_lines(
         summary.estimates += 1
         summary.vehicles.add(sample.vehicle_id)
         summary.statuses[oc.status] = summary.statuses.get(oc.status, 0) + 1
+        for why in so.unusable:
+            if why:
+                summary.unusable[why] = summary.unusable.get(why, 0) + 1
         rec = oc.model_dump()
         if full:
             rec["normal_force"] = list(nf.normal_force)

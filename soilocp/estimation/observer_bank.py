@@ -152,6 +152,37 @@ class _Workspace:
         self.J[:, :, layout.mu] = np.eye(4)
 
 
+def anchor_wheel_speeds(x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: np.ndarray, available: np.ndarray,
+                        layout, wheel_radius: float, anchor_speed: float, r_speed: float) -> int:
+    """At low speed a rejected wheel-speed reading re-anchors its wheel's speed state (in place, x (k, n),
+    P (k, n, n), readings z (k, 7), rejected rows (k, 7)): the state takes the reading, its variance the
+    reading's (``r_speed``, rad^2/s^2), its correlations none.  So does the last reading of a wheel whose
+    reading is not new now (``available`` (k, 7) False: a repeat) when the state has left it by more than
+    ``anchor_speed`` / 3 in rim speed (the closed-loop stall on firm soil: single samples of 3.7 rad/s against
+    an encoder's 1.19).  Returns how many wheels were re-anchored (docs/method.md §17).
+
+    Below ``anchor_speed`` (m/s, rim and ground) the wheel equation (eq. 13) is stiff (docs/method.md §10)
+    and the traction state that balances the torque is itself poorly known (a stall: slip ~1, any soil):
+    the prediction leaves the encoder within a step, the gate rejects the encoder, and the filtered speed
+    ran away (7 rad/s against 0.48, issue 27) and fed K a wrong slip.  The encoder is the one measurement
+    of the wheel's speed; the gate protects against its outliers at speed, not at a stall."""
+    L = layout
+    away = np.abs(x[:, L.omega] - z[:, 2:6]) * wheel_radius > anchor_speed / 3.0
+    wheels = rejected[:, 2:6] | (~available[:, 2:6] & away)
+    if not wheels.any():
+        return 0
+    low = (np.abs(z[:, 2:6]) * wheel_radius < anchor_speed) & (np.abs(x[:, L.v]) < anchor_speed)[:, None]
+    rows, w = np.nonzero(wheels & low)
+    if rows.size == 0:
+        return 0
+    col = L.omega.start + w
+    x[rows, col] = z[rows, 2 + w]
+    P[rows, col, :] = 0.0
+    P[rows, :, col] = 0.0
+    P[rows, col, col] = r_speed
+    return int(rows.size)
+
+
 class ObserverBank:
     """N traction observers stepped together (see the module doc).  ``step(idx, inputs)`` steps
     the vehicles ``idx`` (any subset, each at most once; None: all, in order); vehicles need not
@@ -173,6 +204,8 @@ class ObserverBank:
         self.last_stamp = np.full(n, np.nan)
         self.rejections = np.zeros((n, N_MEAS), dtype=int)
         self.resets_by_reason: dict[str, int] = {r: 0 for r in RESET_REASONS}
+        #: wheel-speed states re-anchored to their reading at low speed (:func:`anchor_wheel_speeds`)
+        self.anchored = 0
         # the raw readings (wheel speeds, ground speed, torques): which are new measurements, and when
         self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
         self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
@@ -304,6 +337,9 @@ class ObserverBank:
                                                    cfg.gate_sigma, self.rejections[rows], cfg.gate_patience, available)
             self.rejections[rows] = counts
             rejected[run] = (available & ~keep).sum(axis=1)
+            if cfg.anchor_speed > 0:
+                self.anchored += anchor_wheel_speeds(xr, Pr, z, available & ~keep, available, L,
+                                                     self.vehicle.wheel_radius, cfg.anchor_speed, self._r[2])
             xr, Pr = condition(xr, Pr, self._lower, self._upper, cfg.variance_floor, cfg.variance_ceiling)
             if every:
                 x, P = xr, Pr

@@ -17,7 +17,7 @@ from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, path_acceleration, resistance_map, travel_direction)
-from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, condition, encoder_lead, outlier_variance,
+from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, anchor_wheel_speeds, condition, encoder_lead, outlier_variance,
                                               split_side_torque, wheel_acceleration)
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
@@ -128,6 +128,11 @@ class TractionObserver:
             idx = np.flatnonzero(available)
             r = outlier_variance(innov, hph, self._R_diag, self.cfg.gate_sigma, keep)
             self.kf.update(z[idx], R=np.diag(r[idx]), H=H[idx])
+            if self.cfg.anchor_speed > 0:  # the kernel's low-speed re-anchoring (docs/method.md §17)
+                xa, Pa = self.kf.x[None].copy(), self.kf.P[None].copy()
+                if anchor_wheel_speeds(xa, Pa, z[None], (available & ~keep)[None], available[None], self.layout,
+                                       self.vehicle.wheel_radius, self.cfg.anchor_speed, self._R_diag[2]):
+                    self.kf.x, self.kf.P = xa[0], Pa[0]
             x, P = condition(self.kf.x[None], self.kf.P[None], self._lower, self._upper,
                              self.cfg.variance_floor, self.cfg.variance_ceiling)
             self.kf.x, self.kf.P = x[0], P[0]

@@ -33,6 +33,7 @@ from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unche
 from soilocp.estimation.soil_config import SoilConfig, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
+from soilocp.estimation.wheel_usability import SLIP_BEYOND_EQ1, travel_direction, wheel_usability
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 __all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
@@ -228,11 +229,13 @@ class SoilInputs:
     speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
     span: np.ndarray | None  # (k, 4) s a wheel's pair stands for: a refresh interval (0: the sample's own; None: none)
     slip_ends: np.ndarray | None  # (k, 4, 2) a refresh pair's slip at its interval's start and end (None: no pair)
+    unusable: np.ndarray | None = None  # (k, 4) int: soilocp.estimation.wheel_usability's code (0: usable)
 
 
 class SlipGate:
-    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10) from the filtered
-    speeds, its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10, in each wheel's direction
+    of travel, §17) from the filtered speeds, the wheels the longitudinal model describes now
+    (:func:`soilocp.estimation.wheel_usability.wheel_usability`), its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
     gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
     docs/method.md §9), for N vehicles."""
 
@@ -244,17 +247,24 @@ class SlipGate:
         # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
         self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
         self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
+        self._half_track = 0.5 * (config.vehicle.c + config.vehicle.d)
 
     def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
         """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
         cfg = self.cfg
         r = cfg.vehicle.wheel_radius
         v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
-        slip, scale = self._eq1(ob.wheel_speed * r, v_wheel)
+        rim = ob.wheel_speed * r
+        slip, scale = self._eq1(rim, v_wheel)
+        # eq. 1 and the traction law in each wheel's direction of travel (§17): a wheel travelling backwards
+        # is the mirror image of one travelling forwards, its slip and its traction both negated
+        direction = travel_direction(rim, v_wheel)
+        slip = direction * slip
         if cfg.soil.measurement == "gross":
-            observed, var = ob.gross, ob.gross_var * self._shared
+            observed, var = direction * ob.gross, ob.gross_var * self._shared
         else:
-            observed, var = ob.mu, ob.mu_var * self._shared
+            observed, var = direction * ob.mu, ob.mu_var * self._shared
+        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
         # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
         # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
         # prediction through the held value; gross only
@@ -264,13 +274,20 @@ class SlipGate:
         if any_refresh:
             s0, scale0 = self._eq1(ob.interval_rim_start, ob.interval_ground_start)
             s1, scale1 = self._eq1(ob.interval_rim_end, ob.interval_ground_end)
+            d0 = travel_direction(ob.interval_rim_start, ob.interval_ground_start)
+            d1 = travel_direction(ob.interval_rim_end, ob.interval_ground_end)
+            s0, s1 = d1 * s0, d1 * s1
+            # a pair whose interval reverses the travel is no one slip path of one law: not informative
+            scale0 = np.where(d0 == d1, scale0, 0.0)
             slip_ends = np.stack([s0, s1], axis=2)
             filtered_slip = slip
             # the slip path's middle; informative only where the wheel moved at both ends
             slip, scale = np.where(refresh, 0.5 * (s0 + s1), slip), np.where(refresh, np.minimum(scale0, scale1), scale)
-            observed = np.where(refresh, ob.interval_gross, observed)
+            observed = np.where(refresh, d1 * ob.interval_gross, observed)
+            unusable = np.where(refresh & ((np.abs(s0) > 1.0) | (np.abs(s1) > 1.0)), SLIP_BEYOND_EQ1, unusable)
             var = np.where(refresh, ob.interval_gross_var * self._shared, var)
-        informative = (scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+        informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+                       & (unusable == 0))
         # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
@@ -305,8 +322,13 @@ class SlipGate:
                         (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
         measured = ob.ground_speed_measured
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is
+        # a prediction (at 5 Hz its slip passed +-1, and a side's rim crossed zero: a 'skid turn' on the last
+        # record of wheel-speed-5hz took its convergence from 0.71 to 7.1 s), and a held wheel informs no K anyway
+        unusable = np.where(held, 0, unusable)
         return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
-                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends)
+                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends,
+                          np.where(measured[:, None], unusable, 0))
 
     def _eq1(self, rim: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Eq. 1 with the floor of docs/method.md §6 (:func:`soilocp.model.slip.slip_ratio_unchecked`): slip
@@ -326,6 +348,7 @@ def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: S
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
         reason=st.reason, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
+        held_for_s=st.held_for_s, unusable=st.unusable,
     )
 
 
@@ -360,7 +383,8 @@ class SoilStage:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
                                   inp.speed, inp.ground_stale, inp.span, inp.slip_ends,
-                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]))[0]
+                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]),
+                                  unusable=inp.unusable)[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])
@@ -380,6 +404,7 @@ def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:
         soil_class_confidence=soil.soil_class_confidence, status=soil.status, reason=soil.reason, mu=soil.mu,
         mu_determined=soil.mu_determined, slip=soil.slip,
         mu_T=val("mu_T"), S_T=val("S_T"), S_E=val("S_E"), te_at_S_E=val("te_at_S_E"),
+        held_for_s=soil.held_for_s, unusable=soil.unusable,
     )
 
 

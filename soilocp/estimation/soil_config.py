@@ -124,6 +124,10 @@ class SoilState:
     reason: str
     last_update_stamp: Optional[float]
     used: tuple[bool, bool, bool, bool]
+    #: s since the last informative update when K is reported (0: this sample informed it); None: no K
+    held_for_s: Optional[float] = None
+    #: per wheel: why the longitudinal model does not describe it now (soilocp.estimation.wheel_usability), '' usable
+    unusable: tuple[str, str, str, str] = ("", "", "", "")
 
 
 _CLASS_BOUNDS: dict[tuple, tuple[list[str], np.ndarray]] = {}  # per soil table: classify runs every sample

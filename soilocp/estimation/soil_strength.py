@@ -41,6 +41,7 @@ from soilocp.model.traction import gross_traction_with_derivatives, net_traction
 from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds, classify, classify_many
 from soilocp.estimation.soil_axles import AxleCheck
 from soilocp.estimation.soil_grid import LogKGrid
+from soilocp.estimation.wheel_usability import REASONS, SKID_TURN, describe
 
 #: m/s: the speed the terrain-change hazard assumes when a caller gives none (a typical rover's)
 UNKNOWN_SPEED = 1.0
@@ -85,8 +86,13 @@ class _HoldLogic:
         else:
             # no information this sample: report the last informed estimate, not the belief
             # that is diffusing towards the change prior (docs/method.md §9: never drift)
-            k, _, _ = self.held
-            k_std, log_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0), log_std
+            k, _, held_log = self.held
+            if log_std is not None and held_log is not None:
+                # a held band never narrower than the soil's own drift allows since the update (q_log_k per
+                # sqrt(s)): the belief's spread widens with the change hazard per metre, and at a standstill
+                # with the random walk only; the age is in the record (SoilState.held_for_s)
+                log_std = max(log_std, math.hypot(held_log, cfg.q_log_k * math.sqrt(age)))
+            k_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0, k * math.sinh(log_std or 0.0))
         if age > cfg.hold_after:
             return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (k, k_std, log_std)
         if log_std is not None and log_std > cfg.uncertain_log_sigma:
@@ -150,6 +156,8 @@ class SoilBank:
         self._lean_since = np.full(n, np.nan)  # stamp since which the data lean to a wrong torque constant
         self.scale_prior = np.full(n, cfg.gross_scale_sigma)  # the scale's 1-sigma: the prior, or the online state's
         self.axles = AxleCheck(self.grid, cfg, n)  # front-only and rear-only beliefs (normal-force check)
+        #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
+        self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
 
     def start_belief(self, i: int, log_k: float, log_k_std: float, floor: float = 1e-3) -> None:
@@ -162,7 +170,7 @@ class SoilBank:
 
     def update(self, idx, stamp, slip, observed, variance, informative, slip_sigma, gate_slip=None,
                gate_sigma=None, held=None, identifiable=None, speed=None, ground_stale=None,
-               span=None, slip_ends=None, scale_sigma=None) -> list[SoilState]:
+               span=None, slip_ends=None, scale_sigma=None, unusable=None) -> list[SoilState]:
         """Fuse one sample per vehicle in ``idx``: stamp (k,) [s]; slip (k, 4) (eq. 1); observed
         coefficient (k, 4) (gross, or net with ``measurement="net"``) and its variance (k, 4);
         informative (k, 4) bool; slip_sigma (k, 4) each slip's 1-sigma; ``gate_slip`` /
@@ -179,7 +187,10 @@ class SoilBank:
         ``slip_ends`` (k, 4, 2): such a pair's slip at its interval's start and end: its mean gross traction
         is compared with the curve averaged over that slip path (Simpson's rule); ``scale_sigma`` (k,) or None:
         the torque scale's relative 1-sigma now (the online state, :mod:`soilocp.estimation.torque_scale`,
-        whose mean the torques already carry), instead of the prior ``gross_scale_sigma``."""
+        whose mean the torques already carry), instead of the prior ``gross_scale_sigma``; ``unusable`` (k, 4)
+        int: a wheel the longitudinal model does not describe now (:mod:`soilocp.estimation.wheel_usability`'s
+        code, 0: usable): it informs no K, the record is never ``ok`` and says why, and the code is counted
+        (:attr:`unusable_by_reason`)."""
         cfg = self.cfg
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
@@ -201,6 +212,15 @@ class SoilBank:
         held = held | stale[:, None]
         ident = np.ones(k, dtype=bool) if identifiable is None else np.asarray(identifiable, dtype=bool)
         use = gated & determined & ~held & ident[:, None]
+        codes = None
+        if unusable is not None:
+            codes = np.asarray(unusable).reshape(k, 4)
+            if codes.any():
+                use &= codes == 0
+                for c, n in zip(*np.unique(codes[codes > 0], return_counts=True)):
+                    self.unusable_by_reason[REASONS[int(c)]] += int(n)
+            else:
+                codes = None
         p, p_stay, w_stay, stay_llr = self.p[ix], self.p_stay[ix], self.w_stay[ix], self.stay_llr[ix]
         last = self.last_stamp[ix]
         with np.errstate(invalid="ignore"):
@@ -307,7 +327,7 @@ class SoilBank:
             self.scale_sys[ix[fresh]] = self._scale_shift(prof[fresh], None if scale_sigma is None
                                                           else self.scale_prior[ix[fresh]])
         return self._summaries(ix, stamp, cdf, info, use, gated & ~determined, gated & held, stale, ident, stats,
-                               dt, k_report, self.scale_sys[ix])
+                               dt, k_report, self.scale_sys[ix], codes)
 
     def _report_median(self, p, p_stay, w_stay, stay_llr, cdf) -> tuple[np.ndarray, np.ndarray]:
         """The K each vehicle reports (k,), and whether a change was taken now (k,) bool: the median of
@@ -472,9 +492,10 @@ class SoilBank:
         return self.theta[i] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
 
     def _summaries(self, ix, stamp, cdf, info, use, undetermined, held, stale, ident, stats, dt, k_report,
-                   scale_shift) -> list[SoilState]:
+                   scale_shift, codes=None) -> list[SoilState]:
         """Per vehicle: K (``k_report``, :meth:`_report_median`) and its band from the pooled belief's
-        mid-point CDF ``cdf``, status and reason."""
+        mid-point CDF ``cdf``, status and reason; ``codes`` (k, 4): the wheels the longitudinal model does
+        not describe now (:func:`_out_of_model`)."""
         cfg, k = self.cfg, ix.size
         out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
         for j in range(k):
@@ -547,17 +568,43 @@ class SoilBank:
             elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
                 status = "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
+            if codes is not None and ident[j] and codes[j].any():
+                status, reason = _out_of_model(status, reason, codes[j], use[j].any(), rk is not None, hold, st)
             if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
                 rk = rs = rl = None
             if rk is not None and status != "model_mismatch":
                 rep.append((j, rk, rl))
-            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist())])
+            held_for = None if rk is None or hold.last_update is None else max(st - hold.last_update, 0.0)
+            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist()), held_for,
+                        tuple(REASONS[int(c)] for c in codes[j]) if codes is not None else ("",) * 4])
         if rep:  # the class from the whole band (statistical and systematic), as reported
             js, ks, ls = zip(*rep)
             names, conf = classify_many(np.log(ks), np.array(ls), self.c)
             for j, name, c in zip(js, names, conf.tolist()):
                 out[j][3:5] = name, c
         return [SoilState(*o) for o in out]
+
+
+def _out_of_model(status: str, reason: str, codes: np.ndarray, used: bool, have_k: bool, hold: _HoldLogic,
+                  stamp: float) -> tuple[str, str]:
+    """Status and reason of a sample with wheels that the longitudinal model does not describe (codes (4,) of
+    :mod:`soilocp.estimation.wheel_usability`, docs/method.md §17): never ``ok``.  A skid turn: ``not_observable``
+    while it lasts (docs/robustness.md, "Skid turns"); no wheel used: the last estimate is held, flagged, with
+    its age; other wheels used: ``uncertain``, K from them.  ``model_mismatch`` and ``not_observable`` of other
+    causes keep their reason, a skid turn aside."""
+    text = describe(codes)
+    if (codes == SKID_TURN).any():
+        return "not_observable", f"{text}: no K while it lasts"
+    if status in ("model_mismatch", "not_observable"):
+        return status, reason
+    if not used:
+        if not have_k:
+            return "not_observable", f"{text}: no wheel informs K"
+        age = stamp - hold.last_update if hold.last_update is not None else 0.0
+        return "holding", f"{text}: no wheel informs K; holding the estimate of {age:.1f} s ago"
+    if status == "ok":
+        return "uncertain", f"{text}; K from the other wheels"
+    return status, reason
 
 
 class BayesSoilEstimator:

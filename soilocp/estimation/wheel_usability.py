@@ -1,0 +1,109 @@
+"""Which wheels the longitudinal model describes now: travel direction, and the conditions where eq. 1
+and the traction law of docs/method.md §11 cannot give a wheel's traction (docs/method.md §17).
+
+Per wheel and sample, from the observer's filtered speeds and gross traction:
+
+* the **travel direction** d = sgn(V_i) (the ground speed under the wheel; at standstill the rim's
+  direction): eq. 1, eqs. 3, 4 and 6 are written for forward travel, and a wheel travelling backwards
+  is their mirror image (docs/method.md, Conventions): slip S = d (R_w omega - V_i) / max(|V_i|,
+  |R_w omega|, floor) is > 0 when the wheel drives in its direction of travel, and its gross
+  traction in that frame is d times the body-frame one;
+* an **unusable** code, 0 where the wheel may inform K, else the first that applies of ``skid_turn``,
+  ``slip_beyond_eq1`` (|S| > 1: the rim and the ground under it move in opposite directions; eq. 1
+  is bounded by 1 by definition), ``stopped_unpowered`` (the body moves, the wheel stands, and no
+  torque acts on it: no slip the wheel's torque balance explains), ``stall`` (the ground speed is
+  near zero while a torque acts: slip is ~1 at any soil and creep is beyond the curve's
+  calibration).  ``skid_turn``: the vehicle turns about a point within its track (the sides' rims
+  turn in opposite directions, or the inner wheels' ground speed reverses); the wheels slide
+  sideways, eq. 12's lateral resistance, which the longitudinal model does not describe (measured in
+  docs/robustness.md, "Skid turns").
+
+The pipeline's slip gate keeps the codes only where the wheel's speed and torque readings are new
+(between a slow stream's refreshes the filtered speed is a prediction, and a held wheel informs no K
+anyway).  The codes are integers so that the kernels stay arrays; :data:`REASONS` names them, and the soil
+kernel counts them (:attr:`soilocp.estimation.soil_strength.SoilBank.unusable_by_reason`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from soilocp.model.slip import slip_ratio_unchecked
+
+#: code -> name; 0 = usable
+REASONS = ("", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn")
+USABLE, SLIP_BEYOND_EQ1, STOPPED_UNPOWERED, STALL, SKID_TURN = range(5)
+
+#: what each code means, for the record's reason
+EXPLAIN = {
+    SLIP_BEYOND_EQ1: "|slip| > 1 (rim and ground move in opposite directions: beyond eq. 1)",
+    STOPPED_UNPOWERED: "wheel stopped under no torque while the body moves",
+    STALL: "stall: ground speed near zero under torque",
+    SKID_TURN: "skid turn: the wheels slide sideways (eq. 12's lateral resistance), which the longitudinal "
+               "model does not describe",
+}
+
+V_STILL = 0.02  # m/s: below this the ground under a wheel does not move of its own (its direction is the rim's)
+
+
+@dataclass(frozen=True)
+class UsabilityLimits:
+    """Thresholds of :func:`wheel_usability` (docs/method.md §17)."""
+
+    stall_speed: float = 0.1  # m/s: |V| below this with a torque is a stall (the issue's closed-loop stall: V < 0.1)
+    gross_idle: float = 0.05  # |gross traction| at most this: no torque acts on the wheel
+    rim_stopped: float = 0.02  # m/s: a rim slower than this stands
+    moving: float = 0.15  # m/s: the body moves (eq. 1's deadband)
+    rim_turning: float = 0.05  # m/s: a side's rim turns
+    yaw_turning: float = 0.1  # rad/s
+
+
+def travel_direction(rim: np.ndarray, ground: np.ndarray) -> np.ndarray:
+    """d per wheel, +-1: the sign of the ground speed under the wheel, or of the rim where the ground
+    stands (|V_i| < ``V_STILL``), +1 where both stand."""
+    d = np.where(np.abs(ground) >= V_STILL, np.sign(ground), np.sign(rim))
+    return np.where(d == 0, 1.0, d)
+
+
+def travel_slip(rim: np.ndarray, ground: np.ndarray, floor: float, direction: np.ndarray | None = None):
+    """Eq. 1 in the wheel's direction of travel (docs/method.md §17): S = d (R_w omega - V) /
+    max(|V|, |R_w omega|, floor), d = :func:`travel_direction`.  Correction to the print: the print is
+    for forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel
+    that drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a
+    braking wheel and flipped its motion resistance.  Returns (S, d), arrays like ``rim``."""
+    d = travel_direction(rim, ground) if direction is None else direction
+    s = slip_ratio_unchecked(rim, ground, 1.0, 0.0, floor).slip
+    return d * s, d
+
+
+def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
+                    yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
+                    limits: UsabilityLimits = UsabilityLimits()) -> np.ndarray:
+    """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
+    :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
+    the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
+    F_GT / W) and the half-track (c + d) / 2 in m."""
+    lim = limits
+    code = np.zeros(slip.shape, dtype=np.int8)
+    left, right = rim[:, :2].mean(axis=1), rim[:, 2:].mean(axis=1)
+    yaw, v = np.abs(yaw_rate), np.abs(body_speed)
+    skid = (((left * right < 0) & (np.minimum(np.abs(left), np.abs(right)) > lim.rim_turning))
+            | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
+    powered = np.abs(gross) > lim.gross_idle
+    code[(v[:, None] < lim.stall_speed) & powered] = STALL
+    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
+    code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
+    code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
+    return code
+
+
+def describe(codes) -> str:
+    """The reason text for the unusable codes of one sample's wheels (4,): each condition once, with its
+    wheels (numbered 1 LR, 2 LF, 3 RF, 4 RR)."""
+    parts = []
+    for c in sorted({int(x) for x in codes if int(x)}, reverse=True):
+        wheels = ", ".join(str(i + 1) for i, x in enumerate(codes) if int(x) == c)
+        parts.append(f"{EXPLAIN[c]} (wheel{'s' if ',' in wheels else ''} {wheels})")
+    return "; ".join(parts)

@@ -1,0 +1,182 @@
+"""Reversing first-class and out-of-model wheels never `ok` (docs/method.md §17): eq. 1 in the direction of
+travel, a mirrored (backwards) drive reads the forward drive's K, the unusable codes and their reasons,
+the observer's re-anchoring at a stall, and the held value's age and band."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from soilocp.estimation.estimate import EstimateSummary, estimate_lines
+from soilocp.estimation.observer import ObserverConfig
+from soilocp.estimation.observer_bank import ObserverBank
+from soilocp.estimation.pipeline import PipelineConfig, observer_inputs
+from soilocp.estimation.soil_strength import BayesSoilEstimator
+from soilocp.estimation.wheel_usability import (REASONS, SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED,
+                                                describe, travel_slip, wheel_usability)
+from soilocp.model.constants import DEFAULT_CONSTANTS
+from soilocp.model.normal_force import normal_forces
+from soilocp.model.traction import gross_traction
+from soilocp.model.vehicle import DEFAULT_VEHICLE
+from soilocp.sim.simulator import simulate
+
+# docs/method.md §17, test vectors: (R_w omega, V) -> travel-frame slip, direction
+TRAVEL_VECTORS = [
+    (1.1, 1.0, 0.0909, 1),
+    (0.9, 1.0, -0.1, 1),
+    (-1.1, -1.0, 0.0909, -1),  # driving backwards: the mirror image of driving forwards
+    (-0.9, -1.0, -0.1, -1),  # braking backwards
+    (-0.45, -0.04, 0.9111, -1),  # the issue's Husky: reversing with spinning wheels
+    (0.45, -0.04, -1.0889, -1),  # body drifts back while the wheel turns forwards: beyond eq. 1
+    (-0.3, 0.0, 1.0, -1),  # spinning backwards at standstill
+    (0.0, 0.0, 0.0, 1),
+]
+
+
+@pytest.mark.parametrize("rim, v, slip, d", TRAVEL_VECTORS)
+def test_travel_slip_vectors(rim, v, slip, d):
+    s, direction = travel_slip(np.array([rim]), np.array([v]), 0.05)
+    assert s[0] == pytest.approx(slip, abs=5e-5) and direction[0] == d
+
+
+def test_reverse_gross_traction_is_the_mirror_image():
+    # a wheel driving backwards at travel slip 0.2 pushes backwards with the gross traction of driving slip 0.2,
+    # motion resistance included (§11): in its travel frame the observed coefficient is +g(0.2), and the
+    # body-frame -g(0.2) read against the curve at the body-frame slip -0.2 (a braking wheel) is off by 2 mu_MR
+    g = float(gross_traction(0.2, 120.0))
+    s, d = travel_slip(np.array([-0.15 * 1.25]), np.array([-0.15]), 0.05)
+    assert s[0] == pytest.approx(0.2) and d[0] * -g == pytest.approx(g)
+    assert abs(float(gross_traction(-0.2, 120.0)) - (-g)) > 0.1
+
+
+def _mirror(sample):
+    """The same drive travelled backwards: x -> -x (front and rear wheels swap, every longitudinal quantity,
+    the pitch and the yaw rate change sign)."""
+    swap = (1, 0, 3, 2)
+    f = sample.specific_force
+    return sample.model_copy(update={
+        "wheel_speed": tuple(-sample.wheel_speed[i] for i in swap),
+        "wheel_torque": tuple(-sample.wheel_torque[i] for i in swap),
+        "ground_speed": -sample.ground_speed, "specific_force": (-f[0], f[1], f[2]),
+        "pitch": -sample.pitch, "yaw_rate": -sample.yaw_rate,
+    })
+
+
+@pytest.fixture(scope="module")
+def grass_drive():
+    return list(simulate("grass", duration=8.0, seed=3))
+
+
+def test_a_drive_travelled_backwards_reads_the_forward_drives_K(grass_drive):
+    pairs = grass_drive
+    fwd_cfg = PipelineConfig()
+    v = DEFAULT_VEHICLE
+    back_cfg = PipelineConfig(vehicle=v.model_copy(update={"a": v.b, "b": v.a}))
+    fwd = list(estimate_lines((s.model_dump_json() for s, _ in pairs), fwd_cfg))
+    back = list(estimate_lines((_mirror(s).model_dump_json() for s, _ in pairs), back_cfg))
+    assert len(fwd) == len(back) == len(pairs)
+    with_k = [(a, b) for a, b in zip(fwd, back) if a["soil_strength"] is not None]
+    assert len(with_k) > 0.5 * len(pairs)
+    for a, b in zip(fwd, back):
+        assert a["status"] == b["status"]
+        if a["soil_strength"] is not None:
+            assert b["soil_strength"] == pytest.approx(a["soil_strength"], rel=1e-6)
+            assert [b["slip"][i] for i in (1, 0, 3, 2)] == pytest.approx(a["slip"], abs=1e-9)
+    last = fwd[-1]["soil_strength"]
+    assert abs(last / 200.0 - 1.0) < 0.1  # and it is grass
+
+
+def test_usability_codes():
+    half_track = 0.25
+    z = np.zeros((1, 4))
+    # |S| > 1: rim forwards, ground backwards
+    c = wheel_usability(np.array([[1.2, 0.1, 0.1, 0.1]]), np.full((1, 4), 0.5), np.full((1, 4), 0.5),
+                        np.array([0.5]), np.array([0.0]), np.full((1, 4), 0.3), half_track)
+    assert c.tolist() == [[SLIP_BEYOND_EQ1, 0, 0, 0]]
+    # stopped under no torque while the body moves at 0.33 m/s (the issue's Husky record)
+    c = wheel_usability(np.array([[-1.0, -1.0, 0.02, 0.02]]), np.array([[0.0, 0.0, 0.34, 0.34]]),
+                        np.full((1, 4), 0.33), np.array([0.33]), np.array([0.0]), np.array([[0.0, 0.01, 0.1, 0.1]]),
+                        half_track)
+    assert c.tolist() == [[STOPPED_UNPOWERED, STOPPED_UNPOWERED, 0, 0]]
+    # a stall: V 0.05 m/s under torque, the rims spinning
+    c = wheel_usability(np.full((1, 4), 0.8), np.full((1, 4), 0.25), np.full((1, 4), 0.05), np.array([0.05]),
+                        np.array([0.0]), np.full((1, 4), 0.6), half_track)
+    assert (c == STALL).all()
+    # at rest with no torque: nothing out of model (the deadband alone makes it uninformative)
+    assert not wheel_usability(z, z, z, np.array([0.0]), np.array([0.0]), z, half_track).any()
+    # a skid turn in place: sides counter-rotate (the issue's Husky: +1.15 / -1.15 rad/s, yaw -0.21)
+    rim = np.array([[0.19, 0.19, -0.19, -0.19]])
+    c = wheel_usability(np.array([[0.9, 0.9, -0.9, -0.9]]), rim, np.zeros((1, 4)), np.array([0.0]),
+                        np.array([-0.21]), np.full((1, 4), 0.3), half_track)
+    assert (c == SKID_TURN).all()  # not a stall: the robot turns in place
+    c = wheel_usability(np.array([[0.5, 0.5, -0.5, -0.5]]), rim, np.full((1, 4), 0.12), np.array([0.12]),
+                        np.array([-0.6]), np.full((1, 4), 0.3), half_track)
+    assert (c == SKID_TURN).all()
+    # an arc at speed (S-turns of the robustness drive: 0.3 rad/s at 1 m/s) is no skid turn
+    c = wheel_usability(np.full((1, 4), 0.1), np.full((1, 4), 1.1), np.full((1, 4), 1.0), np.array([1.0]),
+                        np.array([0.3]), np.full((1, 4), 0.3), half_track)
+    assert not c.any()
+    assert describe([SKID_TURN] * 4).startswith("skid turn") and "wheels 1, 2, 3, 4" in describe([SKID_TURN] * 4)
+    assert REASONS[STALL] == "stall"
+
+
+def test_out_of_model_wheels_make_no_ok_record_and_are_counted(grass_drive):
+    """A simulated traction test (ok records), then its wheel speeds read backwards under the moving body:
+    the wheels are beyond eq. 1, no record is ok, each says why, and the summary counts them."""
+    rng = np.random.default_rng(1)  # encoder noise: a constant reading would be a held one
+    samples = [s if s.stamp < 6.0 else s.model_copy(update={"wheel_speed": tuple(-2.0 + 0.02 * rng.standard_normal(4))})
+               for s, _ in grass_drive]
+    summary = EstimateSummary()
+    recs = list(estimate_lines((s.model_dump_json() for s in samples), PipelineConfig(), summary=summary))
+    assert any(r["status"] == "ok" for r in recs if r["stamp"] < 6.0)
+    tail = [r for r in recs if r["stamp"] >= 6.2]
+    assert tail and not [r for r in tail if r["status"] == "ok"]
+    flagged = [r for r in tail if "slip_beyond_eq1" in r["unusable"]]
+    assert len(flagged) >= 0.9 * len(tail)
+    held = [r for r in flagged if r["status"] == "holding"]
+    assert held and all("beyond eq. 1" in r["reason"] and r["held_for_s"] >= 0.15 for r in held)
+    assert summary.unusable.get("slip_beyond_eq1", 0) >= len(flagged)
+
+
+def test_observer_speed_stays_on_its_encoder_at_a_stall():
+    """A stall under torque: the encoder reads 0.48 rad/s while a large torque acts and the body creeps.
+    The speed state must not leave the encoder (the closed-loop stall on firm soil ran to 7 rad/s)."""
+    v = DEFAULT_VEHICLE
+    fz = normal_forces(v, (0.0, 0.0, 9.81)).tolist()
+    bank = ObserverBank(v, ObserverConfig(), 1)
+    worst = 0.0
+    rng = np.random.default_rng(0)
+    from schemas.sensor import SensorSample
+
+    for i in range(300):
+        # encoder noise (a constant reading would be a held one), and a few spikes, which the gate rejects
+        w = 0.48 + 0.01 * rng.standard_normal() + (3.0 if i % 37 == 20 else 0.0)
+        s = SensorSample(vehicle_id="r", seq=i, stamp=i * 0.01, specific_force=(0.0, 0.0, 9.81), roll=0.0, pitch=0.0,
+                         yaw_rate=0.0, wheel_speed=(w, w, w, w), wheel_torque=(38.0,) * 4,
+                         ground_speed=0.03 + 0.005 * rng.standard_normal())
+        out = bank.step(None, observer_inputs([s], [fz]))
+        if i % 37 != 20 and i > 5:
+            worst = max(worst, float(np.max(np.abs(out.wheel_speed[0] - w))))
+    assert worst < 0.5
+
+
+def test_held_value_says_its_age_and_widens():
+    est = BayesSoilEstimator(DEFAULT_CONSTANTS)
+    g = gross_traction(np.full(4, 0.2), 80.0, DEFAULT_CONSTANTS)
+    t = 0.0
+    for _ in range(200):
+        st = est.update(t, np.full(4, 0.2), g, np.full(4, 1e-4), [True] * 4)
+        t += 0.01
+    assert st.held_for_s == 0.0
+    informed = st.log_k_std
+    ages, stds = [], []
+    for _ in range(600):
+        st = est.update(t, np.full(4, 0.01), g, np.full(4, 1e-4), [True] * 4)
+        t += 0.01
+        ages.append(st.held_for_s)
+        stds.append(st.log_k_std)
+    assert ages[-1] == pytest.approx(6.0, abs=0.02) and st.status == "holding"
+    assert all(b >= a - 1e-12 for a, b in zip(stds, stds[1:]))  # the band never narrows while held
+    assert stds[-1] >= math.hypot(informed, 0.1 * math.sqrt(6.0)) - 1e-9
