@@ -13,6 +13,7 @@ import pytest
 from schemas import keys
 from schemas.map import MapCellUpdate
 from soilocp.analysis.fleet_map import fleet_drives, map_items, mixed_field, score_cells
+from soilocp.map.fusion import FusionConfig
 from soilocp.map.store import open_store
 from soilocp.map.updater import MapUpdater
 from zenoh_helpers import Procs, client, endpoint, free_port, wait_count, wait_for
@@ -117,9 +118,12 @@ def test_two_live_map_services_converge(drives, tmp_path):
         a, b = sorted(a, key=lambda c: c.cell), sorted(b, key=lambda c: c.cell)
         assert [c.cell for c in a] == [c.cell for c in b] == [c.cell for c in ref.store.all_cells(T0)]
         for ca, cb in zip(a, b):
-            # same estimates per (cell, vehicle); only the receive times (the ageing clock) differ by ms
+            # same estimates per (cell, vehicle); only the ageing clocks differ (each service's receive
+            # times and the two queries' times): on a loaded 2-core machine by up to a few seconds, which
+            # moves the variance by q per second of difference and nothing else
             assert (ca.count, ca.vehicles) == (cb.count, cb.vehicles)
-            assert ca.K == pytest.approx(cb.K, rel=1e-6) and ca.log_k_std == pytest.approx(cb.log_k_std, rel=1e-4)
+            assert ca.K == pytest.approx(cb.K, rel=1e-6)
+            assert abs(ca.log_k_std ** 2 - cb.log_k_std ** 2) <= FusionConfig().ageing_rate / 3600.0 * 5.0
         sa = open_store(f"sqlite:{tmp_path / 'a.db'}")
         sb = open_store(pg_url)
         rows_a, rows_b = sa.obs_rows(), sb.obs_rows()

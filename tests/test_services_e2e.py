@@ -89,7 +89,7 @@ def _assert_same_records(live: list[OcpEstimate], offline: list[dict]) -> None:
             lv = ld[k]
             if isinstance(v, float) and isinstance(lv, float):
                 assert math.isclose(lv, v, rel_tol=1e-12, abs_tol=1e-12), (e.seq, k, lv, v)
-            elif isinstance(v, list):
+            elif isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
                 assert lv == pytest.approx(v, rel=1e-12, abs=1e-12), (e.seq, k)
             else:
                 assert lv == v, (e.seq, k, lv, v)

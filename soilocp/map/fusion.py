@@ -111,8 +111,12 @@ def check_estimate(est: SoilEstimate) -> Optional[str]:
     if not MIN_K <= k <= MAX_K:
         raise MapInputError("out_of_range", f"soil_strength: {k!r} outside [{MIN_K:g}, {MAX_K:g}]", "soil_strength",
                             est.seq)
-    if not 0.0 < s <= MAX_LOG_K_STD:
-        raise MapInputError("out_of_range", f"log_k_std: {s!r} outside (0, {MAX_LOG_K_STD:g}]", "log_k_std", est.seq)
+    if not s > 0.0:
+        raise MapInputError("out_of_range", f"log_k_std: {s!r} must be > 0", "log_k_std", est.seq)
+    if s > MAX_LOG_K_STD:
+        # a finite band this wide is the estimator being honest (e.g. small slips under a wheel-radius
+        # uncertainty), not bad input: it carries no weight worth storing, so it is skipped, not refused
+        return "band_too_wide"
     w = est.where  # coordinates and wheel numbers are range-checked by the schema (schemas.position)
     if len(set(w.wheels)) != len(w.wheels):
         raise MapInputError("inconsistent", f"where.wheels: {list(w.wheels)} must be distinct wheel numbers 1..4",
