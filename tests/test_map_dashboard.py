@@ -82,7 +82,7 @@ def test_map_api_gives_cells_with_bands_and_tracks(mapped):
         return v if len(v["cells"]) >= 20 and len(v["tracks"]) == 3 and all(len(t) > 50 for t in v["tracks"].values()) \
             else None
 
-    view = wait_for(ready, 30)
+    view = wait_for(ready, 120)  # the map service commits in batches; a loaded machine needs more than 30 s
     assert view, (_get(url + "/api/map?frame=field"), procs.tail("dashboard"))
     assert view["error"] is None and view["frame"] == "field"
     for c in view["cells"]:
