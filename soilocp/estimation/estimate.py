@@ -6,12 +6,10 @@ reported with their line number and skipped, never fatal.
 
 from __future__ import annotations
 
-import json
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import IO, Callable, Iterable, Iterator, Optional
+from typing import Callable, Iterable, Iterator, Optional
 
+from schemas.sensor import SensorSample
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
 from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
@@ -40,6 +38,20 @@ def estimate_lines(
     summary: Optional[EstimateSummary] = None,
 ) -> Iterator[dict]:
     """Yield one record (a dict) per valid sample; ``full`` adds the intermediate stage outputs."""
+    for _, rec in estimate_samples(lines, config, on_reject=on_reject, full=full, summary=summary):
+        yield rec
+
+
+def estimate_samples(
+    lines: Iterable[str],
+    config: PipelineConfig,
+    *,
+    on_reject: Optional[Callable[[int, SampleRejected], None]] = None,
+    full: bool = False,
+    summary: Optional[EstimateSummary] = None,
+) -> Iterator[tuple[SensorSample, dict]]:
+    """:func:`estimate_lines`, each record with the validated sensor sample it was estimated from
+    (the MCAP export writes both, so the file carries the same channels as the live server)."""
     pipelines: dict[str, VehiclePipeline] = {}
     validators: dict[str, SampleValidator] = {}
     summary = summary if summary is not None else EstimateSummary()
@@ -81,23 +93,5 @@ def estimate_lines(
             rec["filtered_ground_speed"] = ob.ground_speed
             rec["ground_speed_latency"] = ob.ground_speed_latency
             rec["informative"] = list(so.informative)
-        yield rec
+        yield sample, rec
 
-
-def estimate_file(
-    sensors: str | Path,
-    out: str | Path,
-    config: PipelineConfig,
-    *,
-    full: bool = False,
-    err: IO[str] = sys.stderr,
-) -> EstimateSummary:
-    summary = EstimateSummary()
-
-    def report(lineno: int, exc: SampleRejected) -> None:
-        err.write(f"{sensors}:{lineno}: rejected ({exc.code}): {exc.message}\n")
-
-    with open(sensors, encoding="utf-8", errors="replace") as fin, open(out, "w", encoding="utf-8") as fout:
-        for rec in estimate_lines(fin, config, on_reject=report, full=full, summary=summary):
-            fout.write(json.dumps(rec) + "\n")
-    return summary

@@ -7,35 +7,11 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import IO, Iterable, Iterator, Optional
+from typing import IO, Optional
 
-from schemas.sensor import parse_sensor_line
-from soilocp.estimation.estimate import EstimateSummary, estimate_lines
+from soilocp.estimation.estimate import EstimateSummary, estimate_samples
 from soilocp.ingest.align import Provenance, withhold
 from soilocp.estimation.pipeline import PipelineConfig
-
-
-class _LastLine:
-    """The lines of a log, remembering the one last handed out.
-
-    :func:`estimate_lines` pulls one line and yields that line's record before it pulls the next,
-    so when a record comes out, :attr:`line` is the sample it was estimated from."""
-
-    def __init__(self, lines: Iterable[str]):
-        self._lines = lines
-        self.line: Optional[str] = None
-
-    def __iter__(self) -> Iterator[str]:
-        for self.line in self._lines:
-            yield self.line
-
-    def sample_of(self, rec: dict) -> dict:
-        """The sensor sample (as a dict) of the record just yielded; RuntimeError if it is not that record's."""
-        sample = parse_sensor_line(self.line).model_dump()
-        if (sample["vehicle_id"], sample["seq"], sample["stamp"]) != (rec["vehicle_id"], rec["seq"], rec["stamp"]):
-            raise RuntimeError(f"record {rec['vehicle_id']}/{rec['seq']} is not from the last line read "
-                               f"({sample['vehicle_id']}/{sample['seq']}): estimate_lines no longer yields per line")
-        return sample
 
 
 def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
@@ -62,21 +38,20 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
 
         sink = EstimateMcapWriter(out)
 
-        def put(rec: dict) -> None:
-            sink.write_sensor(lines.sample_of(rec))
+        def put(sample, rec: dict) -> None:
+            sink.write_sensor(sample.model_dump())
             sink.write(rec)
     else:
         sink = open(out, "w", encoding="utf-8")
-        put = lambda rec: sink.write(json.dumps(rec) + "\n")  # noqa: E731
+        put = lambda sample, rec: sink.write(json.dumps(rec) + "\n")  # noqa: E731
     withheld = withheld if withheld is not None else {}
     try:
         with open(sensors, encoding="utf-8", errors="replace") as fin:
-            lines = _LastLine(fin)
-            for rec in estimate_lines(lines, config, on_reject=report, full=full, summary=summary):
+            for sample, rec in estimate_samples(fin, config, on_reject=report, full=full, summary=summary):
                 if reason is not None:
                     withheld[rec["status"]] = withheld.get(rec["status"], 0) + 1
                     rec = withhold(rec, reason)
-                put(rec)
+                put(sample, rec)
     finally:
         sink.close()
     if reason is not None:  # the statuses reported are the ones written
