@@ -148,17 +148,20 @@ class MapService:
             self.log.error("query_prepare_failed", error=f"{type(exc).__name__}: {exc}"[:300])
         while not self.stop.is_set():
             try:
-                query = self.queries.get(timeout=0.1)
+                query = self.queries.get(timeout=0.05)
             except queue.Empty:
+                try:  # idle: the last commits and the ageing clock's next step, before a query needs them
+                    self.store.prepare_replies()
+                except Exception as exc:
+                    self.log.warning("query_prepare_failed", error=f"{type(exc).__name__}: {exc}"[:300])
                 continue
             try:
                 frame, box, limit = parse_query(str(query.selector.parameters))
-                now = time.time()
                 # the columns come from the store's own fusion (finite, positive by construction), written
                 # as JSON from memory (soilocp.map.replies): MapQueryReply's fields, not re-validated per query
-                cols, _n, cut = self.store.query_json(frame, box, now, limit or self.cfg.query_limit)
+                cols, _n, cut, aged_to = self.store.query_json(frame, box, time.time(), limit or self.cfg.query_limit)
                 head = to_json({"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box,
-                                "truncated": cut, "time": now}).decode()
+                                "truncated": cut, "time": aged_to}).decode()
                 query.reply(keys.map_key(self.cfg.map_id, "query"), f'{head[:-1]},"columns":{cols}}}')
             except ValueError as exc:
                 query.reply_err(str(exc))

@@ -191,10 +191,11 @@ class MapStore:
         return ver, rows
 
     def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                   ) -> tuple[str, int, bool]:
+                   ) -> tuple[str, int, bool, float]:
         """:meth:`query_columns` as the JSON of the reply's ``columns`` (schemas.map.MapCellColumns),
-        their number and whether ``limit`` cut them; from memory, kept up to date from the cells'
-        commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
+        their number, whether ``limit`` cut them, and the time they are aged to (``now`` on the
+        replies' ageing clock: the start of its one-second step); from memory, kept up to date from
+        the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
         return self._replies().columns_json(frame, bbox, now, limit)
 
     def _replies(self):
@@ -205,9 +206,10 @@ class MapStore:
             cache = self._local.replies = ReplyCache(self)
         return cache
 
-    def prepare_replies(self) -> None:
-        """Lay out the stored cells for :meth:`query_json` on this thread now, not at its first query."""
-        self._replies().prepare()
+    def prepare_replies(self, now: Optional[float] = None) -> None:
+        """Lay out the stored cells for :meth:`query_json` on this thread now, not at its first query;
+        again between queries: the last commits, and the ageing clock's next step ahead of it."""
+        self._replies().warm(now)
 
     def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
                   ) -> tuple[list[MapCell], bool]:
