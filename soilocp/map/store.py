@@ -21,6 +21,7 @@ import os
 import sqlite3
 import threading
 from collections.abc import Sequence
+from contextlib import closing
 from typing import Optional
 
 from schemas.map import MapCell
@@ -132,19 +133,26 @@ class MapStore:
         one per (cell, vehicle)), and the ledger ``{vehicle: (last seq, estimates applied)}``.
         Returns after the commit; raises (rolled back) otherwise."""
         c = self._conn()
-        cur = c.cursor()
-        gap = self.fusion.restart_gap_s
         try:
-            cur.executemany(self._sql(self._insert_cells_sql()),
-                            sorted({(o.cell.cell, o.cell.frame, o.cell.cx, o.cell.cy) for o, _n in batch}))
-            cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
-                                                      o.seen_at, n, gap) for o, n in batch])
-            cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
-            self._refresh(cur, batch)
+            with closing(c.cursor()) as cur:
+                self._apply(cur, batch, ledger)
             c.commit()
         except BaseException:
             c.rollback()
             raise
+
+    def _apply(self, cur, batch: Sequence[tuple[Observation, int]], ledger: dict[str, tuple[int, int]]) -> None:
+        """:meth:`apply`'s statements on ``cur``, inside its transaction (the same SQL for both databases)."""
+        gap = self.fusion.restart_gap_s
+        cur.executemany(self._sql(self._insert_cells_sql()), sorted({self._cell_row(o.cell) for o, _n in batch}))
+        cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
+                                                  o.seen_at, n, gap) for o, n in batch])
+        cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
+        self._refresh(cur, batch)
+
+    def _cell_row(self, cell) -> tuple:
+        """The parameters of :meth:`_insert_cells_sql` for a cell."""
+        return (cell.cell, cell.frame, cell.cx, cell.cy)
 
     def _refresh(self, cur, batch) -> None:
         """Re-fuse the batch's cells from their rows, in the same transaction (fusion.fuse_cells)."""
@@ -339,22 +347,8 @@ class PostgresStore(MapStore):
         return ("INSERT INTO cells (cell, frame, cx, cy, geom) VALUES (?, ?, ?, ?, ST_MakePoint(?, ?)) "
                 "ON CONFLICT (cell) DO NOTHING")
 
-    def apply(self, batch, ledger) -> None:
-        c = self._conn()
-        gap = self.fusion.restart_gap_s
-        try:
-            with c.cursor() as cur:
-                cur.executemany(self._sql(self._insert_cells_sql()),
-                                sorted({(o.cell.cell, o.cell.frame, o.cell.cx, o.cell.cy, o.cell.cx, o.cell.cy)
-                                        for o, _n in batch}))
-                cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
-                                                          o.seen_at, n, gap) for o, n in batch])
-                cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
-                self._refresh(cur, batch)
-            c.commit()
-        except BaseException:
-            c.rollback()
-            raise
+    def _cell_row(self, cell) -> tuple:
+        return (cell.cell, cell.frame, cell.cx, cell.cy, cell.cx, cell.cy)  # the centre again for the PostGIS point
 
     def _box_sql(self) -> str:
         return _FUSED + "AND frame = ? AND geom && ST_MakeEnvelope(?, ?, ?, ?, 0)"
