@@ -161,8 +161,8 @@ class MapService:
                 # as JSON from memory (soilocp.map.replies): MapQueryReply's fields, not re-validated per query
                 cols, _n, cut, aged_to = self.store.query_json(frame, box, time.time(), limit or self.cfg.query_limit)
                 head = to_json({"schema_version": 1, "map_id": self.cfg.map_id, "frame": frame, "bbox": box,
-                                "truncated": cut, "time": aged_to}).decode()
-                query.reply(keys.map_key(self.cfg.map_id, "query"), f'{head[:-1]},"columns":{cols}}}')
+                                "truncated": cut, "time": aged_to})
+                query.reply(keys.map_key(self.cfg.map_id, "query"), b"".join((head[:-1], b',"columns":', cols, b"}")))
             except ValueError as exc:
                 query.reply_err(str(exc))
             except Exception as exc:

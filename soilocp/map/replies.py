@@ -42,34 +42,40 @@ _FIXED = ("cell", "cx", "cy", "K", "count", "last_seen", "vehicles")
 _AGED = ("log_k_std", "K_lo", "K_hi")
 
 
-def _fragments(values: Sequence) -> list[str]:
-    """Each value's JSON text; numbers with one serialiser call for the whole list (no commas in them)."""
-    if not values:
-        return []
-    if isinstance(values[0], (int, float)):
-        return to_json(list(values)).decode()[1:-1].split(",")
-    return [json.dumps(v, separators=(",", ":")) for v in values]
-
-
 class _Text:
-    """A field's fragments joined once, with each cell's place in the text: the cells lo..hi-1
-    (a run of consecutive cells) are one slice, ``text[off[lo]:off[hi] - 1]``."""
+    """A field's values as one JSON text (ASCII bytes, comma-separated), with each cell's offset in
+    it: the cells lo..hi-1 (a run of consecutive cells) are one slice, ``text[off[lo]:off[hi] - 1]``."""
 
     __slots__ = ("text", "off")
 
-    def __init__(self, frag: list[str]):
-        self.text = ",".join(frag)
-        self.off = np.concatenate([[0], np.cumsum(np.fromiter(map(len, frag), dtype=np.int64, count=len(frag)) + 1)])
+    def __init__(self, text: bytes, off: np.ndarray):
+        self.text, self.off = text, off
 
-    def runs(self, lo: np.ndarray, hi: np.ndarray, out: list[str]) -> None:
+    @classmethod
+    def of_numbers(cls, values: list) -> "_Text":
+        """Numbers: one serialiser call for the whole list, the offsets from its commas (numbers have none)."""
+        if not values:
+            return cls(b"", np.zeros(1, dtype=np.int64))
+        text = to_json(values)[1:-1]
+        commas = np.flatnonzero(np.frombuffer(text, dtype=np.uint8) == 44)
+        return cls(text, np.concatenate([[0], commas + 1, [len(text) + 1]]))
+
+    @classmethod
+    def of_json(cls, values: Sequence) -> "_Text":
+        """Strings or lists (commas inside): each value written alone (json.dumps: ASCII), offsets from their lengths."""
+        frag = [json.dumps(v, separators=(",", ":")).encode() for v in values]
+        return cls(b",".join(frag), np.concatenate([[0], np.cumsum(np.fromiter(map(len, frag), dtype=np.int64,
+                                                                                 count=len(frag)) + 1)]))
+
+    def runs(self, lo: np.ndarray, hi: np.ndarray, out: list[bytes]) -> None:
         """Append the JSON list of the runs lo..hi to ``out`` (slices and commas: the reply is joined once)."""
         t = self.text
-        out.append("[")
+        out.append(b"[")
         for a, b in zip(self.off[lo].tolist(), (self.off[hi] - 1).tolist()):
-            out += (t[a:b], ",")
+            out += (t[a:b], b",")
         if lo.size:
             out.pop()
-        out.append("]")
+        out.append(b"]")
 
 
 class _Frame:
@@ -86,9 +92,9 @@ class _Frame:
         cx, cy, lk, var, t, n, last, veh = zip(*rs) if rs else ((),) * 8
         self.cx, self.cy = np.asarray(cx, dtype=float), np.asarray(cy, dtype=float)
         self.ln_k, self.var, self.t = np.asarray(lk, dtype=float), np.asarray(var, dtype=float), np.asarray(t, dtype=float)
-        values = {"cell": cells, "cx": cx, "cy": cy, "K": np.exp(self.ln_k).tolist(), "count": n, "last_seen": last,
-                  "vehicles": [v.split(",") for v in veh]}
-        self.fixed = {name: _Text(_fragments(values[name])) for name in _FIXED}
+        self.fixed = {"cell": _Text.of_json(cells), "cx": _Text.of_numbers(list(cx)), "cy": _Text.of_numbers(list(cy)),
+                      "K": _Text.of_numbers(np.exp(self.ln_k).tolist()), "count": _Text.of_numbers(list(n)),
+                      "last_seen": _Text.of_numbers(list(last)), "vehicles": _Text.of_json([v.split(",") for v in veh])}
         self.stale = False
         self.aged = {}
 
@@ -98,7 +104,7 @@ class _Frame:
         current step's and the next's, laid out ahead)."""
         s = np.sqrt(self.var + q_per_s * np.maximum(at - self.t, 0.0))
         cols = {"log_k_std": s, "K_lo": np.exp(self.ln_k - BAND_Z * s), "K_hi": np.exp(self.ln_k + BAND_Z * s)}
-        texts = {name: _Text(_fragments(cols[name].tolist())) for name in _AGED}
+        texts = {name: _Text.of_numbers(cols[name].tolist()) for name in _AGED}
         latest = max(self.aged, default=None)
         self.aged = {at: texts} if latest is None else {latest: self.aged[latest], at: texts}
 
@@ -116,7 +122,7 @@ class _Frame:
         brk = np.flatnonzero(np.diff(idx) != 1) + 1
         return idx[np.concatenate([[0], brk])], idx[np.concatenate([brk - 1, [idx.size - 1]])] + 1, int(idx.size), bool(cut)
 
-    def text(self, name: str, lo: np.ndarray, hi: np.ndarray, at: float, out: list[str]) -> None:
+    def text(self, name: str, lo: np.ndarray, hi: np.ndarray, at: float, out: list[bytes]) -> None:
         """Append the JSON list of field ``name`` (aged to ``at``) over the runs lo..hi to ``out``."""
         (self.aged[at] if name in _AGED else self.fixed)[name].runs(lo, hi, out)
 
@@ -169,7 +175,7 @@ class ReplyCache:
         for f in self.frames.values():
             self._ready(f, at)
 
-    def columns_json(self, frame: str, bbox: Sequence[float], now: float, limit: int) -> tuple[str, int, bool, float]:
+    def columns_json(self, frame: str, bbox: Sequence[float], now: float, limit: int) -> tuple[bytes, int, bool, float]:
         """The reply's ``columns`` (schemas.map.MapCellColumns) as JSON for the cells of ``frame``
         whose centre lies in ``bbox``, ordered by centre (x, then y); their number; whether
         ``limit`` cut them; and the time they are aged to (:meth:`aged_to` of ``now``)."""
@@ -178,9 +184,9 @@ class ReplyCache:
         at = self.aged_to(now)
         self._ready(f, at)
         lo, hi, n, cut = f.select(bbox, limit)
-        out = [f'{{"frame":{json.dumps(frame)}']
+        out = [b'{"frame":' + json.dumps(frame).encode()]
         for name in _FIXED + _AGED:
-            out.append(f',"{name}":')
+            out.append(b',"' + name.encode() + b'":')
             f.text(name, lo, hi, at, out)
-        out.append("}")
-        return "".join(out), n, cut, at
+        out.append(b"}")
+        return b"".join(out), n, cut, at

@@ -199,8 +199,8 @@ class MapStore:
         return ver, rows
 
     def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                   ) -> tuple[str, int, bool, float]:
-        """:meth:`query_columns` as the JSON of the reply's ``columns`` (schemas.map.MapCellColumns),
+                   ) -> tuple[bytes, int, bool, float]:
+        """:meth:`query_columns` as the JSON (bytes) of the reply's ``columns`` (schemas.map.MapCellColumns),
         their number, whether ``limit`` cut them, and the time they are aged to (``now`` on the
         replies' ageing clock: the start of its one-second step); from memory, kept up to date from
         the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
