@@ -128,7 +128,7 @@ class _Frame:
 
 
 class ReplyCache:
-    """Box replies of one store, for one reading thread (the map service's query worker)."""
+    """Box replies of one store, for one caller at a time (the map service holds a lock)."""
 
     def __init__(self, store: "MapStore", age_step_s: float = 1.0):
         if not (math.isfinite(age_step_s) and age_step_s > 0):
@@ -175,14 +175,23 @@ class ReplyCache:
         for f in self.frames.values():
             self._ready(f, at)
 
-    def columns_json(self, frame: str, bbox: Sequence[float], now: float, limit: int) -> tuple[bytes, int, bool, float]:
+    def columns_json(self, frame: str, bbox: Sequence[float], now: float, limit: int, ready_only: bool = False
+                     ) -> Optional[tuple[bytes, int, bool, float]]:
         """The reply's ``columns`` (schemas.map.MapCellColumns) as JSON for the cells of ``frame``
         whose centre lies in ``bbox``, ordered by centre (x, then y); their number; whether
-        ``limit`` cut them; and the time they are aged to (:meth:`aged_to` of ``now``)."""
-        self.refresh()
-        f = self.frames.get(frame) or _Frame()
+        ``limit`` cut them; and the time they are aged to (:meth:`aged_to` of ``now``).
+        ``ready_only``: from what is laid out already, without reading the store (the caller knows
+        nothing was committed since the last refresh), or None when the frame is not laid out for
+        that time."""
         at = self.aged_to(now)
-        self._ready(f, at)
+        if ready_only:
+            f = self.frames.get(frame)
+            if f is None or f.stale or at not in f.aged:
+                return None
+        else:
+            self.refresh()
+            f = self.frames.get(frame) or _Frame()
+            self._ready(f, at)
         lo, hi, n, cut = f.select(bbox, limit)
         out = [b'{"frame":' + json.dumps(frame).encode()]
         for name in _FIXED + _AGED:

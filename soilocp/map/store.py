@@ -73,6 +73,7 @@ class MapStore:
         self._adopt = cells is None
         self.cell_config, self.fusion = cells or CellConfig(), fusion
         self._local = threading.local()
+        self._reply_cache = None
 
     # --- dialect ---------------------------------------------------------------------------------
     def _connect(self):
@@ -198,25 +199,26 @@ class MapStore:
         self._end_read()
         return ver, rows
 
-    def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                   ) -> tuple[bytes, int, bool, float]:
+    def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000, ready_only: bool = False
+                   ) -> Optional[tuple[bytes, int, bool, float]]:
         """:meth:`query_columns` as the JSON (bytes) of the reply's ``columns`` (schemas.map.MapCellColumns),
         their number, whether ``limit`` cut them, and the time they are aged to (``now`` on the
         replies' ageing clock: the start of its one-second step); from memory, kept up to date from
-        the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
-        return self._replies().columns_json(frame, bbox, now, limit)
+        the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`: one per store, for one
+        caller at a time).  ``ready_only``: None unless the frame is laid out for that time already
+        (no read of the store: the caller knows nothing was committed since the last read)."""
+        return self._replies().columns_json(frame, bbox, now, limit, ready_only)
 
     def _replies(self):
         from soilocp.map.replies import ReplyCache
 
-        cache = getattr(self._local, "replies", None)
-        if cache is None:
-            cache = self._local.replies = ReplyCache(self)
-        return cache
+        if self._reply_cache is None:
+            self._reply_cache = ReplyCache(self)
+        return self._reply_cache
 
     def prepare_replies(self, now: Optional[float] = None) -> None:
-        """Lay out the stored cells for :meth:`query_json` on this thread now, not at its first query;
-        again between queries: the last commits, and the ageing clock's next step ahead of it."""
+        """Lay out the stored cells for :meth:`query_json` now, not at its first query; again between
+        queries: the last commits, and the ageing clock's next step ahead of it."""
         self._replies().warm(now)
 
     def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
