@@ -238,6 +238,13 @@ class MapService:
             declared.append(session.declare_queryable(mk("query"), self._on_query))
             declared.append(session.declare_queryable(mk("status"), self._on_status_query))
             declared.append(session.declare_subscriber(keys.any_vehicle_soil(), self._on_estimate))
+            with self._replies_lock:  # the replies laid out before the token says the service is here
+                self._dirty.clear()  # before reading: a commit landing meanwhile sets it again
+                try:
+                    self.store.prepare_replies()
+                except Exception as exc:  # the query worker tries again, and a query answers with the error
+                    self._dirty.set()
+                    log.warning("query_prepare_failed", error=f"{type(exc).__name__}: {exc}"[:300])
             token = session.liveliness().declare_token(mk("alive"))
             log.info("running", map_id=cfg.map_id, store=_public_url(self.store.url), cells=self._n_cells)
             next_status = 0.0
