@@ -3,8 +3,9 @@
 
 Thin: the library's :class:`soilocp.map.prior.MapPrior` decides when the vehicle enters a mapped
 cell and hands the stage the map's K and band (``SoilStage(config, prior)``, as the offline path
-``VehiclePipeline(prior=...)``).  This adapter only keeps the prior's cells: a thread asks the map
-service (``soilmap/<map_id>/query``, :func:`services.map.client.query_map`) for the box around the
+``VehiclePipeline(prior=...)``).  This adapter only keeps the prior's cells (:class:`MapPriorFeed`,
+also the batched service's, ``services.stages.batch``): a thread asks the map service
+(``soilmap/<map_id>/query``, :func:`services.map.client.query_map`) for the box around the
 vehicle's last position, never the worker, which does not wait for the network.  Counted in the
 health detail: ``map_prior_entered`` (priors given), ``map_prior_cells``, ``map_prior_queries``,
 ``map_prior_failures``."""
