@@ -138,16 +138,19 @@ def test_two_live_map_services_converge(drives, tmp_path):
         pg.stop()
 
 
-def test_a_vehicle_that_trusts_the_map_converges_at_once_after_a_terrain_change(drives, tmp_path):
-    """Second pass over bravo's row (gravel -> firm), the same samples through two estimators: one
-    starts its belief from the map on entering each mapped cell, one does not."""
-    from soilocp.analysis.fleet_map import FLEET, second_pass
+@pytest.mark.parametrize("vid", ["bravo2", "charlie2"])
+def test_a_vehicle_that_trusts_the_map_converges_at_once_after_a_terrain_change(drives, tmp_path, vid):
+    """Second pass over bravo's row (gravel -> firm) and charlie's column (grass -> firm: the rear
+    axle still on grass when the front enters the firm cell), the same samples through two
+    estimators: one starts its belief from the map on entering each mapped cell, one does not."""
+    from soilocp.analysis.fleet_map import SECOND_PASSES, second_pass
 
     st = open_store(f"sqlite:{tmp_path / 'fleet.db'}")
     up = MapUpdater(st)
     up.apply(map_items(drives, T0))
-    r = second_pass(st.all_cells(T0 + 60.0), "bravo2", FLEET["bravo"], 23.0, seed=11)
-    print(f"second pass: K within 10 % of {r.k_new:g} for 1 s after {r.with_map_s:.2f} s with the map, "
+    start, length, seed = SECOND_PASSES[vid]
+    r = second_pass(st.all_cells(T0 + 60.0), vid, start, length, seed=seed)
+    print(f"second pass {vid}: K within 10 % of {r.k_new:g} for 1 s after {r.with_map_s:.2f} s with the map, "
           f"{r.without_map_s:.2f} s without ({r.priors_given} cells entered)")
     assert r.k_new == 300.0 and r.priors_given >= 4
     assert r.without_map_s >= 3 * r.with_map_s and r.without_map_s > 0.1

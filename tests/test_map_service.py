@@ -193,6 +193,47 @@ def test_rejections_status_query_and_export(tmp_path):
         procs.close()
 
 
+def test_a_query_after_an_acknowledgement_sees_it(tmp_path):
+    """Box replies are laid out in memory and answered in the Zenoh callback while nothing was
+    committed since; a commit marks them out of date before it is acknowledged, so a query sent
+    on the acknowledgement finds the new cell, every time (and queries in between, none
+    changed, answer the same cells)."""
+    from schemas.map import MapQueryReply
+
+    procs = Procs(tmp_path / "logs")
+    ep = endpoint(free_port())
+    try:
+        procs.spawn("router", ["router", "--listen", ep])
+        procs.spawn("map", ["service", "map", "--map-id", "m", "--connect", ep, "--store",
+                            f"sqlite:{tmp_path / 'map.db'}", "--cell-size", "2"])
+        acks, acked = Acks(), threading.Event()
+
+        def on_ack(sample):
+            acks(sample)
+            acked.set()
+
+        sel = keys.map_key("m", "query") + "?frame=f;bbox=0,0,100,100"
+        with client(ep) as s:
+            sub = s.declare_subscriber(keys.map_key("m", "cells"), on_ack)
+            assert _map_alive(s, "m"), procs.tail("map")
+
+            def cells():
+                (r,) = [MapQueryReply.model_validate_json(x.ok.payload.to_bytes()) for x in s.get(sel, timeout=5)]
+                return r.columns.cell
+
+            assert cells() == []
+            for i in range(1, 16):
+                acked.clear()
+                s.put(keys.soil("r1"), estimate("r1", i, 100.0 + i, 0.2, xy=((2.0 * i + 1, 1.0),)).model_dump_json())
+                assert acked.wait(20) and acks.totals.get("r1") == i, procs.tail("map")
+                got = cells()  # sent on the acknowledgement
+                assert got == [f"f/2/{j}/0" for j in range(1, i + 1)], (i, got)
+                assert cells() == got  # nothing committed since: the same
+            sub.undeclare()
+    finally:
+        procs.close()
+
+
 @pytest.mark.e2e
 def test_live_vehicle_services_feed_the_map(tmp_path):
     """`soilocp run --synthetic mixed` with a start pose (SOILOCP_START_POSE): the live observer and

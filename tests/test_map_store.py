@@ -220,9 +220,10 @@ def test_postgresql_postgis_store_gives_the_same_cells(tmp_path, pg):
 def _reply_equals_columns(store, frame, box, now, limit=100_000):
     from schemas.map import MapCellColumns
 
-    text, n, cut = store.query_json(frame, box, now, limit)
+    text, n, cut, aged_to = store.query_json(frame, box, now, limit)
+    assert now - 1.0 < aged_to <= now  # the replies' ageing clock steps once a second
     got = MapCellColumns.model_validate_json(text)  # the reply's own schema
-    want, want_cut = store.query_columns(frame, box, now, limit)
+    want, want_cut = store.query_columns(frame, box, aged_to, limit)
     assert (n, cut) == (len(want["cell"]), want_cut)
     for name in ("cell", "cx", "cy", "count", "last_seen", "vehicles"):
         assert getattr(got, name) == want[name], name

@@ -107,6 +107,16 @@ def _with_common(f):
     return f
 
 
+def _cells_or_exit(command: str, store_url, connect, map_id, frame, bbox, timeout):
+    """The box and its cells (:func:`_cells`); exit status 1 with the reason when they cannot be read."""
+    box = _bbox(bbox)
+    try:
+        return box, _cells(store_url, connect, map_id, frame, box, timeout)
+    except (ValueError, RuntimeError) as exc:
+        click.echo(f"soilocp map {command}: {exc}", err=True)
+        sys.exit(1)
+
+
 @click.group("map")
 def map_group() -> None:
     """The fleet soil map: query it, export it (docs/map.md)."""
@@ -117,12 +127,7 @@ def map_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="One JSON object (MapQueryReply's cells) instead of a table.")
 def map_query(store_url, connect, map_id, frame, bbox, timeout, as_json) -> None:
     """The cells in a box: K, its 95 % band, count, last seen, vehicles."""
-    box = _bbox(bbox)
-    try:
-        cells = _cells(store_url, connect, map_id, frame, box, timeout)
-    except (ValueError, RuntimeError) as exc:
-        click.echo(f"soilocp map query: {exc}", err=True)
-        sys.exit(1)
+    box, cells = _cells_or_exit("query", store_url, connect, map_id, frame, bbox, timeout)
     if as_json:
         click.echo(json.dumps({"frame": frame or WGS84, "bbox": box, "cells": [c.model_dump(mode="json") for c in cells]}))
         return
@@ -152,12 +157,7 @@ def map_export(store_url, connect, map_id, frame, bbox, timeout, out, grid_out) 
     if not out and not grid_out:
         click.echo("soilocp map export: give --geojson FILE and/or --foxglove-grid FILE.mcap", err=True)
         sys.exit(2)
-    box = _bbox(bbox)
-    try:
-        cells = _cells(store_url, connect, map_id, frame, box, timeout)
-    except (ValueError, RuntimeError) as exc:
-        click.echo(f"soilocp map export: {exc}", err=True)
-        sys.exit(1)
+    box, cells = _cells_or_exit("export", store_url, connect, map_id, frame, bbox, timeout)
     if out:
         with open(out, "w", encoding="utf-8") as f:
             json.dump(feature_collection(cells), f)

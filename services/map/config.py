@@ -7,11 +7,11 @@ import os
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.map import MAP_ID_PATTERN
 
-from services.runtime.config import DEFAULT_ENDPOINT, ConfigError, check_endpoint, env_settings
+from services.runtime.config import DEFAULT_ENDPOINT, ConfigError, Endpoints, env_settings
 from soilocp.map.cells import CellConfig
 from soilocp.map.fusion import FusionConfig
 
@@ -25,8 +25,8 @@ class MapServiceConfig(BaseModel):
     map_id: str = Field("fleet", pattern=MAP_ID_PATTERN, description="This map's id: its keys are soilmap/<map_id>/...")
     store: str = Field("soilmap.db", description="sqlite:PATH (or a path) or postgresql://user@host/db")
     mode: Literal["client", "peer"] = "client"
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
-    listen: list[str] = Field(default_factory=list)
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    listen: Endpoints = Field(default_factory=list)
     multicast: bool = False
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     cells: CellConfig = Field(default_factory=CellConfig)
@@ -37,13 +37,6 @@ class MapServiceConfig(BaseModel):
     query_limit: int = Field(50_000, ge=1, description="Cells per query reply at most")
     status_period_s: float = Field(1.0, gt=0, le=3600)
     connect_retry_s: float = Field(1.0, gt=0, le=60)
-
-    @field_validator("connect", "listen")
-    @classmethod
-    def _endpoints(cls, value: list[str]) -> list[str]:
-        for ep in value:
-            check_endpoint(ep)
-        return value
 
 
 def load_map_config(config_path: Optional[str], overrides: dict[str, Any],

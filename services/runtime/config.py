@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.sensor import VehicleId
 
@@ -30,6 +30,16 @@ ENV_EXIT_WITH_PARENT = "SOILOCP_EXIT_WITH_PARENT"
 
 class ConfigError(Exception):
     """A fatal configuration problem: the process prints one line and exits with status 2."""
+
+
+def _check_endpoints(value: list[str]) -> list[str]:
+    for ep in value:
+        check_endpoint(ep)
+    return value
+
+
+#: A ``connect`` / ``listen`` list of endpoints, each checked (:func:`check_endpoint`); every process's settings
+Endpoints = Annotated[list[str], AfterValidator(_check_endpoints)]
 
 
 class MapPriorConfig(BaseModel):
@@ -55,8 +65,8 @@ class ServiceConfig(BaseModel):
 
     vehicle_ids: list[VehicleId] = Field(default_factory=lambda: ["rover1"], min_length=1)
     mode: Literal["client", "peer"] = "client"
-    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
-    listen: list[str] = Field(default_factory=list)
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    listen: Endpoints = Field(default_factory=list)
     multicast: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stale_timeout_s: float = Field(0.5, gt=0, le=3600, description="OCP publisher: stale after this much silence")
@@ -72,13 +82,6 @@ class ServiceConfig(BaseModel):
     map_prior: Optional[MapPriorConfig] = Field(None, description="Soil-strength: start the belief from a fleet "
                                                 "soil map (opt-in; env SOILOCP_MAP_PRIOR)")
 
-    @field_validator("connect", "listen")
-    @classmethod
-    def _endpoints(cls, value: list[str]) -> list[str]:
-        for ep in value:
-            check_endpoint(ep)
-        return value
-
     @property
     def vehicle_id(self) -> str:
         return self.vehicle_ids[0]
@@ -89,6 +92,8 @@ def check_endpoint(ep: object) -> str:
     if not isinstance(ep, str) or "/" not in ep or ep.startswith("/") or ep.endswith("/") or any(c.isspace() for c in ep):
         raise ValueError(f"endpoint {ep!r} is invalid: expected 'proto/address', e.g. {DEFAULT_ENDPOINT}")
     return ep
+
+
 
 
 def _split_list(text: str) -> list[str]:

@@ -52,7 +52,13 @@ class BatchOcpService(OcpService):
         pc = pipeline_config(cfg)
         self.vids = list(cfg.vehicle_ids)
         self.index = {vid: i for i, vid in enumerate(self.vids)}
-        self.batch = BatchPipeline(pc, len(self.vids))
+        # the soil-strength service's opt-in map prior (map_prior / SOILOCP_MAP_PRIOR), the same feed and prior
+        self.feed = None
+        if cfg.map_prior is not None:
+            from services.stages.soil_map_prior import MapPriorFeed
+
+            self.feed = MapPriorFeed(self, cfg.map_prior, self.vids, pc.vehicle)
+        self.batch = BatchPipeline(pc, len(self.vids), None if self.feed is None else [self.feed.priors[v] for v in self.vids])
         self.pending: dict[str, deque] = {vid: deque() for vid in self.vids}
         self.n_pending = 0
         self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)
@@ -95,7 +101,14 @@ class BatchOcpService(OcpService):
             idx = np.array([self.index[v] for v in vids])
             # normal forces of every stepped vehicle in one call (zero-warp solution, eqs. 21-25)
             fz = normal_forces(self.vehicle, np.array([s.specific_force for s in samples], dtype=float))
+            if self.feed is not None:
+                before = [self.feed.priors[v].entered for v in vids]
+                for vid, s in zip(vids, samples):
+                    self.feed.saw(vid, s)
             out = self.batch.step(idx, samples, fz)
+            if self.feed is not None:
+                for vid, s, b in zip(vids, samples, before):
+                    self.feed.count(vid, s.seq, b)
             self.steps += 1
             for vid, est in zip(vids, out):
                 self.stores[vid].add(est)

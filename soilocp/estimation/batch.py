@@ -34,9 +34,13 @@ class BatchPipeline:
     """Observer -> slip + soil strength -> OCPs for N vehicles (normal forces come from outside,
     as in the services: the normal-force stage is cheap and per sample)."""
 
-    def __init__(self, config: PipelineConfig | None, n_vehicles: int):
+    def __init__(self, config: PipelineConfig | None, n_vehicles: int, priors: Sequence | None = None):
         self.config = cfg = config or PipelineConfig()
         self.n_vehicles = check_count(n_vehicles)
+        # opt-in: each vehicle's fleet-map prior (soilocp.map.prior.MapPrior, or None), as SoilStage's
+        self.priors = list(priors) if priors is not None else None
+        if self.priors is not None and len(self.priors) != self.n_vehicles:
+            raise ValueError(f"priors: {len(self.priors)} given for {self.n_vehicles} vehicles")
         if cfg.soil.method != "bayes":
             raise ValueError(f"soil method {cfg.soil.method!r}: the batched pipeline implements 'bayes' only")
         self.observer = ObserverBank(cfg.vehicle, cfg.observer, self.n_vehicles)
@@ -55,6 +59,10 @@ class BatchPipeline:
         inputs, scale_sigma = self.scale.apply(ix, observer_inputs(samples, normal_forces))
         ob = self.observer.step(ix, inputs)
         inp = self.gate.step(ix, inputs.stamp, ob)
+        if self.priors is not None:
+            from soilocp.map.prior import start_from_map
+
+            inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples, inp)
         states = self.soil.update(ix, inputs.stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed,
                                   inp.ground_stale, inp.span, inp.slip_ends, scale_sigma, unusable=inp.unusable)

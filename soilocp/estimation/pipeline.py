@@ -372,13 +372,13 @@ class SoilStage:
         Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
         with its probability, and a status that says when K is not determined, not observable, or
         not explained by the traction curve (§11-13), with the reason."""
-        if self.prior is not None and self.bank is not None:
-            start = self.prior(obs)
-            if start is not None:
-                self.bank.start_belief(0, *start)
         ob = observer_output(obs)
         stamp = np.array([obs.stamp])
         inp = self.gate.step(_ZERO, stamp, ob)
+        if self.prior is not None and self.bank is not None:
+            from soilocp.map.prior import start_from_map
+
+            inp = start_from_map([self.prior], self.bank, _ZERO, [obs], inp)
         if self.bank is not None:
             st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,

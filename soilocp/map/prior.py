@@ -2,17 +2,24 @@
 soil belief starts over from the map's K for that cell, with the map's band
 (:meth:`soilocp.estimation.soil_strength.SoilBank.start_belief`).  The belief then learns from the
 vehicle's own wheels as usual; the map only replaces "nothing known" (or the last soil) at the
-moment the ground may have changed.  docs/map.md measures what it buys."""
+moment the ground may have changed.  Until the rear axle has left the ground the front axle just
+left, the wheels whose contact patch is still there do not inform that belief: it is the new
+cell's, and they stand on another soil.  :func:`start_from_map` is the one step both estimators
+(``SoilStage``, ``BatchPipeline``) take.  docs/map.md measures what it buys."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Optional, Sequence
+
+import numpy as np
 
 from schemas.map import WGS84, MapCell
 from schemas.pipeline import ObserverOutput
 
 from soilocp.map.cells import CellConfig, CellIndex
+from soilocp.map.place import wgs84_radii, wheel_offsets
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
@@ -20,13 +27,16 @@ _M_PER_DEG = 111_320.0  # metres per degree of latitude: distances for rearm_m i
 
 
 class MapPrior:
-    """``prior(obs) -> (ln K, 1-sigma of ln K)`` when the front axle enters a mapped cell, else None.
+    """``prior(obs) -> (ln K, 1-sigma of ln K)`` when the front axle enters a mapped cell, else None;
+    :meth:`informing` says which wheels may inform the belief now.
 
     The front axle meets a new soil first, so the belief starts from the map's K there at once.
-    (The rear wheels, on the old soil for one wheelbase more, then pull the one belief back: on the
-    grass -> firm crossing of docs/map.md this costs the map its lead.  Starting again when the rear
-    axle enters was tried: it wins that crossing, 0.44 s against 1.05 s, but the estimator reports
-    one sample 11 % low at each such restart, which loses the sand -> grass one.)
+    The rear wheels stay on the cell just left for one wheelbase more: their slip and traction are
+    of that soil, not the one the belief now stands for, so until they leave it they do not inform
+    it (:meth:`informing`).  Letting them in pulled the one belief back to the old soil (grass ->
+    firm in docs/map.md: 1.05 s with the map against 1.08 s without); starting the belief again
+    when the rear axle enters instead won that crossing (0.44 s) but reported one sample 11 % low
+    at each restart, which lost the sand -> grass one.
     Coming back into the cell just left, within ``rearm_m`` of where it was left, is no new ground:
     a front axle driving along a cell border wanders across it, and restarting the belief at each
     crossing would throw away what the wheels learnt (seen live, docs/map.md §4).
@@ -43,6 +53,9 @@ class MapPrior:
         self.rearm_m = rearm_m
         self._left: Optional[tuple[str, tuple[float, float]]] = None  # the cell just left and where
         self.entered = 0  # priors given
+        self.vehicle = vehicle
+        self._behind: Optional[str] = None  # the cell the front axle left when the belief took the map's
+        self.withheld = 0  # wheel-samples kept out of the belief while on the cell left behind
 
     def update_cells(self, cells: Sequence[MapCell]) -> None:
         """Replace the cells (a newer answer of the map around the vehicle); one assignment, so a
@@ -65,14 +78,65 @@ class MapPrior:
         if cell == self.current:
             return None
         left, self._left = self._left, (self.current, here) if self.current is not None else None
-        self.current = cell
+        behind, self.current, self._behind = self.current, cell, None
         if left is not None and left[0] == cell and math.dist(left[1], here) <= self.rearm_m:
             return None  # back over the border it just crossed: not new ground
         c = self.cells.get(cell)
         if c is None:
             return None
         self.entered += 1
+        self._behind = behind
         return math.log(c.K), c.log_k_std
+
+    def informing(self, obs: ObserverOutput) -> Optional[np.ndarray]:
+        """Which wheels (4 bools, wheel 1..4 order) may inform the belief now, or None: all.
+
+        After the belief took the map's K for the cell the front axle entered, a wheel whose
+        contact patch (:mod:`soilocp.map.place`: p_CoM + R(heading) (x_i, y_i)) is still in the
+        cell the front axle left measures that soil, not this one: False, until no wheel is there
+        (then None for good, until the next cell taken from the map).  Without a heading the patches
+        are unknown: None."""
+        if self._behind is None:
+            return None
+        p, g = obs.position, obs.geo
+        if p is not None and p.heading is not None:
+            cells = [self.index.local(p.frame, p.x + dx, p.y + dy).cell
+                     for dx, dy in wheel_offsets(self.vehicle, p.heading, (1, 2, 3, 4))]
+        elif p is None and g is not None and g.heading is not None:
+            m, n = wgs84_radii(g.latitude)
+            k_lon = 1.0 / (n * max(math.cos(math.radians(g.latitude)), 1e-9))
+            cells = [self.index.geo(g.latitude + math.degrees(dn / m), g.longitude + math.degrees(de * k_lon)).cell
+                     for de, dn in wheel_offsets(self.vehicle, g.heading, (1, 2, 3, 4))]
+        else:
+            return None
+        on = np.array([c != self._behind for c in cells])
+        if on.all():
+            self._behind = None
+            return None
+        self.withheld += int((~on).sum())
+        return on
+
+
+def start_from_map(priors: Sequence, bank, ix: np.ndarray, places: Sequence, inputs):
+    """The map's step for k vehicles stepped together (``SoilStage`` k = 1, ``BatchPipeline``):
+    vehicle j's belief (bank row ``ix[j]``) starts from the map when ``priors[j]`` (a
+    :class:`MapPrior`, or None: no map) says its front axle entered a mapped cell at ``places[j]``
+    (anything with ``position`` and ``geo``: the sample, the observer's output), and the wheels
+    still on the ground left behind are taken out of ``inputs.informative`` (:meth:`MapPrior.informing`).
+    Returns the inputs for :meth:`SoilBank.update` (``inputs`` itself when nothing is withheld)."""
+    informative = None
+    for j, (prior, place) in enumerate(zip(priors, places)):
+        if prior is None:
+            continue
+        start = prior(place)
+        if start is not None:
+            bank.start_belief(int(ix[j]), *start)
+        on = prior.informing(place)
+        if on is not None:
+            if informative is None:
+                informative = np.array(inputs.informative, dtype=bool, copy=True)
+            informative[j] &= on
+    return inputs if informative is None else replace(inputs, informative=informative)
 
 
 def map_prior_from_store(url: str, frame: str, bbox, now: float, **kw) -> MapPrior:
@@ -87,4 +151,4 @@ def map_prior_from_store(url: str, frame: str, bbox, now: float, **kw) -> MapPri
         st.close()
 
 
-__all__ = ["MapPrior", "map_prior_from_store", "WGS84"]
+__all__ = ["MapPrior", "map_prior_from_store", "start_from_map", "WGS84"]

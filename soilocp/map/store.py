@@ -21,6 +21,7 @@ import os
 import sqlite3
 import threading
 from collections.abc import Sequence
+from contextlib import closing
 from typing import Optional
 
 from schemas.map import MapCell
@@ -72,6 +73,7 @@ class MapStore:
         self._adopt = cells is None
         self.cell_config, self.fusion = cells or CellConfig(), fusion
         self._local = threading.local()
+        self._reply_cache = None
 
     # --- dialect ---------------------------------------------------------------------------------
     def _connect(self):
@@ -132,19 +134,26 @@ class MapStore:
         one per (cell, vehicle)), and the ledger ``{vehicle: (last seq, estimates applied)}``.
         Returns after the commit; raises (rolled back) otherwise."""
         c = self._conn()
-        cur = c.cursor()
-        gap = self.fusion.restart_gap_s
         try:
-            cur.executemany(self._sql(self._insert_cells_sql()),
-                            sorted({(o.cell.cell, o.cell.frame, o.cell.cx, o.cell.cy) for o, _n in batch}))
-            cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
-                                                      o.seen_at, n, gap) for o, n in batch])
-            cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
-            self._refresh(cur, batch)
+            with closing(c.cursor()) as cur:
+                self._apply(cur, batch, ledger)
             c.commit()
         except BaseException:
             c.rollback()
             raise
+
+    def _apply(self, cur, batch: Sequence[tuple[Observation, int]], ledger: dict[str, tuple[int, int]]) -> None:
+        """:meth:`apply`'s statements on ``cur``, inside its transaction (the same SQL for both databases)."""
+        gap = self.fusion.restart_gap_s
+        cur.executemany(self._sql(self._insert_cells_sql()), sorted({self._cell_row(o.cell) for o, _n in batch}))
+        cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
+                                                  o.seen_at, n, gap) for o, n in batch])
+        cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
+        self._refresh(cur, batch)
+
+    def _cell_row(self, cell) -> tuple:
+        """The parameters of :meth:`_insert_cells_sql` for a cell."""
+        return (cell.cell, cell.frame, cell.cx, cell.cy)
 
     def _refresh(self, cur, batch) -> None:
         """Re-fuse the batch's cells from their rows, in the same transaction (fusion.fuse_cells)."""
@@ -190,24 +199,27 @@ class MapStore:
         self._end_read()
         return ver, rows
 
-    def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
-                   ) -> tuple[str, int, bool]:
-        """:meth:`query_columns` as the JSON of the reply's ``columns`` (schemas.map.MapCellColumns),
-        their number and whether ``limit`` cut them; from memory, kept up to date from the cells'
-        commit numbers (:class:`soilocp.map.replies.ReplyCache`, one per reading thread)."""
-        return self._replies().columns_json(frame, bbox, now, limit)
+    def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000, ready_only: bool = False
+                   ) -> Optional[tuple[bytes, int, bool, float]]:
+        """:meth:`query_columns` as the JSON (bytes) of the reply's ``columns`` (schemas.map.MapCellColumns),
+        their number, whether ``limit`` cut them, and the time they are aged to (``now`` on the
+        replies' ageing clock: the start of its one-second step); from memory, kept up to date from
+        the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`: one per store, for one
+        caller at a time).  ``ready_only``: None unless the frame is laid out for that time already
+        (no read of the store: the caller knows nothing was committed since the last read)."""
+        return self._replies().columns_json(frame, bbox, now, limit, ready_only)
 
     def _replies(self):
         from soilocp.map.replies import ReplyCache
 
-        cache = getattr(self._local, "replies", None)
-        if cache is None:
-            cache = self._local.replies = ReplyCache(self)
-        return cache
+        if self._reply_cache is None:
+            self._reply_cache = ReplyCache(self)
+        return self._reply_cache
 
-    def prepare_replies(self) -> None:
-        """Lay out the stored cells for :meth:`query_json` on this thread now, not at its first query."""
-        self._replies().prepare()
+    def prepare_replies(self, now: Optional[float] = None) -> None:
+        """Lay out the stored cells for :meth:`query_json` now, not at its first query; again between
+        queries: the last commits, and the ageing clock's next step ahead of it."""
+        self._replies().warm(now)
 
     def query_box(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000
                   ) -> tuple[list[MapCell], bool]:
@@ -337,22 +349,8 @@ class PostgresStore(MapStore):
         return ("INSERT INTO cells (cell, frame, cx, cy, geom) VALUES (?, ?, ?, ?, ST_MakePoint(?, ?)) "
                 "ON CONFLICT (cell) DO NOTHING")
 
-    def apply(self, batch, ledger) -> None:
-        c = self._conn()
-        gap = self.fusion.restart_gap_s
-        try:
-            with c.cursor() as cur:
-                cur.executemany(self._sql(self._insert_cells_sql()),
-                                sorted({(o.cell.cell, o.cell.frame, o.cell.cx, o.cell.cy, o.cell.cx, o.cell.cy)
-                                        for o, _n in batch}))
-                cur.executemany(self._sql(_UPSERT_OBS), [(o.cell.cell, o.vehicle, o.ln_k, o.var, o.seq, o.stamp,
-                                                          o.seen_at, n, gap) for o, n in batch])
-                cur.executemany(self._sql(_UPSERT_VEHICLE), [(v, s, n) for v, (s, n) in sorted(ledger.items())])
-                self._refresh(cur, batch)
-            c.commit()
-        except BaseException:
-            c.rollback()
-            raise
+    def _cell_row(self, cell) -> tuple:
+        return (cell.cell, cell.frame, cell.cx, cell.cy, cell.cx, cell.cy)  # the centre again for the PostGIS point
 
     def _box_sql(self) -> str:
         return _FUSED + "AND frame = ? AND geom && ST_MakeEnvelope(?, ?, ?, ?, 0)"
