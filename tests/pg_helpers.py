@@ -1,5 +1,5 @@
 """A throw-away PostgreSQL + PostGIS server for the map tests: Debian's packages (``postgresql``,
-``postgis``), a new cluster by ``initdb`` in a temp dir, run as the ``postgres`` user on an
+``postgresql-postgis``), a new cluster by ``initdb`` in a temp dir, run as the ``postgres`` user on an
 ephemeral loopback port, trust authentication, stopped and removed afterwards."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import tempfile
 import time
 from typing import Optional
 
-APT_HINT = "apt-get install -y postgresql postgis"
+APT_HINT = "apt-get install -y postgresql postgresql-postgis"
 
 
 def pg_bindir() -> Optional[str]:
