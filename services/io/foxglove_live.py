@@ -84,6 +84,12 @@ class FoxgloveLive:
         for vid in self.vehicle_ids:
             for suffix in CHANNEL_SCHEMAS:
                 self._channel(vid, suffix)
+        # the grids of the frames asked for exist before the server starts, so a client finds them in
+        # its first advertise (a grid channel made later, on a loaded machine, was once refused on
+        # subscribe as "unknown channel")
+        for m in self.maps:
+            for frame in self.map_frames:
+                self._grid_channel(m, frame)
         try:
             self.server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx)
         except RuntimeError as exc:  # FoxgloveError: port taken, unknown host
