@@ -112,6 +112,34 @@ mod tests {
         assert!((t - 4.3).abs() < 1e-12 && (m - 2.0).abs() < 1e-12);
     }
 
+    /// Where the curve saturates the scaled misfit is flat to 1e-14 over a plateau of ln K: theta*(c)
+    /// is the plateau's lowest node whatever the rounding (a plain argmin picked any node in it).
+    #[test]
+    fn a_flat_profile_gives_its_lowest_node() {
+        let g = 241;
+        let theta: Vec<f64> = (0..g).map(|i| i as f64 * 0.03).collect();
+        for seed in 0..5u64 {
+            let mut f: Vec<f64> = (0..g)
+                .map(|i| {
+                    if i < 150 {
+                        -900.0 - 100.0 * i as f64 / 149.0
+                    } else {
+                        -1000.0
+                    }
+                })
+                .collect();
+            // +-1e-14 relative wobble on the plateau (a cheap deterministic pseudo-random sequence)
+            let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            for v in f[150..].iter_mut() {
+                x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                *v *= 1.0 + 1e-14 * (((x >> 11) as f64 / (1u64 << 53) as f64) - 0.5);
+            }
+            let (t, least) = profile_argmin(&f, &theta, 0.03);
+            assert!((t - theta[150]).abs() <= 0.03, "seed {seed}: {t}");
+            assert!((least + 1000.0).abs() < 1.0);
+        }
+    }
+
     #[test]
     fn empty_window_and_no_scale_error() {
         let theta = [0.0, 1.0, 2.0];
