@@ -235,7 +235,7 @@ class SoilBank:
             log_stat = float(core.log_stat[j])
             k_med = float(k_report[j])
             evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
-            sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (_scale_shift)
+            sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (the core's scale_shift)
             # how long the data have leant to a wrong torque constant: a window that spans two soils leans
             # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
             if abs(c_mean - 1.0) <= max(2.0 * c_std, self.scale_prior[v]):
@@ -244,7 +244,7 @@ class SoilBank:
                 self._lean_since[v] = st
             sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
             axle_off, (axle_z, theta_front, theta_rear) = bool(core.axle_off[j]), core.axle[j].tolist()
-            # axles that disagree: the truth is usually near one of them (soil_axles), so their distance
+            # axles that disagree: the truth is usually near one of them (the core's axles.rs), so their distance
             # is a systematic term.  Where the curve is flat in K (K >> 300, §9) a scale error moves K
             # without bound: the band is capped at the grid's whole ln K span ("undetermined")
             sys_axle = abs(theta_front - theta_rear) if axle_off else 0.0
