@@ -123,6 +123,15 @@ def install_ref(wt: Path, tmp: Path) -> str:
     return py
 
 
+def place_extension(py: str, wt: Path, tmp: Path) -> None:
+    """Copy the ref's compiled core (soilocp._core, built by its install) into its checkout: the ref's
+    commands run in the checkout, where the source folder soilocp/_core/ (the crate) would otherwise
+    be imported as an empty namespace package in place of the extension."""
+    origin = run([py, "-c", "import soilocp._core as c; print(c.__file__ or '')"], cwd=tmp, env=clean_env()).stdout.strip()
+    if origin.endswith(".so") and not (wt / "soilocp" / Path(origin).name).exists():
+        shutil.copy2(origin, wt / "soilocp" / Path(origin).name)
+
+
 SIMULATE_VARIANTS = r"""
 import sys
 from pathlib import Path
@@ -305,6 +314,7 @@ def main() -> int:
     try:
         wt = checkout_ref(args.ref, tmp)
         ref_py = args.ref_python or install_ref(wt, tmp)
+        place_extension(ref_py, wt, tmp)
         work = Path(args.keep) if args.keep else tmp / "work"
         (work / "inputs").mkdir(parents=True, exist_ok=True)
         (work / "outputs").mkdir(parents=True, exist_ok=True)

@@ -176,18 +176,6 @@ def test_classify_by_log_k_with_confidence():
     assert classify(200, 0.01)[1] > 0.99
 
 
-@pytest.mark.parametrize("measurement", ["gross", "net"])
-def test_factorised_grid_curve_equals_the_traction_model(measurement):
-    from soilocp.model.traction import curve_unchecked
-
-    est = BayesSoilEstimator(DEFAULT_CONSTANTS, SoilConfig(measurement=measurement))
-    s = np.array([[0.05], [-0.3], [0.9], [0.002]])
-    h, d = est.grid.curve(s)
-    h_ref, d_ref, _ = curve_unchecked(measurement, s, est.k_grid[None, :], DEFAULT_CONSTANTS)
-    assert np.allclose(h, h_ref, rtol=1e-12, atol=1e-12)
-    assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
-
-
 def test_stamps_going_backwards_withdraw_the_estimate_instead_of_holding_it_as_fresh():
     est = BayesSoilEstimator()
     sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
@@ -517,21 +505,6 @@ def test_a_change_after_a_hold_is_taken():
     assert all(x < 1.0 for x in kept)
 
 
-@settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**16), rows=st.integers(1, 6), spike=st.booleans())
-def test_grid_medians_equal_np_interp_row_by_row(seed, rows, spike):
-    """LogKGrid.medians (every belief's median at once) is np.interp(0.5, cdf, theta) per row, for
-    spread, one-node and end-heavy beliefs alike."""
-    est = BayesSoilEstimator()
-    rng = np.random.default_rng(seed)
-    p = rng.random((rows, est.theta.size)) ** (8 if spike else 1)
-    p[0, :3] += 50.0 * spike  # mass piled at the low end
-    p /= p.sum(axis=1, keepdims=True)
-    cdf = np.cumsum(p, axis=1) - 0.5 * p
-    want = [np.interp(0.5, c, est.theta) for c in cdf]
-    assert est.grid.medians(cdf) == pytest.approx(want, abs=1e-12)
-
-
 def _belief_spread_after_one_second(rate_hz: float, k_true: float = 80.0) -> float:
     """ln K 1-sigma of the belief itself (no systematic term) after 1 s of the same clean sweep at rate_hz."""
     est = BayesSoilEstimator()
@@ -540,7 +513,8 @@ def _belief_spread_after_one_second(rate_hz: float, k_true: float = 80.0) -> flo
         s = np.full(4, 0.05 + 0.15 * i / n)
         est.update(i / rate_hz, s, gross_traction(s, k_true), np.full(4, 2.5e-3), INFO)
     p = est.p
-    return est.grid.summary(np.cumsum(p) - 0.5 * p)[2]  # half the 16-84 % interval (moments: the change prior's tails)
+    t16, t84 = np.interp((0.15865, 0.84135), np.cumsum(p) - 0.5 * p, est.theta)
+    return (t84 - t16) / 2.0  # half the 16-84 % interval (moments: the change prior's tails)
 
 
 def test_k_learns_per_second_not_per_sample():
@@ -551,17 +525,3 @@ def test_k_learns_per_second_not_per_sample():
     assert s200 == pytest.approx(s100, rel=0.05)
     # 20 samples x 0.3 against 100 x 0.15 (1.26 here; a fixed exponent: 1.57; uncapped, 0.75 each: ~1)
     assert 1.1 < s20 / s100 < 1.4
-
-
-@pytest.mark.parametrize("seed", range(5))
-def test_a_flat_scale_profile_gives_its_lowest_k_not_a_rounding_pick(seed):
-    """docs/method.md §9, "The band": where the curve saturates the scaled misfit is flat to 1e-14 over a
-    plateau of ln K; theta*(c) is the plateau's lowest ln K whatever the rounding (the plain argmin picked
-    any node in it, and the band moved with the order of a sum)."""
-    bank = BayesSoilEstimator().bank
-    g = bank.theta.size
-    f = np.concatenate([np.linspace(-900.0, -1000.0, 150), np.full(g - 150, -1000.0)])
-    f[150:] *= 1.0 + 1e-14 * np.random.default_rng(seed).standard_normal(g - 150)
-    theta, least = bank._profile_argmin(f[None, :])
-    assert abs(theta[0] - bank.theta[150]) <= bank.grid.dtheta
-    assert least[0] == pytest.approx(-1000.0, rel=1e-3)

@@ -63,9 +63,7 @@ class BatchPipeline:
             from soilocp.map.prior import start_from_map
 
             inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples, inp)
-        states = self.soil.update(ix, inputs.stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed,
-                                  inp.ground_stale, inp.span, inp.slip_ends, scale_sigma, unusable=inp.unusable)
+        states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
         ocp = ocp_arrays(ks, self.config.constants)
         out = []

@@ -12,7 +12,6 @@ kernels with N = many.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -30,7 +29,7 @@ from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, Obser
 from soilocp.map.place import estimate_place
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
-from soilocp.estimation.soil_config import SoilConfig, SoilState
+from soilocp.estimation.soil_config import SoilConfig, SoilInputs, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.estimation.wheel_usability import SLIP_BEYOND_EQ1, travel_direction, wheel_usability
@@ -212,26 +211,6 @@ class ObserverStage:
         return msg
 
 
-@dataclass
-class SoilInputs:
-    """What the soil kernel takes for k vehicles, from the observer's outputs: arrays (k, 4)."""
-
-    slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i
-    informative: np.ndarray
-    observed: np.ndarray
-    variance: np.ndarray
-    slip_sigma: np.ndarray
-    gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
-    gate_sigma: np.ndarray
-    held: np.ndarray  # no new speed and torque reading of the wheel now (SoilConfig.fresh_age)
-    ground_stale: np.ndarray  # (k,) the ground speed's last reading is older than SoilConfig.max_input_age
-    identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
-    speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
-    span: np.ndarray | None  # (k, 4) s a wheel's pair stands for: a refresh interval (0: the sample's own; None: none)
-    slip_ends: np.ndarray | None  # (k, 4, 2) a refresh pair's slip at its interval's start and end (None: no pair)
-    unusable: np.ndarray | None = None  # (k, 4) int: soilocp.estimation.wheel_usability's code (0: usable)
-
-
 class SlipGate:
     """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10, in each wheel's direction
     of travel, §17) from the filtered speeds, the wheels the longitudinal model describes now
@@ -380,11 +359,8 @@ class SoilStage:
 
             inp = start_from_map([self.prior], self.bank, _ZERO, [obs], inp)
         if self.bank is not None:
-            st = self.bank.update(_ZERO, stamp, inp.slip, inp.observed, inp.variance, inp.informative,
-                                  inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable,
-                                  inp.speed, inp.ground_stale, inp.span, inp.slip_ends,
-                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]),
-                                  unusable=inp.unusable)[0]
+            st = self.bank.update(_ZERO, stamp, inp,
+                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]))[0]
         else:
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])

@@ -174,8 +174,22 @@ def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
     return [names[j] for j in i], probs[np.arange(i.size), i]
 
 
-def slip_uncertainty(speed, cfg: SoilConfig) -> np.ndarray:
-    """1-sigma slip error of eq. 1 at a wheel moving at ``speed`` (m/s): a speed error dV gives
-    dS ~ dV / V, which dominates at low speed (docs/method.md §6, §9)."""
-    v = np.maximum(np.abs(np.asarray(speed, dtype=float)), 1e-3)
-    return np.hypot(cfg.slip_sigma, cfg.speed_sigma / v)
+@dataclass
+class SoilInputs:
+    """What the soil update takes for k vehicles, from the observer's outputs (:class:`soilocp.estimation.pipeline.SlipGate`):
+    arrays (k, 4) unless marked; one struct, passed whole (:meth:`soilocp.estimation.soil_strength.SoilBank.update`)."""
+
+    slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i
+    informative: np.ndarray
+    observed: np.ndarray
+    variance: np.ndarray
+    slip_sigma: np.ndarray
+    gate_slip: np.ndarray  # the low-pass slip the gate decides on (docs/method.md §9)
+    gate_sigma: np.ndarray
+    held: np.ndarray  # no new speed and torque reading of the wheel now (SoilConfig.fresh_age)
+    ground_stale: np.ndarray  # (k,) the ground speed's last reading is older than SoilConfig.max_input_age
+    identifiable: np.ndarray  # (k,) False without an independent ground speed (slip, eq. 1, needs it)
+    speed: np.ndarray  # (k,) filtered ground speed, m/s: the distance over which the soil may change
+    span: np.ndarray | None  # (k, 4) s a wheel's pair stands for: a refresh interval (0: the sample's own; None: none)
+    slip_ends: np.ndarray | None  # (k, 4, 2) a refresh pair's slip at its interval's start and end (None: no pair)
+    unusable: np.ndarray | None = None  # (k, 4) int: soilocp.estimation.wheel_usability's code (0: usable)

@@ -7,6 +7,7 @@ pub mod constants;
 pub mod normal_force;
 pub mod ocp;
 pub mod py;
+pub mod soil;
 pub mod traction;
 
 use pyo3::prelude::*;
@@ -19,5 +20,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::traction::traction_value, m)?)?;
     m.add_function(wrap_pyfunction!(py::traction::tractive_efficiency, m)?)?;
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
+    // the soil-grid update (issue 28)
+    m.add_class::<py::soil::SoilGridBank>()?;
     Ok(())
 }

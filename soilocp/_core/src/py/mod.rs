@@ -3,4 +3,5 @@
 
 pub mod normal_force;
 pub mod ocp;
+pub mod soil;
 pub mod traction;

@@ -1,0 +1,340 @@
+//! `soilocp._core.SoilGridBank`: N vehicles' ln K grid beliefs (crate::soil), one call per step for
+//! k selected vehicles, arrays in and arrays / codes out.  The status and reason text stay in
+//! Python (soilocp.estimation.soil_strength), made from what `step` returns.
+
+use std::collections::HashMap;
+
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::constants::Constants;
+use crate::soil::bank::{self, Sample};
+use crate::soil::grid::Grid;
+use crate::soil::params::Params;
+use crate::soil::scale::ScaleNodes;
+use crate::traction::Kind;
+
+/// What `SoilGridBank.step` returns, per selected vehicle (k rows): wheel flags (k, 4) uint8
+/// (1 used, 2 gated but undetermined, 4 gated but held), dt (k,), informed (k,), taken (k,),
+/// k_report (k,), log_stat (k,), stats (k, 5), scale (k, 3), axle_mismatch (k,), axle (k, 3)
+/// (z, ln K front, ln K rear), floor_cdf (k,).
+type StepArrays<'py> = (
+    Bound<'py, PyArray2<u8>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+);
+
+/// The grid Bayes soil filters of N vehicles (docs/method.md §9, §11, §16).
+#[pyclass(module = "soilocp._core")]
+pub struct SoilGridBank {
+    inner: bank::SoilGridBank,
+}
+
+fn quads(name: &str, a: &PyReadonlyArray2<'_, f64>, k: usize) -> PyResult<Vec<[f64; 4]>> {
+    let v = a.as_array();
+    if v.shape() != [k, 4] {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k}, 4), got {:?}",
+            v.shape()
+        )));
+    }
+    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
+}
+
+fn bool_quads(name: &str, a: &PyReadonlyArray2<'_, bool>, k: usize) -> PyResult<Vec<[bool; 4]>> {
+    let v = a.as_array();
+    if v.shape() != [k, 4] {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k}, 4), got {:?}",
+            v.shape()
+        )));
+    }
+    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
+}
+
+fn column<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray1<'_, T>, k: usize) -> PyResult<Vec<T>> {
+    let v = a.as_array();
+    if v.len() != k {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k},), got ({},)",
+            v.len()
+        )));
+    }
+    Ok(v.to_vec())
+}
+
+fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
+    if rows.iter().flatten().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!("{name} must be finite, got {rows:?}")))
+    }
+}
+
+#[pymethods]
+impl SoilGridBank {
+    /// The bank of `n_vehicles` from `constants`, the `measurement` ("gross" or "net"), the grid as
+    /// numpy made it (theta = ln K nodes, k_grid = e^theta, amp = C1 (1 - e^{-C2 K})), the scale
+    /// profile's nodes (z in 1-sigma units, their log prior), the weakest fitted soil's K / 2
+    /// (`k_floor`) and SoilConfig's numbers (`params`, names of crate::soil::params::Params).
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    fn py_new(
+        constants: Constants,
+        n_vehicles: usize,
+        measurement: &str,
+        theta: PyReadonlyArray1<'_, f64>,
+        k_grid: PyReadonlyArray1<'_, f64>,
+        amp: PyReadonlyArray1<'_, f64>,
+        scale_z: PyReadonlyArray1<'_, f64>,
+        scale_log_prior: PyReadonlyArray1<'_, f64>,
+        k_floor: f64,
+        params: HashMap<String, f64>,
+    ) -> PyResult<Self> {
+        let kind = match measurement {
+            "gross" => Kind::Gross,
+            "net" => Kind::Net,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "measurement {other:?}: need 'gross' or 'net'"
+                )))
+            }
+        };
+        if n_vehicles == 0 {
+            return Err(PyValueError::new_err("n_vehicles must be >= 1"));
+        }
+        let grid = Grid::new(
+            theta.as_array().to_vec(),
+            k_grid.as_array().to_vec(),
+            Some(amp.as_array().to_vec()),
+            kind,
+            constants,
+        )
+        .map_err(PyValueError::new_err)?;
+        let cfg = Params::from_map(&params).map_err(PyValueError::new_err)?;
+        let nodes = ScaleNodes {
+            z: scale_z.as_array().to_vec(),
+            log_prior: scale_log_prior.as_array().to_vec(),
+        };
+        let inner = bank::SoilGridBank::new(grid, cfg, nodes, k_floor, n_vehicles).map_err(PyValueError::new_err)?;
+        Ok(SoilGridBank { inner })
+    }
+
+    /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s; slip, observed,
+    /// variance, slip_sigma, gate_slip, gate_sigma (k, 4); informative, held (k, 4) bool;
+    /// ground_stale, identifiable (k,) bool; speed (k,) m/s (NaN: unknown); optional span (k, 4),
+    /// slip_ends (k, 4, 2), unusable (k, 4) int codes, scale_sigma (k,).  Returns the arrays of
+    /// `StepArrays` (module doc).
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (idx, stamp, slip, observed, variance, slip_sigma, gate_slip, gate_sigma, informative, held,
+                        ground_stale, identifiable, speed, span=None, slip_ends=None, unusable=None, scale_sigma=None))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        slip: PyReadonlyArray2<'py, f64>,
+        observed: PyReadonlyArray2<'py, f64>,
+        variance: PyReadonlyArray2<'py, f64>,
+        slip_sigma: PyReadonlyArray2<'py, f64>,
+        gate_slip: PyReadonlyArray2<'py, f64>,
+        gate_sigma: PyReadonlyArray2<'py, f64>,
+        informative: PyReadonlyArray2<'py, bool>,
+        held: PyReadonlyArray2<'py, bool>,
+        ground_stale: PyReadonlyArray1<'py, bool>,
+        identifiable: PyReadonlyArray1<'py, bool>,
+        speed: PyReadonlyArray1<'py, f64>,
+        span: Option<PyReadonlyArray2<'py, f64>>,
+        slip_ends: Option<PyReadonlyArray3<'py, f64>>,
+        unusable: Option<PyReadonlyArray2<'py, i64>>,
+        scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
+    ) -> PyResult<StepArrays<'py>> {
+        let k = idx.as_array().len();
+        let idx = column("idx", &idx, k)?;
+        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
+            return Err(PyValueError::new_err(format!(
+                "idx {bad}: vehicle indices must be >= 0"
+            )));
+        }
+        let stamp = column("stamp", &stamp, k)?;
+        let (slip, observed, variance, slip_sigma) = (
+            quads("slip", &slip, k)?,
+            quads("observed", &observed, k)?,
+            quads("variance", &variance, k)?,
+            quads("slip_sigma", &slip_sigma, k)?,
+        );
+        for (name, rows) in [
+            ("slip", &slip),
+            ("observed", &observed),
+            ("variance", &variance),
+            ("slip_sigma", &slip_sigma),
+        ] {
+            finite(name, rows)?;
+        }
+        if let Some(bad) = stamp.iter().find(|v| !v.is_finite()) {
+            return Err(PyValueError::new_err(format!("stamp {bad}: must be finite")));
+        }
+        let (gate_slip, gate_sigma) = (quads("gate_slip", &gate_slip, k)?, quads("gate_sigma", &gate_sigma, k)?);
+        let (informative, held) = (
+            bool_quads("informative", &informative, k)?,
+            bool_quads("held", &held, k)?,
+        );
+        let ground_stale = column("ground_stale", &ground_stale, k)?;
+        let identifiable = column("identifiable", &identifiable, k)?;
+        let speed = column("speed", &speed, k)?;
+        let span = span.map(|a| quads("span", &a, k)).transpose()?;
+        let slip_ends = match slip_ends {
+            None => None,
+            Some(a) => {
+                let v = a.as_array();
+                if v.shape() != [k, 4, 2] {
+                    return Err(PyValueError::new_err(format!(
+                        "slip_ends must have shape ({k}, 4, 2), got {:?}",
+                        v.shape()
+                    )));
+                }
+                Some(
+                    (0..k)
+                        .map(|j| std::array::from_fn(|w| [v[[j, w, 0]], v[[j, w, 1]]]))
+                        .collect::<Vec<[[f64; 2]; 4]>>(),
+                )
+            }
+        };
+        let unusable = match unusable {
+            None => None,
+            Some(a) => {
+                let v = a.as_array();
+                if v.shape() != [k, 4] {
+                    return Err(PyValueError::new_err(format!(
+                        "unusable must have shape ({k}, 4), got {:?}",
+                        v.shape()
+                    )));
+                }
+                Some(
+                    v.outer_iter()
+                        .map(|r| [r[0], r[1], r[2], r[3]])
+                        .collect::<Vec<[i64; 4]>>(),
+                )
+            }
+        };
+        let scale_sigma = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
+        let samples: Vec<Sample> = (0..k)
+            .map(|j| Sample {
+                vehicle: idx[j] as usize,
+                stamp: stamp[j],
+                slip: slip[j],
+                observed: observed[j],
+                variance: variance[j],
+                slip_sigma: slip_sigma[j],
+                gate_slip: gate_slip[j],
+                gate_sigma: gate_sigma[j],
+                informative: informative[j],
+                held: held[j],
+                ground_stale: ground_stale[j],
+                identifiable: identifiable[j],
+                speed: speed[j],
+                span: span.as_ref().map(|s| s[j]),
+                slip_ends: slip_ends.as_ref().map(|s| s[j]),
+                unusable: unusable.as_ref().map_or([0; 4], |u| u[j]),
+                scale_sigma: scale_sigma.as_ref().map(|s| s[j]),
+            })
+            .collect();
+        let out = self.inner.step(&samples).map_err(PyValueError::new_err)?;
+        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
+        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        Ok((
+            wheel.into_pyarray(py),
+            col(&|s| s.dt),
+            flag(&|s| s.informed),
+            flag(&|s| s.taken),
+            col(&|s| s.k_report),
+            col(&|s| s.log_stat),
+            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
+            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
+            flag(&|s| s.axle.mismatch),
+            Array2::from_shape_fn((k, 3), |(j, i)| {
+                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
+            })
+            .into_pyarray(py),
+            col(&|s| s.floor_cdf),
+        ))
+    }
+
+    /// Start vehicle `i`'s beliefs over from `belief` (G,): the pooled and the no-change one, and
+    /// the evidence window (a fleet map's cell, soilocp.map.prior).
+    fn start_belief(&mut self, i: usize, belief: PyReadonlyArray1<'_, f64>) -> PyResult<()> {
+        self.inner
+            .start_belief(i, &belief.as_array().to_vec())
+            .map_err(PyValueError::new_err)
+    }
+
+    #[getter]
+    fn n_vehicles(&self) -> usize {
+        self.inner.vehicles.len()
+    }
+
+    /// The pooled beliefs (N, G).
+    #[getter]
+    fn p<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let (n, g) = (self.inner.vehicles.len(), self.inner.grid.len());
+        Array2::from_shape_fn((n, g), |(i, j)| self.inner.vehicles[i].p[j]).into_pyarray(py)
+    }
+
+    /// The no-change beliefs (N, G).
+    #[getter]
+    fn p_stay<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let (n, g) = (self.inner.vehicles.len(), self.inner.grid.len());
+        Array2::from_shape_fn((n, g), |(i, j)| self.inner.vehicles[i].p_stay[j]).into_pyarray(py)
+    }
+
+    /// The front and rear axle beliefs (N, 2, G).
+    #[getter]
+    fn axle_p<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
+        let (n, g) = (self.inner.vehicles.len(), self.inner.grid.len());
+        Array3::from_shape_fn((n, 2, g), |(i, a, j)| self.inner.vehicles[i].axles.p[a][j]).into_pyarray(py)
+    }
+
+    /// P(no change | data) per vehicle (N,).
+    #[getter]
+    fn w_stay<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.w_stay)).into_pyarray(py)
+    }
+
+    /// The recent log-evidence for no change against the pooled belief (N,).
+    #[getter]
+    fn stay_llr<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.stay_llr)).into_pyarray(py)
+    }
+
+    /// The window statistics (N, 5): evidence, NIS sum, sum w h_K^2, sum w h_K h, sum w h_K h_S dS.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.inner.vehicles.len();
+        Array2::from_shape_fn((n, 5), |(i, j)| self.inner.vehicles[i].stats[j]).into_pyarray(py)
+    }
+
+    /// The scale's systematic term of the last informative sample (N, 3): 1-sigma of ln K, c's
+    /// mean and 1-sigma.
+    #[getter]
+    fn scale_sys<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.inner.vehicles.len();
+        Array2::from_shape_fn((n, 3), |(i, j)| self.inner.vehicles[i].scale_sys[j]).into_pyarray(py)
+    }
+
+    /// The scale's 1-sigma per vehicle (N,): the prior, or the online state's last value.
+    #[getter]
+    fn scale_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.scale_prior)).into_pyarray(py)
+    }
+}

@@ -1,0 +1,16 @@
+//! The per-sample soil-grid update (docs/method.md §9, §11, §16): a grid (histogram) Bayes
+//! filter over ln K per vehicle, its no-change belief, the window statistics of the band and the
+//! mismatch check, the scale profile and the front/rear axle check.  Plain Rust over f64, one
+//! kind per module; `crate::py::soil` binds the bank to Python.
+//!
+//! The arithmetic mirrors the numpy reference operation by operation (numpy's pairwise sums,
+//! sequential cumulative sums, `np.interp`), so that the port agrees with it to rounding: the
+//! gates of the estimator are chaotic, and a changed summation order shows up as changed
+//! statuses thousands of samples later.
+
+pub mod axles;
+pub mod bank;
+pub mod grid;
+pub mod numeric;
+pub mod params;
+pub mod scale;

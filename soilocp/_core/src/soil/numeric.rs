@@ -1,0 +1,119 @@
+//! numpy's reductions, written out so that the soil update adds in numpy's order: `np.sum`
+//! along a contiguous row is a pairwise sum (8 accumulators in blocks of up to 128), `np.cumsum`
+//! is sequential, `np.interp` interpolates from the last node at or below x.
+
+/// `np.sum` of a contiguous row: numpy's `pairwise_sum` (sequential below 8 elements; 8
+/// interleaved partial sums up to 128; halves, split at a multiple of 8, above).
+pub fn pairwise_sum(a: &[f64]) -> f64 {
+    let n = a.len();
+    if n < 8 {
+        let mut r = -0.0;
+        for &x in a {
+            r += x;
+        }
+        r
+    } else if n <= 128 {
+        let mut r: [f64; 8] = std::array::from_fn(|j| a[j]);
+        let whole = n - n % 8;
+        let mut i = 8;
+        while i < whole {
+            for j in 0..8 {
+                r[j] += a[i + j];
+            }
+            i += 8;
+        }
+        let mut res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for &x in &a[whole..] {
+            res += x;
+        }
+        res
+    } else {
+        let mut n2 = n / 2;
+        n2 -= n2 % 8;
+        pairwise_sum(&a[..n2]) + pairwise_sum(&a[n2..])
+    }
+}
+
+/// The mid-point CDF of a belief, `np.cumsum(p) - 0.5 * p`, into `out`.
+pub fn midpoint_cdf(p: &[f64], out: &mut [f64]) {
+    let mut acc = 0.0;
+    for (o, &x) in out.iter_mut().zip(p) {
+        acc += x;
+        *o = acc - 0.5 * x;
+    }
+}
+
+/// `np.interp(x, xp, fp)` for one x (xp non-decreasing): beyond the ends the end values; between
+/// nodes the line from the last node at or below x.
+pub fn interp(x: f64, xp: &[f64], fp: &[f64]) -> f64 {
+    let n = xp.len();
+    if x > xp[n - 1] {
+        return fp[n - 1];
+    }
+    if x < xp[0] {
+        return fp[0];
+    }
+    // the last j with xp[j] <= x (numpy's binary_search_with_guess)
+    let j = xp.partition_point(|&v| v <= x) - 1;
+    if j == n - 1 || xp[j] == x {
+        return fp[j];
+    }
+    let slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j]);
+    let mut r = slope * (x - xp[j]) + fp[j];
+    if r.is_nan() {
+        r = slope * (x - xp[j + 1]) + fp[j + 1];
+        if r.is_nan() && fp[j] == fp[j + 1] {
+            r = fp[j];
+        }
+    }
+    r
+}
+
+/// The largest value of a row (`np.max`; NaN propagates).
+pub fn row_max(a: &[f64]) -> f64 {
+    let mut m = a[0];
+    for &x in &a[1..] {
+        if x > m || x.is_nan() {
+            m = x;
+        }
+    }
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairwise_sum_orders_like_numpy() {
+        // 1e16 + 1 + ... : the order decides which units are absorbed
+        let mut a = vec![1.0; 25];
+        a[0] = 1e16;
+        // blocks: r0 = 1e16 + 1 + 1 (indices 0, 8, 16), r1..r7 = 3 each; + a[24]
+        let want = ((((1e16 + 1.0) + 1.0) + 3.0) + (3.0 + 3.0)) + ((3.0 + 3.0) + (3.0 + 3.0)) + 1.0;
+        assert_eq!(pairwise_sum(&a), want);
+        assert_eq!(pairwise_sum(&[1.0, 2.0, 3.0]), 6.0);
+        let long: Vec<f64> = (0..241).map(|i| i as f64 * 0.1).collect();
+        let exact: f64 = (0..241).map(|i| i as f64).sum::<f64>() * 0.1;
+        assert!((pairwise_sum(&long) - exact).abs() < 1e-9);
+    }
+
+    #[test]
+    fn interp_matches_numpy_rules() {
+        let xp = [0.0, 1.0, 1.0, 2.0];
+        let fp = [0.0, 10.0, 20.0, 30.0];
+        assert_eq!(interp(-1.0, &xp, &fp), 0.0);
+        assert_eq!(interp(3.0, &xp, &fp), 30.0);
+        assert_eq!(interp(0.5, &xp, &fp), 5.0);
+        assert_eq!(interp(1.0, &xp, &fp), 20.0); // the last node at x
+        assert_eq!(interp(1.5, &xp, &fp), 25.0);
+    }
+
+    #[test]
+    fn midpoint_cdf_of_uniform() {
+        let p = [0.25; 4];
+        let mut c = [0.0; 4];
+        midpoint_cdf(&p, &mut c);
+        assert_eq!(c, [0.125, 0.375, 0.625, 0.875]);
+    }
+}
