@@ -40,11 +40,11 @@ def _inputs(rng, k: int, refresh: bool, codes: bool) -> SoilInputs:
         unusable=np.where(rng.random((k, 4)) < 0.05, 2, 0) if codes else None)
 
 
-def _close(name, got, want):
+def _close(name, got, want, atol=1e-12):
     got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
     assert np.array_equal(np.isnan(got), np.isnan(want)), name
     ok = ~np.isnan(want)
-    assert np.allclose(got[ok], want[ok], rtol=REL, atol=1e-12), (name, got, want)
+    assert np.allclose(got[ok], want[ok], rtol=REL, atol=atol), (name, np.abs(got - want).max(), got, want)
 
 
 @settings(max_examples=30, deadline=None)
@@ -79,11 +79,17 @@ def test_core_update_equals_the_numpy_reference(seed, steps, measurement, change
         assert np.array_equal(axle_off, want["axle_mismatch"])
         for name, g, w in (("dt", dt, want["dt"]), ("k_report", k_report, want["k_report"]),
                            ("log_stat", log_stat, want["log_stat"]), ("stats", stats, want["stats"]),
-                           ("scale", scale, want["scale"]), ("axle", axle, want["axle"]),
+                           ("axle", axle, want["axle"]),
                            ("floor_cdf", floor_cdf, want["floor_cdf"]), ("p", bank.core.p, ref.p),
                            ("p_stay", bank.core.p_stay, ref.p_stay), ("w_stay", bank.core.w_stay, ref.w_stay),
                            ("stay_llr", bank.core.stay_llr, ref.stay_llr), ("axle_p", bank.core.axle_p, ref.axles.p)):
             _close(name, g, w)
+        # the scale profile (systematic ln K 1-sigma, c's posterior mean and 1-sigma) is a softmax over c of
+        # window sums: the core's exp is libm's (numpy's SIMD exp differs in the last bit), its weighted sums run
+        # in order where the reference calls BLAS, and the 1-sigmas are sqrt(E[x^2] - E[x]^2) of numbers of
+        # order 1, so they agree absolutely, not relatively (found: 1.05e-11 apart at a c 1-sigma of 2.6e-5,
+        # 2.9e-10 on a ln K 1-sigma of 0.016)
+        _close("scale", scale, want["scale"], atol=1e-9)
 
 
 def test_bad_input_is_refused_with_its_name():
