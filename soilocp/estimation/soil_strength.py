@@ -493,7 +493,7 @@ class SoilBank:
 
     def _vouch(self, v: int, stamp: float, evidence: float, c_mean: float) -> tuple[Status, str]:
         """Status and reason of an estimate whose band is narrow enough for ``ok``: ``ok`` only where its own
-        checks vouch for it (docs/method.md §9, "When ok"), else ``uncertain`` naming what they lack.
+        checks vouch for it (docs/robustness.md, "ok means ok"), else ``uncertain`` naming what they lack.
 
         * the data lean to a torque scale the state does not assume (``_lean_since``: the window's scale
           posterior more than 2 of its sigmas, and more than the scale's own prior, from 1): a common scale
