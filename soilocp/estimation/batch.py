@@ -60,7 +60,7 @@ class BatchPipeline:
                                   inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed,
                                   inp.ground_stale, inp.span, inp.slip_ends, scale_sigma, unusable=inp.unusable)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
-        self.scale.feed_soil(ix, ks)  # the next samples' modelled motion resistance (eq. 4) at this K
+        self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
         ocp = ocp_arrays(ks, self.config.constants)
         out = []
         for j, (sample, st) in enumerate(zip(samples, states)):

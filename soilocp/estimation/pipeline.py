@@ -441,7 +441,8 @@ class VehiclePipeline:
         nf = self.normal.step(sample)
         ob = self.observer.step(sample, nf)
         so = self.soil.step(ob)
-        self.observer.scale.feed_soil(_ZERO, [so.soil_strength], np.asarray(so.slip, dtype=float))  # the torque scale's motion resistance (eq. 4) at this K
+        # the torque scale's modelled motion resistance (eq. 4) at this K and these slips (torque_scale.model_resistance)
+        self.observer.scale.feed_soil(_ZERO, [so.soil_strength], np.asarray(so.slip, dtype=float))
         return nf, ob, so, self.ocp.step(so)
 
     def process(self, sample: SensorSample) -> OcpEstimate:

@@ -62,7 +62,9 @@ class TorqueScaleConfig(BaseModel):
     model_resistance: bool = Field(
         False, description="Subtract eq. 4's motion resistance at the soil stage's K and slips from the balance "
         "(modelled_resistance), leaving b the unmodelled rest; False: b is the whole F_MR, a random walk.  Off by "
-        "default: measured worse on the accelerate/brake drives (docs/robustness.md, 'The online torque scale')")
+        "default: measured worse on the accelerate/brake drives (docs/robustness.md, 'ok means ok').  The K is fed "
+        "back in the offline and batched paths only: the live observer service runs before the soil service and "
+        "models the resistance at the median reference soil and the readings' slips")
     prior_sigma: Optional[float] = Field(
         0.10, gt=0, description="Prior 1-sigma of k (motor constant x 1 / mass) for the online state (None: "
         "soil.gross_scale_sigma, the torque constant's alone): a payload the vehicle file does not know is a scale "
