@@ -138,3 +138,17 @@ def test_a_config_file_sets_the_estimator_the_variants_are_judged_with(tmp_path)
     bad.write_text(json.dumps({"soil": {"gross_scale": 0.0}}))
     res = runner.invoke(main, ["accuracy", "--robustness", "--variant", "cruise", "--config", str(bad)])
     assert res.exit_code == 2 and "soil.gross_scale" in res.output
+
+
+def test_an_ok_record_is_judged_against_the_nearest_soil_under_its_wheels():
+    """The last b/V s of a segment: the front wheels are on the next soil.  A K that reads it is not
+    confidently wrong; a K between the two soils, more than 30 % from both, still is."""
+    truth = [_truth(i, 200.0, float(i)) for i in range(6)]
+    for rec in truth[4:]:
+        rec["wheel_soil_strength"] = (200.0, 50.0, 50.0, 200.0)  # front wheels on sand
+    est = [_est(i, 200.0, 10.0) for i in range(4)] + [_est(4, 55.0, 5.0), _est(5, 120.0, 10.0)]
+    (seg,) = evaluate_records(truth, est)
+    assert seg.confident_wrong == 1  # 120: 40 % from 200, 140 % from 50; 55 reads the front wheels' sand
+    for rec in truth:  # without per-wheel truth: the soil under the CoM, both count
+        rec.pop("wheel_soil_strength", None)
+    assert evaluate_records(truth, est)[0].confident_wrong == 2

@@ -179,10 +179,10 @@ def test_classify_by_log_k_with_confidence():
 def test_stamps_going_backwards_withdraw_the_estimate_instead_of_holding_it_as_fresh():
     est = BayesSoilEstimator()
     sweep = [[s, s, -s, -s] for s in np.linspace(0.05, 0.6, 30)]
-    assert _feed(est, 80, sweep, 50, t0=1000.0).status == "ok"
+    assert _feed(est, 80, sweep, 150, t0=1000.0).status == "ok"
     state = est.update(10.0, np.zeros(4), np.zeros(4), np.full(4, 1e-4), INFO)  # the source restarted
     assert state.status == "no_estimate" and state.soil_strength is None and "backwards" in state.reason
-    assert _feed(est, 80, sweep, 50, t0=11.0).status == "ok"
+    assert _feed(est, 80, sweep, 150, t0=11.0).status == "ok"
 
 
 def test_a_long_time_gap_resets_the_belief_at_once():

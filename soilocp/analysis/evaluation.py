@@ -149,7 +149,12 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         banded = np.isfinite(k_set) & np.isfinite(k_std)
         band_hits = np.abs(k_set[banded] - kt) <= 2.0 * k_std[banded]
         status_ok = np.array([bool(e) and e["status"] == "ok" for _, e in seg])[settled]
-        confident_wrong = int(np.sum(status_ok & np.isfinite(rel_settled) & (rel_settled > UNFLAGGED_ERROR_REL)))
+        # judged against the nearest soil under the wheels: in the b/V s before the CoM reaches the next soil
+        # the front wheels are on it, and a K that reads either soil is not wrong (the convergence rule above
+        # ends the segment there for the same reason); a K between the two, far from both, still counts
+        rel_wheels = np.array([min(abs(k - w) / w for w in t.get("wheel_soil_strength", (kt,))) if np.isfinite(k)
+                               else np.nan for (t, _), k in zip(seg, k_est)])[settled]
+        confident_wrong = int(np.sum(status_ok & np.isfinite(rel_wheels) & (rel_wheels > UNFLAGGED_ERROR_REL)))
         flagged_recs = [e for (_, e), ok in zip(seg, settled)
                         if ok and e and e["status"] != "ok" and e.get("soil_strength") is not None]
         named = sum(reason_names.lower() in str(e.get("reason", "")).lower() for e in flagged_recs) if reason_names else 0

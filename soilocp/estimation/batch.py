@@ -46,7 +46,8 @@ class BatchPipeline:
         self.observer = ObserverBank(cfg.vehicle, cfg.observer, self.n_vehicles)
         self.gate = SlipGate(cfg, self.n_vehicles)
         self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
-        self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles)
+        self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles,
+                                     cfg.constants)
 
     @staticmethod
     def inputs_from_samples(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
@@ -65,6 +66,7 @@ class BatchPipeline:
             inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples, inp)
         states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
+        self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
         ocp = ocp_arrays(ks, self.config.constants)
         out = []
         for j, (sample, st) in enumerate(zip(samples, states)):

@@ -183,7 +183,8 @@ class ObserverStage:
 
     def __init__(self, config: PipelineConfig):
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
-        self.scale = TorqueScaleBank(config.vehicle, config.torque_scale, config.soil.gross_scale_sigma, 1)
+        self.scale = TorqueScaleBank(config.vehicle, config.torque_scale, config.soil.gross_scale_sigma, 1,
+                                     config.constants)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
         """One predict + gated update of the observer (eqs. 26-35 with the §7 state).
@@ -416,6 +417,8 @@ class VehiclePipeline:
         nf = self.normal.step(sample)
         ob = self.observer.step(sample, nf)
         so = self.soil.step(ob)
+        # the torque scale's modelled motion resistance (eq. 4) at this K and these slips (torque_scale.model_resistance)
+        self.observer.scale.feed_soil(_ZERO, [so.soil_strength], np.asarray(so.slip, dtype=float))
         return nf, ob, so, self.ocp.step(so)
 
     def process(self, sample: SensorSample) -> OcpEstimate:

@@ -10,8 +10,11 @@ fit's, cut at stamp gaps), where the balance holds with a slow F_MR (moving at >
 straight, every wheel's slip within ``max_slip``, finite):
 
 * k: prior N(1, ``SoilConfig.gross_scale_sigma``), a random walk of ``scale_walk`` per sqrt(s);
-* F_MR: the motion resistance (and an accelerometer bias times m), a random walk of
-  ``resistance_walk`` N per sqrt(s): it follows the soil and the slip.
+* b: the motion resistance the model does not give (and an accelerometer bias times m), a random walk
+  of ``resistance_walk`` N per sqrt(s).  The resistance itself is modelled, not a state: eq. 4 at each
+  sample's slips (eq. 1 from the readings), normal forces and the soil's K as the soil stage last
+  reported it (:meth:`TorqueScaleBank.feed_soil`, the K fed back; a median reference soil until then),
+  :func:`soilocp.model.force_balance.modelled_resistance`, averaged over the window like the other terms.
 
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
 ``min_accel`` informs k; any other window informs F_MR alone (a Schmidt update: k's gain is 0), so
@@ -25,11 +28,13 @@ single-vehicle stage and the batched path run the same kernel.
 from __future__ import annotations
 
 import dataclasses
+from typing import Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from soilocp.model.force_balance import longitudinal_balance
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.normal_force import STANDARD_GRAVITY, gravity_from_attitude
 from soilocp.model.slip import DEFAULT_FLOOR, slip_ratio_unchecked
 from soilocp.model.vehicle import VehicleParams
@@ -54,20 +59,42 @@ class TorqueScaleConfig(BaseModel):
     resistance_walk: float = Field(2.0, ge=0, description="Random walk of F_MR, N/sqrt(s)")
     resistance_sigma: float = Field(60.0, gt=0, description="Prior 1-sigma of F_MR, N (prior mean 0)")
     force_sigma: float = Field(3.0, gt=0, description="1-sigma of a window's balance, N (unmodelled resistance changes)")
+    model_resistance: bool = Field(
+        False, description="Subtract eq. 4's motion resistance at the soil stage's K and slips from the balance "
+        "(modelled_resistance), leaving b the unmodelled rest; False: b is the whole F_MR, a random walk.  Off by "
+        "default: measured worse on the accelerate/brake drives (docs/robustness.md, 'ok means ok').  The K is fed "
+        "back in the offline and batched paths only: the live observer service runs before the soil service and "
+        "models the resistance at the median reference soil and the readings' slips")
+    prior_sigma: Optional[float] = Field(
+        0.10, gt=0, description="Prior 1-sigma of k (motor constant x 1 / mass) for the online state (None: "
+        "soil.gross_scale_sigma, the torque constant's alone): a payload the vehicle file does not know is a scale "
+        "error too (+25 %: k 0.80).  K's band combines the windows' information with soil.gross_scale_sigma "
+        "(TorqueScaleBank.band_sigma); measured 0.05 / 0.10 / 0.15 in docs/robustness.md")
 
 
 class TorqueScaleBank:
     """N vehicles' torque scales (module doc): :meth:`step` takes one sample per vehicle in ``ix``."""
 
-    def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int):
-        self.vehicle, self.cfg, self.prior_sigma = vehicle, cfg, float(prior_sigma)
+    def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int,
+                 constants: ModelConstants = DEFAULT_CONSTANTS):
+        self.vehicle, self.cfg, self.prior_sigma, self.constants = vehicle, cfg, float(prior_sigma), constants
+        # the state's own prior (wider where the mass is as uncertain as the motor constant); the soil estimator's
+        # band keeps prior_sigma until a window informs k
+        wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
+        self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
         n = n_vehicles
+        # the soil's K for eq. 4's resistance: the soil stage's last report (feed_soil), until then the median
+        # reference soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
+        self.k_default = float(np.median(list(constants.soils.values())))
+        self.soil_k = np.full(n, self.k_default)
+        # the soil stage's slip per wheel (eq. 1 on the observer's filtered speeds), NaN: none yet (the readings')
+        self.soil_slip = np.full((n, 4), np.nan)
         self.theta = np.tile([1.0, 0.0], (n, 1))  # (k, F_MR)
-        self.P = np.tile(np.diag([self.prior_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
+        self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
         self.t0 = np.full(n, np.nan)  # the open window's first stamp
         self.t_prev = np.full(n, np.nan)
-        self.prev = np.zeros((n, 3))  # the previous sample's f_x, gravity reaction g_x, sum of torques
-        self.area = np.zeros((n, 3))  # their integrals over the open window
+        self.prev = np.zeros((n, 4))  # the previous sample's f_x, gravity reaction g_x, sum of torques, F_MR (eq. 4)
+        self.area = np.zeros((n, 4))  # their integrals over the open window
         self.w0 = np.zeros(n)  # sum of wheel speeds at the window's start
         self.slow = np.zeros(n, dtype=bool)  # the window has a sample below min_speed, turning fast or not finite
 
@@ -79,20 +106,42 @@ class TorqueScaleBank:
             return inputs, None
         inputs.check()  # the observer's own named errors for a bad shape or value, before any arithmetic here
         m, sd = self.step(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
-                          inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed)
-        if np.all(m == 1.0) and np.all(sd == self.prior_sigma):  # never learnt: exactly the configured prior
+                          inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
+        if np.all(m == 1.0) and np.all(sd == self.state_sigma):  # never learnt: exactly the configured prior
             return inputs, None
         inputs = dataclasses.replace(inputs, wheel_torque=inputs.wheel_torque * m[:, None])
-        return inputs, sd / m
+        return inputs, self.band_sigma(sd) / m
+
+    def band_sigma(self, sd: np.ndarray) -> np.ndarray:
+        """k's 1-sigma for K's band: the windows' information about k (the state's posterior precision less its
+        prior's, ``state_sigma``) combined with the torque constant's prior ``prior_sigma``
+        (``soil.gross_scale_sigma``).  With ``state_sigma`` = ``prior_sigma`` this is the state's posterior itself.
+        A wider state prior lets the balance move k as far as the data say (a payload the vehicle file does not
+        know: 0.80), while a start ramp's one window, which hardly informs k, leaves K's band at the torque
+        constant's prior instead of widening it to the state's (sweep-3s-0.1: std/K 0.22 -> 0.44 with 0.15)."""
+        if self.state_sigma == self.prior_sigma:
+            return sd
+        info = np.maximum(1.0 / np.maximum(sd, 1e-12) ** 2 - 1.0 / self.state_sigma**2, 0.0)
+        return 1.0 / np.sqrt(1.0 / self.prior_sigma**2 + info)
+
+    def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
+        """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept):
+        the next samples' modelled motion resistance (eq. 4) uses it."""
+        k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
+        self.soil_k[ix] = np.where(np.isfinite(k) & (k > 0), k, self.soil_k[ix])
+        if slip is not None:
+            self.soil_slip[ix] = np.asarray(slip, dtype=float).reshape(-1, 4)
 
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """k's posterior mean and 1-sigma for the vehicles ``ix``."""
         return self.theta[ix, 0].copy(), np.sqrt(self.P[ix, 0, 0])
 
-    def step(self, ix: np.ndarray, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, ix: np.ndarray, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed,
+             normal_force=None) -> tuple[np.ndarray, np.ndarray]:
         """Add one sample per vehicle (stamps s, f_x m/s^2, pitch rad, yaw rate rad/s, wheel speeds (k, 4)
-        rad/s, logged torques (k, 4), ground speed m/s (NaN: the rims' mean)); close the windows that are
-        full and update their vehicles' state.  Returns k's mean and 1-sigma after this sample."""
+        rad/s, logged torques (k, 4), ground speed m/s (NaN: the rims' mean), normal forces (k, 4) N (None:
+        no modelled resistance, b is the whole F_MR)); close the windows that are full and update their
+        vehicles' state.  Returns k's mean and 1-sigma after this sample."""
         cfg, v = self.cfg, self.vehicle
         if not cfg.enabled or self.prior_sigma <= 0:
             return self.scale(ix)
@@ -100,11 +149,18 @@ class TorqueScaleBank:
         w_sum = np.asarray(wheel_speed, dtype=float).sum(axis=1)
         t_sum = np.asarray(torque, dtype=float).sum(axis=1)
         g_x = gravity_from_attitude(0.0, np.asarray(pitch, dtype=float), STANDARD_GRAVITY)[..., 0]
-        cur = np.stack([np.asarray(f_x, dtype=float), np.broadcast_to(g_x, stamp.shape), t_sum], axis=1)
         spd = np.asarray(speed, dtype=float)
         spd = np.where(np.isnan(spd), w_sum / 4.0 * v.wheel_radius, spd)
         slip = slip_ratio_unchecked(np.asarray(wheel_speed, dtype=float) * v.wheel_radius, spd[:, None], 1.0, 0.0,
                                     DEFAULT_FLOOR).slip
+        if normal_force is None or not cfg.model_resistance:
+            f_mr = np.zeros(stamp.shape)
+        else:  # eq. 4 is even in S: the body-frame slip's magnitude is the travel frame's
+            s_mr = np.where(np.isfinite(self.soil_slip[ix]), self.soil_slip[ix], slip)
+            f_mr = modelled_resistance(np.where(np.isfinite(s_mr), s_mr, 0.0), self.soil_k[ix],
+                                       np.asarray(normal_force, dtype=float), np.where(spd < 0, -1.0, 1.0),
+                                       self.constants)
+        cur = np.stack([np.asarray(f_x, dtype=float), np.broadcast_to(g_x, stamp.shape), t_sum, f_mr], axis=1)
         bad = (~np.isfinite(cur).all(axis=1) | ~np.isfinite(w_sum) | (np.abs(spd) < cfg.min_speed)
                | ~(np.abs(np.asarray(yaw_rate, dtype=float)) <= cfg.max_yaw_rate) | ~(np.abs(slip) <= cfg.max_slip).all(axis=1))
         t_prev = self.t_prev[ix]
@@ -120,7 +176,7 @@ class TorqueScaleBank:
             j = np.flatnonzero(full)
             means = area[j] / span[j, None]
             omega_dot = (w_sum[j] - self.w0[ix[j]]) / span[j]
-            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v)
+            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3])
             valid = ~slow[j]
             if valid.any():
                 jj = j[valid]

@@ -7,20 +7,43 @@ from __future__ import annotations
 
 import numpy as np
 
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.traction import motion_resistance
 from soilocp.model.vehicle import VehicleParams
 
 
-def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams,
+                         resistance=None) -> tuple[np.ndarray, np.ndarray]:
     """Eq. TC: summed over the wheels, eq. 13 gives T_i / R = F_GT,i + I_w omega_dot_i / R, and the
     body's longitudinal balance (eq. 29, docs/method.md §3: only the specific force f_x enters, so
     no grade term) gives m f_x = sum_i (F_GT,i - F_MR,i).  With the logged torque T_log = T / k:
 
         m f_x + (I_w / R) sum_i omega_dot_i  =  k sum_i T_log,i / R  -  F_MR
 
-    Returns (x, y) = (sum T_log / R, m f_x + I_w sum omega_dot / R) in N, so that y = k x - F_MR.  m is the
-    vehicle file's mass: a payload it does not know (true mass m') reads as k m / m' (the common scale of
-    gross traction, motor constant x 1 / mass).  Arguments broadcast (window means or samples)."""
+    Returns (x, y) = (sum T_log / R, m f_x + I_w sum omega_dot / R + F_MR,model) in N, so that
+    y = k x - b with b = F_MR - F_MR,model: the motion resistance the model does not give.
+    ``resistance``: F_MR,model in N (:func:`modelled_resistance`, eq. 4 at the wheels' slips and a K);
+    None: 0, b is the whole F_MR (``soilocp calibrate-torque``, which knows no soil, fits it as a constant).
+    m is the vehicle file's mass: a payload it does not know (true mass m') reads as k m / m' (the common
+    scale of gross traction, motor constant x 1 / mass).  Arguments broadcast (window means or samples)."""
     r = vehicle.wheel_radius
     x = np.asarray(torque_sum, dtype=float) / r
     y = vehicle.mass * np.asarray(f_x, dtype=float) + vehicle.wheel_inertia * np.asarray(omega_dot_sum, dtype=float) / r
+    if resistance is not None:
+        y = y + np.asarray(resistance, dtype=float)
     return x, y
+
+
+def modelled_resistance(slip, soil_strength, normal_force, direction,
+                        constants: ModelConstants = DEFAULT_CONSTANTS) -> np.ndarray:
+    """F_MR,model = d sum_i F_z,i r(S_i, K) in N, the body-frame motion resistance that eq. TC subtracts:
+    eq. 4 with |S| (docs/method.md §11: even in S, it opposes travel for both slip signs) at each wheel's
+    slip (eq. 1), the soil's K and the wheel's normal force; d = +-1 the direction of travel (§17: in
+    reverse the resistance pushes the body forwards).  Why modelled and not a slow state: eq. 4's C5 / K
+    term makes it negative below K ~ 125 (about -30 N on sand, +10 N on grass for the 100 kg rover) and
+    at small slip it grows with |S|, i.e. with the acceleration that identifies k (a random-walk F_MR read
+    k 2-7 % low on the accelerate/brake drives, docs/robustness.md).  slip, normal_force (k, 4);
+    soil_strength, direction (k,)."""
+    s = np.asarray(slip, dtype=float)
+    r = np.asarray(motion_resistance(s, np.asarray(soil_strength, dtype=float)[..., None], constants))
+    return np.asarray(direction, dtype=float) * (np.asarray(normal_force, dtype=float) * r).sum(axis=-1)

@@ -279,6 +279,18 @@ impl SoilGridBank {
             .map_err(PyValueError::new_err)
     }
 
+    /// Vehicle `i`'s axle-check window (soil/axles.rs): the decaying time with the axles' z over
+    /// the threshold, and all the judged time, as of its last step.  The status reads them where one
+    /// axle is not informing now, so the check does not judge now (soil_strength.SoilBank._vouch).
+    fn axle_window(&self, i: usize) -> PyResult<(f64, f64)> {
+        let b = self
+            .inner
+            .vehicles
+            .get(i)
+            .ok_or_else(|| PyValueError::new_err(format!("vehicle index {i} out of range")))?;
+        Ok((b.axles.over, b.axles.weight))
+    }
+
     #[getter]
     fn n_vehicles(&self) -> usize {
         self.inner.vehicles.len()
