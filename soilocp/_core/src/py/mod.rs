@@ -2,5 +2,6 @@
 //! runs the pure-Rust kernel once per element and returns arrays; one call per step.
 
 pub mod normal_force;
+pub mod observer;
 pub mod ocp;
 pub mod traction;

@@ -1,0 +1,163 @@
+//! The arithmetic rules of numpy that the observer's numbers depend on, so that the port gives
+//! the numbers of the numpy kernel it replaced (scripts/equivalence.py):
+//!
+//! * `np.minimum` / `np.maximum` propagate a NaN (Rust's `f64::min` drops it, and the divergence
+//!   guard must see it);
+//! * `ndarray.sum` over a contiguous axis is numpy's pairwise sum (8 accumulators from 8 terms);
+//! * a matrix product (`@`, OpenBLAS dgemm) is, for each entry, one fused multiply-add per term in
+//!   index order from 0 (checked against numpy 2.4 / OpenBLAS on 14 x 14 and 7 x 14 stacks: every
+//!   entry equal);
+//! * a matrix-vector product (`@` with a (n, 1) right side, OpenBLAS dgemv) accumulates in 4
+//!   lanes; [`matvec`] follows the order that matched most entries (48 of 56 on random 14 x 14
+//!   products; sparse rows, most of ours, differ less): not bit-identical, hence the documented
+//!   tolerance of scripts/equivalence.py.
+
+/// `np.minimum(a, b)`: NaN if either is NaN.
+#[inline]
+pub fn np_min(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `np.maximum(a, b)`: NaN if either is NaN.
+#[inline]
+pub fn np_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `np.minimum(np.maximum(x, lo), hi)`.
+#[inline]
+pub fn clip(x: f64, lo: f64, hi: f64) -> f64 {
+    np_min(np_max(x, lo), hi)
+}
+
+/// numpy's pairwise summation of a contiguous run (`a.sum()` for up to 128 terms): sequential
+/// below 8 terms; otherwise 8 running sums over blocks of 8, combined as ((r0+r1)+(r2+r3)) +
+/// ((r4+r5)+(r6+r7)), then the remainder in order.
+pub fn np_sum(a: &[f64]) -> f64 {
+    let n = a.len();
+    if n < 8 {
+        let mut s = 0.0;
+        for &v in a {
+            s += v;
+        }
+        return s;
+    }
+    let mut r = [0.0; 8];
+    r.copy_from_slice(&a[..8]);
+    let whole = n - n % 8;
+    let mut i = 8;
+    while i < whole {
+        for j in 0..8 {
+            r[j] += a[i + j];
+        }
+        i += 8;
+    }
+    let mut s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    while i < n {
+        s += a[i];
+        i += 1;
+    }
+    s
+}
+
+/// One entry of a matrix product: sum_l a_l b_l by fused multiply-adds in order (dgemm's order).
+#[inline]
+pub fn dot_fma<I: Iterator<Item = (f64, f64)>>(terms: I) -> f64 {
+    let mut acc = 0.0;
+    for (a, b) in terms {
+        acc = a.mul_add(b, acc);
+    }
+    acc
+}
+
+/// C (m x p) = A (m x q) B (q x p), row-major, each entry by [`dot_fma`]; `bt`: B is given
+/// transposed (p x q), as numpy's `X @ Y.T`.
+pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize, bt: bool) {
+    for i in 0..m {
+        let row = &a[i * q..(i + 1) * q];
+        for j in 0..p {
+            c[i * p + j] = if bt {
+                dot_fma(row.iter().copied().zip(b[j * q..(j + 1) * q].iter().copied()))
+            } else {
+                dot_fma(row.iter().enumerate().map(|(l, &v)| (v, b[l * p + j])))
+            };
+        }
+    }
+}
+
+/// y (m) = A (m x q) x (q), row-major: dgemv's order as far as it is known (module doc): four
+/// lanes of fused multiply-adds over the first q - q % 4 terms, combined as (l0 + l2) + (l1 + l3),
+/// plus the remaining terms summed in order.
+pub fn matvec(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    let whole = q - q % 4;
+    for i in 0..m {
+        let row = &a[i * q..(i + 1) * q];
+        let mut lanes = [0.0; 4];
+        for l in 0..whole {
+            lanes[l % 4] = row[l].mul_add(x[l], lanes[l % 4]);
+        }
+        let mut s = if whole > 0 {
+            (lanes[0] + lanes[2]) + (lanes[1] + lanes[3])
+        } else {
+            0.0
+        };
+        let mut tail = 0.0;
+        for l in whole..q {
+            tail += row[l] * x[l];
+        }
+        if q > whole {
+            s += tail;
+        }
+        y[i] = s;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn min_max_propagate_nan() {
+        assert!(np_min(f64::NAN, 1.0).is_nan() && np_min(1.0, f64::NAN).is_nan());
+        assert!(np_max(f64::NAN, 1.0).is_nan() && clip(f64::NAN, -1.0, 1.0).is_nan());
+        assert_eq!(clip(3.0, -1.5, 1.5), 1.5);
+        assert_eq!(clip(-3.0, -1.5, 1.5), -1.5);
+    }
+
+    #[test]
+    fn pairwise_sum_groups_like_numpy() {
+        // 1e16 + 1 + 1 ... : sequential summation loses every 1, numpy's 8 lanes keep them
+        // (np.array([1e16] + [1.0] * 9).sum() == 1.0000000000000008e16 with numpy 2.4)
+        let mut a = vec![1e16];
+        a.extend([1.0; 9]);
+        assert_eq!(np_sum(&a), 1.0000000000000008e16);
+        assert_eq!(np_sum(&[0.1, 0.2, 0.3]), 0.1 + 0.2 + 0.3);
+    }
+
+    #[test]
+    fn matmul_is_fused_in_order() {
+        // [[1, 2], [3, 4]] @ [[5, 6], [7, 8]] and its transposed form
+        let a = [1.0, 2.0, 3.0, 4.0];
+        let b = [5.0, 6.0, 7.0, 8.0];
+        let mut c = [0.0; 4];
+        matmul(&a, &b, &mut c, 2, 2, 2, false);
+        assert_eq!(c, [19.0, 22.0, 43.0, 50.0]);
+        matmul(&a, &b, &mut c, 2, 2, 2, true);
+        assert_eq!(c, [17.0, 23.0, 39.0, 53.0]);
+        let mut y = [0.0; 2];
+        matvec(&a, &[1.0, -1.0], &mut y, 2, 2);
+        assert_eq!(y, [-1.0, -1.0]);
+    }
+}
