@@ -76,24 +76,6 @@ def test_model_written_into_reused_buffers_equals_a_fresh_build():
             model(L, DEFAULT_VEHICLE, np.ones((4, 4)), np.ones((4, 4)), np.zeros(4), np.zeros((4, 4, L.n_res)), out=buf)
 
 
-def test_predict_with_diagonal_noise_shortcut_equals_the_full_product():
-    """``predict(..., q_diag)`` scales A's columns instead of multiplying by the diagonal Qc: same numbers."""
-    from soilocp.estimation.kalman_kernel import predict
-
-    rng = np.random.default_rng(4)
-    n, k = 12, 5
-    A = np.zeros((k, n, n))
-    A[:, 8:12, 0:6] = rng.normal(size=(k, 4, 6))  # nilpotent, as the observer's
-    q = rng.uniform(0.01, 1.0, n)
-    x, b, dt = rng.normal(size=(k, n)), rng.normal(size=(k, n)), rng.uniform(0.001, 0.1, k)
-    G = rng.normal(size=(k, n, n))
-    P = G @ G.transpose(0, 2, 1)
-    x1, P1 = predict(x, P, A, b, np.diag(q), dt)
-    x2, P2 = predict(x, P, A, b, np.diag(q), dt, q)
-    np.testing.assert_allclose(x2, x1, rtol=1e-14, atol=1e-14)
-    np.testing.assert_allclose(P2, P1, rtol=1e-13, atol=1e-13)
-
-
 def test_ocp_arrays_with_missing_k_equal_each_k_alone():
     """The OCP kernel's fast path (every K present) and its masked path (some NaN) agree."""
     from soilocp.model.ocp import ocp_arrays

@@ -300,16 +300,16 @@ impl FilterBank {
         if l.n_res > 0 {
             matvec(&self.m, &x[l.res()..l.lat()], &mut out.resistance, 4, l.n_res);
         }
-        let mut j = [0.0; 4 * 32];
+        let mut j = [0.0; 4 * 19];
         for i in 0..4 {
             j[i * n + i] = 1.0;
             for r in 0..l.n_res {
                 j[i * n + l.res() + r] = self.m[i * l.n_res + r];
             }
         }
-        let mut jp = [0.0; 4 * 32];
-        matmul(&j[..4 * n], p, &mut jp[..4 * n], 4, n, n, false);
-        let mut row = [0.0; 32];
+        let mut jp = [0.0; 4 * 19];
+        matmul(&j[..4 * n], p, &mut jp[..4 * n], 4, n, n);
+        let mut row = [0.0; 19];
         for i in 0..4 {
             for c in 0..n {
                 row[c] = jp[i * n + c] * j[i * n + c];

@@ -4,7 +4,7 @@
 //! Matrices are row-major slices; `n` is the state size, [`N_MEAS`] the measurement rows.
 
 use super::layout::N_MEAS;
-use super::numeric::{clip, matmul, matvec, np_max, np_min, np_sum};
+use super::numeric::{clip, matmul, matmul_bt, matvec, np_max, np_min, np_sum};
 
 /// Scratch matrices of one step, allocated once per bank.
 pub struct Workspace {
@@ -21,6 +21,7 @@ pub struct Workspace {
     k: Vec<f64>,
     kr: Vec<f64>,
     v: Vec<f64>,
+    bt: Vec<f64>,
 }
 
 impl Workspace {
@@ -41,6 +42,7 @@ impl Workspace {
             k: vec![0.0; nm],
             kr: vec![0.0; nm],
             v: vec![0.0; n],
+            bt: vec![0.0; nn.max(nm)],
         }
     }
 }
@@ -71,7 +73,7 @@ pub fn predict(
         }
     }
     // A Q A^T before Q_d's sum, in Q_d's order: (AQ + AQ^T) h2 + Q dt + (AQ A^T) h3
-    matmul(&ws.aq, a, &mut ws.t1, n, n, n, true);
+    matmul_bt(&ws.aq, a, &mut ws.t1, n, n, n, &mut ws.bt);
     for i in 0..n {
         for j in 0..n {
             let mut v = (ws.aq[i * n + j] + ws.aq[j * n + i]) * h2;
@@ -79,8 +81,8 @@ pub fn predict(
             ws.qd[i * n + j] = v + ws.t1[i * n + j] * h3;
         }
     }
-    matmul(&ws.f, p, &mut ws.t1, n, n, n, false);
-    matmul(&ws.t1, &ws.f, &mut ws.t2, n, n, n, true);
+    matmul(&ws.f, p, &mut ws.t1, n, n, n);
+    matmul_bt(&ws.t1, &ws.f, &mut ws.t2, n, n, n, &mut ws.bt);
     for (pij, (fpf, qd)) in p.iter_mut().zip(ws.t2.iter().zip(ws.qd.iter())) {
         *pij = fpf + qd;
     }
@@ -139,7 +141,7 @@ pub fn gated_update(
         innov[i] = z[i] - hx[i];
     }
     // H P H^T's diagonal as numpy's ((H @ P) * H).sum(axis=-1)
-    matmul(h, p, &mut ws.pht, m, n, n, false);
+    matmul(h, p, &mut ws.pht, m, n, n);
     let mut hph = [0.0; N_MEAS];
     for i in 0..m {
         for j in 0..n {
@@ -174,33 +176,33 @@ pub fn gated_update(
             1.0
         };
     }
-    matmul(p, &ws.hm, &mut ws.pht, n, n, m, true);
-    matmul(&ws.hm, &ws.pht, &mut ws.s, m, n, m, false);
+    matmul_bt(p, &ws.hm, &mut ws.pht, n, n, m, &mut ws.bt);
+    matmul(&ws.hm, &ws.pht, &mut ws.s, m, n, m);
     for i in 0..m {
         ws.s[i * m + i] += rm[i];
     }
     invert(&ws.s, &mut ws.s_inv, m);
-    matmul(&ws.pht, &ws.s_inv, &mut ws.k, n, m, m, false);
+    matmul(&ws.pht, &ws.s_inv, &mut ws.k, n, m, m);
     matvec(&ws.k, &y, &mut ws.v, n, m);
     for i in 0..n {
         x[i] += ws.v[i];
     }
     // I - K H, then (I - K H) P (I - K H)^T + (K R) K^T
-    matmul(&ws.k, &ws.hm, &mut ws.t1, n, m, n, false);
+    matmul(&ws.k, &ws.hm, &mut ws.t1, n, m, n);
     for i in 0..n {
         for j in 0..n {
             let e = if i == j { 1.0 } else { 0.0 };
             ws.f[i * n + j] = e - ws.t1[i * n + j];
         }
     }
-    matmul(&ws.f, p, &mut ws.t1, n, n, n, false);
-    matmul(&ws.t1, &ws.f, &mut ws.t2, n, n, n, true);
+    matmul(&ws.f, p, &mut ws.t1, n, n, n);
+    matmul_bt(&ws.t1, &ws.f, &mut ws.t2, n, n, n, &mut ws.bt);
     for i in 0..n {
         for j in 0..m {
             ws.kr[i * m + j] = ws.k[i * m + j] * rm[j];
         }
     }
-    matmul(&ws.kr, &ws.k, &mut ws.t1, n, m, n, true);
+    matmul_bt(&ws.kr, &ws.k, &mut ws.t1, n, m, n, &mut ws.bt);
     for (pij, (a, b)) in p.iter_mut().zip(ws.t2.iter().zip(ws.t1.iter())) {
         *pij = a + b;
     }
@@ -273,8 +275,8 @@ pub fn condition(x: &mut [f64], p: &mut [f64], lower: &[f64], upper: &[f64], flo
             p[j * n + i] = s;
         }
     }
-    let mut sd = [0.0; 32];
-    let mut var = [0.0; 32];
+    let mut sd = [0.0; 19];
+    let mut var = [0.0; 19];
     for i in 0..n {
         var[i] = np_min(np_max(p[i * n + i], floor), ceiling);
         sd[i] = var[i].sqrt();

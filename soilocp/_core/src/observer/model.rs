@@ -156,7 +156,7 @@ mod tests {
         assert!((m[0] - 1.0).abs() < 1e-15 && (m[1] - 0.2).abs() < 1e-15);
         build(&l, &rover(), &[150.0; 4], &[5.0; 4], 0.1, &m, &mut a, &mut b, &mut h);
         let mut aa = vec![0.0; n * n];
-        crate::observer::numeric::matmul(&a, &a, &mut aa, n, n, n, false);
+        crate::observer::numeric::matmul(&a, &a, &mut aa, n, n, n);
         assert!(aa.iter().all(|&v| v == 0.0), "A @ A = 0 (eq. 34's exact series)");
         assert_eq!(&h[..4], &a[l.v() * n..l.v() * n + 4]);
         assert_eq!(a[l.v() * n], 150.0 / 60.0);

@@ -73,7 +73,7 @@ pub fn np_sum(a: &[f64]) -> f64 {
 }
 
 /// One entry of a matrix product: sum_l a_l b_l by fused multiply-adds in order (dgemm's order).
-#[inline]
+#[inline(always)]
 pub fn dot_fma<I: Iterator<Item = (f64, f64)>>(terms: I) -> f64 {
     let mut acc = 0.0;
     for (a, b) in terms {
@@ -82,25 +82,81 @@ pub fn dot_fma<I: Iterator<Item = (f64, f64)>>(terms: I) -> f64 {
     acc
 }
 
-/// C (m x p) = A (m x q) B (q x p), row-major, each entry by [`dot_fma`]; `bt`: B is given
-/// transposed (p x q), as numpy's `X @ Y.T`.
-pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize, bt: bool) {
+/// C (m x p) = A (m x q) B (q x p), row-major, each entry's terms by fused multiply-adds in
+/// order l = 0..q from 0.0 (dgemm's order, [`dot_fma`]).  A term whose a_il is 0 is skipped: it
+/// adds an exact zero (our A, H, F and J are mostly zeros); only a non-finite b_lj behind a zero
+/// a_il would have made the entry NaN, and the bank's divergence guard checks the state and P.
+pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has the FMA instructions (checked on the line above)
+        unsafe { matmul_fma(a, b, c, m, q, p) };
+        return;
+    }
+    matmul_body(a, b, c, m, q, p);
+}
+
+/// C (m x p) = A (m x q) B^T with B given as (p x q), as numpy's `X @ Y.T`: B transposed into
+/// `scratch` (at least q x p), then [`matmul`].
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_bt(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize, scratch: &mut [f64]) {
+    for j in 0..p {
+        for l in 0..q {
+            scratch[l * p + j] = b[j * q + l];
+        }
+    }
+    matmul(a, &scratch[..q * p], c, m, q, p);
+}
+
+/// [`matvec`]'s order: y (m) = A (m x q) x (q), row-major (module doc): four lanes of fused
+/// multiply-adds over the first q - q % 4 terms, combined as (l0 + l2) + (l1 + l3), plus the
+/// remaining terms summed in order.
+pub fn matvec(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has the FMA instructions (checked on the line above)
+        unsafe { matvec_fma(a, x, y, m, q) };
+        return;
+    }
+    matvec_body(a, x, y, m, q);
+}
+
+// `f64::mul_add` is one instruction where the compiler may use FMA, and a call to libm's fma
+// (software, tens of ns) where it may not, as on the baseline x86-64 target: the products are
+// compiled twice, the FMA copy chosen at run time.  Both round each fused product once: the same
+// numbers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "fma")]
+unsafe fn matmul_fma(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    matmul_body(a, b, c, m, q, p);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "fma")]
+unsafe fn matvec_fma(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    matvec_body(a, x, y, m, q);
+}
+
+#[inline(always)]
+fn matmul_body(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    // the p entries of a row are independent chains, run side by side in vector registers
     for i in 0..m {
-        let row = &a[i * q..(i + 1) * q];
-        for j in 0..p {
-            c[i * p + j] = if bt {
-                dot_fma(row.iter().copied().zip(b[j * q..(j + 1) * q].iter().copied()))
-            } else {
-                dot_fma(row.iter().enumerate().map(|(l, &v)| (v, b[l * p + j])))
-            };
+        let row = &mut c[i * p..(i + 1) * p];
+        row.fill(0.0);
+        for l in 0..q {
+            let ail = a[i * q + l];
+            if ail == 0.0 {
+                continue;
+            }
+            for (cj, &blj) in row.iter_mut().zip(&b[l * p..(l + 1) * p]) {
+                *cj = ail.mul_add(blj, *cj);
+            }
         }
     }
 }
 
-/// y (m) = A (m x q) x (q), row-major: dgemv's order as far as it is known (module doc): four
-/// lanes of fused multiply-adds over the first q - q % 4 terms, combined as (l0 + l2) + (l1 + l3),
-/// plus the remaining terms summed in order.
-pub fn matvec(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+#[inline(always)]
+fn matvec_body(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
     let whole = q - q % 4;
     for i in 0..m {
         let row = &a[i * q..(i + 1) * q];
@@ -152,9 +208,9 @@ mod tests {
         let a = [1.0, 2.0, 3.0, 4.0];
         let b = [5.0, 6.0, 7.0, 8.0];
         let mut c = [0.0; 4];
-        matmul(&a, &b, &mut c, 2, 2, 2, false);
+        matmul(&a, &b, &mut c, 2, 2, 2);
         assert_eq!(c, [19.0, 22.0, 43.0, 50.0]);
-        matmul(&a, &b, &mut c, 2, 2, 2, true);
+        matmul_bt(&a, &b, &mut c, 2, 2, 2, &mut [0.0; 4]);
         assert_eq!(c, [17.0, 23.0, 39.0, 53.0]);
         let mut y = [0.0; 2];
         matvec(&a, &[1.0, -1.0], &mut y, 2, 2);
