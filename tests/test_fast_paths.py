@@ -54,28 +54,6 @@ def test_ocp_stage_with_the_printed_model_on_very_firm_soil():
     assert rec.S_E == 0.0 and rec.te_at_S_E is None and rec.mu_T > 1.0
 
 
-def test_model_written_into_reused_buffers_equals_a_fresh_build():
-    """The observer's per-step path writes A, b, H into one preallocated buffer (issue 11): a step
-    after another with different forces, torques, pitch, resistance maps and number of vehicles
-    leaves nothing stale; more vehicles than the buffer holds is an error."""
-    from soilocp.estimation.observer import ModelBuffers, StateLayout, model
-
-    rng = np.random.default_rng(3)
-    for structure in ("slip", "shared", "per_wheel", "none"):
-        L = StateLayout.of(structure)
-        buf = ModelBuffers(L, 3)
-        for k in (3, 2, 3, 1):
-            fz = rng.uniform(200, 900, (k, 4))
-            torque, pitch = rng.uniform(-40, 40, (k, 4)), rng.uniform(-0.3, 0.3, k)
-            M = rng.uniform(-1, 1, (k, 4, L.n_res))
-            fresh = model(L, DEFAULT_VEHICLE, fz, torque, pitch, M)
-            reused = model(L, DEFAULT_VEHICLE, fz, torque, pitch, M, out=buf)
-            for a, b in zip(fresh, reused):
-                np.testing.assert_array_equal(a, b)
-        with pytest.raises(ValueError, match="buffers hold 3 vehicles, 4"):
-            model(L, DEFAULT_VEHICLE, np.ones((4, 4)), np.ones((4, 4)), np.zeros(4), np.zeros((4, 4, L.n_res)), out=buf)
-
-
 def test_ocp_arrays_with_missing_k_equal_each_k_alone():
     """The OCP kernel's fast path (every K present) and its masked path (some NaN) agree."""
     from soilocp.model.ocp import ocp_arrays
