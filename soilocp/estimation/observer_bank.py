@@ -1,10 +1,13 @@
-"""The traction observer's kernel: N vehicles' Kalman filters as stacked numpy arrays.
+"""The traction observer: N vehicles' Kalman filters, stepped together, k of them at a time.
 
-One implementation serves every caller: the single-vehicle stage (:mod:`soilocp.estimation.pipeline`, N = 1),
-the batched service (:mod:`soilocp.estimation.batch`, N = many) and, through :func:`model`, the filterpy
-reference :class:`soilocp.estimation.observer.TractionObserver` that the tests check this kernel against.
-Shapes follow filterpy's procedural style: x (k, n), P (k, n, n), z (k, 7), with k the number of
-vehicles stepped now.
+One implementation serves every caller: the single-vehicle stage (:mod:`soilocp.estimation.pipeline`, N = 1)
+and the batched service (:mod:`soilocp.estimation.batch`, N = many).  The filter itself (the model below,
+predict, the gated update, re-anchoring, conditioning, resets, the divergence guard; state x (N, n), P (N, n, n)
+and gate counters) runs in the compiled core, ``soilocp._core.ObserverCore`` (soilocp/_core/src/observer/),
+one call per step for the k vehicles stepped; this module runs the readings clock, the per-side torque split,
+the encoder lead, the ground-speed latency and the refresh intervals around that call, and words the reset
+reasons from the core's codes.  The tests check it against filterpy's KalmanFilter
+(:class:`soilocp.estimation.observer_reference.TractionObserver`), step by step.
 
 Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.estimation.observer.StateLayout`)
 -------------------------------------------------------------------------------------------------
