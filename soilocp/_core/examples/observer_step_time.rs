@@ -1,5 +1,6 @@
-//! Wall time of one observer step (FilterBank::step, slip structure) without Python: `cargo run
-//! --release --example observer_step_time`.
+//! Wall time of one observer step (FilterBank::step, slip structure) without Python, on a drive
+//! whose speeds, torques and forces keep changing (constant inputs let P decay into subnormal
+//! numbers, each a slow operation): `cargo run --release --example observer_step_time [STEPS]`.
 use _core::observer::bank::{FilterBank, Sample, Settings};
 use _core::observer::layout::Layout;
 use _core::observer::model::Vehicle;
@@ -56,7 +57,16 @@ fn main() {
     let steps: usize = std::env::args().nth(1).map_or(100_000, |s| s.parse().unwrap());
     let t = std::time::Instant::now();
     for i in 0..steps {
-        sample.wheel_speed_z[0] = 5.0 + 0.01 * ((i % 7) as f64);
+        let t = i as f64 * 0.01;
+        let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
+        for w in 0..4 {
+            sample.wheel_speed_z[w] = 5.0 + 1.5 * (0.3 * t + w as f64).sin() + noise(w);
+            sample.torque[w] = 3.0 + 2.0 * (0.5 * t + w as f64).cos();
+            sample.normal_force[w] = 150.0 + 20.0 * (0.2 * t + w as f64).sin();
+        }
+        sample.wheel_speed = sample.wheel_speed_z;
+        sample.ground_speed_z = 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0;
+        sample.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
         std::hint::black_box(bank.step(0, &sample));
     }
     println!("{:.2} us per step", t.elapsed().as_secs_f64() / steps as f64 * 1e6);
