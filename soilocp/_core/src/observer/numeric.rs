@@ -72,18 +72,8 @@ pub fn np_sum(a: &[f64]) -> f64 {
     s
 }
 
-/// One entry of a matrix product: sum_l a_l b_l by fused multiply-adds in order (dgemm's order).
-#[inline(always)]
-pub fn dot_fma<I: Iterator<Item = (f64, f64)>>(terms: I) -> f64 {
-    let mut acc = 0.0;
-    for (a, b) in terms {
-        acc = a.mul_add(b, acc);
-    }
-    acc
-}
-
 /// C (m x p) = A (m x q) B (q x p), row-major, each entry's terms by fused multiply-adds in
-/// order l = 0..q from 0.0 (dgemm's order, [`dot_fma`]).  A term whose a_il is 0 is skipped: it
+/// order l = 0..q from 0.0 (dgemm's order).  A term whose a_il is 0 is skipped: it
 /// adds an exact zero (our A, H, F and J are mostly zeros); only a non-finite b_lj behind a zero
 /// a_il would have made the entry NaN, and the bank's divergence guard checks the state and P.
 pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
