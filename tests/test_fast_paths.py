@@ -54,46 +54,6 @@ def test_ocp_stage_with_the_printed_model_on_very_firm_soil():
     assert rec.S_E == 0.0 and rec.te_at_S_E is None and rec.mu_T > 1.0
 
 
-def test_model_written_into_reused_buffers_equals_a_fresh_build():
-    """The observer's per-step path writes A, b, H into one preallocated buffer (issue 11): a step
-    after another with different forces, torques, pitch, resistance maps and number of vehicles
-    leaves nothing stale; more vehicles than the buffer holds is an error."""
-    from soilocp.estimation.observer import ModelBuffers, StateLayout, model
-
-    rng = np.random.default_rng(3)
-    for structure in ("slip", "shared", "per_wheel", "none"):
-        L = StateLayout.of(structure)
-        buf = ModelBuffers(L, 3)
-        for k in (3, 2, 3, 1):
-            fz = rng.uniform(200, 900, (k, 4))
-            torque, pitch = rng.uniform(-40, 40, (k, 4)), rng.uniform(-0.3, 0.3, k)
-            M = rng.uniform(-1, 1, (k, 4, L.n_res))
-            fresh = model(L, DEFAULT_VEHICLE, fz, torque, pitch, M)
-            reused = model(L, DEFAULT_VEHICLE, fz, torque, pitch, M, out=buf)
-            for a, b in zip(fresh, reused):
-                np.testing.assert_array_equal(a, b)
-        with pytest.raises(ValueError, match="buffers hold 3 vehicles, 4"):
-            model(L, DEFAULT_VEHICLE, np.ones((4, 4)), np.ones((4, 4)), np.zeros(4), np.zeros((4, 4, L.n_res)), out=buf)
-
-
-def test_predict_with_diagonal_noise_shortcut_equals_the_full_product():
-    """``predict(..., q_diag)`` scales A's columns instead of multiplying by the diagonal Qc: same numbers."""
-    from soilocp.estimation.kalman_kernel import predict
-
-    rng = np.random.default_rng(4)
-    n, k = 12, 5
-    A = np.zeros((k, n, n))
-    A[:, 8:12, 0:6] = rng.normal(size=(k, 4, 6))  # nilpotent, as the observer's
-    q = rng.uniform(0.01, 1.0, n)
-    x, b, dt = rng.normal(size=(k, n)), rng.normal(size=(k, n)), rng.uniform(0.001, 0.1, k)
-    G = rng.normal(size=(k, n, n))
-    P = G @ G.transpose(0, 2, 1)
-    x1, P1 = predict(x, P, A, b, np.diag(q), dt)
-    x2, P2 = predict(x, P, A, b, np.diag(q), dt, q)
-    np.testing.assert_allclose(x2, x1, rtol=1e-14, atol=1e-14)
-    np.testing.assert_allclose(P2, P1, rtol=1e-13, atol=1e-13)
-
-
 def test_ocp_arrays_with_missing_k_equal_each_k_alone():
     """The OCP kernel's fast path (every K present) and its masked path (some NaN) agree."""
     from soilocp.model.ocp import ocp_arrays

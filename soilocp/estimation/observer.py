@@ -253,29 +253,6 @@ def resistance_map(layout: StateLayout, slip: Optional[np.ndarray], travel: Opti
     return np.zeros(s.shape + (0,))
 
 
-class ModelBuffers:
-    """Preallocated A (k, n, n), b (k, n), H (k, 7, n) of :func:`model` for up to k vehicles, with
-    the entries that depend on neither the sample nor the vehicle's state already written (the bias
-    term of the speed equation and the rows of H that pick states).  :func:`model` writes every
-    other non-zero entry of the first rows it needs on each call, so a buffer is reused step after
-    step, for any number of vehicles up to k, without a rebuild."""
-
-    def __init__(self, layout: StateLayout, k: int):
-        L, nx = layout, layout.n
-        self.A = np.zeros((k, nx, nx))
-        self.b = np.zeros((k, nx))
-        self.H = np.zeros((k, N_MEAS, nx))
-        # an accelerometer bias or a pitch bias would otherwise integrate into V and bias every slip
-        self.A[:, L.v, L.bias] = -1.0
-        self.H[:, 1, L.psi] = 1.0
-        self.H[:, 2:6, L.omega] = np.eye(4)
-        self.H[:, 6, L.v] = 1.0
-        om = np.arange(nx)[L.omega]
-        # (row, column) of omega_i_dot's mu_i entry, as flat indices into A[j]
-        self._wheel_diag = om * nx + np.arange(4)
-        self._A_flat = self.A.reshape(k, nx * nx)
-
-
 def path_acceleration(specific_force_x, pitch, gravity: float = STANDARD_GRAVITY):
     """The CoM's acceleration along its path, V_dot of the speed equation below, with the
     accelerometer's specific force (eq. 29, docs/method.md §3) for sum(mu_i Fz_i) / m:
@@ -290,8 +267,7 @@ def gravity_along_path(pitch, gravity: float = STANDARD_GRAVITY):
 
 
 def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray,
-          M: np.ndarray, gravity: float = STANDARD_GRAVITY,
-          out: Optional[ModelBuffers] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          M: np.ndarray, gravity: float = STANDARD_GRAVITY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A (k, n, n), b (k, n), H (k, 7, n) of eq. 33 for k vehicles, built from eqs. 11-15 and 29 at
     the current normal forces fz (k, 4) [N], wheel torques (k, 4) [N m] and pitch (k,) [rad], with
     the resistance maps M (k, 4, n_res) of :func:`resistance_map`.
@@ -302,30 +278,32 @@ def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: n
     M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
     z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
 
-    ``out``: :class:`ModelBuffers` for at least k vehicles to write into (the per-step path: no
-    allocation); the returned arrays are then views of its first k rows, overwritten by the next call.
+    The product's observer builds the same model in the compiled core (soilocp/_core/src/observer/model.rs);
+    this numpy form serves the filterpy reference (:mod:`soilocp.estimation.observer_reference`), the
+    discretisation check and :func:`observability_rank`.
     """
     L, v = layout, vehicle
-    k = fz.shape[0]
-    if out is None:
-        out = ModelBuffers(L, k)
-    if k > out.A.shape[0]:
-        raise ValueError(f"model buffers hold {out.A.shape[0]} vehicles, {k} were given")
-    A, b, H = out.A[:k], out.b[:k], out.H[:k]
-    # the operations (and their order) of the definition above, written in place
+    k, nx = fz.shape[0], L.n
+    A, b, H = np.zeros((k, nx, nx)), np.zeros((k, nx)), np.zeros((k, N_MEAS, nx))
+    # an accelerometer bias or a pitch bias would otherwise integrate into V and bias every slip
+    A[:, L.v, L.bias] = -1.0
+    H[:, 1, L.psi] = 1.0
+    H[:, 2:6, L.omega] = np.eye(4)
+    H[:, 6, L.v] = 1.0
     wheel_gain = -v.wheel_radius * fz / v.wheel_inertia
-    out._A_flat[:k, out._wheel_diag] = wheel_gain
+    wheels = np.arange(4)
+    A[:, L.omega.start + wheels, wheels] = wheel_gain
     if L.n_res:
-        np.multiply(wheel_gain[:, :, None], M, out=A[:, L.omega, L.res])
-    np.divide(torque, v.wheel_inertia, out=b[:, L.omega])
-    np.divide(fz, v.mass, out=A[:, L.v, L.mu])
+        A[:, L.omega, L.res] = wheel_gain[:, :, None] * M
+    b[:, L.omega] = torque / v.wheel_inertia
+    A[:, L.v, L.mu] = fz / v.mass
     b[:, L.v] = gravity_along_path(pitch, gravity)
-    np.divide(np.array([-v.c, -v.c, v.d, v.d]) * fz, v.yaw_inertia, out=A[:, L.psi, L.mu])
+    A[:, L.psi, L.mu] = np.array([-v.c, -v.c, v.d, v.d]) * fz / v.yaw_inertia
     lat = np.array([v.a, v.b, v.b, v.a]) * fz
     if L.n_lat == 1:
         A[:, L.psi, L.lat.start] = -lat.sum(axis=1) / v.yaw_inertia
     else:
-        np.divide(-lat, v.yaw_inertia, out=A[:, L.psi, L.lat])
+        A[:, L.psi, L.lat] = -lat / v.yaw_inertia
     H[:, 0, L.mu] = A[:, L.v, L.mu]
     return A, b, H
 

@@ -1,11 +1,12 @@
-"""The filterpy reference of the traction observer, for one vehicle.
+"""The filterpy reference of the traction observer, for one vehicle: the tests' oracle, not the product.
 
-The product's observer is the array kernel :mod:`soilocp.estimation.observer_bank` (N = 1 for one vehicle,
-N = many in the batched service).  This class runs the same model (:func:`soilocp.estimation.observer.model`),
-the same gating rule and the same conditioning (:func:`soilocp.estimation.observer_bank.condition`) on
-filterpy's ``KalmanFilter`` (its ``predict`` and its ``update`` on the kept rows), so that the
-tests can check the kernel's own predict / update against a well-kept implementation, step by
-step, on real drives (``tests/test_batch.py``).
+The product's observer is :mod:`soilocp.estimation.observer_bank`, whose filter runs in the compiled
+core (``soilocp._core.ObserverCore``, soilocp/_core/src/observer).  This class runs the model of
+:func:`soilocp.estimation.observer.model`, the same gating rule (:func:`outlier_variance`), the same
+low-speed re-anchoring (:func:`anchor_wheel_speeds`) and the same conditioning (:func:`condition`),
+written here in numpy, on filterpy's ``KalmanFilter`` (its ``predict`` and its ``update`` on the kept
+rows), so that the tests check the core's predict / update against a well-kept implementation, step
+by step, on real drives (``tests/test_batch.py``, ``tests/test_observer_core.py``).
 """
 
 from __future__ import annotations
@@ -17,11 +18,76 @@ from filterpy.kalman import KalmanFilter
 
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise, discretize, initial_covariance,
                        model, path_acceleration, resistance_map, travel_direction)
-from soilocp.estimation.observer_bank import (LIFT_OFF_FORCE, anchor_wheel_speeds, condition, encoder_lead, outlier_variance,
-                                              split_side_torque, wheel_acceleration)
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE
+from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration
 from soilocp.model.vehicle import VehicleParams
 from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.readings import ReadingClock
+
+
+def _diag(M: np.ndarray) -> np.ndarray:
+    """The diagonals of a C-contiguous stack of square matrices M (k, n, n) as a writable (k, n) view."""
+    n = M.shape[-1]
+    return M.reshape(M.shape[0], n * n)[:, :: n + 1]
+
+
+def outlier_variance(innov: np.ndarray, hph: np.ndarray, r: np.ndarray, gate_sigma: float, keep: np.ndarray):
+    """Measurement variance of each row (k, m) for the update of eq. 35 (docs/method.md §12): R
+    where the row passes its gate (``keep``);
+    for a row beyond it, the variance that puts its innovation exactly on the gate
+    (nu^2 / gate^2 - H P H^T, Huber's weighting): a sensor spike moves the state by at most a
+    gate's worth, and a model that is off (a traction change faster than the random walk) is
+    still followed, instead of coasting on a prediction that runs away."""
+    return np.where(keep, r, np.maximum(r, innov**2 / gate_sigma**2 - hph))
+
+
+def condition(x: np.ndarray, P: np.ndarray, lower: np.ndarray, upper: np.ndarray, floor: float, ceiling: float):
+    """Keep P (k, n, n) symmetric positive semi-definite (symmetrise, clamp variances to [floor,
+    ceiling] and correlations to +-0.9999) and project x (k, n) into the physical box [lower,
+    upper] (each (n,)): the state bounds of docs/method.md §12 (|mu| <= 1.5, resistance within its
+    physical range).  Returns x, P (new arrays)."""
+    # minimum / maximum in place of np.clip: the same values, without np.clip's dispatch overhead
+    P = P + P.transpose(0, 2, 1)
+    P /= 2.0
+    var = np.minimum(np.maximum(_diag(P), floor), ceiling)
+    sd = np.sqrt(var)
+    lim = (0.9999 * sd)[:, :, None] * sd[:, None, :]
+    np.minimum(P, lim, out=P)
+    np.negative(lim, out=lim)
+    np.maximum(P, lim, out=P)
+    np.copyto(_diag(P), var)
+    return np.minimum(np.maximum(x, lower), upper), P
+
+
+def anchor_wheel_speeds(x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: np.ndarray, available: np.ndarray,
+                        layout, wheel_radius: float, anchor_speed: float, r_speed: float) -> int:
+    """At low speed a rejected wheel-speed reading re-anchors its wheel's speed state (in place, x (k, n),
+    P (k, n, n), readings z (k, 7), rejected rows (k, 7)): the state takes the reading, its variance the
+    reading's (``r_speed``, rad^2/s^2), its correlations none.  So does the last reading of a wheel whose
+    reading is not new now (``available`` (k, 7) False: a repeat) when the state has left it by more than
+    ``anchor_speed`` / 3 in rim speed (the closed-loop stall on firm soil: single samples of 3.7 rad/s against
+    an encoder's 1.19).  Returns how many wheels were re-anchored (docs/method.md §17).
+
+    Below ``anchor_speed`` (m/s, rim and ground) the wheel equation (eq. 13) is stiff (docs/method.md §10)
+    and the traction state that balances the torque is itself poorly known (a stall: slip ~1, any soil):
+    the prediction leaves the encoder within a step, the gate rejects the encoder, and the filtered speed
+    ran away (7 rad/s against 0.48, issue 27) and fed K a wrong slip.  The encoder is the one measurement
+    of the wheel's speed; the gate protects against its outliers at speed, not at a stall."""
+    L = layout
+    away = np.abs(x[:, L.omega] - z[:, 2:6]) * wheel_radius > anchor_speed / 3.0
+    wheels = rejected[:, 2:6] | (~available[:, 2:6] & away)
+    if not wheels.any():
+        return 0
+    low = (np.abs(z[:, 2:6]) * wheel_radius < anchor_speed) & (np.abs(x[:, L.v]) < anchor_speed)[:, None]
+    rows, w = np.nonzero(wheels & low)
+    if rows.size == 0:
+        return 0
+    col = L.omega.start + w
+    x[rows, col] = z[rows, 2 + w]
+    P[rows, col, :] = 0.0
+    P[rows, :, col] = 0.0
+    P[rows, col, col] = r_speed
+    return int(rows.size)
 
 
 @dataclass

@@ -1,10 +1,11 @@
 //! soilocp's compiled core: the per-sample equations, each written once, for one vehicle or a
-//! bank of N.  The kernels (`constants`, `traction`, `ocp`, `normal_force`) are plain Rust over
+//! bank of N.  The kernels (`constants`, `traction`, `ocp`, `normal_force`, `observer`) are plain Rust over
 //! f64; `py` binds them to Python as `soilocp._core` (arrays in, arrays out, one call per step).
 //! Nothing here imports the Python package above it.
 
 pub mod constants;
 pub mod normal_force;
+pub mod observer;
 pub mod ocp;
 pub mod py;
 pub mod soil;
@@ -22,5 +23,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
     // the soil-grid update (issue 28)
     m.add_class::<py::soil::SoilGridBank>()?;
+    // the observer (issue 28): its filter bank
+    m.add_class::<py::observer::ObserverCore>()?;
     Ok(())
 }

@@ -1,0 +1,73 @@
+//! Wall time of one observer step (FilterBank::step, slip structure) without Python, on a drive
+//! whose speeds, torques and forces keep changing (constant inputs let P decay into subnormal
+//! numbers, each a slow operation): `cargo run --release --example observer_step_time [STEPS]`.
+use _core::observer::bank::{FilterBank, Sample, Settings};
+use _core::observer::layout::Layout;
+use _core::observer::model::Vehicle;
+
+fn main() {
+    let l = Layout::of("slip").unwrap();
+    let v = Vehicle {
+        mass: 60.0,
+        wheel_radius: 0.15,
+        wheel_inertia: 0.1,
+        yaw_inertia: 6.0,
+        a: 0.27,
+        b: 0.23,
+        c: 0.25,
+        d: 0.25,
+        wheel_y: [0.25, 0.25, -0.25, -0.25],
+    };
+    let n = l.n();
+    let s = Settings {
+        gate_sigma: 5.0,
+        gate_patience: 10,
+        max_gap: 0.5,
+        anchor_speed: 0.3,
+        variance_floor: 1e-10,
+        variance_ceiling: 1e4,
+        travel_speed: 0.05,
+        bridge_slip: 0.005,
+        gravity: 9.80665,
+        r: [0.0064, 1e-4, 9e-4, 9e-4, 9e-4, 9e-4, 4e-4],
+        q: l.per_state(1.0, 0.01, 0.01, 0.09, 0.09, 0.01, 0.04, 2.5e-5),
+        p0: l.per_state(0.25, 0.04, 0.25, 0.25, 9e-4, 0.01, 1e-4, 0.0025),
+        lower: vec![-10.0; n],
+        upper: vec![10.0; n],
+        speed_limits: [1000.0, 1000.0, 1000.0, 1000.0, 100.0],
+    };
+    let mut bank = FilterBank::new(l, v, s, 1).unwrap();
+    let mut sample = Sample {
+        dt: f64::NAN,
+        dt_cubed: f64::NAN,
+        specific_force_x: 0.1,
+        yaw_rate: 0.0,
+        pitch: 0.0,
+        wheel_speed: [5.0; 4],
+        ground_speed: 0.7,
+        wheel_speed_z: [5.0; 4],
+        ground_speed_z: 0.7,
+        torque: [3.0; 4],
+        normal_force: [150.0; 4],
+        fresh: [true; 5],
+    };
+    bank.step(0, &sample);
+    sample.dt = 0.01;
+    sample.dt_cubed = 1e-6;
+    let steps: usize = std::env::args().nth(1).map_or(100_000, |s| s.parse().unwrap());
+    let t = std::time::Instant::now();
+    for i in 0..steps {
+        let t = i as f64 * 0.01;
+        let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
+        for w in 0..4 {
+            sample.wheel_speed_z[w] = 5.0 + 1.5 * (0.3 * t + w as f64).sin() + noise(w);
+            sample.torque[w] = 3.0 + 2.0 * (0.5 * t + w as f64).cos();
+            sample.normal_force[w] = 150.0 + 20.0 * (0.2 * t + w as f64).sin();
+        }
+        sample.wheel_speed = sample.wheel_speed_z;
+        sample.ground_speed_z = 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0;
+        sample.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
+        std::hint::black_box(bank.step(0, &sample));
+    }
+    println!("{:.2} us per step", t.elapsed().as_secs_f64() / steps as f64 * 1e6);
+}

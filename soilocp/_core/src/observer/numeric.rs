@@ -1,0 +1,209 @@
+//! The arithmetic rules of numpy that the observer's numbers depend on, so that the port gives
+//! the numbers of the numpy kernel it replaced (scripts/equivalence.py):
+//!
+//! * `np.minimum` / `np.maximum` propagate a NaN (Rust's `f64::min` drops it, and the divergence
+//!   guard must see it);
+//! * `ndarray.sum` over a contiguous axis is numpy's pairwise sum (8 accumulators from 8 terms);
+//! * a matrix product (`@`, OpenBLAS dgemm) is, for each entry, one fused multiply-add per term in
+//!   index order from 0 (checked against numpy 2.4 / OpenBLAS on 14 x 14 and 7 x 14 stacks: every
+//!   entry equal);
+//! * a matrix-vector product (`@` with a (n, 1) right side, OpenBLAS dgemv) accumulates in 4
+//!   lanes; [`matvec`] follows the order that matched most entries (48 of 56 on random 14 x 14
+//!   products; sparse rows, most of ours, differ less): not bit-identical, hence the documented
+//!   tolerance of scripts/equivalence.py.
+
+/// `np.minimum(a, b)`: NaN if either is NaN.
+#[inline]
+pub fn np_min(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `np.maximum(a, b)`: NaN if either is NaN.
+#[inline]
+pub fn np_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `np.minimum(np.maximum(x, lo), hi)`.
+#[inline]
+pub fn clip(x: f64, lo: f64, hi: f64) -> f64 {
+    np_min(np_max(x, lo), hi)
+}
+
+/// numpy's pairwise summation of a contiguous run (`a.sum()` for up to 128 terms): sequential
+/// below 8 terms; otherwise 8 running sums over blocks of 8, combined as ((r0+r1)+(r2+r3)) +
+/// ((r4+r5)+(r6+r7)), then the remainder in order.
+pub fn np_sum(a: &[f64]) -> f64 {
+    let n = a.len();
+    if n < 8 {
+        let mut s = 0.0;
+        for &v in a {
+            s += v;
+        }
+        return s;
+    }
+    let mut r = [0.0; 8];
+    r.copy_from_slice(&a[..8]);
+    let whole = n - n % 8;
+    let mut i = 8;
+    while i < whole {
+        for j in 0..8 {
+            r[j] += a[i + j];
+        }
+        i += 8;
+    }
+    let mut s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    while i < n {
+        s += a[i];
+        i += 1;
+    }
+    s
+}
+
+/// C (m x p) = A (m x q) B (q x p), row-major, each entry's terms by fused multiply-adds in
+/// order l = 0..q from 0.0 (dgemm's order).  A term whose a_il is 0 is skipped: it
+/// adds an exact zero (our A, H, F and J are mostly zeros); only a non-finite b_lj behind a zero
+/// a_il would have made the entry NaN, and the bank's divergence guard checks the state and P.
+pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has the FMA instructions (checked on the line above)
+        unsafe { matmul_fma(a, b, c, m, q, p) };
+        return;
+    }
+    matmul_body(a, b, c, m, q, p);
+}
+
+/// C (m x p) = A (m x q) B^T with B given as (p x q), as numpy's `X @ Y.T`: B transposed into
+/// `scratch` (at least q x p), then [`matmul`].
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_bt(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize, scratch: &mut [f64]) {
+    for j in 0..p {
+        for l in 0..q {
+            scratch[l * p + j] = b[j * q + l];
+        }
+    }
+    matmul(a, &scratch[..q * p], c, m, q, p);
+}
+
+/// [`matvec`]'s order: y (m) = A (m x q) x (q), row-major (module doc): four lanes of fused
+/// multiply-adds over the first q - q % 4 terms, combined as (l0 + l2) + (l1 + l3), plus the
+/// remaining terms summed in order.
+pub fn matvec(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has the FMA instructions (checked on the line above)
+        unsafe { matvec_fma(a, x, y, m, q) };
+        return;
+    }
+    matvec_body(a, x, y, m, q);
+}
+
+// `f64::mul_add` is one instruction where the compiler may use FMA, and a call to libm's fma
+// (software, tens of ns) where it may not, as on the baseline x86-64 target: the products are
+// compiled twice, the FMA copy chosen at run time.  Both round each fused product once: the same
+// numbers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "fma")]
+unsafe fn matmul_fma(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    matmul_body(a, b, c, m, q, p);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "fma")]
+unsafe fn matvec_fma(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    matvec_body(a, x, y, m, q);
+}
+
+#[inline(always)]
+fn matmul_body(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    // the p entries of a row are independent chains, run side by side in vector registers
+    for i in 0..m {
+        let row = &mut c[i * p..(i + 1) * p];
+        row.fill(0.0);
+        for l in 0..q {
+            let ail = a[i * q + l];
+            if ail == 0.0 {
+                continue;
+            }
+            for (cj, &blj) in row.iter_mut().zip(&b[l * p..(l + 1) * p]) {
+                *cj = ail.mul_add(blj, *cj);
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn matvec_body(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
+    let whole = q - q % 4;
+    for i in 0..m {
+        let row = &a[i * q..(i + 1) * q];
+        let mut lanes = [0.0; 4];
+        for l in 0..whole {
+            lanes[l % 4] = row[l].mul_add(x[l], lanes[l % 4]);
+        }
+        let mut s = if whole > 0 {
+            (lanes[0] + lanes[2]) + (lanes[1] + lanes[3])
+        } else {
+            0.0
+        };
+        let mut tail = 0.0;
+        for l in whole..q {
+            tail += row[l] * x[l];
+        }
+        if q > whole {
+            s += tail;
+        }
+        y[i] = s;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn min_max_propagate_nan() {
+        assert!(np_min(f64::NAN, 1.0).is_nan() && np_min(1.0, f64::NAN).is_nan());
+        assert!(np_max(f64::NAN, 1.0).is_nan() && clip(f64::NAN, -1.0, 1.0).is_nan());
+        assert_eq!(clip(3.0, -1.5, 1.5), 1.5);
+        assert_eq!(clip(-3.0, -1.5, 1.5), -1.5);
+    }
+
+    #[test]
+    fn pairwise_sum_groups_like_numpy() {
+        // 1e16 + 1 + 1 ... : sequential summation loses every 1, numpy's 8 lanes keep them
+        // (np.array([1e16] + [1.0] * 9).sum() == 1.0000000000000008e16 with numpy 2.4)
+        let mut a = vec![1e16];
+        a.extend([1.0; 9]);
+        assert_eq!(np_sum(&a), 1.0000000000000008e16);
+        assert_eq!(np_sum(&[0.1, 0.2, 0.3]), 0.1 + 0.2 + 0.3);
+    }
+
+    #[test]
+    fn matmul_is_fused_in_order() {
+        // [[1, 2], [3, 4]] @ [[5, 6], [7, 8]] and its transposed form
+        let a = [1.0, 2.0, 3.0, 4.0];
+        let b = [5.0, 6.0, 7.0, 8.0];
+        let mut c = [0.0; 4];
+        matmul(&a, &b, &mut c, 2, 2, 2);
+        assert_eq!(c, [19.0, 22.0, 43.0, 50.0]);
+        matmul_bt(&a, &b, &mut c, 2, 2, 2, &mut [0.0; 4]);
+        assert_eq!(c, [17.0, 23.0, 39.0, 53.0]);
+        let mut y = [0.0; 2];
+        matvec(&a, &[1.0, -1.0], &mut y, 2, 2);
+        assert_eq!(y, [-1.0, -1.0]);
+    }
+}
