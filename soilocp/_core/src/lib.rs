@@ -1,5 +1,5 @@
 //! soilocp's compiled core: the per-sample equations, each written once, for one vehicle or a
-//! bank of N.  The kernels (`constants`, `traction`, `ocp`, `normal_force`, `observer`) are plain Rust over
+//! bank of N.  The kernels (`constants`, `traction`, `ocp`, `normal_force`, `observer`, `soil`) are plain Rust over
 //! f64; `py` binds them to Python as `soilocp._core` (arrays in, arrays out, one call per step).
 //! Nothing here imports the Python package above it.
 
