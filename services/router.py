@@ -13,7 +13,7 @@ from typing import Any, Optional
 from services.security.fleet_security import (ENV_FLEET_MAPS, ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
-from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
+from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
 from services.runtime.log import JsonLog
 from services.runtime.process import install_stop_handlers, watch_parent
 
@@ -24,10 +24,10 @@ ENV_ROUTER_CONNECT = "SOILOCP_ROUTER_CONNECT"
 
 def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect: tuple[str, ...],
                     env: Optional[dict[str, str]] = None) -> dict[str, Any]:
-    """listen/connect/multicast/log_level: defaults < file section ``router`` < env < command line."""
+    """listen/connect/multicast/log_level/batching: defaults < file section ``router`` < env < command line."""
     env = dict(os.environ) if env is None else env
     out: dict[str, Any] = {"listen": [DEFAULT_ENDPOINT], "connect": [], "multicast": False, "log_level": "info",
-                           "tls": None, "access_control": None}
+                           "batching": True, "tls": None, "access_control": None}
     path = config_path or env.get(ENV_CONFIG)
     if path:
         data = _read_config_file(path)
@@ -40,7 +40,9 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
         out.update(section)
         if "log_level" in data and "log_level" not in section:
             out["log_level"] = data["log_level"]
-    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"}, {ENV_LOG_LEVEL: "log_level"}))
+    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"},
+                            {ENV_LOG_LEVEL: "log_level", ENV_BATCHING: "batching"}))
+    out["batching"] = _flag("batching", out["batching"])
     _security_settings(out, env)
     if listen:
         out["listen"] = list(listen)
@@ -71,6 +73,18 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
     if out["log_level"] not in ("debug", "info", "warning", "error"):
         raise ConfigError(f"log_level={out['log_level']!r}: must be debug, info, warning or error")
     return out
+
+
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def _flag(name: str, value: Any) -> bool:
+    """A yes/no router setting from the file (a JSON boolean) or the environment (a word)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in _TRUE + _FALSE:
+        return value.strip().lower() in _TRUE
+    raise ConfigError(f"router setting {name}={value!r}: must be true or false")
 
 
 def _security_settings(out: dict[str, Any], env: dict[str, str]) -> None:
@@ -119,7 +133,7 @@ def run_router(settings: dict[str, Any]) -> int:
     install_stop_handlers(stop, log)
     watch_parent(stop, log)
     conf = zenoh_config("router", settings["connect"], settings["listen"], multicast=settings["multicast"],
-                        tls_from_environment=False)
+                        tls_from_environment=False, batching=settings.get("batching", True))
     if settings.get("tls") is not None:
         apply_tls(conf, settings["tls"], listener=any(ep.startswith("tls/") for ep in settings["listen"]))
         apply_fleet_link_qos(conf)

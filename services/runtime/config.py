@@ -22,6 +22,9 @@ ENV_LISTEN = "SOILOCP_LISTEN"
 ENV_MODE = "SOILOCP_MODE"
 ENV_LOG_LEVEL = "SOILOCP_LOG_LEVEL"
 ENV_STALE_TIMEOUT = "SOILOCP_STALE_TIMEOUT"
+#: Zenoh transport settings of a service's publishers and links (docs/performance.md, "Zenoh settings, chosen")
+ENV_EXPRESS = "SOILOCP_EXPRESS"
+ENV_BATCHING = "SOILOCP_BATCHING"
 #: The soil-strength service starts its belief from this fleet soil map (a map id, or the JSON of MapPriorConfig)
 ENV_MAP_PRIOR = "SOILOCP_MAP_PRIOR"
 #: Set to 1 by ``soilocp run`` for its children: stop when the parent process goes away.
@@ -68,6 +71,10 @@ class ServiceConfig(BaseModel):
     connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
     listen: Endpoints = Field(default_factory=list)
     multicast: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
+    express: bool = Field(False, description="Zenoh: pipeline publishers send each message at once, never "
+                          "batched with others (docs/performance.md, 'Zenoh settings, chosen')")
+    batching: bool = Field(True, description="Zenoh: the links may batch messages queued together "
+                           "(transport/link/tx/queue/batching; docs/performance.md)")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stale_timeout_s: float = Field(0.5, gt=0, le=3600, description="OCP publisher: stale after this much silence")
     queue_size: int = Field(4096, ge=1, le=1_000_000, description="Worker queue bound; beyond it inputs are dropped")
@@ -161,7 +168,8 @@ def load_service_config(
     if path:
         values.update(_file_section(_read_config_file(path), service, path))
     values.update(env_settings(env, {ENV_VEHICLE_ID: "vehicle_ids", ENV_CONNECT: "connect", ENV_LISTEN: "listen"},
-                               {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level"}))
+                               {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level", ENV_EXPRESS: "express",
+                                ENV_BATCHING: "batching"}))
     if env.get(ENV_STALE_TIMEOUT):
         raw = env[ENV_STALE_TIMEOUT].strip()
         try:
@@ -193,9 +201,10 @@ def load_service_config(
 
 def zenoh_config(
     mode: str, connect: list[str], listen: list[str], *, multicast: bool = False, connect_timeout_ms: Optional[int] = None,
-    tls_from_environment: bool = True,
+    tls_from_environment: bool = True, batching: bool = True,
 ):
-    """A ``zenoh.Config`` with explicit endpoints (multicast scouting off unless asked for)."""
+    """A ``zenoh.Config`` with explicit endpoints (multicast scouting off unless asked for);
+    ``batching`` False: the links send each message in its own batch."""
     import zenoh
 
     conf = zenoh.Config()
@@ -203,6 +212,8 @@ def zenoh_config(
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    if not batching:
+        conf.insert_json5("transport/link/tx/queue/batching/enabled", "false")
     if connect_timeout_ms is not None:
         conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
     # After a lost link (router restarted), retry quickly: the default backoff grows to several

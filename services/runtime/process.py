@@ -76,6 +76,7 @@ def open_session(
     stop: threading.Event,
     log: JsonLog,
     retry_s: float = 1.0,
+    batching: bool = True,
 ):
     """Open a Zenoh session; in client mode, retry until a router answers or ``stop`` is set.
 
@@ -89,7 +90,8 @@ def open_session(
     while not stop.is_set():
         attempt += 1
         timeout_ms = int(retry_s * 1000) if mode == "client" else None
-        conf = zenoh_config(mode, connect, listen, multicast=multicast, connect_timeout_ms=timeout_ms)
+        conf = zenoh_config(mode, connect, listen, multicast=multicast, connect_timeout_ms=timeout_ms,
+                            batching=batching)
         try:
             session = zenoh.open(conf)
         except zenoh.ZError as exc:
