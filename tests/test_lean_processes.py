@@ -131,3 +131,27 @@ def test_key_functions_need_no_pydantic():
         import schemas
 
         schemas.NotAModel  # noqa: B018
+
+
+def test_zenoh_settings_are_configurable_and_checked():
+    """express and batching (docs/performance.md, "Zenoh settings, chosen"): defaults as measured,
+    set from the environment for the services and the router, a bad value named."""
+    import json
+
+    from services.router import router_settings
+    from services.runtime.config import ConfigError, load_service_config
+    from services.runtime.settings import zenoh_config
+
+    cfg = load_service_config("observer", env={})
+    assert (cfg.express, cfg.batching, cfg.mode) == (False, True, "client")
+    cfg = load_service_config("observer", env={"SOILOCP_EXPRESS": "true", "SOILOCP_BATCHING": "0"})
+    assert (cfg.express, cfg.batching) == (True, False)
+    with pytest.raises(ConfigError, match="express='maybe'"):
+        load_service_config("observer", env={"SOILOCP_EXPRESS": "maybe"})
+    assert router_settings(None, (), (), env={})["batching"] is True
+    assert router_settings(None, (), (), env={"SOILOCP_BATCHING": "false"})["batching"] is False
+    with pytest.raises(ConfigError, match="batching='sometimes'"):
+        router_settings(None, (), (), env={"SOILOCP_BATCHING": "sometimes"})
+    key = "transport/link/tx/queue/batching/enabled"
+    assert json.loads(zenoh_config("client", [], [], batching=False, tls_from_environment=False).get_json(key)) is False
+    assert json.loads(zenoh_config("client", [], [], tls_from_environment=False).get_json(key)) is True
