@@ -3,7 +3,8 @@
 No other module builds a key by hand: services, tests, the dashboard and the fleet tools call the
 functions below, so a key can change in one place and a vehicle id can never smuggle a ``/``,
 ``*``, ``$``, ``?``, ``#`` or ``@`` into a key (ids are checked against
-:data:`schemas.sensor.VEHICLE_ID_PATTERN`).
+:data:`VEHICLE_ID_PATTERN`, defined here so that the key functions need no pydantic: the router and
+the fleet tools' ACLs use them).
 
 Public keys (a contract for other programs, see ``docs/services.md``)::
 
@@ -30,7 +31,8 @@ from __future__ import annotations
 import re
 from typing import Callable
 
-from schemas.sensor import VEHICLE_ID_PATTERN
+#: A vehicle id: a key chunk, and the ``vehicle_id`` field of every message (schemas.sensor).
+VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 
 ROOT = "soilocp"
 

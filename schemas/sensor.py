@@ -12,10 +12,10 @@ from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
 
+from schemas.keys import VEHICLE_ID_PATTERN
 from schemas.position import GeoPosition, MapPosition
 
 SENSOR_SCHEMA_ID = "soilocp.sensor_sample/1"
-VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 
 # Plausibility limits: beyond these a value is a broken driver, not a rover on rough ground.
 MAX_SPECIFIC_FORCE = 200.0  # m/s^2, ~20 g

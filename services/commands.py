@@ -10,26 +10,9 @@ import sys
 
 import click
 
+from services.router import router_cmd
+from services.runtime.process import exit_now as _exit_now, fatal as _fatal
 from services.stages.graph import ALL_SERVICES, PIPELINE_SERVICES
-
-
-
-def _fatal(prefix: str, message: str, code: int = 2) -> None:
-    click.echo(f"{prefix}: error: {message}", err=True)
-    sys.exit(code)
-
-
-def _exit_now(code: int) -> None:
-    """Leave right after an orderly shutdown (sessions closed, logs flushed), skipping interpreter
-    finalisation: with Zenoh's native runtime it can hang past the 2 s a supervisor allows."""
-    import os
-
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
 
 
 def _service_class(name: str):
@@ -164,21 +147,6 @@ def _ros_domain(value) -> int:
     if not 0 <= value <= 232:
         raise ValueError(f"ROS domain id {value}: must be 0..232")
     return value
-
-
-@click.command("router")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Deployment config; its 'router' section.")
-@click.option("--listen", multiple=True, help="Endpoint to listen on (repeatable); default tcp/127.0.0.1:7447; env SOILOCP_LISTEN.")
-@click.option("--connect", multiple=True, help="Endpoint of another router, e.g. a fleet router; env SOILOCP_ROUTER_CONNECT.")
-def router_cmd(config_path, listen, connect) -> None:
-    """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
-    from services.router import router_settings, run_router
-    from services.runtime.config import ConfigError
-
-    try:
-        _exit_now(run_router(router_settings(config_path, listen, connect)))
-    except ConfigError as exc:
-        _fatal("soilocp router", str(exc))
 
 
 @click.command("run")

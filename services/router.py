@@ -2,6 +2,9 @@
 
 The services of a vehicle connect to it (client mode); its ``connect`` endpoints link it to a
 fleet router.  Default listen endpoint ``tcp/127.0.0.1:7447``.
+
+The router process starts through :data:`process_main` (``soilocp_cli.entry``) and imports neither
+pydantic nor the message models: it only forwards bytes (tests/test_lean_processes.py).
 """
 
 from __future__ import annotations
@@ -10,12 +13,14 @@ import os
 import threading
 from typing import Any, Optional
 
+import click
+
 from services.security.fleet_security import (ENV_FLEET_MAPS, ENV_FLEET_TOOLS, ENV_FLEET_VEHICLES, ENV_TLS_CA, ENV_TLS_CERT, ENV_TLS_KEY, TlsFiles,
                              apply_access_control, apply_fleet_link_qos, apply_tls, fleet_access_control,
                              tls_from_env)
-from services.runtime.config import ConfigError, DEFAULT_ENDPOINT, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
+from services.runtime.settings import ConfigError, DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_LISTEN, ENV_LOG_LEVEL, _read_config_file, _split_list, check_endpoint, env_settings, zenoh_config
 from services.runtime.log import JsonLog
-from services.runtime.process import install_stop_handlers, watch_parent
+from services.runtime.process import exit_now, fatal, install_stop_handlers, watch_parent
 
 #: The router's uplink (e.g. to a fleet router).  Not SOILOCP_CONNECT: in a shared environment that
 #: names the router itself, for the services.
@@ -24,10 +29,10 @@ ENV_ROUTER_CONNECT = "SOILOCP_ROUTER_CONNECT"
 
 def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect: tuple[str, ...],
                     env: Optional[dict[str, str]] = None) -> dict[str, Any]:
-    """listen/connect/multicast/log_level: defaults < file section ``router`` < env < command line."""
+    """listen/connect/multicast/log_level/batching: defaults < file section ``router`` < env < command line."""
     env = dict(os.environ) if env is None else env
     out: dict[str, Any] = {"listen": [DEFAULT_ENDPOINT], "connect": [], "multicast": False, "log_level": "info",
-                           "tls": None, "access_control": None}
+                           "batching": True, "tls": None, "access_control": None}
     path = config_path or env.get(ENV_CONFIG)
     if path:
         data = _read_config_file(path)
@@ -40,7 +45,9 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
         out.update(section)
         if "log_level" in data and "log_level" not in section:
             out["log_level"] = data["log_level"]
-    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"}, {ENV_LOG_LEVEL: "log_level"}))
+    out.update(env_settings(env, {ENV_LISTEN: "listen", ENV_ROUTER_CONNECT: "connect"},
+                            {ENV_LOG_LEVEL: "log_level", ENV_BATCHING: "batching"}))
+    out["batching"] = _flag("batching", out["batching"])
     _security_settings(out, env)
     if listen:
         out["listen"] = list(listen)
@@ -71,6 +78,18 @@ def router_settings(config_path: Optional[str], listen: tuple[str, ...], connect
     if out["log_level"] not in ("debug", "info", "warning", "error"):
         raise ConfigError(f"log_level={out['log_level']!r}: must be debug, info, warning or error")
     return out
+
+
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def _flag(name: str, value: Any) -> bool:
+    """A yes/no router setting from the file (a JSON boolean) or the environment (a word)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in _TRUE + _FALSE:
+        return value.strip().lower() in _TRUE
+    raise ConfigError(f"router setting {name}={value!r}: must be true or false")
 
 
 def _security_settings(out: dict[str, Any], env: dict[str, str]) -> None:
@@ -119,7 +138,7 @@ def run_router(settings: dict[str, Any]) -> int:
     install_stop_handlers(stop, log)
     watch_parent(stop, log)
     conf = zenoh_config("router", settings["connect"], settings["listen"], multicast=settings["multicast"],
-                        tls_from_environment=False)
+                        tls_from_environment=False, batching=settings.get("batching", True))
     if settings.get("tls") is not None:
         apply_tls(conf, settings["tls"], listener=any(ep.startswith("tls/") for ep in settings["listen"]))
         apply_fleet_link_qos(conf)
@@ -141,3 +160,23 @@ def run_router(settings: dict[str, Any]) -> int:
         session.close()
         log.info("stopped")
     return 0
+
+
+@click.command("router")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Deployment config; its 'router' section.")
+@click.option("--listen", multiple=True, help="Endpoint to listen on (repeatable); default tcp/127.0.0.1:7447; env SOILOCP_LISTEN.")
+@click.option("--connect", multiple=True, help="Endpoint of another router, e.g. a fleet router; env SOILOCP_ROUTER_CONNECT.")
+def router_cmd(config_path, listen, connect) -> None:
+    """Run a Zenoh router for the vehicle's services until SIGINT/SIGTERM."""
+    try:
+        exit_now(run_router(router_settings(config_path, listen, connect)))
+    except ConfigError as exc:
+        fatal("soilocp router", str(exc))
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+def process_main() -> None:
+    """soilocp: the router process."""
+
+
+process_main.add_command(router_cmd)

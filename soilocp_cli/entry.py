@@ -14,6 +14,8 @@ def command_group(args: list[str]) -> click.Group:
     """The group that serves ``args`` (the command line without the program name)."""
     if args[:2] == ["service", "map"]:  # the fleet soil map service: its own options (docs/map.md)
         from services.map.commands import process_main as main
+    elif args[:1] == ["router"]:  # forwards bytes only: no pydantic, no message models
+        from services.router import process_main as main
     elif args and args[0] in PROCESS_COMMAND_NAMES:
         from soilocp_cli.process import main
     else:

@@ -18,7 +18,7 @@ import socket
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -115,6 +115,9 @@ class Rig:
     #: "peer": the services are peers that also listen on an ephemeral loopback port, so that
     #: they link to each other directly (the router only introduces them) - issue 11's hops
     links: str = "client"
+    #: extra environment of the router and the services: the Zenoh settings under test
+    #: (SOILOCP_EXPRESS, SOILOCP_BATCHING; services.bench.zenoh_settings)
+    env: dict[str, str] = field(default_factory=dict)
 
     @staticmethod
     def standard(vehicle_ids: list[str]) -> "Rig":
@@ -132,9 +135,9 @@ class Rig:
             self.log_dir = Path(tempfile.mkdtemp(prefix="soilocp-bench-"))
         self.group = ProcessGroup(self.log_dir, drop_env=("SOILOCP_",))
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.group.start("router", ["router", "--listen", self.endpoint])
+        self.group.start("router", ["router", "--listen", self.endpoint], env=dict(self.env))
         senv = dict(SOILOCP_VEHICLE_ID=",".join(self.vehicle_ids), SOILOCP_CONNECT=self.endpoint,
-                    SOILOCP_LOG_LEVEL="warning")
+                    SOILOCP_LOG_LEVEL="warning", **self.env)
         if self.links == "peer":
             senv.update(SOILOCP_MODE="peer", SOILOCP_LISTEN="tcp/127.0.0.1:0")
         elif self.links != "client":

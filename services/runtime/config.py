@@ -1,35 +1,21 @@
-"""Service configuration: defaults < file < environment < command line, and the Zenoh config
-with explicit endpoints (and mutual TLS from the environment) that every process opens."""
+"""Service configuration: defaults < file < environment < command line (pydantic ``ServiceConfig``).
+
+The pydantic-free settings (environment variables, endpoints, the config file reader and the Zenoh
+config every process opens) live in :mod:`services.runtime.settings` and are re-exported here."""
 
 from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 from typing import Annotated, Any, Literal, Optional
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.sensor import VehicleId
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
-#: Environment variables (documented in docs/services.md; deploy/ configs, units and images use them).
-ENV_CONFIG = "SOILOCP_CONFIG"
-ENV_VEHICLE_ID = "SOILOCP_VEHICLE_ID"
-ENV_CONNECT = "SOILOCP_CONNECT"
-ENV_LISTEN = "SOILOCP_LISTEN"
-ENV_MODE = "SOILOCP_MODE"
-ENV_LOG_LEVEL = "SOILOCP_LOG_LEVEL"
-ENV_STALE_TIMEOUT = "SOILOCP_STALE_TIMEOUT"
-#: The soil-strength service starts its belief from this fleet soil map (a map id, or the JSON of MapPriorConfig)
-ENV_MAP_PRIOR = "SOILOCP_MAP_PRIOR"
-#: Set to 1 by ``soilocp run`` for its children: stop when the parent process goes away.
-ENV_EXIT_WITH_PARENT = "SOILOCP_EXIT_WITH_PARENT"
-
-
-class ConfigError(Exception):
-    """A fatal configuration problem: the process prints one line and exits with status 2."""
+from services.runtime.settings import (  # noqa: F401  (re-exported: the services' settings in one import)
+    DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_LISTEN,
+    ENV_LOG_LEVEL, ENV_MAP_PRIOR, ENV_MODE, ENV_STALE_TIMEOUT, ENV_VEHICLE_ID, ConfigError, _read_config_file,
+    _split_list, check_endpoint, env_settings, zenoh_config)
 
 
 def _check_endpoints(value: list[str]) -> list[str]:
@@ -68,6 +54,10 @@ class ServiceConfig(BaseModel):
     connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
     listen: Endpoints = Field(default_factory=list)
     multicast: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
+    express: bool = Field(False, description="Zenoh: pipeline publishers send each message at once, never "
+                          "batched with others (docs/performance.md, 'Zenoh settings, chosen')")
+    batching: bool = Field(True, description="Zenoh: the links may batch messages queued together "
+                           "(transport/link/tx/queue/batching; docs/performance.md)")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stale_timeout_s: float = Field(0.5, gt=0, le=3600, description="OCP publisher: stale after this much silence")
     queue_size: int = Field(4096, ge=1, le=1_000_000, description="Worker queue bound; beyond it inputs are dropped")
@@ -85,42 +75,6 @@ class ServiceConfig(BaseModel):
     @property
     def vehicle_id(self) -> str:
         return self.vehicle_ids[0]
-
-
-def check_endpoint(ep: object) -> str:
-    """A Zenoh locator ``proto/address`` (e.g. ``tcp/127.0.0.1:7447``); ValueError otherwise."""
-    if not isinstance(ep, str) or "/" not in ep or ep.startswith("/") or ep.endswith("/") or any(c.isspace() for c in ep):
-        raise ValueError(f"endpoint {ep!r} is invalid: expected 'proto/address', e.g. {DEFAULT_ENDPOINT}")
-    return ep
-
-
-
-
-def _split_list(text: str) -> list[str]:
-    return [part.strip() for part in text.split(",") if part.strip()]
-
-
-def env_settings(env: dict[str, str], lists: dict[str, str], words: dict[str, str]) -> dict[str, Any]:
-    """Settings from the environment: ``lists`` maps a variable to a setting read as a
-    comma-separated list, ``words`` to one read as a lower-case word; unset or empty is absent."""
-    out: dict[str, Any] = {field: _split_list(env[var]) for var, field in lists.items() if env.get(var)}
-    out.update({field: env[var].strip().lower() for var, field in words.items() if env.get(var)})
-    return out
-
-
-def _read_config_file(path: str) -> dict[str, Any]:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"config file {path}: cannot read: {exc.strerror or exc}") from exc
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"config file {path}: not valid JSON: {exc.msg} at line {exc.lineno}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"config file {path}: top level must be a JSON object, got {type(data).__name__}")
-    return data
 
 
 def _file_section(data: dict[str, Any], service: str, path: str) -> dict[str, Any]:
@@ -161,7 +115,8 @@ def load_service_config(
     if path:
         values.update(_file_section(_read_config_file(path), service, path))
     values.update(env_settings(env, {ENV_VEHICLE_ID: "vehicle_ids", ENV_CONNECT: "connect", ENV_LISTEN: "listen"},
-                               {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level"}))
+                               {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level", ENV_EXPRESS: "express",
+                                ENV_BATCHING: "batching"}))
     if env.get(ENV_STALE_TIMEOUT):
         raw = env[ENV_STALE_TIMEOUT].strip()
         try:
@@ -191,37 +146,3 @@ def load_service_config(
         ) from None
 
 
-def zenoh_config(
-    mode: str, connect: list[str], listen: list[str], *, multicast: bool = False, connect_timeout_ms: Optional[int] = None,
-    tls_from_environment: bool = True,
-):
-    """A ``zenoh.Config`` with explicit endpoints (multicast scouting off unless asked for)."""
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-    if connect_timeout_ms is not None:
-        conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
-    # After a lost link (router restarted), retry quickly: the default backoff grows to several
-    # seconds, far longer than the stale timeout of the OCP output.
-    conf.insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
-    # Links that leave a vehicle are tls/ (mutual TLS, docs/deploy.md): the certificate comes from
-    # SOILOCP_TLS_CA/_CERT/_KEY; plain tcp/ endpoints of the same process ignore it.
-    from services.security.fleet_security import apply_tls, tls_from_env
-
-    if not tls_from_environment:  # the caller (the router) applies its own, file < environment
-        return conf
-    try:
-        tls = tls_from_env()
-        tls_eps = [ep for ep in [*connect, *listen] if ep.startswith("tls/")]
-        if tls_eps and tls is None:
-            raise ValueError(f"endpoints {tls_eps} use TLS but SOILOCP_TLS_CA, SOILOCP_TLS_CERT and "
-                             "SOILOCP_TLS_KEY are not set")
-        if tls is not None:
-            apply_tls(conf, tls, listener=any(ep.startswith("tls/") for ep in listen))
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    return conf

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from typing import Any, Optional
 
-from services.runtime.config import ENV_EXIT_WITH_PARENT, zenoh_config
+from services.runtime.settings import ENV_EXIT_WITH_PARENT, zenoh_config
 from services.runtime.log import JsonLog
 
 def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, *, grace_s: float = 1.8) -> None:
@@ -76,6 +77,7 @@ def open_session(
     stop: threading.Event,
     log: JsonLog,
     retry_s: float = 1.0,
+    batching: bool = True,
 ):
     """Open a Zenoh session; in client mode, retry until a router answers or ``stop`` is set.
 
@@ -89,7 +91,8 @@ def open_session(
     while not stop.is_set():
         attempt += 1
         timeout_ms = int(retry_s * 1000) if mode == "client" else None
-        conf = zenoh_config(mode, connect, listen, multicast=multicast, connect_timeout_ms=timeout_ms)
+        conf = zenoh_config(mode, connect, listen, multicast=multicast, connect_timeout_ms=timeout_ms,
+                            batching=batching)
         try:
             session = zenoh.open(conf)
         except zenoh.ZError as exc:
@@ -102,3 +105,20 @@ def open_session(
         log.info("session_open", mode=mode, connect=connect, listen=listen, zid=str(session.zid()), attempts=attempt)
         return session
     return None
+
+
+def fatal(prefix: str, message: str, code: int = 2) -> None:
+    """A fatal configuration error: one line on stderr, exit status ``code``."""
+    print(f"{prefix}: error: {message}", file=sys.stderr, flush=True)
+    sys.exit(code)
+
+
+def exit_now(code: int) -> None:
+    """Leave right after an orderly shutdown (sessions closed, logs flushed), skipping interpreter
+    finalisation: with Zenoh's native runtime it can hang past the 2 s a supervisor allows."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)

@@ -72,10 +72,12 @@ class Service:
         self.keep(session.declare_subscriber(key, _cb))
 
     def publisher(self, session, key: str):
-        """A reliable publisher that blocks rather than drops under congestion (pipeline data)."""
+        """A reliable publisher that blocks rather than drops under congestion (pipeline data);
+        ``express`` from the service's config."""
         import zenoh
 
-        return self.keep(session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK))
+        return self.keep(session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                                   express=self.cfg.express))
 
     def _handle_safe(self, item: WorkItem) -> None:
         self.handle(item)
@@ -149,7 +151,7 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
     except (ValueError, OSError) as exc:  # e.g. a bad pipeline config file
         raise ConfigError(f"{service_cls.name}: {exc}") from exc
     session = open_session(cfg.mode, cfg.connect, cfg.listen, multicast=cfg.multicast, stop=stop, log=log,
-                           retry_s=cfg.connect_retry_s)
+                           retry_s=cfg.connect_retry_s, batching=cfg.batching)
     if session is None:
         log.info("stopped", reason="signal before connecting")
         return 0

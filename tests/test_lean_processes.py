@@ -1,0 +1,157 @@
+"""The deployed processes carry only what they run (issue 28, item 7: resident memory).
+
+Checked on the real processes, as ``soilocp run`` and the bench start them: a native extension a
+process has imported is mapped in ``/proc/<pid>/maps`` (pydantic's core, numpy's), so the test sees
+what the process loaded, whatever path imported it.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs Linux /proc")
+
+#: native extensions that mark a heavy import: pydantic (and so the message models), numpy (the physics)
+PYDANTIC, NUMPY = "pydantic_core/_pydantic_core", "numpy/_core/_multiarray_umath"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _mapped(pid: int) -> str:
+    return Path(f"/proc/{pid}/maps").read_text()
+
+
+def _start(args: list[str], env: dict[str, str]) -> subprocess.Popen:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
+    return subprocess.Popen([sys.executable, "-m", "soilocp_cli", *args], cwd=ROOT, env={**clean, **env},
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _stop(p: subprocess.Popen) -> str:
+    p.terminate()
+    try:
+        _out, err = p.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        _out, err = p.communicate()
+    return err.decode(errors="replace")
+
+
+def _wait_listening(port: int, p: subprocess.Popen, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert p.poll() is None, f"router exited with {p.returncode}"
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            return
+        except OSError:
+            time.sleep(0.2)
+    raise AssertionError(f"router not listening on {port} after {timeout} s")
+
+
+def _wait_alive(endpoint: str, service: str, timeout: float = 90.0) -> None:
+    """Until the service holds its liveliness token: it has built its stage and declared everything."""
+    import zenoh
+
+    from schemas import keys
+    from services.runtime.settings import zenoh_config
+
+    with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(r.ok is not None for r in session.liveliness().get(keys.alive("rover1", service), timeout=1.0)):
+                return
+            time.sleep(0.2)
+    raise AssertionError(f"{service} not alive after {timeout} s")
+
+
+def test_router_process_maps_neither_pydantic_nor_numpy():
+    """The router only forwards bytes: a running ``soilocp router`` has not imported pydantic (the
+    message models) or numpy.  It used to load both through the services' command module."""
+    port = _free_port()
+    router = _start(["router", "--listen", f"tcp/127.0.0.1:{port}"], {"SOILOCP_LOG_LEVEL": "warning"})
+    try:
+        _wait_listening(port, router)
+        maps = _mapped(router.pid)
+    finally:
+        err = _stop(router)
+    assert "zenoh" in maps, err  # the check sees the router's extensions at all
+    assert PYDANTIC not in maps and NUMPY not in maps, err
+
+
+def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
+    """The gateway, running and connected, has loaded no numpy (docs/services.md: it carries no
+    physics); the normal-force service, which runs the physics, has (the check can fail)."""
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        _wait_listening(port, router)
+        env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
+        for name in ("gateway", "normal-force"):
+            procs[name] = _start(["service", name], env)
+        for name in procs:
+            _wait_alive(endpoint, name)
+        maps = {name: _mapped(p.pid) for name, p in procs.items()}
+    finally:
+        errs = {name: _stop(p) for name, p in procs.items()}
+        _stop(router)
+    assert PYDANTIC in maps["gateway"] and NUMPY not in maps["gateway"], errs["gateway"]
+    assert NUMPY in maps["normal-force"], errs["normal-force"]
+
+
+def test_key_functions_need_no_pydantic():
+    """``schemas.keys`` (the router's ACLs, every key of the pipeline) imports no pydantic model:
+    the package's models are re-exported lazily, and still importable from ``schemas``."""
+    code = ("import sys; import schemas.keys, services.router, services.runtime.settings; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('pydantic', 'pydantic_core', 'numpy') "
+            "or m in ('schemas.sensor', 'schemas.pipeline', 'schemas.messages', 'services.runtime.config')))")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+    from schemas import VEHICLE_ID_PATTERN, SensorSample
+    from schemas.sensor import VEHICLE_ID_PATTERN as in_sensor
+
+    assert VEHICLE_ID_PATTERN == in_sensor and SensorSample.__module__ == "schemas.sensor"
+    with pytest.raises(AttributeError, match="no attribute 'NotAModel'"):
+        import schemas
+
+        schemas.NotAModel  # noqa: B018
+
+
+def test_zenoh_settings_are_configurable_and_checked():
+    """express and batching (docs/performance.md, "Zenoh settings, chosen"): defaults as measured,
+    set from the environment for the services and the router, a bad value named."""
+    import json
+
+    from services.router import router_settings
+    from services.runtime.config import ConfigError, load_service_config
+    from services.runtime.settings import zenoh_config
+
+    cfg = load_service_config("observer", env={})
+    assert (cfg.express, cfg.batching, cfg.mode) == (False, True, "client")
+    cfg = load_service_config("observer", env={"SOILOCP_EXPRESS": "true", "SOILOCP_BATCHING": "0"})
+    assert (cfg.express, cfg.batching) == (True, False)
+    with pytest.raises(ConfigError, match="express='maybe'"):
+        load_service_config("observer", env={"SOILOCP_EXPRESS": "maybe"})
+    assert router_settings(None, (), (), env={})["batching"] is True
+    assert router_settings(None, (), (), env={"SOILOCP_BATCHING": "false"})["batching"] is False
+    with pytest.raises(ConfigError, match="batching='sometimes'"):
+        router_settings(None, (), (), env={"SOILOCP_BATCHING": "sometimes"})
+    key = "transport/link/tx/queue/batching/enabled"
+    assert json.loads(zenoh_config("client", [], [], batching=False, tls_from_environment=False).get_json(key)) is False
+    assert json.loads(zenoh_config("client", [], [], tls_from_environment=False).get_json(key)) is True
