@@ -7,6 +7,7 @@ pub mod constants;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
+pub mod pairwise;
 pub mod py;
 pub mod soil;
 pub mod traction;

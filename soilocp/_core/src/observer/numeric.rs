@@ -42,35 +42,8 @@ pub fn clip(x: f64, lo: f64, hi: f64) -> f64 {
     np_min(np_max(x, lo), hi)
 }
 
-/// numpy's pairwise summation of a contiguous run (`a.sum()` for up to 128 terms): sequential
-/// below 8 terms; otherwise 8 running sums over blocks of 8, combined as ((r0+r1)+(r2+r3)) +
-/// ((r4+r5)+(r6+r7)), then the remainder in order.
-pub fn np_sum(a: &[f64]) -> f64 {
-    let n = a.len();
-    if n < 8 {
-        let mut s = 0.0;
-        for &v in a {
-            s += v;
-        }
-        return s;
-    }
-    let mut r = [0.0; 8];
-    r.copy_from_slice(&a[..8]);
-    let whole = n - n % 8;
-    let mut i = 8;
-    while i < whole {
-        for j in 0..8 {
-            r[j] += a[i + j];
-        }
-        i += 8;
-    }
-    let mut s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-    while i < n {
-        s += a[i];
-        i += 1;
-    }
-    s
-}
+/// numpy's pairwise summation of a contiguous run (`a.sum()`): [`crate::pairwise::pairwise_sum`].
+pub use crate::pairwise::pairwise_sum as np_sum;
 
 /// C (m x p) = A (m x q) B (q x p), row-major, each entry's terms by fused multiply-adds in
 /// order l = 0..q from 0.0 (dgemm's order).  A term whose a_il is 0 is skipped: it
