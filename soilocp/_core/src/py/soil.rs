@@ -40,18 +40,8 @@ pub struct SoilGridBank {
     inner: bank::SoilGridBank,
 }
 
-fn quads(name: &str, a: &PyReadonlyArray2<'_, f64>, k: usize) -> PyResult<Vec<[f64; 4]>> {
-    let v = a.as_array();
-    if v.shape() != [k, 4] {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k}, 4), got {:?}",
-            v.shape()
-        )));
-    }
-    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
-}
-
-fn bool_quads(name: &str, a: &PyReadonlyArray2<'_, bool>, k: usize) -> PyResult<Vec<[bool; 4]>> {
+/// Rows of four (one per wheel) of a (k, 4) array, refused with the argument's name otherwise.
+fn quads<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray2<'_, T>, k: usize) -> PyResult<Vec<[T; 4]>> {
     let v = a.as_array();
     if v.shape() != [k, 4] {
         return Err(PyValueError::new_err(format!(
@@ -185,10 +175,7 @@ impl SoilGridBank {
             return Err(PyValueError::new_err(format!("stamp {bad}: must be finite")));
         }
         let (gate_slip, gate_sigma) = (quads("gate_slip", &gate_slip, k)?, quads("gate_sigma", &gate_sigma, k)?);
-        let (informative, held) = (
-            bool_quads("informative", &informative, k)?,
-            bool_quads("held", &held, k)?,
-        );
+        let (informative, held) = (quads("informative", &informative, k)?, quads("held", &held, k)?);
         let ground_stale = column("ground_stale", &ground_stale, k)?;
         let identifiable = column("identifiable", &identifiable, k)?;
         let speed = column("speed", &speed, k)?;
