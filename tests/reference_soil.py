@@ -15,30 +15,21 @@ from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import ModelConstants
 from soilocp.model.traction import curve_unchecked
 from soilocp.estimation.soil_config import SoilConfig, class_bounds
+from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
+# the wheel gate of the paper estimator, which the core's gate must equal
+from soilocp.estimation.soil_strength import _gate
 
 UNKNOWN_SPEED = 1.0
 
 
-def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma=None) -> np.ndarray:
-    a = np.abs(slip)
-    ok = informative & (a >= cfg.slip_min) & (a <= cfg.slip_max)
-    if slip_sigma is not None:
-        ok &= a >= cfg.slip_snr * slip_sigma
-    return ok
 
-class LogKGrid:
+class LogKGrid(ProductGrid):
     """The ln K grid of the Bayes estimator and what is computed on it: the observation curve
     (eq. 3 or 6, factorised), the belief's prediction (random walk + change prior) and its robust
     summaries.  One object serves :class:`BayesSoilEstimator` and the batched ``soilocp.estimation.batch``."""
 
     def __init__(self, constants: ModelConstants, cfg: SoilConfig):
-        if cfg.k_max <= cfg.k_min:
-            raise ValueError(f"k_max ({cfg.k_max}) must exceed k_min ({cfg.k_min})")
-        self.c, self.cfg, self.kind = constants, cfg, cfg.measurement
-        self.theta = np.linspace(math.log(cfg.k_min), math.log(cfg.k_max), cfg.grid_points)
-        self.k_grid = np.exp(self.theta)
-        self.dtheta = self.theta[1] - self.theta[0]
-        self.span = self.theta[-1] - self.theta[0]
+        super().__init__(constants, cfg)  # the nodes: the product's grid, so both start from the same numbers
         self.names, edges = class_bounds(constants)
         self.class_idx = np.clip(np.searchsorted(edges, self.theta, side="right") - 1, 0, len(self.names) - 1)
         # Slip-independent factors of the curve on the grid, per side of S = 0, so an update costs
