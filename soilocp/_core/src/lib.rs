@@ -9,6 +9,7 @@ pub mod observer;
 pub mod ocp;
 pub mod pairwise;
 pub mod py;
+pub mod slip;
 pub mod soil;
 pub mod traction;
 

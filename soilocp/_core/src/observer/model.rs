@@ -45,7 +45,7 @@ pub fn resistance_map(l: &Layout, v: &Vehicle, x: &[f64], travel_speed: f64, bri
             for i in 0..4 {
                 let rim = x[om + i] * v.wheel_radius;
                 let ground = ground0 - psi * v.wheel_y[i];
-                let slip = (rim - ground) / np_max(np_max(rim.abs(), ground.abs()), 0.05);
+                let slip = crate::slip::slip(rim, ground, 0.05);
                 let d = travel_direction(ground, travel_speed);
                 let a = slip.abs();
                 out[2 * i] = if bridge > 0.0 { d * np_min(a / bridge, 1.0) } else { d };
