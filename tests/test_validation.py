@@ -90,3 +90,42 @@ def test_mutated_payloads_only_ever_raise_sample_rejected():
             pass
 
     run()
+
+
+def test_the_fast_parser_accepts_and_refuses_exactly_what_the_wording_parser_does():
+    """parse_sample tries pydantic-core's JSON validation first and words a refusal with the slow path
+    (json.loads, the non-finite walk, model_validate): on mutated payloads both must give the same
+    sample or the same rejection."""
+    from hypothesis import given, settings, strategies as st
+
+    from soilocp.validation import _parse_sample
+
+    base = sample(3, 0.03).model_copy(update={"ground_speed": 0.5, "wheel_speed": (1.5, -2.0, 3e-7, 4.0)})
+    base = base.model_dump_json()
+
+    def outcome(fn, payload):
+        try:
+            return ("ok", fn(payload).model_dump())
+        except SampleRejected as rej:
+            return (rej.code, rej.message, rej.seq)
+        except RecursionError:
+            return ("malformed_json", "payload: JSON nested too deeply", None)
+
+    def same(payload):
+        assert outcome(parse_sample, payload) == outcome(lambda p: _parse_sample(p, None), payload), payload
+
+    @settings(max_examples=3000, deadline=None)
+    @given(st.integers(0, len(base)), st.integers(0, 12),
+           st.text(alphabet='[]{}":,0123456789.eE-+ntrufalseNaIiy\\ ', max_size=20))
+    def run(pos, cut, insert):
+        same(base[:pos] + insert + base[pos + cut:])
+
+    run()
+    for payload in (base, base.replace("0.5", "NaN"), base.replace("0.5", "1e999"), base.replace("0.5", "Infinity"),
+                    base.replace('"seq":3', '"seq":3.0'), base.replace('"seq":3', '"seq":true'),
+                    base.replace('"r1"', '"r2"'), base.encode(), base[:-1] + ',"extra":1}', base + " ",
+                    base + "x", "\ufeff" + base, base.replace('"r1"', '"r\\ud800"')):
+        same(payload)
+    with pytest.raises(SampleRejected) as exc:
+        parse_sample(base, expected_vehicle_id="r2")
+    assert exc.value.code == "vehicle_mismatch" and exc.value.seq == 3
