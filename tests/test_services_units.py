@@ -243,3 +243,34 @@ def test_schemas_export_command_and_service_help(tmp_path):
     assert r.exit_code == 0 and "SOILOCP_CONFIG" in r.output
     r = CliRunner().invoke(main, ["run", "--synthetic", "sand", "--replay", __file__])
     assert r.exit_code == 2 and "exactly one" in r.output
+
+
+def test_bounded_worker_keeps_order_drops_beyond_its_bound_and_survives_a_failing_item():
+    import threading
+    import time
+
+    from services.runtime.worker import BoundedWorker
+
+    gate, seen, dropped, failed = threading.Event(), [], [], []
+
+    def handle(item):
+        gate.wait(5)
+        if item == 2:
+            raise RuntimeError("bad item")
+        seen.append(item)
+
+    w = BoundedWorker("t", handle, 4, dropped.append, lambda item, exc: failed.append((item, str(exc))))
+    w.start()
+    try:
+        # the worker holds at most one item (blocked on the gate) and the queue 4: of 8, 3 or 4 are dropped
+        accepted = [w.offer(i) for i in range(8)]
+        assert w.depth() <= 4 and accepted.count(False) in (3, 4)
+        gate.set()
+        kept = [i for i, a in zip(range(8), accepted) if a]
+        deadline = time.monotonic() + 5
+        while len(seen) + len(failed) < len(kept) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        w.stop()
+    assert dropped == [i for i, a in zip(range(8), accepted) if not a] and kept == list(range(len(kept)))
+    assert seen == [i for i in kept if i != 2] and failed == [(2, "bad item")]
