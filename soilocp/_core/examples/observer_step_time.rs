@@ -3,21 +3,11 @@
 //! numbers, each a slow operation): `cargo run --release --example observer_step_time [STEPS]`.
 use _core::observer::bank::{FilterBank, Sample, Settings};
 use _core::observer::layout::Layout;
-use _core::observer::model::Vehicle;
+use _core::observer::model::ROVER;
 
 fn main() {
     let l = Layout::of("slip").unwrap();
-    let v = Vehicle {
-        mass: 60.0,
-        wheel_radius: 0.15,
-        wheel_inertia: 0.1,
-        yaw_inertia: 6.0,
-        a: 0.27,
-        b: 0.23,
-        c: 0.25,
-        d: 0.25,
-        wheel_y: [0.25, 0.25, -0.25, -0.25],
-    };
+    let v = ROVER;
     let n = l.n();
     let s = Settings {
         gate_sigma: 5.0,

@@ -163,7 +163,8 @@ impl RefreshIntervals {
             }
             return out;
         }
-        let step = if restart || !(dt > 0.0) { 0.0 } else { dt };
+        // a restart, a repeated stamp or NaN: nothing to integrate
+        let step = if restart || dt.is_nan() || dt <= 0.0 { 0.0 } else { dt };
         let counted = if step > 0.0 { 1.0 } else { 0.0 };
         for (w, iv) in wheels.iter_mut().enumerate() {
             let mut valid = iv.valid && !restart;
@@ -190,7 +191,7 @@ impl RefreshIntervals {
                 && s.prev_speed[w].is_finite()
                 && iv.fz_dt > 0.0;
             let last_rate = iv.last_rate;
-            let active = ended || (iv.active && !restart && !(changed && !ended) && s.torque_fresh[w]);
+            let active = ended || (iv.active && !restart && !changed && s.torque_fresh[w]);
             out.active[w] = active;
             if ended {
                 iv.last_rate = close(&st, iv, s, w, &mut out);
@@ -246,9 +247,7 @@ impl RefreshIntervals {
         let ok_dt = !restart && dt > 0.0;
         let step = if ok_dt { dt } else { 1.0 };
         for (w, iv) in wheels.iter_mut().enumerate() {
-            let slow = !full_rate[w]
-                && (s.full_rate[w] || speed_since[w] < st.min_interval - STAMP_TOLERANCE)
-                && ok_dt;
+            let slow = !full_rate[w] && (s.full_rate[w] || speed_since[w] < st.min_interval - STAMP_TOLERANCE) && ok_dt;
             let close = changed[w]
                 && slow
                 && since[w] >= st.min_interval - STAMP_TOLERANCE
@@ -312,4 +311,112 @@ fn close(st: &IntervalSettings, iv: &Interval, s: &WheelSample, w: usize, out: &
     // acceleration change d_a within the interval strays from the chord by up to d_a tau / 8
     out.rim_sigma[w] = st.radius * (rate - iv.last_rate).abs() * tau / 8.0;
     rate
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const I_W: f64 = 0.04;
+    const R_W: f64 = 0.15;
+    const FZ: f64 = 150.0;
+    const G: f64 = 0.4;
+    const DT: f64 = 0.01;
+
+    fn settings() -> IntervalSettings {
+        IntervalSettings {
+            inertia: I_W,
+            radius: R_W,
+            jerk: 50.0,
+            min_interval: 0.1,
+            max_interval: 1.0,
+            variance_floor: 1e-10,
+            speed_sigma: 0.03,
+        }
+    }
+
+    /// A wheel spun up at 3 rad/s^2 on a gross traction G (eq. 13: T = R_w Fz G + I_w 3).
+    fn sample(changed: bool, full_rate: bool, prev: f64, speed: f64) -> WheelSample {
+        WheelSample {
+            changed: [changed; 4],
+            full_rate: [full_rate; 4],
+            prev_speed: [prev; 4],
+            speed: [speed; 4],
+            torque: [R_W * FZ * G + I_W * 3.0; 4],
+            torque_fresh: [true; 4],
+            fz: [FZ; 4],
+            ground: [0.7; 4],
+        }
+    }
+
+    #[test]
+    fn a_held_speeds_interval_serves_eq_13_integrated() {
+        // the speed read every 21 samples (4.76 Hz): from the second closed interval on, each serves G
+        let mut ri = RefreshIntervals::new(1, settings());
+        let (mut served, mut prev, mut held) = (vec![], f64::NAN, 5.0);
+        for k in 0..200 {
+            let t = k as f64 * DT;
+            let changed = k % 21 == 0;
+            if changed {
+                prev = held;
+                held = 5.0 + 3.0 * t;
+            }
+            let dt = if k == 0 { f64::NAN } else { DT };
+            let p = ri.step(0, dt, k == 0, &sample(changed, false, prev, held));
+            if p.interval[0] > 0.0 {
+                served.push(p);
+            }
+        }
+        // changes at 0, 21, ..., 189: the first interval starts at a restart (invalid), the next only starts the chain
+        assert_eq!(served.len(), 7);
+        for p in &served {
+            assert!((p.interval[0] - 0.21).abs() < 1e-9 && p.active[0]);
+            assert!((p.gross[0] - G).abs() < 1e-9, "{}", p.gross[0]);
+            // a constant acceleration: the chord is the course, no curvature
+            assert!(p.rim_sigma[0].abs() < 1e-9 && p.gross_var[0] > 0.0);
+        }
+        // read at the sample rate: nothing kept, nothing served
+        let mut ri = RefreshIntervals::new(1, settings());
+        for k in 1..100 {
+            let p = ri.step(0, DT, false, &sample(true, true, 5.0, 5.03));
+            assert_eq!(p, Pairs::default(), "{k}");
+        }
+    }
+
+    #[test]
+    fn a_held_torques_refresh_serves_eq_13_at_that_instant() {
+        // speed read at every sample, the torque every 50: a pair at each torque refresh, exact
+        let mut ri = RefreshIntervals::new(1, settings());
+        let mut pairs = 0;
+        for k in 1..300 {
+            let t = k as f64 * DT;
+            let ws = sample(true, true, 5.0 + 3.0 * (t - DT), 5.0 + 3.0 * t);
+            let changed = k % 50 == 0;
+            let p = ri.torque_refresh(0, DT, false, &[changed; 4], &[false; 4], &[0.5; 4], &[DT; 4], &ws);
+            if changed {
+                assert!((p.gross[0] - G).abs() < 1e-9 && p.interval[0] == 0.5, "{p:?}");
+                pairs += 1;
+            } else {
+                assert_eq!(p.interval[0], 0.0);
+            }
+        }
+        assert_eq!(pairs, 5);
+        let a = Pairs {
+            interval: [0.2, 0.0, 0.0, 0.0],
+            gross: [1.0; 4],
+            active: [true, false, false, false],
+            ..Pairs::default()
+        };
+        let b = Pairs {
+            interval: [0.0, 0.5, 0.0, 0.0],
+            gross: [2.0, 2.0, 0.0, 0.0],
+            active: [false, true, false, true],
+            ..Pairs::default()
+        };
+        let m = a.merge(&b);
+        assert_eq!(
+            (m.interval, m.gross, m.active),
+            ([0.2, 0.5, 0.0, 0.0], [1.0, 2.0, 1.0, 1.0], [true, true, false, true])
+        );
+    }
 }

@@ -94,8 +94,7 @@ impl GroundSpeedLatency {
     ) -> f64 {
         let max_latency = self.max_latency;
         let f = &mut self.fits[g];
-        // NaN or negative
-        let restart = !(dt >= 0.0);
+        let restart = dt.is_nan() || dt < 0.0;
         let step = if restart {
             f.a_lp = f64::NAN;
             f.a_prev = f64::NAN;
@@ -163,7 +162,11 @@ mod tests {
                 est.step(0, t - last, acc, speed(t - lag), new, e1, e2);
                 last = t;
             }
-            assert!((est.fits[0].latency - expect).abs() < 0.01, "{lag}: {}", est.fits[0].latency);
+            assert!(
+                (est.fits[0].latency - expect).abs() < 0.01,
+                "{lag}: {}",
+                est.fits[0].latency
+            );
         }
     }
 }

@@ -15,8 +15,8 @@
 
 pub mod bank;
 pub mod intervals;
-pub mod latency;
 pub mod kalman;
+pub mod latency;
 pub mod layout;
 pub mod model;
 pub mod numeric;

@@ -119,7 +119,11 @@ impl ObserverBank {
             // acceleration)
             let mut inertia_torque = [0.0; 4];
             for w in 0..4 {
-                let since = if rd.changed[w] { r.stamp - rd.changed_before[w] } else { 0.0 };
+                let since = if rd.changed[w] {
+                    r.stamp - rd.changed_before[w]
+                } else {
+                    0.0
+                };
                 let interval = if since <= max_gap { since } else { 0.0 };
                 let rate = wheel_acceleration(rd.prev[w], r.wheel_speed[w], interval, rd.changed[w], max_gap);
                 inertia_torque[w] = self.filter.vehicle.wheel_inertia * rate;
@@ -140,7 +144,15 @@ impl ObserverBank {
             // a late ground speed, led by its measured latency (eq. 29's f_x plus g sin(pitch))
             let acc = r.specific_force_x + g_sin_pitch;
             let dt_fit = if restart { f64::NAN } else { dt };
-            ground_speed_z = fit.step(g, dt_fit, acc, r.ground_speed, rd.fresh[4], r.expm1_smoothing, r.exp_window);
+            ground_speed_z = fit.step(
+                g,
+                dt_fit,
+                acc,
+                r.ground_speed,
+                rd.fresh[4],
+                r.expm1_smoothing,
+                r.exp_window,
+            );
             latency = fit.fits[g].latency;
         }
         let sample = Sample {

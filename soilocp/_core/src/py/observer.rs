@@ -259,7 +259,10 @@ impl ObserverCore {
         check_quad("normal_force", &fz, k)?;
         let shape = |name: &str, a: &ArrayView1<'_, f64>| -> PyResult<()> {
             if a.len() != k {
-                return Err(PyValueError::new_err(format!("{name} must have shape ({k},), got ({},)", a.len())));
+                return Err(PyValueError::new_err(format!(
+                    "{name} must have shape ({k},), got ({},)",
+                    a.len()
+                )));
             }
             Ok(())
         };
@@ -364,14 +367,34 @@ impl ObserverCore {
         let f = &self.inner.filter;
         let (l, n) = (f.layout, f.layout.n());
         if x.len() != n {
-            return Err(PyValueError::new_err(format!("x must have {n} entries, got {}", x.len())));
+            return Err(PyValueError::new_err(format!(
+                "x must have {n} entries, got {}",
+                x.len()
+            )));
         }
         let (fz, torque) = (fixed::<4>("fz", &fz)?, fixed::<4>("torque", &torque)?);
         let (mut a, mut b, mut h) = (vec![0.0; n * n], vec![0.0; n], vec![0.0; N_MEAS * n]);
         let mut m = [0.0; 16];
         init(&l, &mut a, &mut b, &mut h);
-        resistance_map(&l, &f.vehicle, &x, f.settings.travel_speed, f.settings.bridge_slip, &mut m);
-        build(&l, &f.vehicle, &fz, &torque, f.settings.gravity * pitch.sin(), &m, &mut a, &mut b, &mut h);
+        resistance_map(
+            &l,
+            &f.vehicle,
+            &x,
+            f.settings.travel_speed,
+            f.settings.bridge_slip,
+            &mut m,
+        );
+        build(
+            &l,
+            &f.vehicle,
+            &fz,
+            &torque,
+            f.settings.gravity * pitch.sin(),
+            &m,
+            &mut a,
+            &mut b,
+            &mut h,
+        );
         Ok((
             Array2::from_shape_vec((n, n), a).expect("n x n").into_pyarray(py),
             Array1::from_vec(b).into_pyarray(py),
@@ -433,9 +456,12 @@ impl ObserverCore {
     /// Consecutive gate rejections of each measurement row (N, 7) (a copy).
     #[getter]
     fn rejections<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i64>> {
-        Array2::from_shape_vec((self.inner.filter.n_vehicles, N_MEAS), self.inner.filter.rejections.clone())
-            .expect("N x 7")
-            .into_pyarray(py)
+        Array2::from_shape_vec(
+            (self.inner.filter.n_vehicles, N_MEAS),
+            self.inner.filter.rejections.clone(),
+        )
+        .expect("N x 7")
+        .into_pyarray(py)
     }
 
     /// Resets so far, by reason (in reset_reasons' order).
