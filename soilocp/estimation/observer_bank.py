@@ -120,12 +120,12 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed reading was last new (readings.ReadingClock)
+    speed_age: np.ndarray  # s since the wheel's speed reading was last new (the core's readings clock)
     ground_speed_age: np.ndarray  # (k,) s since the ground speed reading was last new
     torque_age: np.ndarray  # s since the wheel's torque reading was last new
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
-    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (ground_speed_latency; 0: none)
-    # a slow stream's refresh at this sample, the pair from the readings (refresh_traction; interval 0: none)
+    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (the core's latency fit; 0: none)
+    # a slow stream's refresh at this sample, the pair from the readings (the core's intervals.rs; interval 0: none)
     interval: np.ndarray
     interval_gross: np.ndarray
     interval_gross_var: np.ndarray
@@ -135,6 +135,32 @@ class ObserverBankOutput:
     interval_ground_end: np.ndarray
     interval_rim_sigma: np.ndarray
     interval_learning: np.ndarray  # bool: one stream slow, the other at the sample rate: K learns at the refreshes
+
+
+# the rows of the core's output blocks, in its order (checked at import: the core names them)
+_QUADS = ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age", "torque_age",
+          "interval", "interval_gross", "interval_gross_var", "interval_rim_start", "interval_rim_end",
+          "interval_ground_start", "interval_ground_end", "interval_rim_sigma")
+_FLATS = ("ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency")
+_BOOL_QUADS = ("mu_determined", "interval_learning")
+_BOOL_FLATS = ("reset", "ground_speed_measured")
+assert (_QUADS, _FLATS, _BOOL_QUADS, _BOOL_FLATS) == tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in (
+    "quad", "flat", "bool_quad", "bool_flat")), "soilocp._core's observer output blocks changed: rebuild the core"
+
+
+def _output(quads, flats, bool_quads, bool_flats, rejected, codes) -> ObserverBankOutput:
+    """The core's output blocks as the dataclass: views of the blocks' rows, unpacked (not indexed one by one:
+    a third of the cost)."""
+    (mu, mu_var, res, gross, gross_var, wheel_speed, fz, speed_age, torque_age, interval, i_gross, i_gross_var,
+     i_rim_start, i_rim_end, i_ground_start, i_ground_end, i_rim_sigma) = quads
+    ground_speed, yaw_rate, ground_speed_age, latency = flats
+    determined, learning = bool_quads
+    reset, measured = bool_flats
+    return ObserverBankOutput(
+        mu, mu_var, determined, res, gross, gross_var, wheel_speed, ground_speed, yaw_rate, rejected, reset,
+        [RESET_REASONS[c - 1] if c else "" for c in codes.tolist()], fz, speed_age, ground_speed_age, torque_age,
+        measured, latency, interval, i_gross, i_gross_var, i_rim_start, i_rim_end, i_ground_start, i_ground_end,
+        i_rim_sigma, learning)
 
 
 class ObserverBank:
@@ -170,9 +196,6 @@ class ObserverBank:
         # the ground-speed latency fit's time constants (s): its low-pass and its memory (None: no fit)
         self._latency_tau = ((ObserverCore.latency_smoothing, cfg.latency_window)
                              if cfg.ground_speed_latency_max > 0 else None)
-        fields = ObserverCore.quad_fields, ObserverCore.flat_fields, ObserverCore.bool_quad_fields, \
-            ObserverCore.bool_flat_fields
-        self._blocks = tuple((b, name, i) for b, names in enumerate(fields) for i, name in enumerate(names))
 
     @property
     def x(self) -> np.ndarray:
@@ -232,7 +255,4 @@ class ObserverBank:
             self.last_stamp[:] = st
         else:
             self.last_stamp[ix] = st
-        codes = blocks[5]
-        return ObserverBankOutput(
-            **{name: blocks[b][i] for b, name, i in self._blocks}, rejected=blocks[4],
-            reset_reason=[RESET_REASONS[c - 1] if c else "" for c in codes.tolist()])
+        return _output(*blocks)
