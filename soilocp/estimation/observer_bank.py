@@ -76,7 +76,9 @@ class ObserverInputs:
 
     def check(self) -> int:
         """k, the number of vehicles, after checking every field's shape ((k,) or (k, 4)), dtype and
-        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise."""
+        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise.  Fields
+        that are not float arrays are converted.  (``ObserverBank.step`` leaves the check of float arrays
+        to the core, which words its errors alike, and calls this for anything else.)"""
         st = self.stamp
         k = st.shape[0] if type(st) is np.ndarray and st.ndim == 1 else -1
         # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
