@@ -1,5 +1,5 @@
-"""A late ground speed measured against the accelerometer (soilocp.estimation.ground_speed_latency,
-docs/method.md §13): the latency is found when there is one, is 0 when there is none (also at
+"""A late ground speed measured against the accelerometer (the core's observer/latency.rs, its numpy
+reference in tests/reference_observer.py; docs/method.md §13): the latency is found when there is one, is 0 when there is none (also at
 20 Hz and under an accelerometer bias), and the observer's speed no longer lags with it."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from reference_observer import GroundSpeedLatency
 from soilocp.estimation.estimate import EstimateSummary, estimate_lines
-from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.variants import get_variant

@@ -1,20 +1,42 @@
-"""Traction observer: observability, discretisation, convergence to the true coefficients on
-data generated from the observer's own equations, and covariance health over long runs."""
+"""Traction observer: observability, the core's model against the numpy reference, discretisation,
+convergence to the true coefficients on data generated from the observer's own equations (the core's
+observer and filterpy's reference alike), and covariance health over long runs."""
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from reference_observer import TractionObserver, continuous_model, discretize, model, resistance_map, travel_direction
 from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces
 from soilocp.estimation.observer import (
     ObserverConfig,
     StateLayout,
-    continuous_model,
     continuous_process_noise,
-    discretize,
     observability_rank,
 )
-from soilocp.estimation.observer_reference import TractionObserver
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.model.vehicle import DEFAULT_VEHICLE as V
+
+
+class CoreObserver:
+    """The product's observer (the core, N = 1) behind the reference's one-vehicle step signature."""
+
+    def __init__(self, vehicle, config=None):
+        self.bank = ObserverBank(vehicle, config, 1)
+
+    def step(self, stamp, fx, yaw, pitch, omega, torque, v, fz):
+        o = self.bank.step(None, ObserverInputs(
+            np.array([stamp]), np.array([fx]), np.array([yaw]), np.array([pitch]), np.asarray(omega, float)[None],
+            np.asarray(torque, float)[None], np.array([np.nan if v is None else v]), np.asarray(fz, float)[None]))
+        return SimpleNamespace(mu=o.mu[0], mu_var=o.mu_var[0], resistance=o.resistance[0], gross=o.gross[0],
+                               rejected=int(o.rejected[0]), reset=bool(o.reset[0]))
+
+
+@pytest.fixture(params=["core", "filterpy"])
+def observer(request):
+    """Either implementation: the product's core, or the tests' filterpy reference."""
+    return CoreObserver if request.param == "core" else TractionObserver
 
 
 def test_paper_state_is_not_observable_but_ours_is():
@@ -34,6 +56,28 @@ def test_paper_state_is_not_observable_but_ours_is():
 def test_unknown_structure_rejected():
     with pytest.raises(ValueError, match="structure"):
         StateLayout.of("bogus")
+
+
+@pytest.mark.parametrize("structure", ["slip", "shared", "per_wheel", "none"])
+def test_the_cores_model_is_the_numpy_reference(structure):
+    """ObserverCore.model (the core's A, b, H at a state, which observability_rank uses) against the numpy
+    model of eq. 33 with the resistance map at the same state, on drawn states, forces, torques, pitches."""
+    rng = np.random.default_rng(5)
+    cfg = ObserverConfig(structure=structure)
+    layout = StateLayout.of(structure)
+    core = ObserverBank(V, cfg, 1)._core
+    wheel_y = np.asarray(V.wheel_y, float)
+    for _ in range(50):
+        x = rng.normal(0, 1, layout.n)
+        x[layout.omega] = rng.uniform(-12, 12, 4)
+        x[layout.v] = rng.uniform(-2, 2) * (rng.random() > 0.2)
+        fz, torque, pitch = rng.uniform(1, 300, 4), rng.uniform(-20, 20, 4), rng.uniform(-0.4, 0.4)
+        rim, ground = x[layout.omega] * V.wheel_radius, x[layout.v] - x[layout.psi] * wheel_y
+        slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
+        M = resistance_map(layout, slip, travel_direction(ground, cfg.travel_speed), cfg.bridge_slip)
+        want = [m[0] for m in model(layout, V, fz[None], torque[None], np.array([pitch]), M[None], cfg.gravity)]
+        for got, ref in zip(core.model(x.tolist(), fz.tolist(), torque.tolist(), pitch), want):
+            np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-14)
 
 
 @pytest.mark.parametrize("structure", ["shared", "per_wheel", "none"])
@@ -76,9 +120,9 @@ def _drive(mu_true, r_true, steps=600, dt=0.01, pitch=-0.1, noise=True, seed=0):
 
 
 @pytest.mark.parametrize("mu_true", [[0.2, 0.25, 0.3, 0.22], [-0.1, 0.3, 0.3, -0.1]])
-def test_shared_structure_recovers_each_wheel_and_resistance(mu_true):
+def test_shared_structure_recovers_each_wheel_and_resistance(mu_true, observer):
     r_true = 0.06
-    obs = TractionObserver(V, ObserverConfig(structure="shared"))
+    obs = observer(V, ObserverConfig(structure="shared"))
     for m in _drive(mu_true, r_true):
         est = obs.step(m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
     assert np.allclose(est.mu, mu_true, atol=0.02), est.mu
@@ -87,10 +131,10 @@ def test_shared_structure_recovers_each_wheel_and_resistance(mu_true):
     assert np.all(est.mu_var > 0) and np.all(est.mu_var < 0.01)
 
 
-def test_without_compensation_mu_absorbs_resistance():
+def test_without_compensation_mu_absorbs_resistance(observer):
     mu_true, r_true = [0.2, 0.25, 0.3, 0.22], 0.08
-    with_c = TractionObserver(V, ObserverConfig(structure="shared"))
-    without = TractionObserver(V, ObserverConfig(structure="none"))
+    with_c = observer(V, ObserverConfig(structure="shared"))
+    without = observer(V, ObserverConfig(structure="none"))
     for m in _drive(mu_true, r_true):
         args = (m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])
         a, b = with_c.step(*args), without.step(*args)
@@ -101,8 +145,8 @@ def test_without_compensation_mu_absorbs_resistance():
     assert err_without > 2 * err_with
 
 
-def test_outlier_measurement_is_gated_not_absorbed():
-    obs = TractionObserver(V, ObserverConfig(structure="shared"))
+def test_outlier_measurement_is_gated_not_absorbed(observer):
+    obs = observer(V, ObserverConfig(structure="shared"))
     data = _drive([0.2] * 4, 0.05, steps=300)
     for i, m in enumerate(data):
         fx = m["fx"] + (50.0 if i == 250 else 0.0)  # accelerometer spike
@@ -112,8 +156,8 @@ def test_outlier_measurement_is_gated_not_absorbed():
     assert np.allclose(est.mu, 0.2, atol=0.03)
 
 
-def test_time_gap_reinitialises():
-    obs = TractionObserver(V)
+def test_time_gap_reinitialises(observer):
+    obs = observer(V)
     data = _drive([0.2] * 4, 0.05, steps=50)
     for m in data:
         obs.step(m["stamp"], m["fx"], m["yaw"], m["pitch"], m["omega"], m["torque"], m["v"], m["fz"])

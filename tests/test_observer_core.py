@@ -1,7 +1,8 @@
-"""The observer's filter in the compiled core (soilocp._core.ObserverCore, behind
-soilocp.estimation.observer_bank.ObserverBank) against filterpy's KalmanFilter
-(soilocp.estimation.observer_reference.TractionObserver), step by step, on drives drawn by hypothesis;
-and the core's refusal of malformed calls."""
+"""The observer in the compiled core (soilocp._core.ObserverCore, behind
+soilocp.estimation.observer_bank.ObserverBank) against the tests' references (tests/reference_observer.py:
+filterpy's KalmanFilter for the filter, numpy for the readings clock, the torque split, the encoder lead,
+the ground-speed latency and the refresh pairs), step by step, on drives drawn by hypothesis; and the
+core's refusal of malformed calls."""
 
 from __future__ import annotations
 
@@ -10,10 +11,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from reference_observer import TractionObserver
 from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import RESET_REASONS, ObserverBank, ObserverInputs
-from soilocp.estimation.observer_reference import TractionObserver
 from soilocp.model.normal_force import STANDARD_GRAVITY
 from soilocp.model.vehicle import DEFAULT_VEHICLE
 
@@ -30,7 +31,8 @@ drive_params = st.fixed_dictionaries({
     "speed": st.one_of(st.floats(-1.5, -0.3), st.floats(0.3, 2.0)),
     "slip": st.floats(-0.3, 0.6),
     "torque": st.floats(0.0, 60.0),
-    "hold_every": st.sampled_from([0, 2, 5]),  # wheel speeds refreshed every n-th sample only
+    "hold_every": st.sampled_from([0, 2, 5, 21]),  # wheel speeds refreshed every n-th sample only
+    "torque_every": st.sampled_from([1, 1, 3, 20, 50]),  # torques refreshed every n-th sample only
     "ground_speed": st.sampled_from(["every", "every_10"]),
     "spike_at": st.integers(0, 299),
     "gap_at": st.integers(0, 299),
@@ -44,7 +46,7 @@ def _drive(p: dict, steps: int = 300):
     step: a drive at a slip with noise, a wheel-speed spike, a 1 s gap and a stamp going back."""
     rng = np.random.default_rng(p["seed"])
     v, r = DEFAULT_VEHICLE, DEFAULT_VEHICLE.wheel_radius
-    t, held = 0.0, None
+    t, held, held_torque = 0.0, None, None
     out = []
     for i in range(steps):
         t += 1.0 / p["rate"] + (1.0 if i == p["gap_at"] else 0.0) - (0.05 if i == p["backwards_at"] else 0.0)
@@ -57,6 +59,9 @@ def _drive(p: dict, steps: int = 300):
             omega = held
         held = omega
         torque = p["torque"] * np.cos(phase + np.arange(4)) + rng.normal(0, 0.5, 4)
+        if held_torque is not None and i % p["torque_every"]:
+            torque = held_torque
+        held_torque = torque
         gs = ground + rng.normal(0, 0.02)
         if p["ground_speed"] == "every_10" and i % 10:
             gs = np.nan
@@ -69,8 +74,9 @@ def _drive(p: dict, steps: int = 300):
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow], report_multiple_bugs=False)
 @given(drive_params)
 def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
-    """Every output of every step within 1e-9 (relative and absolute) of filterpy's filter on the same model,
-    the same rejected rows and the same resets.  Before each step the reference takes the core's state (x, P,
+    """Every output of every step within 1e-9 (relative and absolute) of the references (filterpy's filter on
+    the same model, numpy's readings clock, latency fit and refresh pairs), the same ages, rejected rows,
+    resets and refresh flags.  Before each step the reference takes the core's state (x, P,
     gate counters): filterpy sums its products in its own order and inverts S its own way, and over hundreds of
     gated steps on a drawn drive (a held encoder at 20 Hz, a split the data barely determine) the two filters'
     last bits drift apart to 1e-6, as the numpy kernel's did from filterpy's; one step at a time, each step's
@@ -103,6 +109,18 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
         np.testing.assert_allclose([o.ground_speed[0], o.yaw_rate[0]], [r.ground_speed, r.yaw_rate], rtol=TOL,
                                    atol=TOL, err_msg=f"step {k}")
         assert (int(o.rejected[0]), bool(o.reset[0])) == (r.rejected, r.reset), k
+        # around the filter: the readings clock (exact), the latency fit, the refresh pairs
+        np.testing.assert_array_equal(o.normal_force[0], r.normal_force)
+        np.testing.assert_array_equal(o.speed_age[0], r.age[:4], err_msg=f"step {k}")
+        np.testing.assert_array_equal(o.torque_age[0], r.age[5:], err_msg=f"step {k}")
+        assert o.ground_speed_age[0] == r.age[4] or np.isnan(o.ground_speed_age[0]) and np.isnan(r.age[4]), k
+        assert o.ground_speed_latency[0] == pytest.approx(r.ground_speed_latency, rel=TOL, abs=TOL), k
+        np.testing.assert_array_equal(o.interval_learning[0], r.pairs.active, err_msg=f"step {k}")
+        for name in ("interval", "gross", "gross_var", "rim_start", "rim_end", "ground_start", "ground_end",
+                     "rim_sigma"):
+            field = name if name == "interval" else f"interval_{name}"
+            np.testing.assert_allclose(getattr(o, field)[0], getattr(r.pairs, name), rtol=TOL, atol=TOL,
+                                       err_msg=f"step {k} {field}")
 
 
 def test_reset_reasons_are_worded_from_the_core_codes():
@@ -128,22 +146,60 @@ def test_reset_reasons_are_worded_from_the_core_codes():
 def test_core_refuses_malformed_calls_naming_the_argument():
     bank = ObserverBank(DEFAULT_VEHICLE, None, 2)
     core = bank._core
-    one, quad, fresh = np.zeros(1), np.zeros((1, 4)), np.ones((1, 5), dtype=bool)
-    ok = dict(dt=one, dt_cubed=one, specific_force_x=one, yaw_rate=one, pitch=one, wheel_speed=quad,
-              ground_speed=one, wheel_speed_z=quad, ground_speed_z=one, torque=quad, normal_force=quad, fresh=fresh)
+    one, quad = np.zeros(1), np.full((1, 4), 100.0)
+    ok = dict(stamp=one, specific_force_x=one, yaw_rate=one, pitch=one, wheel_speed=quad, wheel_torque=quad,
+              ground_speed=one, normal_force=quad, dt_cubed=one, expm1_smoothing=one, exp_window=one)
     with pytest.raises(ValueError, match=r"idx must be distinct vehicle indices in \[0, 2\)"):
         core.step(np.array([2]), *ok.values())
     with pytest.raises(ValueError, match=r"idx must be distinct"):
         core.step(np.array([0, 0]), *[np.concatenate([a, a]) for a in ok.values()])
-    bad = dict(ok, torque=np.zeros((1, 3)))
-    with pytest.raises(ValueError, match=r"torque must have shape \(1, 4\)"):
+    with pytest.raises(ValueError, match=r"inputs hold 1 samples for 2 vehicle indices"):
+        core.step(None, *ok.values())
+    bad = dict(ok, wheel_torque=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match=r"inputs.wheel_torque must be a finite array of shape \(1, 4\)"):
         core.step(np.array([0]), *bad.values())
     bad = dict(ok, pitch=np.zeros(2))
-    with pytest.raises(ValueError, match=r"pitch must have shape \(1,\)"):
+    with pytest.raises(ValueError, match=r"inputs.pitch must be a finite array of shape \(1,\)"):
         core.step(np.array([0]), *bad.values())
+    bad = dict(ok, ground_speed=np.array([np.inf]))
+    with pytest.raises(ValueError, match=r"inputs.ground_speed must be a finite array"):
+        core.step(np.array([0]), *bad.values())
+    bad = dict(ok, expm1_smoothing=None)
+    with pytest.raises(ValueError, match=r"expm1_smoothing and exp_window are needed"):
+        core.step(np.array([0]), *bad.values())
+    # nothing stepped on a refused call
+    assert bank.resets_by_reason["start"] == 0
+    args = ("paper", 1, [1.0] * 8, [0.0] * 4, 5.0, 10, 0.5, 0.3, 1e-10, 1e4, 0.05, 0.005, 9.8,
+            [1.0] * 7, [1.0] * 14, [1.0] * 14, [-1.0] * 14, [1.0] * 14, [1.0] * 5)
+    kw = dict(per_side=False, interval_mean=False, full_rate_share=0.5, repeat_window=0.5, latency_window=30.0,
+              latency_max=0.3, refresh_jerk=50.0, refresh_min_interval=0.1, refresh_max_interval=1.0,
+              speed_sigma=0.03, mu_var_determined=0.0225)
     with pytest.raises(ValueError, match="observer structure must be slip, shared, per_wheel or none"):
-        ObserverCore("paper", 1, [1.0] * 8, [0.0] * 4, 5.0, 10, 0.5, 0.3, 1e-10, 1e4, 0.05, 0.005, 9.8,
-                     [1.0] * 7, [1.0] * 14, [1.0] * 14, [-1.0] * 14, [1.0] * 14, [1.0] * 5)
+        ObserverCore(*args, **kw)
     with pytest.raises(ValueError, match="settings.q must have 14 entries"):
-        ObserverCore("slip", 1, [1.0] * 8, [0.0] * 4, 5.0, 10, 0.5, 0.3, 1e-10, 1e4, 0.05, 0.005, 9.8,
-                     [1.0] * 7, [1.0] * 12, [1.0] * 14, [-1.0] * 14, [1.0] * 14, [1.0] * 5)
+        ObserverCore("slip", *args[1:14], [1.0] * 12, *args[15:], **kw)
+
+
+def test_the_bank_names_a_malformed_input_field():
+    """ObserverBank.step: ValueError naming the field, from the core or (lists, other dtypes) the Python check."""
+    bank = ObserverBank(DEFAULT_VEHICLE, None, 1)
+
+    def inputs(**change):
+        base = dict(stamp=np.array([1.0]), specific_force_x=np.zeros(1), yaw_rate=np.zeros(1), pitch=np.zeros(1),
+                    wheel_speed=np.full((1, 4), 4.0), wheel_torque=np.zeros((1, 4)), ground_speed=np.full(1, 0.6),
+                    normal_force=np.full((1, 4), 150.0))
+        return ObserverInputs(**{**base, **change})
+
+    with pytest.raises(ValueError, match=r"inputs.wheel_speed must be a finite array"):
+        bank.step(None, inputs(wheel_speed=np.array([[4.0, np.nan, 4.0, 4.0]])))
+    with pytest.raises(ValueError, match=r"inputs.normal_force must be a finite array of shape \(1, 4\)"):
+        bank.step(None, inputs(normal_force=[[150.0] * 3]))
+    with pytest.raises(ValueError, match=r"inputs.specific_force_x must be a finite array of shape \(2,\)"):
+        bank.step(None, inputs(stamp=np.array([1.0, 2.0])))
+    two = ObserverInputs(*(np.concatenate([a, a]) for a in vars(inputs()).values()))
+    with pytest.raises(ValueError, match=r"inputs hold 2 samples for 1 vehicle indices"):
+        bank.step(None, two)
+    assert np.isnan(bank.last_stamp).all()
+    # lists and integer arrays are converted
+    o = bank.step(None, inputs(wheel_torque=[[1, 2, 3, 4]], pitch=[0.0]))
+    assert o.reset_reason == ["start"] and o.mu.shape == (1, 4) and o.rejected.dtype == np.int64

@@ -1,4 +1,5 @@
-"""Which readings are new measurements (soilocp.estimation.readings, docs/method.md §13): a
+"""Which readings are new measurements (the core's observer/readings.rs, its numpy reference in
+tests/reference_observer.py; docs/method.md §13): a
 quantised encoder read at the sample rate repeats its value at a steady speed, and those repeats
 are readings; a slow driver's held value is not; nor is a full-rate stream that froze."""
 
@@ -9,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
+from reference_observer import ReadingClock
 from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.pipeline import PipelineConfig
-from soilocp.estimation.readings import ReadingClock
 from soilocp.sim.variants import get_variant
 
 DT = 0.01

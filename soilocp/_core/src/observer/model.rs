@@ -28,6 +28,19 @@ pub struct Vehicle {
     pub wheel_y: [f64; 4],
 }
 
+/// soilocp/data/rover.json's geometry: the vehicle of the kernels' tests and examples.
+pub const ROVER: Vehicle = Vehicle {
+    mass: 60.0,
+    wheel_radius: 0.15,
+    wheel_inertia: 0.1,
+    yaw_inertia: 6.0,
+    a: 0.27,
+    b: 0.23,
+    c: 0.25,
+    d: 0.25,
+    wheel_y: [0.25, 0.25, -0.25, -0.25],
+};
+
 /// The travel direction of each wheel, smoothed over `travel_speed` (§11): clip(v / s, -1, 1).
 #[inline]
 pub fn travel_direction(v_wheel: f64, travel_speed: f64) -> f64 {
@@ -127,18 +140,7 @@ mod tests {
     use super::*;
 
     fn rover() -> Vehicle {
-        // soilocp/data/rover.json's geometry
-        Vehicle {
-            mass: 60.0,
-            wheel_radius: 0.15,
-            wheel_inertia: 0.1,
-            yaw_inertia: 6.0,
-            a: 0.27,
-            b: 0.23,
-            c: 0.25,
-            d: 0.25,
-            wheel_y: [0.25, 0.25, -0.25, -0.25],
-        }
+        ROVER
     }
 
     #[test]

@@ -1,20 +1,23 @@
-//! `soilocp._core.ObserverCore`: the traction filters of N vehicles (`observer::bank`), stepped
-//! for k of them in one call: arrays in, arrays out.  The Python bank
-//! (soilocp.estimation.observer_bank.ObserverBank) runs the readings clock, the torque split, the
-//! encoder lead and the ground-speed latency, and words the reset reasons from the codes.
+//! `soilocp._core.ObserverCore`: the whole observer step of N vehicles (`observer::vehicles`),
+//! for k of them in one call: the logged samples in, every output array out.  The Python bank
+//! (soilocp.estimation.observer_bank.ObserverBank) words the reset reasons from the codes and
+//! wraps the arrays in its dataclass.
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::observer::bank::{FilterBank, Sample, Settings, RESET_REASONS};
+use crate::observer::bank::{FilterBank, Settings, RESET_REASONS};
+use crate::observer::intervals::IntervalSettings;
+use crate::observer::latency::SMOOTHING;
 use crate::observer::layout::{Layout, N_MEAS};
-use crate::observer::model::Vehicle;
+use crate::observer::model::{build, init, resistance_map, Vehicle};
+use crate::observer::vehicles::{ObserverBank, Raw, Reading, LIFT_OFF_FORCE};
 
 #[pyclass(module = "soilocp._core")]
 pub struct ObserverCore {
-    inner: FilterBank,
+    inner: ObserverBank,
 }
 
 fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
@@ -22,46 +25,82 @@ fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
         .map_err(|_| PyValueError::new_err(format!("{name} must have {K} entries, got {}", v.len())))
 }
 
-fn check_1d(name: &str, a: &ArrayView1<'_, f64>, k: usize) -> PyResult<()> {
-    if a.len() != k {
+/// A (k,) input: its shape, and every entry finite (`nan_ok`: or NaN, "none").
+fn check_flat(name: &str, a: &ArrayView1<'_, f64>, k: usize, nan_ok: bool) -> PyResult<()> {
+    let ok = a.iter().all(|v| v.is_finite() || (nan_ok && v.is_nan()));
+    if a.len() != k || !ok {
         return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k},), got ({},)",
-            a.len()
+            "inputs.{name} must be a finite array of shape ({k},), got {a}"
         )));
     }
     Ok(())
 }
 
-fn check_2d<T>(name: &str, a: &ArrayView2<'_, T>, k: usize, m: usize) -> PyResult<()> {
-    if a.shape() != [k, m] {
+/// A (k, 4) input: its shape, and every entry finite.
+fn check_quad(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
+    if a.shape() != [k, 4] || !a.iter().all(|v| v.is_finite()) {
         return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k}, {m}), got {:?}",
-            a.shape()
+            "inputs.{name} must be a finite array of shape ({k}, 4), got {a}"
         )));
     }
     Ok(())
 }
+
+/// The names of the step's output blocks, in their order (ObserverBankOutput's fields).
+const QUADS: [&str; 17] = [
+    "mu",
+    "mu_var",
+    "resistance",
+    "gross",
+    "gross_var",
+    "wheel_speed",
+    "normal_force",
+    "speed_age",
+    "torque_age",
+    "interval",
+    "interval_gross",
+    "interval_gross_var",
+    "interval_rim_start",
+    "interval_rim_end",
+    "interval_ground_start",
+    "interval_ground_end",
+    "interval_rim_sigma",
+];
+const FLATS: [&str; 4] = ["ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency"];
+const BOOL_QUADS: [&str; 2] = ["mu_determined", "interval_learning"];
+const BOOL_FLATS: [&str; 2] = ["reset", "ground_speed_measured"];
 
 type StepOut<'py> = (
+    Bound<'py, PyArray3<f64>>,
     Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray3<bool>>,
+    Bound<'py, PyArray2<bool>>,
     Bound<'py, PyArray1<i64>>,
     Bound<'py, PyArray1<u8>>,
 );
 
+type Model<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
 #[pymethods]
 impl ObserverCore {
-    /// The filters of `n_vehicles` vehicles of one kind (`structure`: slip | shared | per_wheel |
+    /// The observers of `n_vehicles` vehicles of one kind (`structure`: slip | shared | per_wheel |
     /// none).  `vehicle`: (mass, wheel_radius, wheel_inertia, yaw_inertia, a, b, c, d); `r`: the 7
     /// measurement variances; `q`, `p0`, `lower`, `upper`: per state; `speed_limits`: |omega_1..4|
-    /// and |V| above which a state has diverged.
+    /// and |V| above which a state has diverged; `per_side` / `interval_mean`: the vehicle's drive
+    /// and encoder reading; the readings clock's `full_rate_share` / `repeat_window`; the
+    /// ground-speed latency fit's `latency_window` / `latency_max` (0: none); the refresh pairs'
+    /// `refresh_jerk`, `refresh_min_interval`, `refresh_max_interval` and `speed_sigma` (the
+    /// encoder's 1-sigma); `mu_var_determined`: mu's variance up to which it is determined.
     #[new]
     #[pyo3(signature = (structure, n_vehicles, vehicle, wheel_y, gate_sigma, gate_patience, max_gap,
                         anchor_speed, variance_floor, variance_ceiling, travel_speed, bridge_slip,
-                        gravity, r, q, p0, lower, upper, speed_limits))]
+                        gravity, r, q, p0, lower, upper, speed_limits, *, per_side, interval_mean,
+                        full_rate_share, repeat_window, latency_window, latency_max, refresh_jerk,
+                        refresh_min_interval, refresh_max_interval, speed_sigma, mu_var_determined))]
     #[allow(clippy::too_many_arguments)]
     fn py_new(
         structure: &str,
@@ -83,6 +122,17 @@ impl ObserverCore {
         lower: Vec<f64>,
         upper: Vec<f64>,
         speed_limits: Vec<f64>,
+        per_side: bool,
+        interval_mean: bool,
+        full_rate_share: f64,
+        repeat_window: f64,
+        latency_window: f64,
+        latency_max: f64,
+        refresh_jerk: f64,
+        refresh_min_interval: f64,
+        refresh_max_interval: f64,
+        speed_sigma: f64,
+        mu_var_determined: f64,
     ) -> PyResult<Self> {
         let layout = Layout::of(structure).map_err(PyValueError::new_err)?;
         let [mass, wheel_radius, wheel_inertia, yaw_inertia, a, b, c, d] = fixed::<8>("vehicle", &vehicle)?;
@@ -114,137 +164,282 @@ impl ObserverCore {
             upper,
             speed_limits: fixed::<5>("speed_limits", &speed_limits)?,
         };
-        let inner = FilterBank::new(layout, vehicle, settings, n_vehicles).map_err(PyValueError::new_err)?;
-        Ok(ObserverCore { inner })
+        let filter = FilterBank::new(layout, vehicle, settings, n_vehicles).map_err(PyValueError::new_err)?;
+        let reading = Reading {
+            per_side,
+            interval_mean,
+            full_rate_share,
+            repeat_window,
+            latency_window,
+            latency_max,
+            mu_var_determined,
+        };
+        let refresh = IntervalSettings {
+            inertia: wheel_inertia,
+            radius: wheel_radius,
+            jerk: refresh_jerk,
+            min_interval: refresh_min_interval,
+            max_interval: refresh_max_interval,
+            variance_floor,
+            speed_sigma,
+        };
+        Ok(ObserverCore {
+            inner: ObserverBank::new(filter, reading, refresh),
+        })
     }
 
-    /// One step of the vehicles `idx` (k,), each at most once, in one call.  Per vehicle: dt (s
-    /// since its last sample; NaN at its first), dt_cubed (dt**3 as numpy computes it), specific
-    /// force x, yaw rate, pitch; (k, 4) raw wheel speeds, (k,) raw ground speed (NaN: none); (k, 4)
-    /// wheel speeds as measured (reading + encoder lead), (k,) the led ground speed (NaN: none);
-    /// (k, 4) torques and normal forces; (k, 5) bool: which wheel / ground speeds are new readings.
-    /// Returns the (k, n) states, (k, 4) mu variances, resistances, gross tractions and their
-    /// variances, (k,) rejected rows and (k,) reset codes (0: none, else reset_reasons[code - 1]).
+    /// One observer step of the vehicles `idx` (k,; each at most once; None: all N, in order), in
+    /// one call.  The samples: (k,) stamp, specific force x, yaw rate, pitch, ground speed (NaN:
+    /// none); (k, 4) wheel speeds, wheel torques (as logged) and normal forces; (k,) numpy's dt**3
+    /// and, with the latency fit on, expm1(-|dt| / latency_smoothing) and exp(-|dt| /
+    /// latency_window), dt the stamp less the vehicle's last (NaN at its first).
+    /// Returns the blocks (17, k, 4) and (4, k) of floats, (2, k, 4) and (2, k) of bools (named by
+    /// quad_fields, flat_fields, bool_quad_fields, bool_flat_fields), the (k,) rejected rows and
+    /// the (k,) reset codes (0: none, else reset_reasons[code - 1]).  Every input is checked (shape,
+    /// finite; ValueError naming the field) before any vehicle's state changes.
+    #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
+                        normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
     #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
-        idx: PyReadonlyArray1<'py, i64>,
-        dt: PyReadonlyArray1<'py, f64>,
-        dt_cubed: PyReadonlyArray1<'py, f64>,
+        idx: Option<PyReadonlyArray1<'py, i64>>,
+        stamp: PyReadonlyArray1<'py, f64>,
         specific_force_x: PyReadonlyArray1<'py, f64>,
         yaw_rate: PyReadonlyArray1<'py, f64>,
         pitch: PyReadonlyArray1<'py, f64>,
         wheel_speed: PyReadonlyArray2<'py, f64>,
+        wheel_torque: PyReadonlyArray2<'py, f64>,
         ground_speed: PyReadonlyArray1<'py, f64>,
-        wheel_speed_z: PyReadonlyArray2<'py, f64>,
-        ground_speed_z: PyReadonlyArray1<'py, f64>,
-        torque: PyReadonlyArray2<'py, f64>,
         normal_force: PyReadonlyArray2<'py, f64>,
-        fresh: PyReadonlyArray2<'py, bool>,
+        dt_cubed: PyReadonlyArray1<'py, f64>,
+        expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
+        exp_window: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<StepOut<'py>> {
-        let idx = idx.as_array();
-        let k = idx.len();
-        let n_veh = self.inner.n_vehicles;
-        let mut seen = vec![false; n_veh];
-        for &g in idx.iter() {
-            if g < 0 || g as usize >= n_veh || seen[g as usize] {
-                return Err(PyValueError::new_err(format!(
-                    "idx must be distinct vehicle indices in [0, {n_veh}), got {idx}"
-                )));
-            }
-            seen[g as usize] = true;
+        let n_veh = self.inner.filter.n_vehicles;
+        let stamp = stamp.as_array();
+        let k = stamp.len();
+        let idx_view = idx.as_ref().map(|a| a.as_array());
+        let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
+        if k != m {
+            return Err(PyValueError::new_err(format!(
+                "inputs hold {k} samples for {m} vehicle indices"
+            )));
         }
-        let (dt, dt3, fx, yaw, pitch, gs, gsz) = (
-            dt.as_array(),
-            dt_cubed.as_array(),
+        let mut vehicles = Vec::with_capacity(k);
+        if let Some(ix) = &idx_view {
+            let mut seen = vec![false; n_veh];
+            for &g in ix.iter() {
+                if g < 0 || g as usize >= n_veh || seen[g as usize] {
+                    return Err(PyValueError::new_err(format!(
+                        "idx must be distinct vehicle indices in [0, {n_veh}), got {ix}"
+                    )));
+                }
+                seen[g as usize] = true;
+                vehicles.push(g as usize);
+            }
+        } else {
+            vehicles.extend(0..n_veh);
+        }
+        let (fx, yaw, pitch, gs, dt3) = (
             specific_force_x.as_array(),
             yaw_rate.as_array(),
             pitch.as_array(),
             ground_speed.as_array(),
-            ground_speed_z.as_array(),
+            dt_cubed.as_array(),
         );
-        for (name, a) in [
-            ("dt", &dt),
-            ("dt_cubed", &dt3),
-            ("specific_force_x", &fx),
-            ("yaw_rate", &yaw),
-            ("pitch", &pitch),
-            ("ground_speed", &gs),
-            ("ground_speed_z", &gsz),
-        ] {
-            check_1d(name, a, k)?;
+        check_flat("stamp", &stamp, k, false)?;
+        check_flat("specific_force_x", &fx, k, false)?;
+        check_flat("yaw_rate", &yaw, k, false)?;
+        check_flat("pitch", &pitch, k, false)?;
+        check_flat("ground_speed", &gs, k, true)?;
+        let (ws, tq, fz) = (wheel_speed.as_array(), wheel_torque.as_array(), normal_force.as_array());
+        check_quad("wheel_speed", &ws, k)?;
+        check_quad("wheel_torque", &tq, k)?;
+        check_quad("normal_force", &fz, k)?;
+        let shape = |name: &str, a: &ArrayView1<'_, f64>| -> PyResult<()> {
+            if a.len() != k {
+                return Err(PyValueError::new_err(format!(
+                    "{name} must have shape ({k},), got ({},)",
+                    a.len()
+                )));
+            }
+            Ok(())
+        };
+        shape("dt_cubed", &dt3)?;
+        let e1 = expm1_smoothing.as_ref().map(|a| a.as_array());
+        let e2 = exp_window.as_ref().map(|a| a.as_array());
+        if self.inner.latency.is_some() {
+            match (&e1, &e2) {
+                (Some(a), Some(b)) => {
+                    shape("expm1_smoothing", a)?;
+                    shape("exp_window", b)?;
+                }
+                _ => {
+                    return Err(PyValueError::new_err(
+                        "expm1_smoothing and exp_window are needed: the ground-speed latency fit is on",
+                    ))
+                }
+            }
         }
-        let (ws, wsz, tq, fz, fresh) = (
-            wheel_speed.as_array(),
-            wheel_speed_z.as_array(),
-            torque.as_array(),
-            normal_force.as_array(),
-            fresh.as_array(),
-        );
-        for (name, a) in [
-            ("wheel_speed", &ws),
-            ("wheel_speed_z", &wsz),
-            ("torque", &tq),
-            ("normal_force", &fz),
-        ] {
-            check_2d(name, a, k, 4)?;
-        }
-        check_2d("fresh", &fresh, k, 5)?;
-        let n = self.inner.layout.n();
-        let mut x = Array2::<f64>::zeros((k, n));
-        let mut mu_var = Array2::<f64>::zeros((k, 4));
-        let mut res = Array2::<f64>::zeros((k, 4));
-        let mut gross = Array2::<f64>::zeros((k, 4));
-        let mut gross_var = Array2::<f64>::zeros((k, 4));
+        let mut quads = Array3::<f64>::zeros((QUADS.len(), k, 4));
+        let mut flats = Array2::<f64>::zeros((FLATS.len(), k));
+        let mut bquads = Array3::<bool>::from_elem((BOOL_QUADS.len(), k, 4), false);
+        let mut bflats = Array2::<bool>::from_elem((BOOL_FLATS.len(), k), false);
         let mut rejected = Array1::<i64>::zeros(k);
-        let mut reset = Array1::<u8>::zeros(k);
+        let mut codes = Array1::<u8>::zeros(k);
         let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
-        for j in 0..k {
-            let g = idx[j] as usize;
-            let s = Sample {
-                dt: dt[j],
-                dt_cubed: dt3[j],
+        for (j, &g) in vehicles.iter().enumerate() {
+            let raw = Raw {
+                stamp: stamp[j],
                 specific_force_x: fx[j],
                 yaw_rate: yaw[j],
                 pitch: pitch[j],
                 wheel_speed: row4(&ws, j),
+                wheel_torque: row4(&tq, j),
                 ground_speed: gs[j],
-                wheel_speed_z: row4(&wsz, j),
-                ground_speed_z: gsz[j],
-                torque: row4(&tq, j),
                 normal_force: row4(&fz, j),
-                fresh: std::array::from_fn(|w| fresh[[j, w]]),
+                dt_cubed: dt3[j],
+                expm1_smoothing: e1.as_ref().map_or(f64::NAN, |a| a[j]),
+                exp_window: e2.as_ref().map_or(f64::NAN, |a| a[j]),
             };
-            let o = self.inner.step(g, &s);
-            for (c, v) in self.inner.x[g * n..(g + 1) * n].iter().enumerate() {
-                x[[j, c]] = *v;
+            let o = self.inner.step(g, &raw);
+            let p = &o.pairs;
+            let rows: [&[f64; 4]; 17] = [
+                &o.mu,
+                &o.mu_var,
+                &o.resistance,
+                &o.gross,
+                &o.gross_var,
+                &o.wheel_speed,
+                &o.normal_force,
+                &[o.age[0], o.age[1], o.age[2], o.age[3]],
+                &[o.age[5], o.age[6], o.age[7], o.age[8]],
+                &p.interval,
+                &p.gross,
+                &p.gross_var,
+                &p.rim_start,
+                &p.rim_end,
+                &p.ground_start,
+                &p.ground_end,
+                &p.rim_sigma,
+            ];
+            for (f, row) in rows.iter().enumerate() {
+                for w in 0..4 {
+                    quads[[f, j, w]] = row[w];
+                }
+            }
+            for (f, v) in [o.ground_speed, o.yaw_rate, o.age[4], o.ground_speed_latency]
+                .into_iter()
+                .enumerate()
+            {
+                flats[[f, j]] = v;
             }
             for w in 0..4 {
-                mu_var[[j, w]] = o.mu_var[w];
-                res[[j, w]] = o.resistance[w];
-                gross[[j, w]] = o.gross[w];
-                gross_var[[j, w]] = o.gross_var[w];
+                bquads[[0, j, w]] = o.mu_determined[w];
+                bquads[[1, j, w]] = p.active[w];
             }
+            bflats[[0, j]] = o.reset > 0;
+            bflats[[1, j]] = o.ground_speed_measured;
             rejected[j] = o.rejected;
-            reset[j] = o.reset;
+            codes[j] = o.reset;
         }
         Ok((
-            x.into_pyarray(py),
-            mu_var.into_pyarray(py),
-            res.into_pyarray(py),
-            gross.into_pyarray(py),
-            gross_var.into_pyarray(py),
+            quads.into_pyarray(py),
+            flats.into_pyarray(py),
+            bquads.into_pyarray(py),
+            bflats.into_pyarray(py),
             rejected.into_pyarray(py),
-            reset.into_pyarray(py),
+            codes.into_pyarray(py),
         ))
+    }
+
+    /// A (n, n), b (n), H (7, n) of eq. 33 (the core's `observer::model`) at the state `x` (n,)
+    /// (its resistance map), normal forces `fz` (4,; N), wheel torques (4,; N m) and pitch (rad).
+    fn model<'py>(
+        &self,
+        py: Python<'py>,
+        x: Vec<f64>,
+        fz: Vec<f64>,
+        torque: Vec<f64>,
+        pitch: f64,
+    ) -> PyResult<Model<'py>> {
+        let f = &self.inner.filter;
+        let (l, n) = (f.layout, f.layout.n());
+        if x.len() != n {
+            return Err(PyValueError::new_err(format!(
+                "x must have {n} entries, got {}",
+                x.len()
+            )));
+        }
+        let (fz, torque) = (fixed::<4>("fz", &fz)?, fixed::<4>("torque", &torque)?);
+        let (mut a, mut b, mut h) = (vec![0.0; n * n], vec![0.0; n], vec![0.0; N_MEAS * n]);
+        let mut m = [0.0; 16];
+        init(&l, &mut a, &mut b, &mut h);
+        resistance_map(
+            &l,
+            &f.vehicle,
+            &x,
+            f.settings.travel_speed,
+            f.settings.bridge_slip,
+            &mut m,
+        );
+        build(
+            &l,
+            &f.vehicle,
+            &fz,
+            &torque,
+            f.settings.gravity * pitch.sin(),
+            &m,
+            &mut a,
+            &mut b,
+            &mut h,
+        );
+        Ok((
+            Array2::from_shape_vec((n, n), a).expect("n x n").into_pyarray(py),
+            Array1::from_vec(b).into_pyarray(py),
+            Array2::from_shape_vec((N_MEAS, n), h).expect("7 x n").into_pyarray(py),
+        ))
+    }
+
+    /// The names of the step's output blocks' rows, in order.
+    #[classattr]
+    fn quad_fields() -> Vec<&'static str> {
+        QUADS.to_vec()
+    }
+
+    #[classattr]
+    fn flat_fields() -> Vec<&'static str> {
+        FLATS.to_vec()
+    }
+
+    #[classattr]
+    fn bool_quad_fields() -> Vec<&'static str> {
+        BOOL_QUADS.to_vec()
+    }
+
+    #[classattr]
+    fn bool_flat_fields() -> Vec<&'static str> {
+        BOOL_FLATS.to_vec()
+    }
+
+    /// s: the low-pass of the accelerometer in the ground-speed latency fit.
+    #[classattr]
+    fn latency_smoothing() -> f64 {
+        SMOOTHING
+    }
+
+    /// N: below this normal force a wheel is lifted off (its force is clamped to it).
+    #[classattr]
+    fn lift_off_force() -> f64 {
+        LIFT_OFF_FORCE
     }
 
     /// The states (N, n) (a copy).
     #[getter]
     fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.layout.n();
-        Array2::from_shape_vec((self.inner.n_vehicles, n), self.inner.x.clone())
+        let n = self.inner.filter.layout.n();
+        Array2::from_shape_vec((self.inner.filter.n_vehicles, n), self.inner.filter.x.clone())
             .expect("N x n")
             .into_pyarray(py)
     }
@@ -252,8 +447,8 @@ impl ObserverCore {
     /// The covariances (N, n, n) (a copy).
     #[getter(P)]
     fn p<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
-        let n = self.inner.layout.n();
-        Array3::from_shape_vec((self.inner.n_vehicles, n, n), self.inner.p.clone())
+        let n = self.inner.filter.layout.n();
+        Array3::from_shape_vec((self.inner.filter.n_vehicles, n, n), self.inner.filter.p.clone())
             .expect("N x n x n")
             .into_pyarray(py)
     }
@@ -261,21 +456,24 @@ impl ObserverCore {
     /// Consecutive gate rejections of each measurement row (N, 7) (a copy).
     #[getter]
     fn rejections<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i64>> {
-        Array2::from_shape_vec((self.inner.n_vehicles, N_MEAS), self.inner.rejections.clone())
-            .expect("N x 7")
-            .into_pyarray(py)
+        Array2::from_shape_vec(
+            (self.inner.filter.n_vehicles, N_MEAS),
+            self.inner.filter.rejections.clone(),
+        )
+        .expect("N x 7")
+        .into_pyarray(py)
     }
 
     /// Resets so far, by reason (in reset_reasons' order).
     #[getter]
     fn resets(&self) -> Vec<u64> {
-        self.inner.resets.to_vec()
+        self.inner.filter.resets.to_vec()
     }
 
     /// Wheel-speed states re-anchored to their reading at low speed so far.
     #[getter]
     fn anchored(&self) -> u64 {
-        self.inner.anchored
+        self.inner.filter.anchored
     }
 
     /// The reset reasons, code - 1 -> name.

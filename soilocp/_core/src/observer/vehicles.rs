@@ -1,0 +1,219 @@
+//! The whole observer step of N vehicles (soilocp.estimation.observer_bank.ObserverBank), one call
+//! per step for any subset of them: the readings clock (`readings`), the per-side torque split and
+//! the encoder lead (`wheel_inputs`), the ground-speed latency (`latency`), the filter (`bank`)
+//! and the refresh pairs (`intervals`), with every vehicle's state of each.
+
+use super::bank::{FilterBank, Sample};
+use super::intervals::{IntervalSettings, Pairs, RefreshIntervals, WheelSample};
+use super::latency::GroundSpeedLatency;
+use super::numeric::np_max;
+use super::readings::{ReadingClock, CHANNELS};
+use super::wheel_inputs::{encoder_lead, split_side_torque, wheel_acceleration};
+
+/// Normal force (N) below which a wheel is treated as lifted off: no traction information.
+pub const LIFT_OFF_FORCE: f64 = 1.0;
+
+/// How the vehicle's readings are to be read, and the observer's thresholds around the filter.
+#[derive(Clone, Copy, Debug)]
+pub struct Reading {
+    /// skid-steer: one motor per side, its torque logged as half on each wheel (docs/method.md §14)
+    pub per_side: bool,
+    /// encoder speeds are count differences, the mean over their interval (docs/method.md §14)
+    pub interval_mean: bool,
+    pub full_rate_share: f64,
+    pub repeat_window: f64,
+    /// s: the ground-speed latency fit's memory and the largest latency (0: no fit)
+    pub latency_window: f64,
+    pub latency_max: f64,
+    /// mu_i counts as determined while its posterior variance is <= this
+    pub mu_var_determined: f64,
+}
+
+/// One vehicle's sample as logged.  `dt_cubed`, `expm1_smoothing` and `exp_window` are numpy's
+/// dt**3, expm1(-step / SMOOTHING) and exp(-step / window) of the ground-speed latency fit (step:
+/// dt where 0 <= dt <= max_gap): numpy computes them with its own vector library (SVML on
+/// AVX-512), whose last bit differs from libm's on 2-5 % of arguments (docs/core-observer.md).
+#[derive(Clone, Copy, Debug)]
+pub struct Raw {
+    pub stamp: f64,
+    pub specific_force_x: f64,
+    pub yaw_rate: f64,
+    pub pitch: f64,
+    pub wheel_speed: [f64; 4],
+    pub wheel_torque: [f64; 4],
+    /// NaN: no independent ground-speed sensor
+    pub ground_speed: f64,
+    pub normal_force: [f64; 4],
+    pub dt_cubed: f64,
+    pub expm1_smoothing: f64,
+    pub exp_window: f64,
+}
+
+/// One vehicle's estimate at a step.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Estimate {
+    pub mu: [f64; 4],
+    pub mu_var: [f64; 4],
+    pub mu_determined: [bool; 4],
+    pub resistance: [f64; 4],
+    pub gross: [f64; 4],
+    pub gross_var: [f64; 4],
+    pub wheel_speed: [f64; 4],
+    pub ground_speed: f64,
+    pub yaw_rate: f64,
+    pub rejected: i64,
+    /// 0: no reset, else bank::RESET_REASONS[code - 1]
+    pub reset: u8,
+    /// clamped to the lift-off force
+    pub normal_force: [f64; 4],
+    /// s since each channel's last new reading (wheel speeds, ground speed, torques)
+    pub age: [f64; CHANNELS],
+    pub ground_speed_measured: bool,
+    /// s the ground speed was led by (0: none)
+    pub ground_speed_latency: f64,
+    pub pairs: Pairs,
+}
+
+pub struct ObserverBank {
+    pub filter: FilterBank,
+    pub reading: Reading,
+    pub readings: ReadingClock,
+    pub latency: Option<GroundSpeedLatency>,
+    pub intervals: RefreshIntervals,
+    pub last_stamp: Vec<f64>,
+}
+
+impl ObserverBank {
+    pub fn new(filter: FilterBank, reading: Reading, refresh: IntervalSettings) -> ObserverBank {
+        let n = filter.n_vehicles;
+        ObserverBank {
+            readings: ReadingClock::new(n, reading.full_rate_share, reading.repeat_window),
+            latency: (reading.latency_max > 0.0)
+                .then(|| GroundSpeedLatency::new(n, reading.latency_window, reading.latency_max)),
+            intervals: RefreshIntervals::new(n, refresh),
+            last_stamp: vec![f64::NAN; n],
+            filter,
+            reading,
+        }
+    }
+
+    /// One observer step of vehicle `g` (see the module doc).
+    pub fn step(&mut self, g: usize, r: &Raw) -> Estimate {
+        let rd_cfg = self.reading;
+        let max_gap = self.filter.settings.max_gap;
+        let last = self.last_stamp[g];
+        // NaN at a vehicle's first sample
+        let dt = r.stamp - last;
+        let first = last.is_nan();
+        let fz: [f64; 4] = std::array::from_fn(|w| np_max(r.normal_force[w], LIFT_OFF_FORCE));
+        let mut raw = [0.0; CHANNELS];
+        raw[..4].copy_from_slice(&r.wheel_speed);
+        raw[4] = r.ground_speed;
+        raw[5..].copy_from_slice(&r.wheel_torque);
+        let rd = self.readings.step(g, r.stamp, last, &raw, first || dt < 0.0);
+        let mut torque = r.wheel_torque;
+        let mut wheel_z = r.wheel_speed;
+        if rd_cfg.per_side || rd_cfg.interval_mean {
+            // a changed encoder speed is a count difference: the mean over the interval since the
+            // last change (a quantised repeat in between is the same count rate, and adds no
+            // acceleration)
+            let mut inertia_torque = [0.0; 4];
+            for w in 0..4 {
+                let since = if rd.changed[w] {
+                    r.stamp - rd.changed_before[w]
+                } else {
+                    0.0
+                };
+                let interval = if since <= max_gap { since } else { 0.0 };
+                let rate = wheel_acceleration(rd.prev[w], r.wheel_speed[w], interval, rd.changed[w], max_gap);
+                inertia_torque[w] = self.filter.vehicle.wheel_inertia * rate;
+                if rd_cfg.interval_mean {
+                    wheel_z[w] = r.wheel_speed[w] + encoder_lead(interval, rate);
+                }
+            }
+            if rd_cfg.per_side {
+                torque = split_side_torque(&r.wheel_torque, &fz, &inertia_torque);
+            }
+        }
+        // dt == 0 (a repeated stamp) is no restart: only the update runs
+        let restart = first || dt < 0.0 || dt > max_gap;
+        let g_sin_pitch = self.filter.settings.gravity * r.pitch.sin();
+        let mut ground_speed_z = r.ground_speed;
+        let mut latency = 0.0;
+        if let Some(fit) = self.latency.as_mut() {
+            // a late ground speed, led by its measured latency (eq. 29's f_x plus g sin(pitch))
+            let acc = r.specific_force_x + g_sin_pitch;
+            let dt_fit = if restart { f64::NAN } else { dt };
+            ground_speed_z = fit.step(
+                g,
+                dt_fit,
+                acc,
+                r.ground_speed,
+                rd.fresh[4],
+                r.expm1_smoothing,
+                r.exp_window,
+            );
+            latency = fit.fits[g].latency;
+        }
+        let sample = Sample {
+            dt,
+            dt_cubed: r.dt_cubed,
+            specific_force_x: r.specific_force_x,
+            yaw_rate: r.yaw_rate,
+            pitch: r.pitch,
+            wheel_speed: r.wheel_speed,
+            ground_speed: r.ground_speed,
+            wheel_speed_z: wheel_z,
+            ground_speed_z,
+            torque,
+            normal_force: fz,
+            fresh: std::array::from_fn(|c| rd.fresh[c]),
+        };
+        let f = self.filter.step(g, &sample);
+        self.last_stamp[g] = r.stamp;
+        let l = self.filter.layout;
+        let n = l.n();
+        let x = &self.filter.x[g * n..(g + 1) * n];
+        let wheel_y = self.filter.vehicle.wheel_y;
+        let ground: [f64; 4] = std::array::from_fn(|w| x[l.v()] - x[l.psi()] * wheel_y[w]);
+        let ws = WheelSample {
+            changed: std::array::from_fn(|w| rd.changed[w]),
+            full_rate: std::array::from_fn(|w| rd.full_rate[w]),
+            prev_speed: std::array::from_fn(|w| rd.prev[w]),
+            speed: r.wheel_speed,
+            torque,
+            torque_fresh: std::array::from_fn(|w| rd.fresh[5 + w]),
+            fz,
+            ground,
+        };
+        let speed_pairs = self.intervals.step(g, dt, restart, &ws);
+        let torque_pairs = self.intervals.torque_refresh(
+            g,
+            dt,
+            restart,
+            &std::array::from_fn(|w| rd.changed[5 + w]),
+            &std::array::from_fn(|w| rd.full_rate[5 + w]),
+            &std::array::from_fn(|w| r.stamp - rd.changed_before[5 + w]),
+            &std::array::from_fn(|w| r.stamp - rd.changed_before[w]),
+            &ws,
+        );
+        Estimate {
+            mu: std::array::from_fn(|w| x[w]),
+            mu_var: f.mu_var,
+            mu_determined: std::array::from_fn(|w| f.mu_var[w] <= rd_cfg.mu_var_determined),
+            resistance: f.resistance,
+            gross: f.gross,
+            gross_var: f.gross_var,
+            wheel_speed: std::array::from_fn(|w| x[l.omega() + w]),
+            ground_speed: x[l.v()],
+            yaw_rate: x[l.psi()],
+            rejected: f.rejected,
+            reset: f.reset,
+            normal_force: fz,
+            age: rd.age,
+            ground_speed_measured: !r.ground_speed.is_nan(),
+            ground_speed_latency: latency,
+            pairs: speed_pairs.merge(&torque_pairs),
+        }
+    }
+}
