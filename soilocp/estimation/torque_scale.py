@@ -125,14 +125,20 @@ class TorqueScaleBank:
         config's)."""
         if not self.active:
             return inputs, None
-        inputs.check()  # the observer's own named errors for a bad shape or value, before the core's arithmetic
-        out = self._core.apply(np.asarray(ix, dtype=np.int64), inputs.stamp, inputs.specific_force_x, inputs.pitch,
-                               inputs.yaw_rate, inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed,
-                               inputs.normal_force)
+        ix = np.asarray(ix, dtype=np.int64)
+        try:  # the core refuses a bad shape, dtype or value before it steps a vehicle
+            out = self._apply(ix, inputs)
+        except (TypeError, ValueError):
+            inputs.check()  # the observer's own named error (or its float64 copies of the fields, then the core's)
+            out = self._apply(ix, inputs)
         if out is None:
             return inputs, None
         torque, scale_sigma = out
         return dataclasses.replace(inputs, wheel_torque=torque), scale_sigma
+
+    def _apply(self, ix: np.ndarray, inputs):
+        return self._core.apply(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
+                                inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
 
     def band_sigma(self, sd) -> np.ndarray:
         """k's 1-sigma for K's band: the windows' information about k (the state's posterior precision less its
@@ -149,10 +155,13 @@ class TorqueScaleBank:
     def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
         """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept)
         and its slips per wheel (k, 4) (NaN: none): the next samples' modelled motion resistance (eq. 4) uses
-        them."""
-        if not self.active:
+        them (only there: without ``model_resistance`` the feed is not kept)."""
+        if not self.active or not self.cfg.model_resistance:
             return
-        k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
+        if type(soil_strength) is np.ndarray and soil_strength.dtype == np.float64:
+            k = soil_strength.reshape(-1)
+        else:
+            k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
         ix = np.asarray(ix, dtype=np.int64)
         self._core.feed_soil(ix, k, None if slip is None else np.asarray(slip, dtype=float).reshape(-1, 4))
 

@@ -38,6 +38,14 @@ fn check_2d(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
     Ok(())
 }
 
+fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult<()> {
+    if values.all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!("inputs.{name} must be finite")))
+    }
+}
+
 fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
     [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
 }
@@ -156,7 +164,8 @@ impl TorqueScaleCore {
 
     /// One sample per vehicle in `idx` (k distinct indices): the observer's inputs (stamp,
     /// specific_force_x, pitch, yaw_rate, ground_speed (k,), NaN ground speed: none; wheel_speed,
-    /// wheel_torque, normal_force (k, 4)), checked by the caller.  Steps the state, then returns the
+    /// wheel_torque, normal_force (k, 4)); ValueError before any step if one is not finite (the
+    /// caller's check then names it).  Steps the state, then returns the
     /// torques times k's mean (k, 4) and k's relative 1-sigma for K's band (k,); or None while
     /// every selected vehicle's k is exactly its prior (never learnt: the torques and the soil
     /// estimator's scale prior stay as configured).
@@ -175,6 +184,24 @@ impl TorqueScaleCore {
         normal_force: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Scaled<'py>> {
         let ix = self.indices(&idx)?;
+        // the observer's rule (ObserverInputs.check): all finite but an absent (NaN) ground speed;
+        // refused before any vehicle is stepped, so that the caller can name the field
+        for (name, a) in [
+            ("stamp", &stamp),
+            ("specific_force_x", &specific_force_x),
+            ("pitch", &pitch),
+            ("yaw_rate", &yaw_rate),
+        ] {
+            finite(name, a.as_array().iter())?;
+        }
+        finite("wheel_speed", wheel_speed.as_array().iter())?;
+        finite("wheel_torque", wheel_torque.as_array().iter())?;
+        finite("normal_force", normal_force.as_array().iter())?;
+        if ground_speed.as_array().iter().any(|v| v.is_infinite()) {
+            return Err(PyValueError::new_err(
+                "inputs.ground_speed must be finite or NaN (absent)",
+            ));
+        }
         let out = self.run(
             &ix,
             &stamp,
