@@ -111,7 +111,8 @@ impl Params {
         })
     }
 
-    /// TorqueScaleConfig's defaults with the torque constant's prior 0.05 (the Rust tests').
+    /// TorqueScaleConfig's defaults with the torque constant's prior 0.05 and the median reference
+    /// soil (K 120) for the Rust tests.
     pub fn defaults() -> Params {
         Params {
             window: 1.0,
@@ -128,7 +129,7 @@ impl Params {
             state_var: 0.10 * 0.10,
             prior_sigma: 0.05,
             prior_var: 0.05 * 0.05,
-            k_default: 80.0,
+            k_default: 120.0,
             slip_floor: 0.05,
             model_resistance: false,
         }
