@@ -9,11 +9,13 @@ With the logged torque T_log,i = T_i / k:
 
     m f_x + (I_w / R) sum_i omega_dot_i  =  k sum_i T_log,i / R  -  F_MR          (eq. TC)
 
-whatever the slip and the soil.  F_MR (motion resistance, plus any accelerometer bias times m)
-is taken as one constant: the intercept of a straight-line fit.  The fit runs on window means
-(default 0.5 s): the balance is linear, so it holds for the means exactly; the means bring a
-slow current stream and a 100 Hz IMU onto one clock and make the windows nearly independent, so
-that the fit's standard errors mean something.  Only windows where eq. TC holds are used:
+whatever the slip and the soil (:func:`soilocp.model.force_balance.longitudinal_balance`: the
+compiled core's eq. TC, which the online torque scale runs too).  F_MR (motion resistance, plus
+any accelerometer bias times m) is taken as one constant: the intercept of a straight-line fit.
+The fit runs on window means (default 0.5 s): the balance is linear, so it holds for the means
+exactly; the means bring a slow current stream and a 100 Hz IMU onto one clock and make the
+windows nearly independent, so that the fit's standard errors mean something.  Only windows
+where eq. TC holds are used:
 
 * moving forward (speed >= ``min_speed``: F_MR has one sign, the wheels are not stuck in static
   friction) -- the speed is the ground speed if logged, else the wheels' rim speed;

@@ -21,8 +21,12 @@ Only a window whose mean acceleration (f_x less the gravity reaction of the pitc
 at constant speed k stays at its prior, however long the drive, and a cruise fixes what F_MR is
 at the current k.  The torques the observer sees are the logged ones times k's mean, and the soil
 estimator's scale prior becomes k's relative posterior 1-sigma (:class:`soilocp.estimation.soil_strength.SoilBank`,
-``scale_sigma``): K's band includes the scale's posterior.  Vectorised over N vehicles: the
-single-vehicle stage and the batched path run the same kernel.
+``scale_sigma``): K's band includes the scale's posterior.
+
+The per-sample kernel (the window means, the Kalman and Schmidt updates, eq. 1, eq. 4 summed, eq. 20
+and eq. TC) is the compiled core's (``soilocp/_core/src/torque_scale/``, ``soilocp._core.TorqueScaleCore``),
+one call per step for the vehicles stepped: the single-vehicle stage and the batched path run the same
+kernel.  This module keeps the configuration and a thin bank over the core.
 """
 
 from __future__ import annotations
@@ -33,10 +37,9 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from soilocp import _core
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
-from soilocp.model.normal_force import STANDARD_GRAVITY, gravity_from_attitude
-from soilocp.model.slip import DEFAULT_FLOOR, slip_ratio_unchecked
+from soilocp.model.slip import DEFAULT_FLOOR
 from soilocp.model.vehicle import VehicleParams
 
 
@@ -73,7 +76,8 @@ class TorqueScaleConfig(BaseModel):
 
 
 class TorqueScaleBank:
-    """N vehicles' torque scales (module doc): :meth:`step` takes one sample per vehicle in ``ix``."""
+    """N vehicles' torque scales (module doc), their state in the core: :meth:`apply` takes one sample per
+    vehicle in ``ix`` (the observer's inputs) and steps them in one call."""
 
     def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int,
                  constants: ModelConstants = DEFAULT_CONSTANTS):
@@ -82,59 +86,91 @@ class TorqueScaleBank:
         # band keeps prior_sigma until a window informs k
         wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
         self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
-        n = n_vehicles
-        # the soil's K for eq. 4's resistance: the soil stage's last report (feed_soil), until then the median
-        # reference soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
+        self.active = cfg.enabled and self.prior_sigma > 0
+        # the soil's K for eq. 4's resistance until the soil stage reports one (feed_soil): the median reference
+        # soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
         self.k_default = float(np.median(list(constants.soils.values())))
-        self.soil_k = np.full(n, self.k_default)
-        # the soil stage's slip per wheel (eq. 1 on the observer's filtered speeds), NaN: none yet (the readings')
-        self.soil_slip = np.full((n, 4), np.nan)
-        self.theta = np.tile([1.0, 0.0], (n, 1))  # (k, F_MR)
-        self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
-        self.t0 = np.full(n, np.nan)  # the open window's first stamp
-        self.t_prev = np.full(n, np.nan)
-        self.prev = np.zeros((n, 4))  # the previous sample's f_x, gravity reaction g_x, sum of torques, F_MR (eq. 4)
-        self.area = np.zeros((n, 4))  # their integrals over the open window
-        self.w0 = np.zeros(n)  # sum of wheel speeds at the window's start
-        self.slow = np.zeros(n, dtype=bool)  # the window has a sample below min_speed, turning fast or not finite
+        self._n = n_vehicles
+        # the squares as Python takes them (pow), so that the state's variances are the numpy kernel's to the bit.
+        # An inactive bank (disabled, or no prior) has no state: k = 1 +- prior_sigma always
+        self._core = None if not self.active else _core.TorqueScaleCore(
+            constants.kernel, n_vehicles, vehicle.mass, vehicle.wheel_inertia, vehicle.wheel_radius, {
+                "window": cfg.window, "min_speed": cfg.min_speed, "max_yaw_rate": cfg.max_yaw_rate,
+                "max_gap": cfg.max_gap, "min_accel": cfg.min_accel, "max_slip": cfg.max_slip,
+                "scale_walk_var": cfg.scale_walk**2, "resistance_walk_var": cfg.resistance_walk**2,
+                "force_var": cfg.force_sigma**2, "resistance_var": cfg.resistance_sigma**2,
+                "state_sigma": self.state_sigma, "state_var": self.state_sigma**2,
+                "prior_sigma": self.prior_sigma, "prior_var": self.prior_sigma**2,
+                "k_default": self.k_default, "slip_floor": DEFAULT_FLOOR,
+                "model_resistance": float(cfg.model_resistance)})
+
+    @property
+    def theta(self) -> np.ndarray:
+        """(k, F_MR) of every vehicle, (N, 2)."""
+        if not self.active:
+            return np.tile([1.0, 0.0], (self._n, 1))
+        return self._core.theta
+
+    @property
+    def P(self) -> np.ndarray:  # noqa: N802 (the covariance's usual name)
+        """Their covariances, (N, 2, 2)."""
+        if not self.active:
+            return np.tile(np.diag([self.state_sigma**2, self.cfg.resistance_sigma**2]), (self._n, 1, 1))
+        return self._core.p
 
     def apply(self, ix: np.ndarray, inputs):
         """The observer's inputs (:class:`soilocp.estimation.observer_bank.ObserverInputs`) for vehicles ``ix``
         after this sample has stepped the state: torques x k's mean; and k's relative posterior 1-sigma (k,),
-        the soil estimator's scale prior, or None while the state is off (the prior stays the config's)."""
-        if not self.cfg.enabled or self.prior_sigma <= 0:
+        the soil estimator's scale prior, or None while the state is off or never learnt (the prior stays the
+        config's)."""
+        if not self.active:
             return inputs, None
-        inputs.check()  # the observer's own named errors for a bad shape or value, before any arithmetic here
-        m, sd = self.step(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
-                          inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
-        if np.all(m == 1.0) and np.all(sd == self.state_sigma):  # never learnt: exactly the configured prior
+        ix = np.asarray(ix, dtype=np.int64)
+        try:  # the core refuses a bad shape, dtype or value before it steps a vehicle
+            out = self._apply(ix, inputs)
+        except (TypeError, ValueError):
+            inputs.check()  # the observer's own named error (or its float64 copies of the fields, then the core's)
+            out = self._apply(ix, inputs)
+        if out is None:
             return inputs, None
-        inputs = dataclasses.replace(inputs, wheel_torque=inputs.wheel_torque * m[:, None])
-        return inputs, self.band_sigma(sd) / m
+        torque, scale_sigma = out
+        return dataclasses.replace(inputs, wheel_torque=torque), scale_sigma
 
-    def band_sigma(self, sd: np.ndarray) -> np.ndarray:
+    def _apply(self, ix: np.ndarray, inputs):
+        return self._core.apply(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
+                                inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
+
+    def band_sigma(self, sd) -> np.ndarray:
         """k's 1-sigma for K's band: the windows' information about k (the state's posterior precision less its
         prior's, ``state_sigma``) combined with the torque constant's prior ``prior_sigma``
-        (``soil.gross_scale_sigma``).  With ``state_sigma`` = ``prior_sigma`` this is the state's posterior itself.
-        A wider state prior lets the balance move k as far as the data say (a payload the vehicle file does not
-        know: 0.80), while a start ramp's one window, which hardly informs k, leaves K's band at the torque
-        constant's prior instead of widening it to the state's (sweep-3s-0.1: std/K 0.22 -> 0.44 with 0.15)."""
+        (``soil.gross_scale_sigma``); with ``state_sigma`` = ``prior_sigma`` the state's posterior itself (the
+        core's ``band_sigma``).  A wider state prior lets the balance move k as far as the data say (a payload
+        the vehicle file does not know: 0.80), while a start ramp's one window, which hardly informs k, leaves
+        K's band at the torque constant's prior instead of widening it to the state's."""
+        sd = np.asarray(sd, dtype=float)
         if self.state_sigma == self.prior_sigma:
             return sd
-        info = np.maximum(1.0 / np.maximum(sd, 1e-12) ** 2 - 1.0 / self.state_sigma**2, 0.0)
-        return 1.0 / np.sqrt(1.0 / self.prior_sigma**2 + info)
+        return self._core.band_sigma(sd.reshape(-1)).reshape(sd.shape)
 
     def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
-        """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept):
-        the next samples' modelled motion resistance (eq. 4) uses it."""
-        k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
-        self.soil_k[ix] = np.where(np.isfinite(k) & (k > 0), k, self.soil_k[ix])
-        if slip is not None:
-            self.soil_slip[ix] = np.asarray(slip, dtype=float).reshape(-1, 4)
+        """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept)
+        and its slips per wheel (k, 4) (NaN: none): the next samples' modelled motion resistance (eq. 4) uses
+        them (only there: without ``model_resistance`` the feed is not kept)."""
+        if not self.active or not self.cfg.model_resistance:
+            return
+        if type(soil_strength) is np.ndarray and soil_strength.dtype == np.float64:
+            k = soil_strength.reshape(-1)
+        else:
+            k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
+        ix = np.asarray(ix, dtype=np.int64)
+        self._core.feed_soil(ix, k, None if slip is None else np.asarray(slip, dtype=float).reshape(-1, 4))
 
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """k's posterior mean and 1-sigma for the vehicles ``ix``."""
-        return self.theta[ix, 0].copy(), np.sqrt(self.P[ix, 0, 0])
+        ix = np.asarray(ix, dtype=np.int64)
+        if not self.active:
+            return np.ones(ix.size), np.sqrt(np.full(ix.size, self.state_sigma**2))
+        return self._core.scale(ix)
 
     def step(self, ix: np.ndarray, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed,
              normal_force=None) -> tuple[np.ndarray, np.ndarray]:
@@ -142,69 +178,8 @@ class TorqueScaleBank:
         rad/s, logged torques (k, 4), ground speed m/s (NaN: the rims' mean), normal forces (k, 4) N (None:
         no modelled resistance, b is the whole F_MR)); close the windows that are full and update their
         vehicles' state.  Returns k's mean and 1-sigma after this sample."""
-        cfg, v = self.cfg, self.vehicle
-        if not cfg.enabled or self.prior_sigma <= 0:
+        if not self.active:
             return self.scale(ix)
-        stamp = np.asarray(stamp, dtype=float)
-        w_sum = np.asarray(wheel_speed, dtype=float).sum(axis=1)
-        t_sum = np.asarray(torque, dtype=float).sum(axis=1)
-        g_x = gravity_from_attitude(0.0, np.asarray(pitch, dtype=float), STANDARD_GRAVITY)[..., 0]
-        spd = np.asarray(speed, dtype=float)
-        spd = np.where(np.isnan(spd), w_sum / 4.0 * v.wheel_radius, spd)
-        slip = slip_ratio_unchecked(np.asarray(wheel_speed, dtype=float) * v.wheel_radius, spd[:, None], 1.0, 0.0,
-                                    DEFAULT_FLOOR).slip
-        if normal_force is None or not cfg.model_resistance:
-            f_mr = np.zeros(stamp.shape)
-        else:  # eq. 4 is even in S: the body-frame slip's magnitude is the travel frame's
-            s_mr = np.where(np.isfinite(self.soil_slip[ix]), self.soil_slip[ix], slip)
-            f_mr = modelled_resistance(np.where(np.isfinite(s_mr), s_mr, 0.0), self.soil_k[ix],
-                                       np.asarray(normal_force, dtype=float), np.where(spd < 0, -1.0, 1.0),
-                                       self.constants)
-        cur = np.stack([np.asarray(f_x, dtype=float), np.broadcast_to(g_x, stamp.shape), t_sum, f_mr], axis=1)
-        bad = (~np.isfinite(cur).all(axis=1) | ~np.isfinite(w_sum) | (np.abs(spd) < cfg.min_speed)
-               | ~(np.abs(np.asarray(yaw_rate, dtype=float)) <= cfg.max_yaw_rate) | ~(np.abs(slip) <= cfg.max_slip).all(axis=1))
-        t_prev = self.t_prev[ix]
-        with np.errstate(invalid="ignore"):
-            dt = stamp - t_prev
-            cont = np.isfinite(dt) & (dt > 0) & (dt <= cfg.max_gap)
-        # integrate the open windows (trapezoid, as the offline fit's means)
-        area = self.area[ix] + np.where(cont[:, None], 0.5 * (self.prev[ix] + cur) * np.where(cont, dt, 0.0)[:, None], 0.0)
-        slow = self.slow[ix] | bad
-        span = stamp - self.t0[ix]
-        full = cont & (span >= cfg.window - 1e-9)
-        if full.any():
-            j = np.flatnonzero(full)
-            means = area[j] / span[j, None]
-            omega_dot = (w_sum[j] - self.w0[ix[j]]) / span[j]
-            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3])
-            valid = ~slow[j]
-            if valid.any():
-                jj = j[valid]
-                accel = np.abs(means[valid, 0] - means[valid, 1]) >= cfg.min_accel
-                self._update(ix[jj], span[jj], x[valid], y[valid], accel)
-        restart = ~cont | full  # a new window starts at this sample (a full one closes on it)
-        self.t0[ix] = np.where(restart, stamp, self.t0[ix])
-        self.w0[ix] = np.where(restart, w_sum, self.w0[ix])
-        self.area[ix] = np.where(restart[:, None], 0.0, area)
-        self.slow[ix] = np.where(restart, bad, slow)
-        self.prev[ix] = cur
-        self.t_prev[ix] = stamp
-        return self.scale(ix)
-
-    def _update(self, iv: np.ndarray, span: np.ndarray, x: np.ndarray, y: np.ndarray, accel: np.ndarray) -> None:
-        """One window's Kalman step per vehicle iv: predict by its span, then y = k x - F_MR, H = (x, -1);
-        a window without acceleration updates F_MR only (Schmidt: k's gain 0, Joseph form)."""
-        cfg = self.cfg
-        th, P = self.theta[iv], self.P[iv]
-        P[:, 0, 0] += cfg.scale_walk**2 * span * accel  # k drifts only where it can be seen again
-        P[:, 1, 1] += cfg.resistance_walk**2 * span
-        H = np.stack([x, -np.ones_like(x)], axis=1)  # (m, 2)
-        PH = np.einsum("mij,mj->mi", P, H)
-        S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
-        K = PH / S[:, None]
-        K[:, 0] = np.where(accel, K[:, 0], 0.0)
-        innov = y - np.einsum("mi,mi->m", H, th)
-        th = th + K * innov[:, None]
-        A = np.eye(2)[None] - K[:, :, None] * H[:, None, :]
-        P = np.einsum("mij,mjk,mlk->mil", A, P, A) + cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]
-        self.theta[iv], self.P[iv] = th, P
+        f = lambda a: np.asarray(a, dtype=float)  # noqa: E731
+        return self._core.step(np.asarray(ix, dtype=np.int64), f(stamp), f(f_x), f(pitch), f(yaw_rate), f(wheel_speed),
+                               f(torque), f(speed), None if normal_force is None else f(normal_force))

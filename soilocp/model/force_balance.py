@@ -1,15 +1,27 @@
-"""The vehicle's longitudinal force balance with the torque channel's scale (docs/method.md §15):
-one definition for the offline calibration (``soilocp calibrate-torque``,
-:mod:`soilocp.analysis.torque_constant`) and the online torque-scale state
-(:mod:`soilocp.estimation.torque_scale`)."""
+"""The vehicle's longitudinal force balance with the torque channel's scale (eq. TC, docs/method.md §15)
+and the motion resistance the model gives it (eq. 4 summed): one definition, the compiled core's
+(``soilocp/_core/src/torque_scale/balance.rs``), for the offline calibration (``soilocp
+calibrate-torque``, :mod:`soilocp.analysis.torque_constant`) and the online torque-scale state
+(:mod:`soilocp.estimation.torque_scale`, which runs it inside the core).  These are its array bindings."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from soilocp import _core
+from soilocp.model.checks import as_float_array, positive
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-from soilocp.model.traction import motion_resistance
 from soilocp.model.vehicle import VehicleParams
+
+
+def _broadcast(**arrays) -> tuple[tuple[int, ...], list[np.ndarray]]:
+    """The arrays' common shape and each as a flat float array of it; ValueError naming them otherwise."""
+    try:
+        parts = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in arrays.values()))
+    except ValueError:
+        shapes = ", ".join(f"{k} {np.shape(a)}" for k, a in arrays.items())
+        raise ValueError(f"the arrays do not broadcast together: {shapes}") from None
+    return parts[0].shape, [np.ascontiguousarray(p).reshape(-1) for p in parts]
 
 
 def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams,
@@ -26,12 +38,13 @@ def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams,
     None: 0, b is the whole F_MR (``soilocp calibrate-torque``, which knows no soil, fits it as a constant).
     m is the vehicle file's mass: a payload it does not know (true mass m') reads as k m / m' (the common
     scale of gross traction, motor constant x 1 / mass).  Arguments broadcast (window means or samples)."""
-    r = vehicle.wheel_radius
-    x = np.asarray(torque_sum, dtype=float) / r
-    y = vehicle.mass * np.asarray(f_x, dtype=float) + vehicle.wheel_inertia * np.asarray(omega_dot_sum, dtype=float) / r
+    arrays = dict(f_x=f_x, omega_dot_sum=omega_dot_sum, torque_sum=torque_sum)
     if resistance is not None:
-        y = y + np.asarray(resistance, dtype=float)
-    return x, y
+        arrays["resistance"] = resistance
+    shape, flat = _broadcast(**arrays)
+    x, y = _core.longitudinal_balance(*flat[:3], vehicle.mass, vehicle.wheel_inertia, vehicle.wheel_radius,
+                                      flat[3] if resistance is not None else None)
+    return x.reshape(shape), y.reshape(shape)
 
 
 def modelled_resistance(slip, soil_strength, normal_force, direction,
@@ -44,6 +57,14 @@ def modelled_resistance(slip, soil_strength, normal_force, direction,
     at small slip it grows with |S|, i.e. with the acceleration that identifies k (a random-walk F_MR read
     k 2-7 % low on the accelerate/brake drives, docs/robustness.md).  slip, normal_force (k, 4);
     soil_strength, direction (k,)."""
-    s = np.asarray(slip, dtype=float)
-    r = np.asarray(motion_resistance(s, np.asarray(soil_strength, dtype=float)[..., None], constants))
-    return np.asarray(direction, dtype=float) * (np.asarray(normal_force, dtype=float) * r).sum(axis=-1)
+    s = as_float_array("slip", slip)
+    fz = np.asarray(normal_force, dtype=float)
+    if s.ndim < 1 or s.shape[-1] != 4 or fz.shape != s.shape:
+        raise ValueError(f"slip and normal_force must have one shape (..., 4), got {s.shape} and {fz.shape}")
+    lead = s.shape[:-1]
+    k = np.broadcast_to(positive("soil_strength", soil_strength), lead)
+    d = np.broadcast_to(np.asarray(direction, dtype=float), lead)
+    out = _core.modelled_resistance(np.ascontiguousarray(s.reshape(-1, 4)), np.ascontiguousarray(k.reshape(-1)),
+                                    np.ascontiguousarray(fz.reshape(-1, 4)), np.ascontiguousarray(d.reshape(-1)),
+                                    constants.kernel)
+    return out.reshape(lead)

@@ -13,7 +13,7 @@ Corrections (docs/method.md §2-3):
 * Only acceleration + gravity enters eqs. 16-19, i.e. the accelerometer's specific force
   f = (V_dot + g_R) (x forward, y left, z up; +9.81 on z at rest).  We use the measured f
   directly; eq. 20 (gravity from roll and pitch) is the zero-acceleration special case, provided
-  by :func:`gravity_from_attitude`.
+  by :func:`gravity_from_attitude` (the core's, which the torque scale's force balance uses too).
 """
 
 from __future__ import annotations
@@ -34,13 +34,14 @@ def gravity_from_attitude(roll, pitch, g: float = STANDARD_GRAVITY) -> np.ndarra
 
     REP-103 angles: roll alpha > 0 = left side up, pitch theta > 0 = nose down.  This is the
     specific force an accelerometer at rest reads, so at rest on a climb (pitch < 0) f_x > 0.
-    Vectorised: returns shape (..., 3).
+    Vectorised: returns shape (..., 3).  The equation is the core's (``normal_force.rs``), which the
+    torque scale's balance uses too.
     """
     al = as_float_array("roll", roll)
     th = as_float_array("pitch", pitch)
     g = positive_scalar("g", g)
     al, th = np.broadcast_arrays(al, th)
-    return np.stack([-g * np.sin(th), g * np.sin(al) * np.cos(th), g * np.cos(al) * np.cos(th)], axis=-1)
+    return _core.gravity_from_attitude(al, th, g)
 
 
 def _geometry(v: VehicleParams) -> tuple[float, float, float, float, float]:

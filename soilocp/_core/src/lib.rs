@@ -11,6 +11,7 @@ pub mod pairwise;
 pub mod py;
 pub mod slip;
 pub mod soil;
+pub mod torque_scale;
 pub mod traction;
 
 use pyo3::prelude::*;
@@ -27,5 +28,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<py::soil::SoilGridBank>()?;
     // the observer (issue 28): its filter bank
     m.add_class::<py::observer::ObserverCore>()?;
+    // the torque scale (issue 27 item 5, issue 28): its bank, eq. TC and eq. 20 for the offline fit
+    m.add_class::<py::torque_scale::TorqueScaleCore>()?;
+    m.add_function(wrap_pyfunction!(py::torque_scale::longitudinal_balance, m)?)?;
+    m.add_function(wrap_pyfunction!(py::torque_scale::modelled_resistance, m)?)?;
+    m.add_function(wrap_pyfunction!(py::normal_force::gravity_from_attitude, m)?)?;
     Ok(())
 }

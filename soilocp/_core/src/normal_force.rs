@@ -7,6 +7,24 @@
 //! B is linear in f (B = f C, C of eq. 24 being 3 x 4), so F = f M with M = C (A^+)^T, one matrix
 //! per vehicle.  M is prepared once per vehicle by the caller (`soilocp.model.normal_force`, with
 //! LAPACK's SVD pseudo-inverse); the per-sample product is here.
+//!
+//! Eq. 20 (gravity from roll and pitch) is here too, once: the specific force at rest, for the
+//! static normal forces, the simulator and the gravity reaction of the torque scale's balance.
+
+/// m/s^2, the standard gravity (`soilocp.model.normal_force.STANDARD_GRAVITY`).
+pub const STANDARD_GRAVITY: f64 = 9.80665;
+
+/// Eq. 20: the gravity reaction in the body frame, (-g s(theta), g s(alpha) c(theta),
+/// g c(alpha) c(theta)), from roll alpha and pitch theta (rad; REP-103: roll > 0 left side up,
+/// pitch > 0 nose down).  What an accelerometer at rest reads (docs/method.md §3: the measured
+/// specific force replaces eq. 20 in eq. 24; this is its zero-acceleration special case), so at
+/// rest on a climb (pitch < 0) f_x > 0.  Products in the order of the print (libm's sin and cos,
+/// which numpy's agree with on this platform).
+#[inline]
+pub fn gravity_from_attitude(roll: f64, pitch: f64, g: f64) -> [f64; 3] {
+    let (sp, cp) = (pitch.sin(), pitch.cos());
+    [-g * sp, g * roll.sin() * cp, g * roll.cos() * cp]
+}
 
 /// The zero-warp solution of eqs. 21-25 for one vehicle: F = f M (M = C (A^+)^T, 3 x 4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,6 +136,27 @@ mod tests {
             assert!((pitch + h * m * f[0]).abs() < 1e-10, "pitch moment {pitch}");
             assert!((roll + h * m * f[1]).abs() < 1e-10, "roll moment {roll}");
         }
+    }
+
+    /// docs/method.md §3 (eq. 20): gravity_from_attitude(0, -10 deg) = (1.7029, 0, 9.6577) and
+    /// gravity_from_attitude(+5 deg, 0) = (0, 0.8547, 9.7693) m/s^2.
+    #[test]
+    fn gravity_vectors_of_method_md() {
+        let g = gravity_from_attitude(0.0, -(10f64.to_radians()), STANDARD_GRAVITY);
+        for (got, want) in g.iter().zip([1.7029, 0.0, 9.6577]) {
+            assert!((got - want).abs() < 5e-5, "{g:?}");
+        }
+        let g = gravity_from_attitude(5f64.to_radians(), 0.0, STANDARD_GRAVITY);
+        for (got, want) in g.iter().zip([0.0, 0.8547, 9.7693]) {
+            assert!((got - want).abs() < 5e-5, "{g:?}");
+        }
+        // its magnitude is g, and at rest on a slope the static forces carry m g cos(pitch)
+        let f = gravity_from_attitude(0.3, -0.2, STANDARD_GRAVITY);
+        assert!(((f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() - STANDARD_GRAVITY).abs() < 1e-12);
+        let fz = NormalForceMap::new(ROVER)
+            .unwrap()
+            .solve(gravity_from_attitude(0.0, -0.2, STANDARD_GRAVITY));
+        assert!((fz.iter().sum::<f64>() - 60.0 * STANDARD_GRAVITY * 0.2f64.cos()).abs() < 1e-9);
     }
 
     #[test]

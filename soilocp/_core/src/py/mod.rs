@@ -5,4 +5,5 @@ pub mod normal_force;
 pub mod observer;
 pub mod ocp;
 pub mod soil;
+pub mod torque_scale;
 pub mod traction;

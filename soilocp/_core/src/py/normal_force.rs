@@ -1,5 +1,6 @@
 //! `soilocp._core.NormalForceSolver`: the zero-warp normal forces (eqs. 16-25, docs/method.md
-//! §2-3) of one vehicle for a bank of specific forces in one call.
+//! §2-3) of one vehicle for a bank of specific forces in one call; `gravity_from_attitude`: eq. 20
+//! over arrays of roll and pitch.
 
 use numpy::ndarray::{ArrayD, Axis, IxDyn};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray2, PyReadonlyArrayDyn};
@@ -7,7 +8,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
-use crate::normal_force::NormalForceMap;
+use crate::normal_force::{self, NormalForceMap};
 
 /// The solver of one vehicle: F = f M, M (3 x 4) prepared by the caller once per vehicle.
 #[pyclass(frozen, module = "soilocp._core")]
@@ -81,4 +82,32 @@ impl NormalForceSolver {
         let rows: Vec<Vec<f64>> = self.inner.map.iter().map(|r| r.to_vec()).collect();
         PyArray2::from_vec2(py, &rows).expect("3 rows of 4")
     }
+}
+
+/// Eq. 20 (docs/method.md §3): the gravity reaction in the body frame (m/s^2), shape (..., 3), for
+/// roll and pitch arrays of one shape (rad; the caller broadcasts and checks them) and gravity g.
+#[pyfunction]
+pub fn gravity_from_attitude<'py>(
+    py: Python<'py>,
+    roll: PyReadonlyArrayDyn<'py, f64>,
+    pitch: PyReadonlyArrayDyn<'py, f64>,
+    g: f64,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let (roll, pitch) = (roll.as_array(), pitch.as_array());
+    if roll.shape() != pitch.shape() {
+        return Err(PyValueError::new_err(format!(
+            "roll (shape {:?}) and pitch (shape {:?}) must have one shape",
+            roll.shape(),
+            pitch.shape()
+        )));
+    }
+    let mut shape = roll.shape().to_vec();
+    let mut out = Vec::with_capacity(roll.len() * 3);
+    // both in logical (C) order, whatever their memory layout
+    for (&al, &th) in roll.iter().zip(pitch.iter()) {
+        out.extend_from_slice(&normal_force::gravity_from_attitude(al, th, g));
+    }
+    shape.push(3);
+    let out = ArrayD::from_shape_vec(IxDyn(&shape), out).expect("3 per attitude");
+    Ok(out.into_pyarray(py))
 }

@@ -1,0 +1,382 @@
+//! `soilocp._core.TorqueScaleCore`: the torque scales of N vehicles (crate::torque_scale), one call
+//! per step for k selected vehicles; `longitudinal_balance` and `modelled_resistance`: eq. TC and
+//! eq. 4 summed over arrays, for the offline fit (`soilocp calibrate-torque`) and the tests.
+
+use std::collections::HashMap;
+
+use numpy::ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::constants::Constants;
+use crate::torque_scale::balance::{self, Body};
+use crate::torque_scale::bank::{self, Sample};
+use crate::torque_scale::params::Params;
+
+type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+/// `apply`'s result: the scaled torques (k, 4) and K's band scale (k,), or None (never learnt).
+type Scaled<'py> = Option<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)>;
+
+fn check_1d(name: &str, a: &ArrayView1<'_, f64>, k: usize) -> PyResult<()> {
+    if a.len() != k {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k},), got ({},)",
+            a.len()
+        )));
+    }
+    Ok(())
+}
+
+fn check_2d(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
+    if a.shape() != [k, 4] {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k}, 4), got {:?}",
+            a.shape()
+        )));
+    }
+    Ok(())
+}
+
+fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult<()> {
+    if values.all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!("inputs.{name} must be finite")))
+    }
+}
+
+fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
+    [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
+}
+
+/// The torque scales of N vehicles (docs/method.md §15; issue 27 item 5).
+#[pyclass(module = "soilocp._core")]
+pub struct TorqueScaleCore {
+    inner: bank::TorqueScaleBank,
+}
+
+impl TorqueScaleCore {
+    /// The selected vehicles' indices, each in [0, N) and each once.
+    fn indices(&self, idx: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<usize>> {
+        let n = self.inner.len();
+        let ix = idx.as_array();
+        let mut out = Vec::with_capacity(ix.len());
+        for &i in ix.iter() {
+            if i < 0 || i as usize >= n {
+                return Err(PyValueError::new_err(format!(
+                    "idx {i}: vehicle indices must be in [0, {}]",
+                    n - 1
+                )));
+            }
+            out.push(i as usize);
+        }
+        if out.len() > 1 {
+            let mut seen = vec![false; n];
+            for &i in &out {
+                if std::mem::replace(&mut seen[i], true) {
+                    return Err(PyValueError::new_err(format!(
+                        "idx {i}: a vehicle can be stepped only once per call"
+                    )));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Step the vehicles `ix` by their samples; (k's mean, 1-sigma) of each.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        ix: &[usize],
+        stamp: &PyReadonlyArray1<'_, f64>,
+        f_x: &PyReadonlyArray1<'_, f64>,
+        pitch: &PyReadonlyArray1<'_, f64>,
+        yaw_rate: &PyReadonlyArray1<'_, f64>,
+        wheel_speed: &PyReadonlyArray2<'_, f64>,
+        wheel_torque: &PyReadonlyArray2<'_, f64>,
+        ground_speed: &PyReadonlyArray1<'_, f64>,
+        normal_force: Option<&PyReadonlyArray2<'_, f64>>,
+    ) -> PyResult<Vec<(f64, f64)>> {
+        let k = ix.len();
+        let (stamp, f_x, pitch, yaw_rate, ground_speed) = (
+            stamp.as_array(),
+            f_x.as_array(),
+            pitch.as_array(),
+            yaw_rate.as_array(),
+            ground_speed.as_array(),
+        );
+        for (name, a) in [
+            ("stamp", &stamp),
+            ("specific_force_x", &f_x),
+            ("pitch", &pitch),
+            ("yaw_rate", &yaw_rate),
+            ("ground_speed", &ground_speed),
+        ] {
+            check_1d(name, a, k)?;
+        }
+        let (ws, tq) = (wheel_speed.as_array(), wheel_torque.as_array());
+        check_2d("wheel_speed", &ws, k)?;
+        check_2d("wheel_torque", &tq, k)?;
+        let nf = normal_force.map(|a| a.as_array());
+        if let Some(a) = &nf {
+            check_2d("normal_force", a, k)?;
+        }
+        Ok(ix
+            .iter()
+            .enumerate()
+            .map(|(j, &i)| {
+                let s = Sample {
+                    stamp: stamp[j],
+                    f_x: f_x[j],
+                    pitch: pitch[j],
+                    yaw_rate: yaw_rate[j],
+                    wheel_speed: row(&ws, j),
+                    torque: row(&tq, j),
+                    ground_speed: ground_speed[j],
+                    normal_force: nf.as_ref().map(|a| row(a, j)),
+                };
+                self.inner.step(i, &s)
+            })
+            .collect())
+    }
+}
+
+#[pymethods]
+impl TorqueScaleCore {
+    /// The bank of `n_vehicles` from the traction law's `constants`, the vehicle's mass (kg), one
+    /// wheel's inertia (kg m^2) and radius (m), and TorqueScaleConfig's numbers (`params`, the names
+    /// of crate::torque_scale::params::Params).
+    #[new]
+    fn py_new(
+        constants: Constants,
+        n_vehicles: usize,
+        mass: f64,
+        wheel_inertia: f64,
+        wheel_radius: f64,
+        params: HashMap<String, f64>,
+    ) -> PyResult<Self> {
+        let body = Body::new(mass, wheel_inertia, wheel_radius).map_err(PyValueError::new_err)?;
+        let params = Params::from_map(&params).map_err(PyValueError::new_err)?;
+        let inner = bank::TorqueScaleBank::new(params, body, constants, n_vehicles).map_err(PyValueError::new_err)?;
+        Ok(TorqueScaleCore { inner })
+    }
+
+    /// One sample per vehicle in `idx` (k distinct indices): the observer's inputs (stamp,
+    /// specific_force_x, pitch, yaw_rate, ground_speed (k,), NaN ground speed: none; wheel_speed,
+    /// wheel_torque, normal_force (k, 4)); ValueError before any step if one is not finite (the
+    /// caller's check then names it).  Steps the state, then returns the
+    /// torques times k's mean (k, 4) and k's relative 1-sigma for K's band (k,); or None while
+    /// every selected vehicle's k is exactly its prior (never learnt: the torques and the soil
+    /// estimator's scale prior stay as configured).
+    #[allow(clippy::too_many_arguments)]
+    fn apply<'py>(
+        &mut self,
+        py: Python<'py>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        specific_force_x: PyReadonlyArray1<'py, f64>,
+        pitch: PyReadonlyArray1<'py, f64>,
+        yaw_rate: PyReadonlyArray1<'py, f64>,
+        wheel_speed: PyReadonlyArray2<'py, f64>,
+        wheel_torque: PyReadonlyArray2<'py, f64>,
+        ground_speed: PyReadonlyArray1<'py, f64>,
+        normal_force: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Scaled<'py>> {
+        let ix = self.indices(&idx)?;
+        // the observer's rule (ObserverInputs.check): all finite but an absent (NaN) ground speed;
+        // refused before any vehicle is stepped, so that the caller can name the field
+        for (name, a) in [
+            ("stamp", &stamp),
+            ("specific_force_x", &specific_force_x),
+            ("pitch", &pitch),
+            ("yaw_rate", &yaw_rate),
+        ] {
+            finite(name, a.as_array().iter())?;
+        }
+        finite("wheel_speed", wheel_speed.as_array().iter())?;
+        finite("wheel_torque", wheel_torque.as_array().iter())?;
+        finite("normal_force", normal_force.as_array().iter())?;
+        if ground_speed.as_array().iter().any(|v| v.is_infinite()) {
+            return Err(PyValueError::new_err(
+                "inputs.ground_speed must be finite or NaN (absent)",
+            ));
+        }
+        let out = self.run(
+            &ix,
+            &stamp,
+            &specific_force_x,
+            &pitch,
+            &yaw_rate,
+            &wheel_speed,
+            &wheel_torque,
+            &ground_speed,
+            Some(&normal_force),
+        )?;
+        if out.iter().all(|&(m, sd)| self.inner.at_prior(m, sd)) {
+            return Ok(None);
+        }
+        let tq = wheel_torque.as_array();
+        let k = ix.len();
+        let mut torque = Vec::with_capacity(4 * k);
+        let mut sigma = Vec::with_capacity(k);
+        for (j, &(m, sd)) in out.iter().enumerate() {
+            torque.extend(row(&tq, j).iter().map(|t| t * m));
+            sigma.push(self.inner.band_sigma(sd) / m);
+        }
+        let torque = Array2::from_shape_vec((k, 4), torque).expect("4 per vehicle");
+        Ok(Some((
+            torque.into_pyarray(py),
+            Array1::from_vec(sigma).into_pyarray(py),
+        )))
+    }
+
+    /// `apply`'s step alone, its normal forces optional (None: no modelled resistance): k's mean
+    /// and 1-sigma after this sample, (k,) each.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (idx, stamp, specific_force_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed,
+                        normal_force=None))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        specific_force_x: PyReadonlyArray1<'py, f64>,
+        pitch: PyReadonlyArray1<'py, f64>,
+        yaw_rate: PyReadonlyArray1<'py, f64>,
+        wheel_speed: PyReadonlyArray2<'py, f64>,
+        wheel_torque: PyReadonlyArray2<'py, f64>,
+        ground_speed: PyReadonlyArray1<'py, f64>,
+        normal_force: Option<PyReadonlyArray2<'py, f64>>,
+    ) -> PyResult<Pair<'py>> {
+        let ix = self.indices(&idx)?;
+        let out = self.run(
+            &ix,
+            &stamp,
+            &specific_force_x,
+            &pitch,
+            &yaw_rate,
+            &wheel_speed,
+            &wheel_torque,
+            &ground_speed,
+            normal_force.as_ref(),
+        )?;
+        let (m, sd): (Vec<f64>, Vec<f64>) = out.into_iter().unzip();
+        Ok((m.into_pyarray(py), sd.into_pyarray(py)))
+    }
+
+    /// The soil stage's K (k,) for the vehicles `idx` (NaN: none reported, the last is kept) and,
+    /// optionally, its slips (k, 4) (NaN: none, the readings' are used): the next samples' modelled
+    /// motion resistance (eq. 4) uses them.
+    #[pyo3(signature = (idx, soil_strength, slip=None))]
+    fn feed_soil(
+        &mut self,
+        idx: PyReadonlyArray1<'_, i64>,
+        soil_strength: PyReadonlyArray1<'_, f64>,
+        slip: Option<PyReadonlyArray2<'_, f64>>,
+    ) -> PyResult<()> {
+        let ix = self.indices(&idx)?;
+        let k = ix.len();
+        let ks = soil_strength.as_array();
+        check_1d("soil_strength", &ks, k)?;
+        let slip = slip.as_ref().map(|a| a.as_array());
+        if let Some(a) = &slip {
+            check_2d("slip", a, k)?;
+        }
+        for (j, &i) in ix.iter().enumerate() {
+            self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| row(a, j)));
+        }
+        Ok(())
+    }
+
+    /// k's mean and 1-sigma for the vehicles `idx`.
+    fn scale<'py>(&self, py: Python<'py>, idx: PyReadonlyArray1<'py, i64>) -> PyResult<Pair<'py>> {
+        let ix = self.indices(&idx)?;
+        let (m, sd): (Vec<f64>, Vec<f64>) = ix.iter().map(|&i| self.inner.scale(i)).unzip();
+        Ok((m.into_pyarray(py), sd.into_pyarray(py)))
+    }
+
+    /// k's 1-sigma for K's band from posterior 1-sigmas `sd` (crate::torque_scale::bank's
+    /// `band_sigma`).
+    fn band_sigma<'py>(&self, py: Python<'py>, sd: PyReadonlyArray1<'py, f64>) -> Bound<'py, PyArray1<f64>> {
+        sd.as_array().mapv(|v| self.inner.band_sigma(v)).into_pyarray(py)
+    }
+
+    /// (k, F_MR) of every vehicle, (N, 2).
+    #[getter]
+    fn theta<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.inner.len();
+        Array2::from_shape_fn((n, 2), |(i, j)| self.inner.state(i).theta[j]).into_pyarray(py)
+    }
+
+    /// Their covariances, (N, 2, 2).
+    #[getter]
+    fn p<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
+        let n = self.inner.len();
+        Array3::from_shape_fn((n, 2, 2), |(i, j, l)| self.inner.state(i).p[j][l]).into_pyarray(py)
+    }
+
+    /// The soil's K each vehicle's modelled resistance uses now, (N,).
+    #[getter]
+    fn soil_k<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let n = self.inner.len();
+        Array1::from_shape_fn(n, |i| self.inner.soil_k(i)).into_pyarray(py)
+    }
+}
+
+/// Eq. TC (crate::torque_scale::balance::longitudinal_balance) over 1-D arrays of one length
+/// (the caller broadcasts): (x, y) in N.  `resistance` None: b is the whole F_MR.
+#[pyfunction]
+#[pyo3(signature = (f_x, omega_dot_sum, torque_sum, mass, wheel_inertia, wheel_radius, resistance=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn longitudinal_balance<'py>(
+    py: Python<'py>,
+    f_x: PyReadonlyArray1<'py, f64>,
+    omega_dot_sum: PyReadonlyArray1<'py, f64>,
+    torque_sum: PyReadonlyArray1<'py, f64>,
+    mass: f64,
+    wheel_inertia: f64,
+    wheel_radius: f64,
+    resistance: Option<PyReadonlyArray1<'py, f64>>,
+) -> PyResult<Pair<'py>> {
+    let body = Body::new(mass, wheel_inertia, wheel_radius).map_err(PyValueError::new_err)?;
+    let (f, od, t) = (f_x.as_array(), omega_dot_sum.as_array(), torque_sum.as_array());
+    let n = f.len();
+    check_1d("omega_dot_sum", &od, n)?;
+    check_1d("torque_sum", &t, n)?;
+    let res = resistance.as_ref().map(|a| a.as_array());
+    if let Some(a) = &res {
+        check_1d("resistance", a, n)?;
+    }
+    let (x, y): (Vec<f64>, Vec<f64>) = (0..n)
+        .map(|j| balance::longitudinal_balance(f[j], od[j], t[j], res.as_ref().map(|a| a[j]), &body))
+        .unzip();
+    Ok((x.into_pyarray(py), y.into_pyarray(py)))
+}
+
+/// F_MR,model (crate::torque_scale::balance::modelled_resistance) per row: slips and normal
+/// forces (k, 4), soil strength and direction of travel (k,); returns (k,) in N.
+#[pyfunction]
+pub fn modelled_resistance<'py>(
+    py: Python<'py>,
+    slip: PyReadonlyArray2<'py, f64>,
+    soil_strength: PyReadonlyArray1<'py, f64>,
+    normal_force: PyReadonlyArray2<'py, f64>,
+    direction: PyReadonlyArray1<'py, f64>,
+    constants: &Constants,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let (s, k, fz, d) = (
+        slip.as_array(),
+        soil_strength.as_array(),
+        normal_force.as_array(),
+        direction.as_array(),
+    );
+    let n = k.len();
+    check_2d("slip", &s, n)?;
+    check_2d("normal_force", &fz, n)?;
+    check_1d("direction", &d, n)?;
+    let out: Vec<f64> = (0..n)
+        .map(|j| balance::modelled_resistance(&row(&s, j), k[j], &row(&fz, j), d[j], constants))
+        .collect();
+    Ok(out.into_pyarray(py))
+}

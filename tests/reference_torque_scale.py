@@ -1,0 +1,155 @@
+"""A plain numpy reference of the online torque scale (issue 27 item 5; docs/method.md §15): the
+product's numpy kernel as it was before the port to the compiled core (main at 86852cb,
+soilocp/estimation/torque_scale.py, with eq. TC, eq. 4 summed and eq. 20 written out as
+soilocp/model/force_balance.py and soilocp/model/normal_force.py had them).  Kept here only so that
+the tests can hold the core to it, to the bit; the product never imports it.  Eq. 4's coefficient
+itself is the product's (``motion_resistance``): this reference checks the torque scale, not the
+traction law (tests/reference_physics.py does that).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.traction import motion_resistance
+from soilocp.model.vehicle import VehicleParams
+
+G = 9.80665
+FLOOR = 0.05  # eq. 1's floor, soilocp.model.slip.DEFAULT_FLOOR
+
+
+def gravity_from_attitude(roll, pitch, g: float = G) -> np.ndarray:
+    """Eq. 20, (..., 3)."""
+    al, th = np.broadcast_arrays(np.asarray(roll, dtype=float), np.asarray(pitch, dtype=float))
+    return np.stack([-g * np.sin(th), g * np.sin(al) * np.cos(th), g * np.cos(al) * np.cos(th)], axis=-1)
+
+
+def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams, resistance=None):
+    """Eq. TC: (x, y) = (sum T_log / R, m f_x + I_w sum omega_dot / R + F_MR,model)."""
+    r = vehicle.wheel_radius
+    x = np.asarray(torque_sum, dtype=float) / r
+    y = vehicle.mass * np.asarray(f_x, dtype=float) + vehicle.wheel_inertia * np.asarray(omega_dot_sum, dtype=float) / r
+    if resistance is not None:
+        y = y + np.asarray(resistance, dtype=float)
+    return x, y
+
+
+def modelled_resistance(slip, soil_strength, normal_force, direction, constants: ModelConstants = DEFAULT_CONSTANTS):
+    """d sum_i F_z,i r(S_i, K), eq. 4 with |S|."""
+    s = np.asarray(slip, dtype=float)
+    r = np.asarray(motion_resistance(s, np.asarray(soil_strength, dtype=float)[..., None], constants))
+    return np.asarray(direction, dtype=float) * (np.asarray(normal_force, dtype=float) * r).sum(axis=-1)
+
+
+class ReferenceTorqueScale:
+    """N vehicles' torque scales, the numpy kernel: ``step`` takes one sample per vehicle in ``ix``;
+    ``apply_arrays`` is the product's ``apply`` on the observer inputs' arrays."""
+
+    def __init__(self, vehicle: VehicleParams, cfg, prior_sigma: float, n_vehicles: int,
+                 constants: ModelConstants = DEFAULT_CONSTANTS):
+        self.vehicle, self.cfg, self.prior_sigma, self.constants = vehicle, cfg, float(prior_sigma), constants
+        wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
+        self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
+        n = n_vehicles
+        self.k_default = float(np.median(list(constants.soils.values())))
+        self.soil_k = np.full(n, self.k_default)
+        self.soil_slip = np.full((n, 4), np.nan)
+        self.theta = np.tile([1.0, 0.0], (n, 1))
+        self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
+        self.t0 = np.full(n, np.nan)
+        self.t_prev = np.full(n, np.nan)
+        self.prev = np.zeros((n, 4))
+        self.area = np.zeros((n, 4))
+        self.w0 = np.zeros(n)
+        self.slow = np.zeros(n, dtype=bool)
+
+    def apply_arrays(self, ix, stamp, f_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed, normal_force):
+        """(torques x k's mean, k's relative 1-sigma for K's band), or (the torques, None) while never learnt."""
+        if not self.cfg.enabled or self.prior_sigma <= 0:
+            return wheel_torque, None
+        m, sd = self.step(ix, stamp, f_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed, normal_force)
+        if np.all(m == 1.0) and np.all(sd == self.state_sigma):
+            return wheel_torque, None
+        return wheel_torque * m[:, None], self.band_sigma(sd) / m
+
+    def band_sigma(self, sd: np.ndarray) -> np.ndarray:
+        if self.state_sigma == self.prior_sigma:
+            return sd
+        info = np.maximum(1.0 / np.maximum(sd, 1e-12) ** 2 - 1.0 / self.state_sigma**2, 0.0)
+        return 1.0 / np.sqrt(1.0 / self.prior_sigma**2 + info)
+
+    def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
+        k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
+        self.soil_k[ix] = np.where(np.isfinite(k) & (k > 0), k, self.soil_k[ix])
+        if slip is not None:
+            self.soil_slip[ix] = np.asarray(slip, dtype=float).reshape(-1, 4)
+
+    def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.theta[ix, 0].copy(), np.sqrt(self.P[ix, 0, 0])
+
+    def step(self, ix, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed, normal_force=None):
+        cfg, v = self.cfg, self.vehicle
+        if not cfg.enabled or self.prior_sigma <= 0:
+            return self.scale(ix)
+        stamp = np.asarray(stamp, dtype=float)
+        w_sum = np.asarray(wheel_speed, dtype=float).sum(axis=1)
+        t_sum = np.asarray(torque, dtype=float).sum(axis=1)
+        g_x = gravity_from_attitude(0.0, np.asarray(pitch, dtype=float), G)[..., 0]
+        spd = np.asarray(speed, dtype=float)
+        spd = np.where(np.isnan(spd), w_sum / 4.0 * v.wheel_radius, spd)
+        rim = np.asarray(wheel_speed, dtype=float) * v.wheel_radius
+        gs = spd[:, None]
+        slip = (rim - gs) / np.maximum(np.maximum(np.abs(rim), np.abs(gs)), FLOOR)
+        if normal_force is None or not cfg.model_resistance:
+            f_mr = np.zeros(stamp.shape)
+        else:
+            s_mr = np.where(np.isfinite(self.soil_slip[ix]), self.soil_slip[ix], slip)
+            f_mr = modelled_resistance(np.where(np.isfinite(s_mr), s_mr, 0.0), self.soil_k[ix],
+                                       np.asarray(normal_force, dtype=float), np.where(spd < 0, -1.0, 1.0),
+                                       self.constants)
+        cur = np.stack([np.asarray(f_x, dtype=float), np.broadcast_to(g_x, stamp.shape), t_sum, f_mr], axis=1)
+        bad = (~np.isfinite(cur).all(axis=1) | ~np.isfinite(w_sum) | (np.abs(spd) < cfg.min_speed)
+               | ~(np.abs(np.asarray(yaw_rate, dtype=float)) <= cfg.max_yaw_rate) | ~(np.abs(slip) <= cfg.max_slip).all(axis=1))
+        t_prev = self.t_prev[ix]
+        with np.errstate(invalid="ignore"):
+            dt = stamp - t_prev
+            cont = np.isfinite(dt) & (dt > 0) & (dt <= cfg.max_gap)
+        area = self.area[ix] + np.where(cont[:, None], 0.5 * (self.prev[ix] + cur) * np.where(cont, dt, 0.0)[:, None], 0.0)
+        slow = self.slow[ix] | bad
+        span = stamp - self.t0[ix]
+        full = cont & (span >= cfg.window - 1e-9)
+        if full.any():
+            j = np.flatnonzero(full)
+            means = area[j] / span[j, None]
+            omega_dot = (w_sum[j] - self.w0[ix[j]]) / span[j]
+            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3])
+            valid = ~slow[j]
+            if valid.any():
+                jj = j[valid]
+                accel = np.abs(means[valid, 0] - means[valid, 1]) >= cfg.min_accel
+                self._update(ix[jj], span[jj], x[valid], y[valid], accel)
+        restart = ~cont | full
+        self.t0[ix] = np.where(restart, stamp, self.t0[ix])
+        self.w0[ix] = np.where(restart, w_sum, self.w0[ix])
+        self.area[ix] = np.where(restart[:, None], 0.0, area)
+        self.slow[ix] = np.where(restart, bad, slow)
+        self.prev[ix] = cur
+        self.t_prev[ix] = stamp
+        return self.scale(ix)
+
+    def _update(self, iv, span, x, y, accel) -> None:
+        cfg = self.cfg
+        th, P = self.theta[iv], self.P[iv]
+        P[:, 0, 0] += cfg.scale_walk**2 * span * accel
+        P[:, 1, 1] += cfg.resistance_walk**2 * span
+        H = np.stack([x, -np.ones_like(x)], axis=1)
+        PH = np.einsum("mij,mj->mi", P, H)
+        S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
+        K = PH / S[:, None]
+        K[:, 0] = np.where(accel, K[:, 0], 0.0)
+        innov = y - np.einsum("mi,mi->m", H, th)
+        th = th + K * innov[:, None]
+        A = np.eye(2)[None] - K[:, :, None] * H[:, None, :]
+        P = np.einsum("mij,mjk,mlk->mil", A, P, A) + cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]
+        self.theta[iv], self.P[iv] = th, P
