@@ -199,22 +199,45 @@ class SoilBank:
         for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
             if a.shape != (k, 4) or not np.isfinite(a).all():
                 raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
-        codes = None
-        if inputs.unusable is not None:
-            codes = np.asarray(inputs.unusable, dtype=np.int64).reshape(k, 4)
-            if codes.any():
-                for c, n in zip(*np.unique(codes[codes > 0], return_counts=True)):
-                    self.unusable_by_reason[REASONS[int(c)]] += int(n)
-            else:
-                codes = None
+        codes = self._count_unusable(inputs.unusable, k)
         f64, flag = (lambda a: np.asarray(a, dtype=float)), (lambda a: np.asarray(a, dtype=bool))
-        (wheel, dt, info, _, k_report, log_stat, stats, scale, axle_off, axle, floor_cdf) = self.core.step(
+        out = self.core.step(
             ix.astype(np.int64), stamp, slip, obs, var, s_sig, f64(inputs.gate_slip), f64(inputs.gate_sigma),
             flag(inputs.informative), flag(inputs.held), flag(inputs.ground_stale).reshape(k),
             flag(inputs.identifiable).reshape(k), f64(inputs.speed).reshape(k),
             None if inputs.span is None else f64(inputs.span), None if inputs.slip_ends is None else f64(inputs.slip_ends),
             codes, None if scale_sigma is None else f64(scale_sigma).reshape(k))
+        return self._states(ix, stamp, inputs, codes, out)
+
+    def step_gated(self, gate, idx, stamp, rows: np.ndarray, scale_sigma=None) -> tuple[SoilInputs, list[SoilState]]:
+        """The soil stage's step in one core call: ``gate`` (:class:`soilocp.estimation.slip_gate.SlipGate`) on
+        the packed observer outputs ``rows`` (k, ``SlipGateBank.columns``) of the vehicles ``idx`` at ``stamp``
+        (k,), then :meth:`update` with its inputs.  Returns the gate's inputs (the record's slip) and the states."""
+        ix = check_index(idx, self.n_vehicles)
+        k = ix.size
+        stamp = np.asarray(stamp, dtype=float).reshape(k)
+        fields, out = self.core.step_gated(gate.core, ix.astype(np.int64), stamp, rows,
+                                           None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))
+        inputs = SoilInputs(*fields)
+        return inputs, self._states(ix, stamp, inputs, self._count_unusable(inputs.unusable, k), out)
+
+    def _count_unusable(self, unusable, k: int) -> np.ndarray | None:
+        """The wheels' unusable codes (k, 4) int64, counted in :attr:`unusable_by_reason`; None when all are 0."""
+        if unusable is None:
+            return None
+        codes = np.asarray(unusable, dtype=np.int64).reshape(k, 4)
+        if not codes.any():
+            return None
+        for c, n in zip(*np.unique(codes[codes > 0], return_counts=True)):
+            self.unusable_by_reason[REASONS[int(c)]] += int(n)
+        return codes
+
+    def _states(self, ix, stamp, inputs: SoilInputs, codes, out) -> list[SoilState]:
+        """Each vehicle's state from the core step's arrays ``out`` (``SoilGridBank.step``'s)."""
+        k = ix.size
+        (wheel, dt, info, _, k_report, log_stat, stats, scale, axle_off, axle, floor_cdf) = out
         core = _CoreStep(log_stat, axle_off, axle, floor_cdf)
+        flag = (lambda a: np.asarray(a, dtype=bool))
         return self._summaries(ix, stamp, core, info, (wheel & _USED) > 0, (wheel & _UNDETERMINED) > 0,
                                (wheel & _HELD) > 0, flag(inputs.ground_stale).reshape(k),
                                flag(inputs.identifiable).reshape(k), stats, dt, k_report, scale, codes)

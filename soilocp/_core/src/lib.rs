@@ -25,6 +25,11 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
     // the soil-grid update (issue 28)
     m.add_class::<py::soil::SoilGridBank>()?;
+    // the slip gate, eq. 1 and the wheels' usability codes (issue 28)
+    m.add_class::<py::soil::SlipGateBank>()?;
+    m.add_function(wrap_pyfunction!(py::slip::slip_ratio, m)?)?;
+    m.add_function(wrap_pyfunction!(py::slip::travel_slip, m)?)?;
+    m.add_function(wrap_pyfunction!(py::slip::wheel_usability, m)?)?;
     // the observer (issue 28): its filter bank
     m.add_class::<py::observer::ObserverCore>()?;
     Ok(())

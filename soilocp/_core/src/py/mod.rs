@@ -4,5 +4,6 @@
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
+pub mod slip;
 pub mod soil;
 pub mod traction;

@@ -8,12 +8,15 @@ use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
 use crate::constants::Constants;
 use crate::soil::bank::{self, Sample};
+use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
+use crate::soil::usability::Limits;
 use crate::traction::Kind;
 
 /// What `SoilGridBank.step` returns, per selected vehicle (k rows): wheel flags (k, 4) uint8
@@ -33,6 +36,208 @@ type StepArrays<'py> = (
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray1<f64>>,
 );
+
+/// What the slip gate returns, a tuple of soilocp.estimation.soil_config.SoilInputs' fields in order:
+/// slip, informative, observed, variance, slip_sigma, gate_slip, gate_sigma, held (k, 4);
+/// ground_stale, identifiable, speed (k,); span (k, 4) and slip_ends (k, 4, 2) where any vehicle of
+/// the step refreshes a wheel, else None; unusable codes (k, 4).
+type GateArrays<'py> = Bound<'py, PyTuple>;
+
+fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> {
+    let k = s.len();
+    let f = |get: fn(&Sample) -> [f64; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
+    let b = |get: fn(&Sample) -> [bool; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
+    let any_span = s.first().is_some_and(|x| x.span.is_some());
+    let items: [Bound<'py, PyAny>; 14] = [
+        f(|x| x.slip).into_any(),
+        b(|x| x.informative).into_any(),
+        f(|x| x.observed).into_any(),
+        f(|x| x.variance).into_any(),
+        f(|x| x.slip_sigma).into_any(),
+        f(|x| x.gate_slip).into_any(),
+        f(|x| x.gate_sigma).into_any(),
+        b(|x| x.held).into_any(),
+        Array1::from_iter(s.iter().map(|x| x.ground_stale))
+            .into_pyarray(py)
+            .into_any(),
+        Array1::from_iter(s.iter().map(|x| x.identifiable))
+            .into_pyarray(py)
+            .into_any(),
+        Array1::from_iter(s.iter().map(|x| x.speed)).into_pyarray(py).into_any(),
+        if any_span {
+            f(|x| x.span.unwrap_or([0.0; 4])).into_any()
+        } else {
+            py.None().into_bound(py)
+        },
+        if any_span {
+            Array3::from_shape_fn((k, 4, 2), |(j, w, e)| s[j].slip_ends.map_or(0.0, |v| v[w][e]))
+                .into_pyarray(py)
+                .into_any()
+        } else {
+            py.None().into_bound(py)
+        },
+        Array2::from_shape_fn((k, 4), |(j, w)| s[j].unusable[w])
+            .into_pyarray(py)
+            .into_any(),
+    ];
+    PyTuple::new(py, items)
+}
+
+/// The slip gate of N vehicles (docs/method.md §6, §9, §10, §17; crate::soil::gate): its low-pass
+/// slip is the state.
+#[pyclass(module = "soilocp._core")]
+pub struct SlipGateBank {
+    inner: gate::SlipGateBank,
+}
+
+impl SlipGateBank {
+    /// The step of the vehicles `idx` at `stamp` from their packed observer outputs `rows`.
+    fn run(
+        &mut self,
+        idx: &PyReadonlyArray1<'_, i64>,
+        stamp: &PyReadonlyArray1<'_, f64>,
+        rows: &PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<Vec<Sample>> {
+        let k = idx.as_array().len();
+        let idx = column("idx", idx, k)?;
+        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
+            return Err(PyValueError::new_err(format!(
+                "idx {bad}: vehicle indices must be >= 0"
+            )));
+        }
+        let idx: Vec<usize> = idx.iter().map(|&i| i as usize).collect();
+        let stamp = column("stamp", stamp, k)?;
+        let rows = rows.as_array();
+        if rows.shape() != [k, gate::COLUMNS] {
+            return Err(PyValueError::new_err(format!(
+                "rows (the packed observer outputs) must have shape ({k}, {}), got {:?}",
+                gate::COLUMNS,
+                rows.shape()
+            )));
+        }
+        let owned;
+        let flat: &[f64] = match rows.as_slice() {
+            Some(v) => v,
+            None => {
+                owned = rows.iter().copied().collect::<Vec<f64>>();
+                &owned
+            }
+        };
+        let rows: Vec<&[f64]> = flat.chunks_exact(gate::COLUMNS).collect();
+        self.inner.step(&idx, &stamp, &rows).map_err(PyValueError::new_err)
+    }
+}
+
+#[pymethods]
+impl SlipGateBank {
+    /// The gate of `n_vehicles`: each wheel's lateral position `wheel_y` (4,) m, whether the soil
+    /// update compares `gross` traction (else net), and the numbers of `params` (names of
+    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by their names in
+    /// soilocp.estimation.wheel_usability.UsabilityLimits).
+    #[new]
+    fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
+        const NAMES: [&str; 19] = [
+            "wheel_radius",
+            "half_track",
+            "static_load",
+            "shared",
+            "lift_off_force",
+            "slip_deadband",
+            "slip_floor",
+            "slip_sigma",
+            "speed_sigma",
+            "gate_smoothing",
+            "fresh_age",
+            "max_input_age",
+            "min_load_fraction",
+            "stall_speed",
+            "gross_idle",
+            "rim_stopped",
+            "moving",
+            "rim_turning",
+            "yaw_turning",
+        ];
+        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str())) {
+            return Err(PyValueError::new_err(format!("gate params: unknown field {k:?}")));
+        }
+        let get = |name: &str| -> PyResult<f64> {
+            match params.get(name) {
+                None => Err(PyValueError::new_err(format!("gate params: missing field {name:?}"))),
+                Some(v) if !v.is_finite() => Err(PyValueError::new_err(format!(
+                    "gate params: {name} = {v} must be finite"
+                ))),
+                Some(v) => Ok(*v),
+            }
+        };
+        if !wheel_y.iter().all(|v| v.is_finite()) {
+            return Err(PyValueError::new_err(format!("wheel_y {wheel_y:?} must be finite")));
+        }
+        let cfg = GateParams {
+            wheel_radius: get("wheel_radius")?,
+            wheel_y,
+            half_track: get("half_track")?,
+            static_load: get("static_load")?,
+            shared: get("shared")?,
+            gross,
+            lift_off_force: get("lift_off_force")?,
+            slip_deadband: get("slip_deadband")?,
+            slip_floor: get("slip_floor")?,
+            slip_sigma: get("slip_sigma")?,
+            speed_sigma: get("speed_sigma")?,
+            gate_smoothing: get("gate_smoothing")?,
+            fresh_age: get("fresh_age")?,
+            max_input_age: get("max_input_age")?,
+            min_load_fraction: get("min_load_fraction")?,
+            limits: Limits {
+                stall_speed: get("stall_speed")?,
+                gross_idle: get("gross_idle")?,
+                rim_stopped: get("rim_stopped")?,
+                moving: get("moving")?,
+                rim_turning: get("rim_turning")?,
+                yaw_turning: get("yaw_turning")?,
+            },
+        };
+        let inner = gate::SlipGateBank::new(cfg, n_vehicles).map_err(PyValueError::new_err)?;
+        Ok(SlipGateBank { inner })
+    }
+
+    /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s and the packed observer
+    /// outputs `rows` (k, `columns`).  Returns the arrays of `GateArrays` (module doc).
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        rows: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<GateArrays<'py>> {
+        let samples = self.run(&idx, &stamp, &rows)?;
+        gate_arrays(py, &samples)
+    }
+
+    /// Numbers per vehicle in a packed row.
+    #[classattr]
+    fn columns() -> usize {
+        gate::COLUMNS
+    }
+
+    #[getter]
+    fn n_vehicles(&self) -> usize {
+        self.inner.lp.len()
+    }
+
+    /// The low-pass slips (N, 4).
+    #[getter]
+    fn lp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.inner.lp.len();
+        Array2::from_shape_fn((n, 4), |(i, w)| self.inner.lp[i][w]).into_pyarray(py)
+    }
+
+    /// The stamp each vehicle's low-pass was last stepped at (N,) (NaN: never).
+    #[getter]
+    fn lp_stamp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from_vec(self.inner.lp_stamp.clone()).into_pyarray(py)
+    }
+}
 
 /// The grid Bayes soil filters of N vehicles (docs/method.md §9, §11, §16).
 #[pyclass(module = "soilocp._core")]
@@ -68,6 +273,48 @@ fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
         Ok(())
     } else {
         Err(PyValueError::new_err(format!("{name} must be finite, got {rows:?}")))
+    }
+}
+
+impl SoilGridBank {
+    /// The update of the samples' vehicles, refused with a ValueError (naming the field) where a
+    /// number the update needs is not finite.
+    fn run<'py>(&mut self, py: Python<'py>, samples: &[Sample]) -> PyResult<StepArrays<'py>> {
+        for (name, get) in [
+            ("slip", (|s: &Sample| s.slip) as fn(&Sample) -> [f64; 4]),
+            ("observed", |s: &Sample| s.observed),
+            ("variance", |s: &Sample| s.variance),
+            ("slip_sigma", |s: &Sample| s.slip_sigma),
+        ] {
+            let rows: Vec<[f64; 4]> = samples.iter().map(get).collect();
+            finite(name, &rows)?;
+        }
+        for s in samples {
+            if !s.stamp.is_finite() {
+                return Err(PyValueError::new_err(format!("stamp {}: must be finite", s.stamp)));
+            }
+        }
+        let out = self.inner.step(samples).map_err(PyValueError::new_err)?;
+        let k = out.len();
+        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
+        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        Ok((
+            wheel.into_pyarray(py),
+            col(&|s| s.dt),
+            flag(&|s| s.informed),
+            flag(&|s| s.taken),
+            col(&|s| s.k_report),
+            col(&|s| s.log_stat),
+            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
+            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
+            flag(&|s| s.axle.mismatch),
+            Array2::from_shape_fn((k, 3), |(j, i)| {
+                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
+            })
+            .into_pyarray(py),
+            col(&|s| s.floor_cdf),
+        ))
     }
 }
 
@@ -163,17 +410,6 @@ impl SoilGridBank {
             quads("variance", &variance, k)?,
             quads("slip_sigma", &slip_sigma, k)?,
         );
-        for (name, rows) in [
-            ("slip", &slip),
-            ("observed", &observed),
-            ("variance", &variance),
-            ("slip_sigma", &slip_sigma),
-        ] {
-            finite(name, rows)?;
-        }
-        if let Some(bad) = stamp.iter().find(|v| !v.is_finite()) {
-            return Err(PyValueError::new_err(format!("stamp {bad}: must be finite")));
-        }
         let (gate_slip, gate_sigma) = (quads("gate_slip", &gate_slip, k)?, quads("gate_sigma", &gate_sigma, k)?);
         let (informative, held) = (quads("informative", &informative, k)?, quads("held", &held, k)?);
         let ground_stale = column("ground_stale", &ground_stale, k)?;
@@ -236,26 +472,33 @@ impl SoilGridBank {
                 scale_sigma: scale_sigma.as_ref().map(|s| s[j]),
             })
             .collect();
-        let out = self.inner.step(&samples).map_err(PyValueError::new_err)?;
-        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
-        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
-        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
-        Ok((
-            wheel.into_pyarray(py),
-            col(&|s| s.dt),
-            flag(&|s| s.informed),
-            flag(&|s| s.taken),
-            col(&|s| s.k_report),
-            col(&|s| s.log_stat),
-            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
-            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
-            flag(&|s| s.axle.mismatch),
-            Array2::from_shape_fn((k, 3), |(j, i)| {
-                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
-            })
-            .into_pyarray(py),
-            col(&|s| s.floor_cdf),
-        ))
+        self.run(py, &samples)
+    }
+
+    /// The soil stage's one call per step: the slip gate `gate` on the packed observer outputs
+    /// `rows` (k, COLUMNS) (soilocp.estimation.slip_gate.GATE_FIELDS) of the vehicles `idx` at `stamp`
+    /// (k,), then the update of their beliefs with the gate's samples and `scale_sigma` (k,) (the
+    /// online torque scale's relative 1-sigma, None: the prior).  Returns (the gate's arrays, as
+    /// `SlipGateBank.step`; the update's, as `step`).
+    #[pyo3(signature = (gate, idx, stamp, rows, scale_sigma=None))]
+    fn step_gated<'py>(
+        &mut self,
+        py: Python<'py>,
+        mut gate: PyRefMut<'py, SlipGateBank>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        rows: PyReadonlyArray2<'py, f64>,
+        scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
+    ) -> PyResult<(GateArrays<'py>, StepArrays<'py>)> {
+        let mut samples = gate.run(&idx, &stamp, &rows)?;
+        if let Some(a) = scale_sigma {
+            let sig = column("scale_sigma", &a, samples.len())?;
+            for (s, v) in samples.iter_mut().zip(sig) {
+                s.scale_sigma = Some(v);
+            }
+        }
+        let inputs = gate_arrays(py, &samples)?;
+        Ok((inputs, self.run(py, &samples)?))
     }
 
     /// Start vehicle `i`'s beliefs over from `belief` (G,): the pooled and the no-change one, and
