@@ -1,6 +1,8 @@
 """The soil-grid update as numpy wrote it before the compiled core (issue 28): the reference that
 tests/test_soil_core.py checks :class:`soilocp._core.SoilGridBank` against (hypothesis property tests).
-Not part of the product: the product's update is the core's (soilocp/_core/src/soil/).  This is the
+Not part of the product: the product's update is the core's (soilocp/_core/src/soil/).  Below it, the
+slip gate and the wheels' usability codes as numpy wrote them (:class:`ReferenceSlipGate`), which
+tests/test_slip_gate.py checks :class:`soilocp._core.SlipGateBank` against.  This is the
 code of soilocp/estimation/{soil_grid,soil_axles,soil_strength}.py at the commit before the port, with
 the status logic left out: :meth:`ReferenceSoilBank.update` returns the numbers the status is made from.
 """
@@ -18,6 +20,9 @@ from soilocp.estimation.soil_config import SoilConfig, class_bounds
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
 from soilocp.estimation.soil_strength import _gate
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBankOutput
+from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED, UsabilityLimits
 
 UNKNOWN_SPEED = 1.0
 
@@ -557,3 +562,142 @@ class ReferenceSoilBank:
             off = np.minimum(np.maximum(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5), 0.5)
         return self.theta[i] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
 
+
+# --- the slip gate as numpy wrote it before the core (soilocp/estimation/pipeline.py's SlipGate and
+# --- soilocp/estimation/wheel_usability.py at 86852cb): the reference of tests/test_slip_gate.py
+
+V_STILL = 0.02
+
+
+def travel_direction(rim: np.ndarray, ground: np.ndarray) -> np.ndarray:
+    """d per wheel, +-1: the sign of the ground speed under the wheel, or of the rim where the ground
+    stands (|V_i| < ``V_STILL``), +1 where both stand."""
+    d = np.where(np.abs(ground) >= V_STILL, np.sign(ground), np.sign(rim))
+    return np.where(d == 0, 1.0, d)
+
+
+def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
+                    yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
+                    limits: UsabilityLimits = UsabilityLimits()) -> np.ndarray:
+    """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
+    :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
+    the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
+    F_GT / W) and the half-track (c + d) / 2 in m."""
+    lim = limits
+    code = np.zeros(slip.shape, dtype=np.int8)
+    left, right = rim[:, :2].mean(axis=1), rim[:, 2:].mean(axis=1)
+    yaw, v = np.abs(yaw_rate), np.abs(body_speed)
+    skid = (((left * right < 0) & (np.minimum(np.abs(left), np.abs(right)) > lim.rim_turning))
+            | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
+    powered = np.abs(gross) > lim.gross_idle
+    code[(v[:, None] < lim.stall_speed) & powered] = STALL
+    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
+    code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
+    code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
+    return code
+
+
+class ReferenceSlipGate:
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10, in each wheel's direction
+    of travel, §17) from the filtered speeds, the wheels the longitudinal model describes now
+    (:func:`wheel_usability`), its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
+    gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
+    docs/method.md §9), for N vehicles."""
+
+    def __init__(self, config: PipelineConfig, n_vehicles: int):
+        self.cfg = config
+        self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
+        self._lp = np.zeros((n_vehicles, 4))
+        self._lp_stamp = np.full(n_vehicles, np.nan)
+        # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
+        self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
+        self._half_track = 0.5 * (config.vehicle.c + config.vehicle.d)
+
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
+        cfg = self.cfg
+        r = cfg.vehicle.wheel_radius
+        v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
+        rim = ob.wheel_speed * r
+        slip, scale = self._eq1(rim, v_wheel)
+        # eq. 1 and the traction law in each wheel's direction of travel (§17): a wheel travelling backwards
+        # is the mirror image of one travelling forwards, its slip and its traction both negated
+        direction = travel_direction(rim, v_wheel)
+        slip = direction * slip
+        if cfg.soil.measurement == "gross":
+            observed, var = direction * ob.gross, ob.gross_var * self._shared
+        else:
+            observed, var = direction * ob.mu, ob.mu_var * self._shared
+        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
+        # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
+        # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
+        # prediction through the held value; gross only
+        refresh = ob.interval > 0 if cfg.soil.measurement == "gross" else np.zeros(ob.interval.shape, dtype=bool)
+        any_refresh = bool(refresh.any())
+        slip_ends = None
+        if any_refresh:
+            s0, scale0 = self._eq1(ob.interval_rim_start, ob.interval_ground_start)
+            s1, scale1 = self._eq1(ob.interval_rim_end, ob.interval_ground_end)
+            d0 = travel_direction(ob.interval_rim_start, ob.interval_ground_start)
+            d1 = travel_direction(ob.interval_rim_end, ob.interval_ground_end)
+            s0, s1 = d1 * s0, d1 * s1
+            # a pair whose interval reverses the travel is no one slip path of one law: not informative
+            scale0 = np.where(d0 == d1, scale0, 0.0)
+            slip_ends = np.stack([s0, s1], axis=2)
+            filtered_slip = slip
+            # the slip path's middle; informative only where the wheel moved at both ends
+            slip, scale = np.where(refresh, 0.5 * (s0 + s1), slip), np.where(refresh, np.minimum(scale0, scale1), scale)
+            observed = np.where(refresh, d1 * ob.interval_gross, observed)
+            unusable = np.where(refresh & ((np.abs(s0) > 1.0) | (np.abs(s1) > 1.0)), SLIP_BEYOND_EQ1, unusable)
+            var = np.where(refresh, ob.interval_gross_var * self._shared, var)
+        informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+                       & (unusable == 0))
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
+        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
+        if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
+            s_sig = np.where(refresh, np.hypot(s_sig, ob.interval_rim_sigma / np.maximum(scale, 1e-3)), s_sig)
+        tau = cfg.soil.gate_smoothing
+        last = self._lp_stamp[ix]
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
+        if tau > 0:
+            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
+        else:
+            alpha = np.ones(ix.size)
+            restart[:] = True
+        prev = self._lp[ix]
+        own = filtered_slip if any_refresh else slip  # the low-pass runs on the filtered speeds' slip
+        lp = np.where(restart[:, None], own, prev + alpha[:, None] * (own - prev))
+        self._lp[ix] = lp
+        self._lp_stamp[ix] = stamp
+        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
+        span = None
+        if any_refresh:  # between refreshes the low-pass follows a prediction: the gate takes the interval's slip
+            lp, g_sig = np.where(refresh, slip, lp), np.where(refresh, s_sig, g_sig)
+            span = np.where(refresh, ob.interval, 0.0)
+        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction (its slip
+        # 1-sigma 0.06-0.30 within 50 ms of a 5 Hz refresh), and the samples repeat one measurement: K learns
+        # from samples within fresh_age of a new reading, and where the interval's own pair is served
+        # (interval_learning) at the refresh only.  A slow torque stream likewise: between its refreshes the
+        # gross traction rests on a held torque (the Warthog's currents, refreshed once a second, were paired
+        # with four wheel-speed refreshes each)
+        held = np.where(ob.interval_learning, ~refresh,
+                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
+        measured = ob.ground_speed_measured
+        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is
+        # a prediction (at 5 Hz its slip passed +-1, and a side's rim crossed zero: a 'skid turn' on the last
+        # record of wheel-speed-5hz took its convergence from 0.71 to 7.1 s), and a held wheel informs no K anyway
+        unusable = np.where(held, 0, unusable)
+        return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
+                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends,
+                          np.where(measured[:, None], unusable, 0))
+
+    def _eq1(self, rim: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 1 with the floor of docs/method.md §6 (numpy's eq. 1 before the core): slip
+        (k, 4) from rim speeds R_w omega and the ground speeds at the wheels (m/s), and the larger of the
+        two speeds (the deadband's measure)."""
+        scale = np.maximum(np.abs(rim), np.abs(ground))
+        return (rim - ground) / np.maximum(scale, self.cfg.slip_floor), scale
