@@ -701,3 +701,15 @@ class ReferenceSlipGate:
         two speeds (the deadband's measure)."""
         scale = np.maximum(np.abs(rim), np.abs(ground))
         return (rim - ground) / np.maximum(scale, self.cfg.slip_floor), scale
+
+
+def classify_many(log_k: np.ndarray, log_k_std: np.ndarray, constants: ModelConstants) -> tuple[list[str], np.ndarray]:
+    """The soil classes as numpy computed them before the core (soil_config.classify_many at 86852cb):
+    math.erf element-wise, numpy's diff and argmax."""
+    names, edges = class_bounds(constants)
+    sig = np.maximum(log_k_std, 1e-6)[:, None]
+    erf = np.frompyfunc(math.erf, 1, 1)
+    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))).astype(float))
+    probs = np.diff(cdf, axis=1)
+    i = probs.argmax(axis=1)
+    return [names[j] for j in i], probs[np.arange(i.size), i]

@@ -1,5 +1,5 @@
-"""The compiled slip gate (soilocp/_core/src/soil/gate.rs, usability.rs) against the numpy gate it replaced
-(tests/reference_soil.py's ReferenceSlipGate): every field of every step equal, on random observer
+"""The compiled slip gate (soilocp/_core/src/soil/gate.rs, usability.rs) and soil classes (classes.rs) against
+the numpy code they replaced (tests/reference_soil.py's ReferenceSlipGate, classify_many): every field equal, on random observer
 outputs (hypothesis: refreshes, resets, reversals, lifted wheels, stamps that jump or go back) and step by
 step on simulated drives whose slow wheel-speed stream makes refresh pairs."""
 
@@ -117,3 +117,19 @@ def test_packed_rows_follow_the_core_layout():
         gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 73)))
     with pytest.raises(ValueError, match="out of range"):
         gate.step(np.array([2]), np.zeros(1), np.zeros((1, 73)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_core_soil_classes_equal_the_numpy_classes(seed):
+    from reference_soil import classify_many as reference
+    from soilocp.estimation.soil_config import classify_many
+    from soilocp.model.constants import DEFAULT_CONSTANTS
+
+    rng = np.random.default_rng(seed)
+    log_k = rng.uniform(0.0, 9.5, 300)
+    log_k_std = rng.choice([0.0, 1e-8, 0.01, 0.13, 0.5, 3.0], 300) * rng.uniform(0.0, 1.0, 300)
+    names, conf = classify_many(log_k, log_k_std, DEFAULT_CONSTANTS)
+    want_names, want_conf = reference(log_k, log_k_std, DEFAULT_CONSTANTS)
+    assert names == want_names
+    np.testing.assert_array_equal(conf, want_conf)

@@ -213,10 +213,11 @@ class SoilBank:
         """The soil stage's step in one core call: ``gate`` (:class:`soilocp.estimation.slip_gate.SlipGate`) on
         the packed observer outputs ``rows`` (k, ``SlipGateBank.columns``) of the vehicles ``idx`` at ``stamp``
         (k,), then :meth:`update` with its inputs.  Returns the gate's inputs (the record's slip) and the states."""
-        ix = check_index(idx, self.n_vehicles)
+        ix = np.asarray(idx, dtype=np.int64)  # the core refuses a negative, out-of-range or repeated index
         k = ix.size
-        stamp = np.asarray(stamp, dtype=float).reshape(k)
-        fields, out = self.core.step_gated(gate.core, ix.astype(np.int64), stamp, rows,
+        stamp = np.asarray(stamp, dtype=float)
+        stamp = stamp if stamp.shape == (k,) else stamp.reshape(k)
+        fields, out = self.core.step_gated(gate.core, ix, stamp, rows,
                                            None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))
         inputs = SoilInputs(*fields)
         return inputs, self._states(ix, stamp, inputs, self._count_unusable(inputs.unusable, k), out)
@@ -228,8 +229,9 @@ class SoilBank:
         codes = np.asarray(unusable, dtype=np.int64).reshape(k, 4)
         if not codes.any():
             return None
-        for c, n in zip(*np.unique(codes[codes > 0], return_counts=True)):
-            self.unusable_by_reason[REASONS[int(c)]] += int(n)
+        for c, n in enumerate(np.bincount(codes.ravel(), minlength=len(REASONS)).tolist()):
+            if c and n:
+                self.unusable_by_reason[REASONS[c]] += n
         return codes
 
     def _states(self, ix, stamp, inputs: SoilInputs, codes, out) -> list[SoilState]:

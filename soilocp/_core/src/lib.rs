@@ -27,6 +27,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<py::soil::SoilGridBank>()?;
     // the slip gate, eq. 1 and the wheels' usability codes (issue 28)
     m.add_class::<py::soil::SlipGateBank>()?;
+    m.add_function(wrap_pyfunction!(py::soil::soil_classes, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::slip_ratio, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::travel_slip, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::wheel_usability, m)?)?;

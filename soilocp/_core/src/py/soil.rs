@@ -580,3 +580,41 @@ impl SoilGridBank {
         Array1::from_iter(self.inner.vehicles.iter().map(|b| b.scale_prior)).into_pyarray(py)
     }
 }
+
+/// What `soil_classes` returns: each belief's class index and its probability.
+type Classes<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<f64>>);
+
+/// The most probable soil class of each belief ln K ~ N(`log_k`, `log_k_std`^2) (n,) and its
+/// probability (crate::soil::classes) between the boundaries `edges` (m + 1,): (index (n,), p (n,)).
+#[pyfunction]
+pub fn soil_classes<'py>(
+    py: Python<'py>,
+    log_k: PyReadonlyArray1<'py, f64>,
+    log_k_std: PyReadonlyArray1<'py, f64>,
+    edges: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Classes<'py>> {
+    let (l, s, e) = (log_k.as_array(), log_k_std.as_array(), edges.as_array());
+    if l.len() != s.len() {
+        return Err(PyValueError::new_err(format!(
+            "log_k ({},) and log_k_std ({},) must have one length",
+            l.len(),
+            s.len()
+        )));
+    }
+    let e = e.to_vec();
+    if e.len() < 2 {
+        return Err(PyValueError::new_err("edges: need at least two class boundaries"));
+    }
+    let (idx, p): (Vec<i64>, Vec<f64>) = l
+        .iter()
+        .zip(s.iter())
+        .map(|(&l, &s)| {
+            let (i, p) = crate::soil::classes::classify(l, s, &e);
+            (i as i64, p)
+        })
+        .unzip();
+    Ok((
+        Array1::from_vec(idx).into_pyarray(py),
+        Array1::from_vec(p).into_pyarray(py),
+    ))
+}

@@ -11,6 +11,7 @@
 
 pub mod axles;
 pub mod bank;
+pub mod classes;
 pub mod gate;
 pub mod grid;
 pub mod numeric;
