@@ -16,6 +16,7 @@ use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
+use crate::soil::status::{Report, StatusBank};
 use crate::soil::usability::Limits;
 use crate::traction::Kind;
 
@@ -243,6 +244,37 @@ impl SlipGateBank {
 #[pyclass(module = "soilocp._core")]
 pub struct SoilGridBank {
     inner: bank::SoilGridBank,
+    /// the records' state, once `set_status` gave its settings
+    status: Option<StatusBank>,
+    /// the last step's records (its vehicles in order)
+    reports: Vec<Report>,
+}
+
+/// What `report` returns per vehicle of the last step: codes (k, 3) int64 (status, reason, K
+/// reported 0 / 1), numbers (k, 8) (K, its 1-sigma, ln K's, the last informative update's stamp
+/// (NaN: none), the reason's 4 numbers) and the used wheels (k, 4) bool.
+type ReportArrays<'py> = (
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<bool>>,
+);
+
+fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -> ReportArrays<'py> {
+    let k = reports.len();
+    let codes = Array2::from_shape_fn((k, 3), |(j, i)| {
+        let r = &reports[j];
+        [r.status as i64, r.reason as i64, i64::from(r.k.is_some())][i]
+    });
+    let nums = Array2::from_shape_fn((k, 8), |(j, i)| {
+        let r = &reports[j];
+        match i {
+            0..=2 => r.k.map_or(f64::NAN, |v| v[i]),
+            3 => r.last_update.unwrap_or(f64::NAN),
+            _ => r.args[i - 4],
+        }
+    });
+    let used = Array2::from_shape_fn((k, 4), |(j, w)| used[j][w]);
+    (codes.into_pyarray(py), nums.into_pyarray(py), used.into_pyarray(py))
 }
 
 /// Rows of four (one per wheel) of a (k, 4) array, refused with the argument's name otherwise.
@@ -277,24 +309,21 @@ fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
 }
 
 impl SoilGridBank {
+    /// The bank's step of the samples and, where `set_status` configured them, their records.
+    fn step_samples(&mut self, samples: &[Sample]) -> PyResult<Vec<bank::Step>> {
+        let out = self.inner.step(samples).map_err(PyValueError::new_err)?;
+        self.reports = match self.status.as_mut() {
+            Some(st) => st.report(&self.inner, samples, &out),
+            None => Vec::new(),
+        };
+        Ok(out)
+    }
+
     /// The update of the samples' vehicles, refused with a ValueError (naming the field) where a
     /// number the update needs is not finite.
     fn run<'py>(&mut self, py: Python<'py>, samples: &[Sample]) -> PyResult<StepArrays<'py>> {
-        for (name, get) in [
-            ("slip", (|s: &Sample| s.slip) as fn(&Sample) -> [f64; 4]),
-            ("observed", |s: &Sample| s.observed),
-            ("variance", |s: &Sample| s.variance),
-            ("slip_sigma", |s: &Sample| s.slip_sigma),
-        ] {
-            let rows: Vec<[f64; 4]> = samples.iter().map(get).collect();
-            finite(name, &rows)?;
-        }
-        for s in samples {
-            if !s.stamp.is_finite() {
-                return Err(PyValueError::new_err(format!("stamp {}: must be finite", s.stamp)));
-            }
-        }
-        let out = self.inner.step(samples).map_err(PyValueError::new_err)?;
+        check_finite(samples)?;
+        let out = self.step_samples(samples)?;
         let k = out.len();
         let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
         let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
@@ -316,6 +345,25 @@ impl SoilGridBank {
             col(&|s| s.floor_cdf),
         ))
     }
+}
+
+/// The numbers the update needs must be finite: a ValueError naming the field otherwise.
+fn check_finite(samples: &[Sample]) -> PyResult<()> {
+    for (name, get) in [
+        ("slip", (|s: &Sample| s.slip) as fn(&Sample) -> [f64; 4]),
+        ("observed", |s: &Sample| s.observed),
+        ("variance", |s: &Sample| s.variance),
+        ("slip_sigma", |s: &Sample| s.slip_sigma),
+    ] {
+        let rows: Vec<[f64; 4]> = samples.iter().map(get).collect();
+        finite(name, &rows)?;
+    }
+    for s in samples {
+        if !s.stamp.is_finite() {
+            return Err(PyValueError::new_err(format!("stamp {}: must be finite", s.stamp)));
+        }
+    }
+    Ok(())
 }
 
 #[pymethods]
@@ -364,7 +412,11 @@ impl SoilGridBank {
             log_prior: scale_log_prior.as_array().to_vec(),
         };
         let inner = bank::SoilGridBank::new(grid, cfg, nodes, k_floor, n_vehicles).map_err(PyValueError::new_err)?;
-        Ok(SoilGridBank { inner })
+        Ok(SoilGridBank {
+            inner,
+            status: None,
+            reports: Vec::new(),
+        })
     }
 
     /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s; slip, observed,
@@ -478,8 +530,8 @@ impl SoilGridBank {
     /// The soil stage's one call per step: the slip gate `gate` on the packed observer outputs
     /// `rows` (k, COLUMNS) (soilocp.estimation.slip_gate.GATE_FIELDS) of the vehicles `idx` at `stamp`
     /// (k,), then the update of their beliefs with the gate's samples and `scale_sigma` (k,) (the
-    /// online torque scale's relative 1-sigma, None: the prior).  Returns (the gate's arrays, as
-    /// `SlipGateBank.step`; the update's, as `step`).
+    /// online torque scale's relative 1-sigma, None: the prior), and their records.  Returns (the
+    /// gate's arrays, as `SlipGateBank.step`; the records' arrays, as `report`).
     #[pyo3(signature = (gate, idx, stamp, rows, scale_sigma=None))]
     fn step_gated<'py>(
         &mut self,
@@ -489,7 +541,12 @@ impl SoilGridBank {
         stamp: PyReadonlyArray1<'py, f64>,
         rows: PyReadonlyArray2<'py, f64>,
         scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
-    ) -> PyResult<(GateArrays<'py>, StepArrays<'py>)> {
+    ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
+        if self.status.is_none() {
+            return Err(PyValueError::new_err(
+                "step_gated: call set_status first (the records' settings)",
+            ));
+        }
         let mut samples = gate.run(&idx, &stamp, &rows)?;
         if let Some(a) = scale_sigma {
             let sig = column("scale_sigma", &a, samples.len())?;
@@ -498,7 +555,25 @@ impl SoilGridBank {
             }
         }
         let inputs = gate_arrays(py, &samples)?;
-        Ok((inputs, self.run(py, &samples)?))
+        check_finite(&samples)?;
+        let out = self.step_samples(&samples)?;
+        let used: Vec<[bool; 4]> = out.iter().map(|s| s.wheel.map(|f| f & bank::USED != 0)).collect();
+        Ok((inputs, report_arrays(py, &self.reports, &used)))
+    }
+
+    /// The records' settings (names of crate::soil::status::StatusBank::NAMES): from now on each
+    /// step also makes its vehicles' records (`report`, `step_gated`).
+    fn set_status(&mut self, params: HashMap<String, f64>) -> PyResult<()> {
+        let n = self.inner.vehicles.len();
+        self.status = Some(StatusBank::from_map(&params, n).map_err(PyValueError::new_err)?);
+        Ok(())
+    }
+
+    /// The records of the last step's vehicles (the arrays of `ReportArrays`, module doc).
+    fn report<'py>(&self, py: Python<'py>, used: PyReadonlyArray2<'py, u8>) -> PyResult<ReportArrays<'py>> {
+        let wheel = quads("used", &used, self.reports.len())?;
+        let used: Vec<[bool; 4]> = wheel.iter().map(|w| w.map(|f| f & bank::USED != 0)).collect();
+        Ok(report_arrays(py, &self.reports, &used))
     }
 
     /// Start vehicle `i`'s beliefs over from `belief` (G,): the pooled and the no-change one, and

@@ -17,4 +17,5 @@ pub mod grid;
 pub mod numeric;
 pub mod params;
 pub mod scale;
+pub mod status;
 pub mod usability;
