@@ -98,7 +98,7 @@ def test_core_gate_equals_the_numpy_gate_step_by_step_on_a_drive(variant):
         ob = ObserverBankOutput(**{f.name: np.array([getattr(msg, "rejected_measurements" if f.name == "rejected"
                                                              else f.name)])
                                    for f in dataclasses.fields(ObserverBankOutput)})
-        np.testing.assert_array_equal(rows, pack_output(ob))
+        np.testing.assert_array_equal(np.array([rows], dtype=float), pack_output(ob))
         stamp = np.array([msg.stamp])
         a, b = core.step(ix, stamp, rows), ref.step(ix, stamp, ob)
         _same(a, b, f"{variant} #{msg.seq}")

@@ -41,14 +41,14 @@ def pack_output(ob: ObserverBankOutput) -> np.ndarray:
                            np.stack([getattr(ob, f) for f in GATE_SCALARS], axis=1)], axis=1, dtype=float)
 
 
-def pack_message(obs: ObserverOutput) -> np.ndarray:
-    """One ObserverOutput message as the gate's packed row (1, ``SlipGateBank.columns``): one array."""
-    return np.array([(*obs.mu, *obs.mu_var, *obs.gross, *obs.gross_var, *obs.wheel_speed, *obs.normal_force,
-                      *obs.speed_age, *obs.torque_age, *obs.interval, *obs.interval_gross, *obs.interval_gross_var,
-                      *obs.interval_rim_start, *obs.interval_rim_end, *obs.interval_ground_start,
-                      *obs.interval_ground_end, *obs.interval_rim_sigma, *obs.interval_learning,
-                      obs.ground_speed, obs.yaw_rate, obs.reset, obs.ground_speed_age, obs.ground_speed_measured)],
-                    dtype=float)
+def pack_message(obs: ObserverOutput) -> tuple:
+    """One ObserverOutput message as the gate's packed row: a flat tuple of ``SlipGateBank.columns`` numbers,
+    which the core reads as it is (a numpy array of these mixed floats and bools costs 3x the tuple)."""
+    return (*obs.mu, *obs.mu_var, *obs.gross, *obs.gross_var, *obs.wheel_speed, *obs.normal_force,
+            *obs.speed_age, *obs.torque_age, *obs.interval, *obs.interval_gross, *obs.interval_gross_var,
+            *obs.interval_rim_start, *obs.interval_rim_end, *obs.interval_ground_start,
+            *obs.interval_ground_end, *obs.interval_rim_sigma, *obs.interval_learning,
+            obs.ground_speed, obs.yaw_rate, obs.reset, obs.ground_speed_age, obs.ground_speed_measured)
 
 
 class SlipGate:
@@ -73,7 +73,8 @@ class SlipGate:
         self.core = _core.SlipGateBank(int(n_vehicles), wheel_y, soil.measurement == "gross",
                                        {k: float(x) for k, x in params.items()})
 
-    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput | np.ndarray) -> SoilInputs:
-        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them (or its packed rows)."""
-        rows = ob if isinstance(ob, np.ndarray) else pack_output(ob)
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput | np.ndarray | tuple) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them (or its packed rows:
+        :func:`pack_output`'s array, or :func:`pack_message`'s tuple for one vehicle)."""
+        rows = ob if isinstance(ob, (np.ndarray, tuple)) else pack_output(ob)
         return SoilInputs(*self.core.step(np.asarray(ix, dtype=np.int64), np.asarray(stamp, dtype=float), rows))

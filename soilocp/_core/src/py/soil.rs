@@ -97,7 +97,7 @@ impl SlipGateBank {
         &mut self,
         idx: &PyReadonlyArray1<'_, i64>,
         stamp: &PyReadonlyArray1<'_, f64>,
-        rows: &PyReadonlyArray2<'_, f64>,
+        rows: &Bound<'_, PyAny>,
     ) -> PyResult<Vec<Sample>> {
         let k = idx.as_array().len();
         let idx = column("idx", idx, k)?;
@@ -108,21 +108,30 @@ impl SlipGateBank {
         }
         let idx: Vec<usize> = idx.iter().map(|&i| i as usize).collect();
         let stamp = column("stamp", stamp, k)?;
-        let rows = rows.as_array();
-        if rows.shape() != [k, gate::COLUMNS] {
-            return Err(PyValueError::new_err(format!(
-                "rows (the packed observer outputs) must have shape ({k}, {}), got {:?}",
-                gate::COLUMNS,
-                rows.shape()
-            )));
-        }
-        let owned;
-        let flat: &[f64] = match rows.as_slice() {
-            Some(v) => v,
-            None => {
-                owned = rows.iter().copied().collect::<Vec<f64>>();
-                &owned
+        let shape_error = |got: String| {
+            PyValueError::new_err(format!(
+                "rows (the packed observer outputs) must have shape ({k}, {}), got {got}",
+                gate::COLUMNS
+            ))
+        };
+        // an array (k, COLUMNS), or one message's numbers as a flat sequence (no numpy array to make)
+        let flat: Vec<f64> = if let Ok(a) = rows.extract::<PyReadonlyArray2<'_, f64>>() {
+            let v = a.as_array();
+            if v.shape() != [k, gate::COLUMNS] {
+                return Err(shape_error(format!("{:?}", v.shape())));
             }
+            v.iter().copied().collect()
+        } else {
+            let v: Vec<f64> = rows.extract().map_err(|_| {
+                shape_error(format!(
+                    "a {} (need a float array or a sequence of numbers)",
+                    rows.get_type()
+                ))
+            })?;
+            if v.len() != k * gate::COLUMNS {
+                return Err(shape_error(format!("{} numbers", v.len())));
+            }
+            v
         };
         let rows: Vec<&[f64]> = flat.chunks_exact(gate::COLUMNS).collect();
         self.inner.step(&idx, &stamp, &rows).map_err(PyValueError::new_err)
@@ -209,7 +218,7 @@ impl SlipGateBank {
         py: Python<'py>,
         idx: PyReadonlyArray1<'py, i64>,
         stamp: PyReadonlyArray1<'py, f64>,
-        rows: PyReadonlyArray2<'py, f64>,
+        rows: Bound<'py, PyAny>,
     ) -> PyResult<GateArrays<'py>> {
         let samples = self.run(&idx, &stamp, &rows)?;
         gate_arrays(py, &samples)
@@ -539,7 +548,7 @@ impl SoilGridBank {
         mut gate: PyRefMut<'py, SlipGateBank>,
         idx: PyReadonlyArray1<'py, i64>,
         stamp: PyReadonlyArray1<'py, f64>,
-        rows: PyReadonlyArray2<'py, f64>,
+        rows: Bound<'py, PyAny>,
         scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
         if self.status.is_none() {
