@@ -12,7 +12,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reference_soil import ReferenceSlipGate
+from reference_soil import ReferenceRecords, ReferenceSlipGate
+from soilocp.model.constants import DEFAULT_CONSTANTS
+from soilocp.estimation.soil_strength import SoilBank
+from tests.test_soil_core import _inputs
 from soilocp.estimation.observer_bank import ObserverBankOutput
 from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, PipelineConfig
 from soilocp.estimation.slip_gate import GATE_FIELDS, SlipGate, pack_message, pack_output
@@ -124,7 +127,6 @@ def test_packed_rows_follow_the_core_layout():
 def test_core_soil_classes_equal_the_numpy_classes(seed):
     from reference_soil import classify_many as reference
     from soilocp.estimation.soil_config import classify_many
-    from soilocp.model.constants import DEFAULT_CONSTANTS
 
     rng = np.random.default_rng(seed)
     log_k = rng.uniform(0.0, 9.5, 300)
@@ -133,3 +135,71 @@ def test_core_soil_classes_equal_the_numpy_classes(seed):
     want_names, want_conf = reference(log_k, log_k_std, DEFAULT_CONSTANTS)
     assert names == want_names
     np.testing.assert_array_equal(conf, want_conf)
+
+
+class _Recording:
+    """The core bank, its ``step`` arrays kept for the reference records."""
+
+    def __init__(self, core):
+        self._core, self.last = core, None
+
+    def __getattr__(self, name):
+        return getattr(self._core, name)
+
+    def step(self, *args):
+        self.last = self._core.step(*args)
+        return self.last
+
+
+@pytest.mark.parametrize("variant", ["skid-spot-turn", "wheel-speed-5hz", "payload+25", "mass-com+20", "nominal"])
+def test_core_records_equal_the_python_records_step_by_step(variant):
+    """The records (soilocp/_core/src/soil/status.rs: K held or withdrawn, band, status, reason, class) against
+    the Python that made them before (tests/reference_soil.py's ReferenceRecords) on the same core steps."""
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    variant_ = get_variant(variant)
+    normal, observer = NormalForceStage(cfg), ObserverStage(cfg)
+    gate, bank = SlipGate(cfg, 1), SoilBank(cfg.constants, cfg.soil, 1)
+    bank.core = recording = _Recording(bank.core)
+    ref = ReferenceRecords(bank)
+    ix = np.zeros(1, dtype=int)
+    statuses = set()
+    for sample, _ in variant_.simulate(0, duration=12.0, nominal=cfg.vehicle, constants=cfg.constants):
+        msg = observer.step(sample, normal.step(sample))
+        stamp = np.array([msg.stamp])
+        inp = gate.step(ix, stamp, pack_message(msg))
+        sigma = None if msg.torque_scale_std is None else np.array([msg.torque_scale_std])
+        got = bank.update(ix, stamp, inp, sigma)
+        codes = np.asarray(inp.unusable, dtype=np.int64)
+        want = ref.summaries(ix, stamp, recording.last, inp, codes if codes.any() else None)
+        assert got == want, (variant, msg.seq, got, want)
+        statuses.add(got[0].status)
+        observer.scale.feed_soil(ix, [got[0].soil_strength], inp.slip)
+    assert len(statuses) >= 2, statuses
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), steps=st.integers(1, 80), refresh=st.booleans(), codes=st.booleans(),
+       online_scale=st.booleans())
+def test_core_records_equal_the_python_records_on_random_sequences(seed, steps, refresh, codes, online_scale):
+    """As the drive test, on tests/test_soil_core.py's random sequences (k of N vehicles, stamps that repeat,
+    jump and go back, held, unidentifiable and unusable wheels, refresh pairs, an online scale)."""
+    n = 3
+    bank = SoilBank(DEFAULT_CONSTANTS, SoilConfig(), n)
+    bank.core = recording = _Recording(bank.core)
+    ref = ReferenceRecords(bank)
+    rng = np.random.default_rng(seed)
+    clock = np.zeros(n)
+    for _ in range(steps):
+        k = int(rng.integers(1, n + 1))
+        ix = np.sort(rng.choice(n, k, replace=False))
+        clock[ix] += rng.choice([0.01, 0.01, 0.05, 0.0, -0.02, 2.0, 11.0], k)
+        stamp = clock[ix].copy()
+        inp = _inputs(rng, k, refresh, codes)
+        if codes:
+            inp.unusable = np.where(rng.random((k, 4)) < 0.1, rng.integers(1, 5, (k, 4)), inp.unusable)
+        sigma = rng.uniform(0.0, 0.08, k) if online_scale else None
+        got = bank.update(ix, stamp, inp, sigma)
+        c = None if inp.unusable is None or not np.asarray(inp.unusable).any() else np.asarray(inp.unusable, np.int64)
+        assert got == ref.summaries(ix, stamp, recording.last, inp, c)

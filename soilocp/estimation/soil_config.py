@@ -179,7 +179,7 @@ def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
 
 @dataclass
 class SoilInputs:
-    """What the soil update takes for k vehicles, from the observer's outputs (:class:`soilocp.estimation.pipeline.SlipGate`):
+    """What the soil update takes for k vehicles, from the observer's outputs (:class:`soilocp.estimation.slip_gate.SlipGate`):
     arrays (k, 4) unless marked; one struct, passed whole (:meth:`soilocp.estimation.soil_strength.SoilBank.update`)."""
 
     slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i

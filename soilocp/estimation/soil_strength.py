@@ -46,8 +46,6 @@ from soilocp.estimation.wheel_usability import REASONS, describe
 
 __all__ = ["UNKNOWN_SPEED", "BayesSoilEstimator", "PaperSoilEstimator", "SoilBank", "SoilInputs"]
 
-# the core's per-wheel flags (crate::soil::bank): used; gated but undetermined (§12); gated but held / stale
-_USED, _UNDETERMINED, _HELD = 1, 2, 4
 
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
@@ -106,8 +104,9 @@ class _HoldLogic:
 
 class SoilBank:
     """N grid Bayes filters over ln K (module doc), stepped together: the beliefs and their per-sample
-    update live in the compiled core (:class:`soilocp._core.SoilGridBank`, one call per step); this class
-    keeps the configuration and makes each vehicle's status and reason from what the core returns.
+    update live in the compiled core (:class:`soilocp._core.SoilGridBank`, one call per step), and so do the
+    records (K held or withdrawn, the band, the status and reason codes: soilocp/_core/src/soil/status.rs); this
+    class keeps the configuration, words the reason codes and names the class of the reported band.
 
     Per vehicle it also keeps, over ``evidence_window`` seconds of informative samples:
 
