@@ -1,6 +1,8 @@
 """The soil-grid update as numpy wrote it before the compiled core (issue 28): the reference that
 tests/test_soil_core.py checks :class:`soilocp._core.SoilGridBank` against (hypothesis property tests).
-Not part of the product: the product's update is the core's (soilocp/_core/src/soil/).  This is the
+Not part of the product: the product's update is the core's (soilocp/_core/src/soil/).  Below it, the
+slip gate and the wheels' usability codes as numpy wrote them (:class:`ReferenceSlipGate`), which
+tests/test_slip_gate.py checks :class:`soilocp._core.SlipGateBank` against.  This is the
 code of soilocp/estimation/{soil_grid,soil_axles,soil_strength}.py at the commit before the port, with
 the status logic left out: :meth:`ReferenceSoilBank.update` returns the numbers the status is made from.
 """
@@ -8,16 +10,22 @@ the status logic left out: :meth:`ReferenceSoilBank.update` returns the numbers 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import ModelConstants
 from soilocp.model.traction import curve_unchecked
-from soilocp.estimation.soil_config import SoilConfig, class_bounds
+from soilocp.estimation.soil_config import SoilConfig, SoilState, class_bounds
+from soilocp.estimation.soil_strength import _HoldLogic
+from soilocp.estimation.wheel_usability import REASONS, describe
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
 from soilocp.estimation.soil_strength import _gate
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBankOutput
+from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED, UsabilityLimits
 
 UNKNOWN_SPEED = 1.0
 
@@ -557,3 +565,339 @@ class ReferenceSoilBank:
             off = np.minimum(np.maximum(np.where(curv > 0, 0.5 * (y0 - y2) / curv, 0.0), -0.5), 0.5)
         return self.theta[i] + off * self.grid.dtheta, y1 - 0.25 * (y0 - y2) * off
 
+
+# --- the slip gate as numpy wrote it before the core (soilocp/estimation/pipeline.py's SlipGate and
+# --- soilocp/estimation/wheel_usability.py at 86852cb): the reference of tests/test_slip_gate.py
+
+V_STILL = 0.02
+
+
+def travel_direction(rim: np.ndarray, ground: np.ndarray) -> np.ndarray:
+    """d per wheel, +-1: the sign of the ground speed under the wheel, or of the rim where the ground
+    stands (|V_i| < ``V_STILL``), +1 where both stand."""
+    d = np.where(np.abs(ground) >= V_STILL, np.sign(ground), np.sign(rim))
+    return np.where(d == 0, 1.0, d)
+
+
+def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
+                    yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
+                    limits: UsabilityLimits = UsabilityLimits()) -> np.ndarray:
+    """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
+    :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
+    the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
+    F_GT / W) and the half-track (c + d) / 2 in m."""
+    lim = limits
+    code = np.zeros(slip.shape, dtype=np.int8)
+    left, right = rim[:, :2].mean(axis=1), rim[:, 2:].mean(axis=1)
+    yaw, v = np.abs(yaw_rate), np.abs(body_speed)
+    skid = (((left * right < 0) & (np.minimum(np.abs(left), np.abs(right)) > lim.rim_turning))
+            | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
+    powered = np.abs(gross) > lim.gross_idle
+    code[(v[:, None] < lim.stall_speed) & powered] = STALL
+    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
+    code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
+    code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
+    return code
+
+
+class ReferenceSlipGate:
+    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10, in each wheel's direction
+    of travel, §17) from the filtered speeds, the wheels the longitudinal model describes now
+    (:func:`wheel_usability`), its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
+    gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
+    docs/method.md §9), for N vehicles."""
+
+    def __init__(self, config: PipelineConfig, n_vehicles: int):
+        self.cfg = config
+        self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
+        self._lp = np.zeros((n_vehicles, 4))
+        self._lp_stamp = np.full(n_vehicles, np.nan)
+        # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
+        self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
+        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
+        self._half_track = 0.5 * (config.vehicle.c + config.vehicle.d)
+
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
+        cfg = self.cfg
+        r = cfg.vehicle.wheel_radius
+        v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
+        rim = ob.wheel_speed * r
+        slip, scale = self._eq1(rim, v_wheel)
+        # eq. 1 and the traction law in each wheel's direction of travel (§17): a wheel travelling backwards
+        # is the mirror image of one travelling forwards, its slip and its traction both negated
+        direction = travel_direction(rim, v_wheel)
+        slip = direction * slip
+        if cfg.soil.measurement == "gross":
+            observed, var = direction * ob.gross, ob.gross_var * self._shared
+        else:
+            observed, var = direction * ob.mu, ob.mu_var * self._shared
+        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
+        # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
+        # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
+        # prediction through the held value; gross only
+        refresh = ob.interval > 0 if cfg.soil.measurement == "gross" else np.zeros(ob.interval.shape, dtype=bool)
+        any_refresh = bool(refresh.any())
+        slip_ends = None
+        if any_refresh:
+            s0, scale0 = self._eq1(ob.interval_rim_start, ob.interval_ground_start)
+            s1, scale1 = self._eq1(ob.interval_rim_end, ob.interval_ground_end)
+            d0 = travel_direction(ob.interval_rim_start, ob.interval_ground_start)
+            d1 = travel_direction(ob.interval_rim_end, ob.interval_ground_end)
+            s0, s1 = d1 * s0, d1 * s1
+            # a pair whose interval reverses the travel is no one slip path of one law: not informative
+            scale0 = np.where(d0 == d1, scale0, 0.0)
+            slip_ends = np.stack([s0, s1], axis=2)
+            filtered_slip = slip
+            # the slip path's middle; informative only where the wheel moved at both ends
+            slip, scale = np.where(refresh, 0.5 * (s0 + s1), slip), np.where(refresh, np.minimum(scale0, scale1), scale)
+            observed = np.where(refresh, d1 * ob.interval_gross, observed)
+            unusable = np.where(refresh & ((np.abs(s0) > 1.0) | (np.abs(s1) > 1.0)), SLIP_BEYOND_EQ1, unusable)
+            var = np.where(refresh, ob.interval_gross_var * self._shared, var)
+        informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
+                       & (unusable == 0))
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
+        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
+        if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
+            s_sig = np.where(refresh, np.hypot(s_sig, ob.interval_rim_sigma / np.maximum(scale, 1e-3)), s_sig)
+        tau = cfg.soil.gate_smoothing
+        last = self._lp_stamp[ix]
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
+        if tau > 0:
+            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
+        else:
+            alpha = np.ones(ix.size)
+            restart[:] = True
+        prev = self._lp[ix]
+        own = filtered_slip if any_refresh else slip  # the low-pass runs on the filtered speeds' slip
+        lp = np.where(restart[:, None], own, prev + alpha[:, None] * (own - prev))
+        self._lp[ix] = lp
+        self._lp_stamp[ix] = stamp
+        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
+        span = None
+        if any_refresh:  # between refreshes the low-pass follows a prediction: the gate takes the interval's slip
+            lp, g_sig = np.where(refresh, slip, lp), np.where(refresh, s_sig, g_sig)
+            span = np.where(refresh, ob.interval, 0.0)
+        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction (its slip
+        # 1-sigma 0.06-0.30 within 50 ms of a 5 Hz refresh), and the samples repeat one measurement: K learns
+        # from samples within fresh_age of a new reading, and where the interval's own pair is served
+        # (interval_learning) at the refresh only.  A slow torque stream likewise: between its refreshes the
+        # gross traction rests on a held torque (the Warthog's currents, refreshed once a second, were paired
+        # with four wheel-speed refreshes each)
+        held = np.where(ob.interval_learning, ~refresh,
+                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
+        measured = ob.ground_speed_measured
+        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
+        # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is
+        # a prediction (at 5 Hz its slip passed +-1, and a side's rim crossed zero: a 'skid turn' on the last
+        # record of wheel-speed-5hz took its convergence from 0.71 to 7.1 s), and a held wheel informs no K anyway
+        unusable = np.where(held, 0, unusable)
+        return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
+                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends,
+                          np.where(measured[:, None], unusable, 0))
+
+    def _eq1(self, rim: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 1 with the floor of docs/method.md §6 (numpy's eq. 1 before the core): slip
+        (k, 4) from rim speeds R_w omega and the ground speeds at the wheels (m/s), and the larger of the
+        two speeds (the deadband's measure)."""
+        scale = np.maximum(np.abs(rim), np.abs(ground))
+        return (rim - ground) / np.maximum(scale, self.cfg.slip_floor), scale
+
+
+def classify_many(log_k: np.ndarray, log_k_std: np.ndarray, constants: ModelConstants) -> tuple[list[str], np.ndarray]:
+    """The soil classes as numpy computed them before the core (soil_config.classify_many at 86852cb):
+    math.erf element-wise, numpy's diff and argmax."""
+    names, edges = class_bounds(constants)
+    sig = np.maximum(log_k_std, 1e-6)[:, None]
+    erf = np.frompyfunc(math.erf, 1, 1)
+    cdf = 0.5 * (1 + erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))).astype(float))
+    probs = np.diff(cdf, axis=1)
+    i = probs.argmax(axis=1)
+    return [names[j] for j in i], probs[np.arange(i.size), i]
+
+
+# --- the soil records as Python made them before the core (soilocp/estimation/soil_strength.py's SoilBank._vouch,
+# --- _summaries and _out_of_model at 86852cb), on the core step's arrays: the reference of
+# --- tests/test_slip_gate.py's record test
+
+class ReferenceRecords:
+    """Status, reason, K held or withdrawn, band and class of a :class:`soilocp.estimation.soil_strength.SoilBank`'s
+    vehicles from the arrays of its core's ``step`` (``summaries``), with their own hold state."""
+
+    def __init__(self, bank):
+        from soilocp.estimation.soil_strength import PaperSoilEstimator  # noqa: F401  (the module the code came from)
+
+        self.bank, self.cfg, self.c, self.grid, self.k_floor = bank, bank.cfg, bank.c, bank.grid, bank.k_floor
+        self.core = bank.core
+        self._holds = [_HoldLogic(bank.cfg) for _ in range(bank.n_vehicles)]
+        self._lean_since = np.full(bank.n_vehicles, np.nan)
+
+    @property
+    def scale_prior(self):
+        return self.core.scale_prior
+
+    def summaries(self, ix, stamp, step, inputs, codes) -> list:
+        """The states from the core step's arrays ``step`` (``SoilGridBank.step``'s) and the step's inputs."""
+        (wheel, dt, info, _, k_report, log_stat, stats, scale, axle_off, axle, floor_cdf) = step
+        k = ix.size
+        core = _CoreStep(log_stat, axle_off, axle, floor_cdf)
+        flag = (lambda a: np.asarray(a, dtype=bool))
+        return self._summaries(ix, stamp, core, info, (wheel & 1) > 0, (wheel & 2) > 0, (wheel & 4) > 0,
+                               flag(inputs.ground_stale).reshape(k), flag(inputs.identifiable).reshape(k), stats, dt,
+                               k_report, scale, codes)
+
+    def _vouch(self, v: int, stamp: float, evidence: float, c_mean: float) -> tuple[Status, str]:
+        """Status and reason of an estimate whose band is narrow enough for ``ok``: ``ok`` only where its own
+        checks vouch for it (docs/robustness.md, "ok means ok"), else ``uncertain`` naming what they lack.
+
+        * the data lean to a torque scale the state does not assume (``_lean_since``: the window's scale
+          posterior more than 2 of its sigmas, and more than the scale's own prior, from 1): a common scale
+          and K trade off on a driving wheel (eq. 3), so K is limited by the torque scale whatever its
+          statistical band (payload +25 % at constant speed: sand 50 read 67-73, ln K 1-sigma 0.16-0.18);
+        * the front and rear axles read different soils for most of the window (the axle check's verdict,
+          soilocp/_core/src/soil/axles.rs), though one axle is not informing now, so it is not judged now
+          (mass-com+20: K 130-136 for 200 from the rear axle alone, ln K 1-sigma 0.09, between two
+          ``model_mismatch`` stretches);
+        * fewer than ``mismatch_min_evidence`` s of informative samples since the evidence window restarted
+          (a change taken, the drive's start) or faded (a hold): the mismatch and axle checks have not had the
+          data to judge the estimate yet (a change taken while the axles straddle two soils reads a K between
+          them, ln K 1-sigma 0.12: skid-arcs, sand 50 / firm 300 read 122)."""
+        cfg = self.cfg
+        over, weight = self.core.axle_window(v)
+        if not np.isnan(self._lean_since[v]) and self._lean_since[v] <= stamp:
+            return "uncertain", (f"these data lean to a torque scale of {c_mean:.2f} (1 +- {self.scale_prior[v]:.2f} "
+                                 "assumed): K is limited by the torque scale, which a drive at constant speed cannot "
+                                 "tell apart from K (accelerate or brake, or soilocp calibrate-torque)")
+        enough = 1.0 - math.exp(-cfg.mismatch_min_evidence / cfg.evidence_window)
+        if cfg.axle_mismatch_z > 0 and weight >= enough and over > 0.5 * weight:
+            return "uncertain", (f"the front and rear axles read different soils for most of the last "
+                                 f"{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
+                                 "centre of mass) or an axle's torque constant may be off")
+        if evidence < cfg.mismatch_min_evidence:
+            return "uncertain", (f"K from {evidence:.1f} s of informative slip since the last change or hold: the "
+                                 f"model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok")
+        return "ok", ""
+
+    def _summaries(self, ix, stamp, core, info, use, undetermined, held, stale, ident, stats, dt, k_report,
+                   scale_shift, codes=None) -> list[SoilState]:
+        """Per vehicle: K (``k_report``, the core's report median) and its band from the pooled belief's
+        spread and the core's systematic terms (``core``: :class:`_CoreStep`), status and reason; ``codes``
+        (k, 4): the wheels the longitudinal model does not describe now (:func:`_out_of_model`)."""
+        cfg, k = self.cfg, ix.size
+        out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
+        for j in range(k):
+            v = int(ix[j])
+            hold = self._holds[v]
+            st = float(stamp[j])
+            if info[j]:
+                hold.last_update = st
+            log_stat = float(core.log_stat[j])
+            k_med = float(k_report[j])
+            evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
+            sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (the core's scale_shift)
+            # how long the data have leant to a wrong torque constant: a window that spans two soils leans
+            # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
+            if abs(c_mean - 1.0) <= max(2.0 * c_std, self.scale_prior[v]):
+                self._lean_since[v] = np.nan
+            elif not self._lean_since[v] <= st:  # none yet (NaN), or a restarted clock: it starts now
+                self._lean_since[v] = st
+            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
+            axle_off, (axle_z, theta_front, theta_rear) = bool(core.axle_off[j]), core.axle[j].tolist()
+            # axles that disagree: the truth is usually near one of them (the core's axles.rs), so their distance
+            # is a systematic term.  Where the curve is flat in K (K >> 300, §9) a scale error moves K
+            # without bound: the band is capped at the grid's whole ln K span ("undetermined")
+            sys_axle = abs(theta_front - theta_rear) if axle_off else 0.0
+            sys = min(math.hypot(math.hypot(sys_scale, sys_radius), sys_axle), self.grid.span)
+            log_std = min(math.hypot(log_stat, sys), self.grid.span)
+            k_std = k_med * math.sinh(log_std)
+            status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
+            if status == "uncertain" and sys > log_stat and sys_scale >= sys_radius:
+                # the data's scale without its posterior spread: across drives it moves by more than that
+                # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
+                          f"{self.scale_prior[v]:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
+                          "where the traction curve is flat in K")
+                if st - self._lean_since[v] >= cfg.evidence_window:
+                    reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
+            elif status == "uncertain" and sys > log_stat:
+                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
+                          "uncertainty moves these small slips, and K, this much")
+            nis = nis_sum / evidence if evidence > 0 else 0.0
+            if not ident[j]:
+                status = "not_observable"
+                reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
+                          "with it; wheel odometry cannot stand in)")
+            elif rk is not None and axle_off:
+                status = "model_mismatch"
+                reason = (f"the front and rear axles read different soils (K {math.exp(theta_front):.0f} front, "
+                          f"{math.exp(theta_rear):.0f} rear; {axle_z:.1f} sigma apart, and most of the last "
+                          f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
+                          "constant are off")
+            elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
+                status = "model_mismatch"
+                reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
+                          f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
+            elif rk is not None and core.floor_cdf[j] > 0.5:
+                status = "model_mismatch"
+                reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
+                          f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
+            elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
+                status = "not_observable"
+                since = f"for {st - hold.last_update:.1f} s" if hold.last_update is not None else "yet"
+                if stale[j]:
+                    reason = (f"slip is informative but the ground speed is stale: no new reading for more than "
+                              f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
+                else:
+                    reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
+                              f"both {since} (sensor refresh too slow to measure traction)")
+            elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
+                status = "not_observable"
+                reason = "slip is informative but the wheel torque balance does not determine gross traction"
+            if status == "ok":
+                status, reason = self._vouch(v, st, evidence, c_mean)
+            if codes is not None and ident[j] and codes[j].any():
+                status, reason = _out_of_model(status, reason, codes[j], use[j].any(), rk is not None, hold, st)
+            if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
+                rk = rs = rl = None
+            if rk is not None and status != "model_mismatch":
+                rep.append((j, rk, rl))
+            held_for = None if rk is None or hold.last_update is None else max(st - hold.last_update, 0.0)
+            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist()), held_for,
+                        tuple(REASONS[int(c)] for c in codes[j]) if codes is not None else ("",) * 4])
+        if rep:  # the class from the whole band (statistical and systematic), as reported
+            js, ks, ls = zip(*rep)
+            names, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            for j, name, c in zip(js, names, conf.tolist()):
+                out[j][3:5] = name, c
+        return [SoilState(*o) for o in out]
+
+
+class _CoreStep(NamedTuple):
+    log_stat: np.ndarray
+    axle_off: np.ndarray
+    axle: np.ndarray
+    floor_cdf: np.ndarray
+
+
+def _out_of_model(status: str, reason: str, codes: np.ndarray, used: bool, have_k: bool, hold: _HoldLogic,
+                  stamp: float) -> tuple[str, str]:
+    """Status and reason of a sample with wheels that the longitudinal model does not describe (codes (4,) of
+    :mod:`soilocp.estimation.wheel_usability`, docs/method.md §17): never ``ok``.  A skid turn: ``not_observable``
+    while it lasts (docs/robustness.md, "Skid turns"); no wheel used: the last estimate is held, flagged, with
+    its age; other wheels used: ``uncertain``, K from them.  ``model_mismatch`` and ``not_observable`` of other
+    causes keep their reason, a skid turn aside."""
+    text = describe(codes)
+    if (codes == SKID_TURN).any():
+        return "not_observable", f"{text}: no K while it lasts"
+    if status in ("model_mismatch", "not_observable"):
+        return status, reason
+    if not used:
+        if not have_k:
+            return "not_observable", f"{text}: no wheel informs K"
+        age = stamp - hold.last_update if hold.last_update is not None else 0.0
+        return "holding", f"{text}: no wheel informs K; holding the estimate of {age:.1f} s ago"
+    if status == "ok":
+        return "uncertain", f"{text}; K from the other wheels"
+    return status, reason

@@ -2,7 +2,7 @@
 
 The batched service steps N vehicles through the same array kernels that the single-vehicle
 stages of :mod:`soilocp.estimation.pipeline` run with N = 1: the observer
-(:class:`soilocp.estimation.observer_bank.ObserverBank`), the slip and its gate (:class:`soilocp.estimation.pipeline.SlipGate`),
+(:class:`soilocp.estimation.observer_bank.ObserverBank`), the slip and its gate (:class:`soilocp.estimation.slip_gate.SlipGate`),
 the soil strength (:class:`soilocp.estimation.soil_strength.SoilBank`) and the OCPs
 (:func:`soilocp.model.ocp.ocp_arrays`), one numpy call per operation for the whole fleet.  Its records
 are built by the same message functions, so every field (statuses, reasons, classes, te_at_S_E)
@@ -25,7 +25,8 @@ from schemas.sensor import SensorSample
 from soilocp.model.checks import check_count, check_index
 from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.model.ocp import ocp_arrays
-from soilocp.estimation.pipeline import PipelineConfig, SlipGate, observer_inputs, ocp_message, soil_message
+from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
+from soilocp.estimation.slip_gate import SlipGate, pack_output
 from soilocp.estimation.soil_strength import SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank
 
@@ -59,12 +60,15 @@ class BatchPipeline:
         ix = check_index(idx, self.n_vehicles)
         inputs, scale_sigma = self.scale.apply(ix, observer_inputs(samples, normal_forces))
         ob = self.observer.step(ix, inputs)
-        inp = self.gate.step(ix, inputs.stamp, ob)
-        if self.priors is not None:
+        rows = pack_output(ob)
+        if self.priors is None:  # the gate and the soil update: one core call
+            inp, states = self.soil.step_gated(self.gate, ix, inputs.stamp, rows, scale_sigma)
+        else:  # the map's hook runs between the gate and the update, as in SoilStage
             from soilocp.map.prior import start_from_map
 
-            inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples, inp)
-        states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
+            inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples,
+                                 self.gate.step(ix, inputs.stamp, rows))
+            states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
         ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
         self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
         ocp = ocp_arrays(ks, self.config.constants)

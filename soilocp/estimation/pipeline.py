@@ -4,7 +4,8 @@ Each stage is a small deterministic object with a ``step`` method that takes and
 message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
 process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
 messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
-(:mod:`soilocp.estimation.observer_bank`, :class:`SlipGate`, :class:`soilocp.estimation.soil_strength.SoilBank`,
+(:mod:`soilocp.estimation.observer_bank`, :class:`soilocp.estimation.slip_gate.SlipGate`,
+:class:`soilocp.estimation.soil_strength.SoilBank`,
 :func:`soilocp.model.ocp.ocp_arrays`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same
 kernels with N = many.
 """
@@ -28,11 +29,11 @@ from soilocp.estimation.observer import ObserverConfig
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
 from soilocp.map.place import estimate_place
 from soilocp.model.ocp import ocp_arrays
-from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR, slip_ratio_unchecked
+from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from soilocp.estimation.slip_gate import SlipGate, pack_message
 from soilocp.estimation.soil_config import SoilConfig, SoilInputs, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
-from soilocp.estimation.wheel_usability import SLIP_BEYOND_EQ1, travel_direction, wheel_usability
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
 
 __all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
@@ -156,27 +157,6 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankO
     )
 
 
-def observer_output(obs: ObserverOutput) -> ObserverBankOutput:
-    """An ObserverOutput message as the kernel's output for one vehicle (k = 1): the soil stage's input."""
-    # one small np.array per field: fewer instructions than one array of all the quads (callgrind)
-    return ObserverBankOutput(
-        mu=np.array([obs.mu]), mu_var=np.array([obs.mu_var]), mu_determined=np.array([obs.mu_determined]),
-        resistance=np.array([obs.resistance]), gross=np.array([obs.gross]), gross_var=np.array([obs.gross_var]),
-        wheel_speed=np.array([obs.wheel_speed]), ground_speed=np.array([obs.ground_speed]),
-        yaw_rate=np.array([obs.yaw_rate]), rejected=np.array([obs.rejected_measurements]),
-        reset=np.array([obs.reset]), reset_reason=[obs.reset_reason], normal_force=np.array([obs.normal_force]),
-        speed_age=np.array([obs.speed_age]), torque_age=np.array([obs.torque_age]),
-        ground_speed_age=np.array([obs.ground_speed_age]),
-        ground_speed_measured=np.array([obs.ground_speed_measured]),
-        ground_speed_latency=np.array([obs.ground_speed_latency]),
-        interval=np.array([obs.interval]), interval_gross=np.array([obs.interval_gross]),
-        interval_gross_var=np.array([obs.interval_gross_var]), interval_rim_start=np.array([obs.interval_rim_start]),
-        interval_rim_end=np.array([obs.interval_rim_end]), interval_ground_start=np.array([obs.interval_ground_start]),
-        interval_ground_end=np.array([obs.interval_ground_end]), interval_rim_sigma=np.array([obs.interval_rim_sigma]),
-        interval_learning=np.array([obs.interval_learning]),
-    )
-
-
 class ObserverStage:
     """Per-wheel traction observer (eqs. 26-35; state chosen observable, §7; §11-12 resistance and
     bounds): the kernel :class:`soilocp.estimation.observer_bank.ObserverBank` with N = 1."""
@@ -210,112 +190,6 @@ class ObserverStage:
         if sample.position is not None or sample.geo is not None:  # for the soil estimate's place (docs/map.md)
             msg = msg.model_copy(update={"position": sample.position, "geo": sample.geo})
         return msg
-
-
-class SlipGate:
-    """Slip per wheel (eq. 1 with the floor and deadband of docs/method.md §6, §10, in each wheel's direction
-    of travel, §17) from the filtered speeds, the wheels the longitudinal model describes now
-    (:func:`soilocp.estimation.wheel_usability.wheel_usability`), its uncertainty, and the low-pass slip the soil gate decides on (``gate_smoothing``:
-    gating on the raw, noisy slip keeps the samples whose noise pushed |S| up and biases K,
-    docs/method.md §9), for N vehicles."""
-
-    def __init__(self, config: PipelineConfig, n_vehicles: int):
-        self.cfg = config
-        self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
-        self._lp = np.zeros((n_vehicles, 4))
-        self._lp_stamp = np.full(n_vehicles, np.nan)
-        # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
-        self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
-        self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
-        self._half_track = 0.5 * (config.vehicle.c + config.vehicle.d)
-
-    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
-        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
-        cfg = self.cfg
-        r = cfg.vehicle.wheel_radius
-        v_wheel = ob.ground_speed[:, None] - ob.yaw_rate[:, None] * self._wheel_y
-        rim = ob.wheel_speed * r
-        slip, scale = self._eq1(rim, v_wheel)
-        # eq. 1 and the traction law in each wheel's direction of travel (§17): a wheel travelling backwards
-        # is the mirror image of one travelling forwards, its slip and its traction both negated
-        direction = travel_direction(rim, v_wheel)
-        slip = direction * slip
-        if cfg.soil.measurement == "gross":
-            observed, var = direction * ob.gross, ob.gross_var * self._shared
-        else:
-            observed, var = direction * ob.mu, ob.mu_var * self._shared
-        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
-        # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
-        # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
-        # prediction through the held value; gross only
-        refresh = ob.interval > 0 if cfg.soil.measurement == "gross" else np.zeros(ob.interval.shape, dtype=bool)
-        any_refresh = bool(refresh.any())
-        slip_ends = None
-        if any_refresh:
-            s0, scale0 = self._eq1(ob.interval_rim_start, ob.interval_ground_start)
-            s1, scale1 = self._eq1(ob.interval_rim_end, ob.interval_ground_end)
-            d0 = travel_direction(ob.interval_rim_start, ob.interval_ground_start)
-            d1 = travel_direction(ob.interval_rim_end, ob.interval_ground_end)
-            s0, s1 = d1 * s0, d1 * s1
-            # a pair whose interval reverses the travel is no one slip path of one law: not informative
-            scale0 = np.where(d0 == d1, scale0, 0.0)
-            slip_ends = np.stack([s0, s1], axis=2)
-            filtered_slip = slip
-            # the slip path's middle; informative only where the wheel moved at both ends
-            slip, scale = np.where(refresh, 0.5 * (s0 + s1), slip), np.where(refresh, np.minimum(scale0, scale1), scale)
-            observed = np.where(refresh, d1 * ob.interval_gross, observed)
-            unusable = np.where(refresh & ((np.abs(s0) > 1.0) | (np.abs(s1) > 1.0)), SLIP_BEYOND_EQ1, unusable)
-            var = np.where(refresh, ob.interval_gross_var * self._shared, var)
-        informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
-                       & (unusable == 0))
-        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
-        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
-        if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
-            s_sig = np.where(refresh, np.hypot(s_sig, ob.interval_rim_sigma / np.maximum(scale, 1e-3)), s_sig)
-        tau = cfg.soil.gate_smoothing
-        last = self._lp_stamp[ix]
-        start = np.isnan(last)
-        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
-        restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
-        if tau > 0:
-            alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))
-        else:
-            alpha = np.ones(ix.size)
-            restart[:] = True
-        prev = self._lp[ix]
-        own = filtered_slip if any_refresh else slip  # the low-pass runs on the filtered speeds' slip
-        lp = np.where(restart[:, None], own, prev + alpha[:, None] * (own - prev))
-        self._lp[ix] = lp
-        self._lp_stamp[ix] = stamp
-        g_sig = s_sig * np.sqrt(alpha / (2.0 - alpha))[:, None]  # stationary std of low-passed white noise
-        span = None
-        if any_refresh:  # between refreshes the low-pass follows a prediction: the gate takes the interval's slip
-            lp, g_sig = np.where(refresh, slip, lp), np.where(refresh, s_sig, g_sig)
-            span = np.where(refresh, ob.interval, 0.0)
-        # between the refreshes of a slow wheel-speed stream the filtered speed is a prediction (its slip
-        # 1-sigma 0.06-0.30 within 50 ms of a 5 Hz refresh), and the samples repeat one measurement: K learns
-        # from samples within fresh_age of a new reading, and where the interval's own pair is served
-        # (interval_learning) at the refresh only.  A slow torque stream likewise: between its refreshes the
-        # gross traction rests on a held torque (the Warthog's currents, refreshed once a second, were paired
-        # with four wheel-speed refreshes each)
-        held = np.where(ob.interval_learning, ~refresh,
-                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
-        measured = ob.ground_speed_measured
-        loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
-        # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is
-        # a prediction (at 5 Hz its slip passed +-1, and a side's rim crossed zero: a 'skid turn' on the last
-        # record of wheel-speed-5hz took its convergence from 0.71 to 7.1 s), and a held wheel informs no K anyway
-        unusable = np.where(held, 0, unusable)
-        return SoilInputs(slip, informative & measured[:, None] & loaded, observed, var, s_sig, lp, g_sig, held,
-                          ob.ground_speed_age > cfg.soil.max_input_age, measured, ob.ground_speed, span, slip_ends,
-                          np.where(measured[:, None], unusable, 0))
-
-    def _eq1(self, rim: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 1 with the floor of docs/method.md §6 (:func:`soilocp.model.slip.slip_ratio_unchecked`): slip
-        (k, 4) from rim speeds R_w omega and the ground speeds at the wheels (m/s), and the larger of the
-        two speeds (the deadband's measure)."""
-        s = slip_ratio_unchecked(rim, ground, 1.0, self.cfg.slip_deadband, self.cfg.slip_floor)
-        return s.slip, np.maximum(np.abs(rim), np.abs(ground))
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
@@ -352,17 +226,19 @@ class SoilStage:
         Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
         with its probability, and a status that says when K is not determined, not observable, or
         not explained by the traction curve (§11-13), with the reason."""
-        ob = observer_output(obs)
+        rows = pack_message(obs)  # the observer's output as the one array the core reads
         stamp = np.array([obs.stamp])
-        inp = self.gate.step(_ZERO, stamp, ob)
-        if self.prior is not None and self.bank is not None:
+        scale_sigma = None if obs.torque_scale_std is None else np.array([obs.torque_scale_std])
+        if self.bank is not None and self.prior is None:  # the gate and the update: one core call
+            inp, states = self.bank.step_gated(self.gate, _ZERO, stamp, rows, scale_sigma)
+            st = states[0]
+        elif self.bank is not None:  # the map's hook runs between the gate and the update
             from soilocp.map.prior import start_from_map
 
-            inp = start_from_map([self.prior], self.bank, _ZERO, [obs], inp)
-        if self.bank is not None:
-            st = self.bank.update(_ZERO, stamp, inp,
-                                  None if obs.torque_scale_std is None else np.array([obs.torque_scale_std]))[0]
+            inp = start_from_map([self.prior], self.bank, _ZERO, [obs], self.gate.step(_ZERO, stamp, rows))
+            st = self.bank.update(_ZERO, stamp, inp, scale_sigma)[0]
         else:
+            inp = self.gate.step(_ZERO, stamp, rows)
             st = self.paper.update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0],
                                    inp.informative[0] & ~inp.held[0] & ~inp.ground_stale[0], inp.slip_sigma[0])
         msg = soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)

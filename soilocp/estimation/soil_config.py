@@ -9,6 +9,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from soilocp import _core
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
 Status = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch"]
@@ -154,7 +155,10 @@ def class_bounds(constants: ModelConstants) -> tuple[list[str], np.ndarray]:
     return list(hit[0]), hit[1]
 
 
-_erf = np.frompyfunc(math.erf, 1, 1)
+def _row(a) -> np.ndarray:
+    """A 1-D float array, the argument itself where it is one (the core reads a view's base: slower)."""
+    a = np.asarray(a, dtype=float)
+    return a if a.ndim == 1 else a.reshape(-1)
 
 
 def classify(soil_strength: float, log_k_std: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[str, float]:
@@ -166,20 +170,16 @@ def classify(soil_strength: float, log_k_std: float, constants: ModelConstants =
 def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
                   constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[list[str], np.ndarray]:
     """For n beliefs ln K ~ N(log_k, log_k_std^2) (n,): the most probable soil class of each and its
-    probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`)."""
+    probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`; the compiled
+    core's soil/classes.rs, with the C library's erf, as math.erf)."""
     names, edges = class_bounds(constants)
-    sig = np.maximum(log_k_std, 1e-6)[:, None]
-    # an infinite edge needs no special case: erf(+-inf) = +-1 gives CDF 1 (0) for a finite ln K.
-    # math.erf element-wise: scipy.special would load scipy into the soil service (~60 MiB, issue 11)
-    cdf = 0.5 * (1 + _erf((edges[None, :] - log_k[:, None]) / (sig * math.sqrt(2))).astype(float))
-    probs = np.diff(cdf, axis=1)
-    i = probs.argmax(axis=1)
-    return [names[j] for j in i], probs[np.arange(i.size), i]
+    i, conf = _core.soil_classes(_row(log_k), _row(log_k_std), edges)
+    return [names[j] for j in i.tolist()], conf
 
 
 @dataclass
 class SoilInputs:
-    """What the soil update takes for k vehicles, from the observer's outputs (:class:`soilocp.estimation.pipeline.SlipGate`):
+    """What the soil update takes for k vehicles, from the observer's outputs (:class:`soilocp.estimation.slip_gate.SlipGate`):
     arrays (k, 4) unless marked; one struct, passed whole (:meth:`soilocp.estimation.soil_strength.SoilBank.update`)."""
 
     slip: np.ndarray  # eq. 1 at each wheel's ground speed V - psi_dot y_i

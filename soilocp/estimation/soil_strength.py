@@ -32,7 +32,7 @@ against eq. 6, as the paper does.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Optional
+from typing import Optional
 
 import numpy as np
 
@@ -42,23 +42,10 @@ from soilocp.model.traction import gross_traction_with_derivatives, net_traction
 from soilocp.estimation.soil_config import (SoilConfig, SoilInputs, SoilState, Status, classify,
                                             classify_many)
 from soilocp.estimation.soil_grid import UNKNOWN_SPEED, LogKGrid
-from soilocp.estimation.wheel_usability import REASONS, SKID_TURN, describe
+from soilocp.estimation.wheel_usability import REASONS, describe
 
 __all__ = ["UNKNOWN_SPEED", "BayesSoilEstimator", "PaperSoilEstimator", "SoilBank", "SoilInputs"]
 
-# the core's per-wheel flags (crate::soil::bank): used; gated but undetermined (§12); gated but held / stale
-_USED, _UNDETERMINED, _HELD = 1, 2, 4
-
-
-class _CoreStep(NamedTuple):
-    """What the status logic reads of the core's step, per vehicle (k,): the pooled belief's ln K 1-sigma
-    (half its 16-84 % interval), the axle check's verdict and (z, ln K front, ln K rear), and the belief's
-    mid-point CDF at the weakest fitted soil (:attr:`SoilBank.k_floor`)."""
-
-    log_stat: np.ndarray
-    axle_off: np.ndarray
-    axle: np.ndarray
-    floor_cdf: np.ndarray
 
 
 def _checked_quads(**arrays) -> list[np.ndarray]:
@@ -78,7 +65,8 @@ def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma
 
 
 class _HoldLogic:
-    """Shared 'holding' / expiry bookkeeping (docs/method.md §9: hold, flagged; never drift)."""
+    """The paper method's 'holding' / expiry bookkeeping (docs/method.md §9: hold, flagged; never drift); the
+    bank's records are the core's (soilocp/_core/src/soil/status.rs ``StatusParams::hold``, the same rules)."""
 
     def __init__(self, cfg: SoilConfig):
         self.cfg = cfg
@@ -116,8 +104,9 @@ class _HoldLogic:
 
 class SoilBank:
     """N grid Bayes filters over ln K (module doc), stepped together: the beliefs and their per-sample
-    update live in the compiled core (:class:`soilocp._core.SoilGridBank`, one call per step); this class
-    keeps the configuration and makes each vehicle's status and reason from what the core returns.
+    update live in the compiled core (:class:`soilocp._core.SoilGridBank`, one call per step), and so do the
+    records (K held or withdrawn, the band, the status and reason codes: soilocp/_core/src/soil/status.rs); this
+    class keeps the configuration, words the reason codes and names the class of the reported band.
 
     Per vehicle it also keeps, over ``evidence_window`` seconds of informative samples:
 
@@ -147,9 +136,14 @@ class SoilBank:
         # the beliefs and the per-sample update (prediction, likelihood, no-change belief, window statistics,
         # scale profile, axle check): soilocp/_core/src/soil/
         self.core = self.grid.bank(n)
-        self._holds = [_HoldLogic(cfg) for _ in range(n)]
         self.k_floor = self.grid.k_floor
-        self._lean_since = np.full(n, np.nan)  # stamp since which the data lean to a wrong torque constant
+        # the records (held / withdrawn K, status and reason codes, soilocp/_core/src/soil/status.rs)
+        self.core.set_status({name: float(v) for name, v in (
+            ("hold_after", cfg.hold_after), ("expire_after", cfg.expire_after),
+            ("uncertain_log_sigma", cfg.uncertain_log_sigma), ("q_log_k", cfg.q_log_k),
+            ("radius_sigma", cfg.radius_sigma), ("evidence_window", cfg.evidence_window),
+            ("mismatch_min_evidence", cfg.mismatch_min_evidence), ("mismatch_nis", cfg.mismatch_nis),
+            ("axle_mismatch_z", cfg.axle_mismatch_z), ("span", self.grid.span))})
         #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
@@ -199,172 +193,148 @@ class SoilBank:
         for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
             if a.shape != (k, 4) or not np.isfinite(a).all():
                 raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
-        codes = None
-        if inputs.unusable is not None:
-            codes = np.asarray(inputs.unusable, dtype=np.int64).reshape(k, 4)
-            if codes.any():
-                for c, n in zip(*np.unique(codes[codes > 0], return_counts=True)):
-                    self.unusable_by_reason[REASONS[int(c)]] += int(n)
-            else:
-                codes = None
+        codes = self._count_unusable(inputs.unusable, k)
         f64, flag = (lambda a: np.asarray(a, dtype=float)), (lambda a: np.asarray(a, dtype=bool))
-        (wheel, dt, info, _, k_report, log_stat, stats, scale, axle_off, axle, floor_cdf) = self.core.step(
+        wheel = self.core.step(
             ix.astype(np.int64), stamp, slip, obs, var, s_sig, f64(inputs.gate_slip), f64(inputs.gate_sigma),
             flag(inputs.informative), flag(inputs.held), flag(inputs.ground_stale).reshape(k),
             flag(inputs.identifiable).reshape(k), f64(inputs.speed).reshape(k),
             None if inputs.span is None else f64(inputs.span), None if inputs.slip_ends is None else f64(inputs.slip_ends),
-            codes, None if scale_sigma is None else f64(scale_sigma).reshape(k))
-        core = _CoreStep(log_stat, axle_off, axle, floor_cdf)
-        return self._summaries(ix, stamp, core, info, (wheel & _USED) > 0, (wheel & _UNDETERMINED) > 0,
-                               (wheel & _HELD) > 0, flag(inputs.ground_stale).reshape(k),
-                               flag(inputs.identifiable).reshape(k), stats, dt, k_report, scale, codes)
+            codes, None if scale_sigma is None else f64(scale_sigma).reshape(k))[0]
+        return self._states(ix, stamp, codes, self.core.report(wheel))
 
-    def _vouch(self, v: int, stamp: float, evidence: float, c_mean: float) -> tuple[Status, str]:
-        """Status and reason of an estimate whose band is narrow enough for ``ok``: ``ok`` only where its own
-        checks vouch for it (docs/robustness.md, "ok means ok"), else ``uncertain`` naming what they lack.
+    def step_gated(self, gate, idx, stamp, rows: np.ndarray, scale_sigma=None) -> tuple[SoilInputs, list[SoilState]]:
+        """The soil stage's step in one core call: ``gate`` (:class:`soilocp.estimation.slip_gate.SlipGate`) on
+        the packed observer outputs ``rows`` (k, ``SlipGateBank.columns``) of the vehicles ``idx`` at ``stamp``
+        (k,), then :meth:`update` with its inputs.  Returns the gate's inputs (the record's slip) and the states."""
+        ix = np.asarray(idx, dtype=np.int64)  # the core refuses a negative, out-of-range or repeated index
+        k = ix.size
+        stamp = np.asarray(stamp, dtype=float)
+        stamp = stamp if stamp.shape == (k,) else stamp.reshape(k)
+        fields, report = self.core.step_gated(gate.core, ix, stamp, rows,
+                                              None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))
+        inputs = SoilInputs(*fields)
+        return inputs, self._states(ix, stamp, self._count_unusable(inputs.unusable, k), report)
 
-        * the data lean to a torque scale the state does not assume (``_lean_since``: the window's scale
-          posterior more than 2 of its sigmas, and more than the scale's own prior, from 1): a common scale
-          and K trade off on a driving wheel (eq. 3), so K is limited by the torque scale whatever its
-          statistical band (payload +25 % at constant speed: sand 50 read 67-73, ln K 1-sigma 0.16-0.18);
-        * the front and rear axles read different soils for most of the window (the axle check's verdict,
-          soilocp/_core/src/soil/axles.rs), though one axle is not informing now, so it is not judged now
-          (mass-com+20: K 130-136 for 200 from the rear axle alone, ln K 1-sigma 0.09, between two
-          ``model_mismatch`` stretches);
-        * fewer than ``mismatch_min_evidence`` s of informative samples since the evidence window restarted
-          (a change taken, the drive's start) or faded (a hold): the mismatch and axle checks have not had the
-          data to judge the estimate yet (a change taken while the axles straddle two soils reads a K between
-          them, ln K 1-sigma 0.12: skid-arcs, sand 50 / firm 300 read 122)."""
-        cfg = self.cfg
-        over, weight = self.core.axle_window(v)
-        if not np.isnan(self._lean_since[v]) and self._lean_since[v] <= stamp:
-            return "uncertain", (f"these data lean to a torque scale of {c_mean:.2f} (1 +- {self.scale_prior[v]:.2f} "
-                                 "assumed): K is limited by the torque scale, which a drive at constant speed cannot "
-                                 "tell apart from K (accelerate or brake, or soilocp calibrate-torque)")
-        enough = 1.0 - math.exp(-cfg.mismatch_min_evidence / cfg.evidence_window)
-        if cfg.axle_mismatch_z > 0 and weight >= enough and over > 0.5 * weight:
-            return "uncertain", (f"the front and rear axles read different soils for most of the last "
-                                 f"{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
-                                 "centre of mass) or an axle's torque constant may be off")
-        if evidence < cfg.mismatch_min_evidence:
-            return "uncertain", (f"K from {evidence:.1f} s of informative slip since the last change or hold: the "
-                                 f"model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok")
-        return "ok", ""
+    def _count_unusable(self, unusable, k: int) -> np.ndarray | None:
+        """The wheels' unusable codes (k, 4) int64, counted in :attr:`unusable_by_reason`; None when all are 0."""
+        if unusable is None:
+            return None
+        codes = np.asarray(unusable, dtype=np.int64).reshape(k, 4)
+        if not codes.any():
+            return None
+        for c, n in enumerate(np.bincount(codes.ravel(), minlength=len(REASONS)).tolist()):
+            if c and n:
+                self.unusable_by_reason[REASONS[c]] += n
+        return codes
 
-    def _summaries(self, ix, stamp, core, info, use, undetermined, held, stale, ident, stats, dt, k_report,
-                   scale_shift, codes=None) -> list[SoilState]:
-        """Per vehicle: K (``k_report``, the core's report median) and its band from the pooled belief's
-        spread and the core's systematic terms (``core``: :class:`_CoreStep`), status and reason; ``codes``
-        (k, 4): the wheels the longitudinal model does not describe now (:func:`_out_of_model`)."""
-        cfg, k = self.cfg, ix.size
-        out, rep = [], []  # rep: (vehicle, K, ln K 1-sigma) of the states that report a class
-        for j in range(k):
-            v = int(ix[j])
-            hold = self._holds[v]
+    def _states(self, ix, stamp, codes, report) -> list[SoilState]:
+        """Each vehicle's state from the core's records ``report`` (``SoilGridBank.report``: codes, numbers,
+        used wheels) and the wheels' unusable ``codes`` (k, 4) (None: all usable): the status and reason text
+        from their codes, the class from the reported band (statistical and systematic)."""
+        flags, nums, used = (a.tolist() for a in report)
+        rows = [(0, 0, 0, 0)] * ix.size if codes is None else codes.tolist()
+        out, rep = [], []  # rep: (row, K, ln K 1-sigma) of the states that report a class
+        for j, ((status, why, have), (k, k_std, log_std, last, *args), use, row) in enumerate(
+                zip(flags, nums, used, rows)):
             st = float(stamp[j])
-            if info[j]:
-                hold.last_update = st
-            log_stat = float(core.log_stat[j])
-            k_med = float(k_report[j])
-            evidence, nis_sum, s_kk, s_kh, s_ks = stats[j]
-            sys_scale, c_mean, c_std = scale_shift[j].tolist()  # exact, on the current data (the core's scale_shift)
-            # how long the data have leant to a wrong torque constant: a window that spans two soils leans
-            # too, briefly (the nominal drive's 300 -> 100: to 0.90 for 0.3 s before the change is taken)
-            if abs(c_mean - 1.0) <= max(2.0 * c_std, self.scale_prior[v]):
-                self._lean_since[v] = np.nan
-            elif not self._lean_since[v] <= st:  # none yet (NaN), or a restarted clock: it starts now
-                self._lean_since[v] = st
-            sys_radius = cfg.radius_sigma * abs(s_ks) / s_kk if s_kk > 0 else 0.0
-            axle_off, (axle_z, theta_front, theta_rear) = bool(core.axle_off[j]), core.axle[j].tolist()
-            # axles that disagree: the truth is usually near one of them (the core's axles.rs), so their distance
-            # is a systematic term.  Where the curve is flat in K (K >> 300, §9) a scale error moves K
-            # without bound: the band is capped at the grid's whole ln K span ("undetermined")
-            sys_axle = abs(theta_front - theta_rear) if axle_off else 0.0
-            sys = min(math.hypot(math.hypot(sys_scale, sys_radius), sys_axle), self.grid.span)
-            log_std = min(math.hypot(log_stat, sys), self.grid.span)
-            k_std = k_med * math.sinh(log_std)
-            status, reason, (rk, rs, rl) = hold.status(st, k_med, k_std, log_std)
-            if status == "uncertain" and sys > log_stat and sys_scale >= sys_radius:
-                # the data's scale without its posterior spread: across drives it moves by more than that
-                # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
-                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: the torque scale (1 +- "
-                          f"{self.scale_prior[v]:.2f} assumed; these data lean to {c_mean:.2f}) moves K this much "
-                          "where the traction curve is flat in K")
-                if st - self._lean_since[v] >= cfg.evidence_window:
-                    reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
-            elif status == "uncertain" and sys > log_stat:
-                reason = (f"ln K 1-sigma {log_std:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
-                          "uncertainty moves these small slips, and K, this much")
-            nis = nis_sum / evidence if evidence > 0 else 0.0
-            if not ident[j]:
-                status = "not_observable"
-                reason = ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
-                          "with it; wheel odometry cannot stand in)")
-            elif rk is not None and axle_off:
-                status = "model_mismatch"
-                reason = (f"the front and rear axles read different soils (K {math.exp(theta_front):.0f} front, "
-                          f"{math.exp(theta_rear):.0f} rear; {axle_z:.1f} sigma apart, and most of the last "
-                          f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
-                          "constant are off")
-            elif rk is not None and evidence >= cfg.mismatch_min_evidence and nis > cfg.mismatch_nis:
-                status = "model_mismatch"
-                reason = (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {nis:.1f} "
-                          f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
-            elif rk is not None and core.floor_cdf[j] > 0.5:
-                status = "model_mismatch"
-                reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
-                          f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
-            elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
-                status = "not_observable"
-                since = f"for {st - hold.last_update:.1f} s" if hold.last_update is not None else "yet"
-                if stale[j]:
-                    reason = (f"slip is informative but the ground speed is stale: no new reading for more than "
-                              f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
-                else:
-                    reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
-                              f"both {since} (sensor refresh too slow to measure traction)")
-            elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
-                status = "not_observable"
-                reason = "slip is informative but the wheel torque balance does not determine gross traction"
-            if status == "ok":
-                status, reason = self._vouch(v, st, evidence, c_mean)
-            if codes is not None and ident[j] and codes[j].any():
-                status, reason = _out_of_model(status, reason, codes[j], use[j].any(), rk is not None, hold, st)
-            if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
-                rk = rs = rl = None
-            if rk is not None and status != "model_mismatch":
-                rep.append((j, rk, rl))
-            held_for = None if rk is None or hold.last_update is None else max(st - hold.last_update, 0.0)
-            out.append([rk, rs, rl, None, None, status, reason, hold.last_update, tuple(use[j].tolist()), held_for,
-                        tuple(REASONS[int(c)] for c in codes[j]) if codes is not None else ("",) * 4])
+            last = None if math.isnan(last) else last
+            status = _STATUSES[status]
+            reason = self._reason(why, args, row) if why else ""
+            unusable = tuple(REASONS[c] for c in row)
+            if not have:
+                k = k_std = log_std = None
+            elif status != "model_mismatch":
+                rep.append((j, k, log_std))
+            held_for = None if k is None or last is None else max(st - last, 0.0)
+            out.append([k, k_std, log_std, None, None, status, reason, last, tuple(use), held_for, unusable])
         if rep:  # the class from the whole band (statistical and systematic), as reported
             js, ks, ls = zip(*rep)
-            names, conf = classify_many(np.log(ks), np.array(ls), self.c)
-            for j, name, c in zip(js, names, conf.tolist()):
+            cls, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            for j, name, c in zip(js, cls, conf.tolist()):
                 out[j][3:5] = name, c
         return [SoilState(*o) for o in out]
 
+    def _reason(self, why: int, args, unusable) -> str:
+        """The reason text of the core's reason code ``why`` (soilocp/_core/src/soil/status.rs, ``reason``) and
+        its numbers ``args``; ``unusable``: the wheels' unusable codes (4,) (the out-of-model reasons word them)."""
+        cfg, (a0, a1, a2, _) = self.cfg, args
+        if why == _R_NOT_YET:
+            return "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min
+        if why == _R_STAMP_BACKWARDS:
+            return "stamp went backwards (source restarted): estimate withdrawn"
+        if why == _R_WITHDRAWN:
+            return f"slip uninformative for {a0:.1f} s: estimate withdrawn"
+        if why == _R_HOLDING:
+            return f"slip uninformative for {a0:.1f} s: holding the last estimate"
+        if why == _R_WIDE:
+            return f"ln K 1-sigma {a0:.2f} > {cfg.uncertain_log_sigma}: K poorly determined"
+        if why in (_R_SYSTEMATIC_SCALE, _R_SYSTEMATIC_SCALE_CALIBRATE):
+            # the data's scale without its posterior spread: across drives it moves by more than that
+            # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
+            reason = (f"ln K 1-sigma {a0:.2f}, mostly systematic: the torque scale (1 +- "
+                      f"{a1:.2f} assumed; these data lean to {a2:.2f}) moves K this much "
+                      "where the traction curve is flat in K")
+            if why == _R_SYSTEMATIC_SCALE_CALIBRATE:
+                reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
+            return reason
+        if why == _R_SYSTEMATIC_RADIUS:
+            return (f"ln K 1-sigma {a0:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
+                    "uncertainty moves these small slips, and K, this much")
+        if why == _R_NOT_IDENTIFIABLE:
+            return ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
+                    "with it; wheel odometry cannot stand in)")
+        if why == _R_AXLES:
+            return (f"the front and rear axles read different soils (K {math.exp(a0):.0f} front, "
+                    f"{math.exp(a1):.0f} rear; {a2:.1f} sigma apart, and most of the last "
+                    f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
+                    "constant are off")
+        if why == _R_NIS:
+            return (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {a0:.1f} "
+                    f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
+        if why == _R_BELOW_FLOOR:
+            return (f"gross traction is below what the model's weakest soil gives at this slip (K under "
+                    f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
+        if why in (_R_GROUND_STALE, _R_READINGS_HELD):
+            since = "yet" if math.isnan(a0) else f"for {a0:.1f} s"
+            if why == _R_GROUND_STALE:
+                return (f"slip is informative but the ground speed is stale: no new reading for more than "
+                        f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
+            return (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
+                    f"both {since} (sensor refresh too slow to measure traction)")
+        if why == _R_UNDETERMINED:
+            return "slip is informative but the wheel torque balance does not determine gross traction"
+        if why == _R_LEANS:
+            return (f"these data lean to a torque scale of {a0:.2f} (1 +- {a1:.2f} assumed): K is limited by the "
+                    "torque scale, which a drive at constant speed cannot tell apart from K (accelerate or brake, "
+                    "or soilocp calibrate-torque)")
+        if why == _R_AXLE_WINDOW:
+            return (f"the front and rear axles read different soils for most of the last "
+                    f"{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
+                    "centre of mass) or an axle's torque constant may be off")
+        if why == _R_EVIDENCE:
+            return (f"K from {a0:.1f} s of informative slip since the last change or hold: the "
+                    f"model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok")
+        # the wheels the longitudinal model does not describe (docs/method.md §17, docs/robustness.md "Skid turns")
+        text = describe(unusable)
+        if why == _R_OUT_SKID:
+            return f"{text}: no K while it lasts"
+        if why == _R_OUT_NO_WHEEL:
+            return f"{text}: no wheel informs K"
+        if why == _R_OUT_HOLDING:
+            return f"{text}: no wheel informs K; holding the estimate of {a0:.1f} s ago"
+        if why == _R_OUT_OTHERS:
+            return f"{text}; K from the other wheels"
+        raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
-def _out_of_model(status: str, reason: str, codes: np.ndarray, used: bool, have_k: bool, hold: _HoldLogic,
-                  stamp: float) -> tuple[str, str]:
-    """Status and reason of a sample with wheels that the longitudinal model does not describe (codes (4,) of
-    :mod:`soilocp.estimation.wheel_usability`, docs/method.md §17): never ``ok``.  A skid turn: ``not_observable``
-    while it lasts (docs/robustness.md, "Skid turns"); no wheel used: the last estimate is held, flagged, with
-    its age; other wheels used: ``uncertain``, K from them.  ``model_mismatch`` and ``not_observable`` of other
-    causes keep their reason, a skid turn aside."""
-    text = describe(codes)
-    if (codes == SKID_TURN).any():
-        return "not_observable", f"{text}: no K while it lasts"
-    if status in ("model_mismatch", "not_observable"):
-        return status, reason
-    if not used:
-        if not have_k:
-            return "not_observable", f"{text}: no wheel informs K"
-        age = stamp - hold.last_update if hold.last_update is not None else 0.0
-        return "holding", f"{text}: no wheel informs K; holding the estimate of {age:.1f} s ago"
-    if status == "ok":
-        return "uncertain", f"{text}; K from the other wheels"
-    return status, reason
+
+#: the core's status codes (soilocp/_core/src/soil/status.rs), in order
+_STATUSES: tuple[Status, ...] = ("ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch")
+#: the core's reason codes (status.rs, ``reason``)
+(_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
+ _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,
+ _R_GROUND_STALE, _R_READINGS_HELD, _R_UNDETERMINED, _R_LEANS, _R_AXLE_WINDOW, _R_EVIDENCE, _R_OUT_SKID,
+ _R_OUT_NO_WHEEL, _R_OUT_HOLDING, _R_OUT_OTHERS) = range(23)
 
 
 class BayesSoilEstimator:

@@ -20,8 +20,8 @@ Per wheel and sample, from the observer's filtered speeds and gross traction:
 
 The pipeline's slip gate keeps the codes only where the wheel's speed and torque readings are new
 (between a slow stream's refreshes the filtered speed is a prediction, and a held wheel informs no K
-anyway).  The codes are integers so that the kernels stay arrays; :data:`REASONS` names them, and the soil
-kernel counts them (:attr:`soilocp.estimation.soil_strength.SoilBank.unusable_by_reason`).
+anyway).  The codes are computed in the compiled core (soilocp/_core/src/soil/usability.rs, the slip gate's
+soil/gate.rs); :data:`REASONS` names them, :func:`describe` words them, and the soil bank counts them (:attr:`soilocp.estimation.soil_strength.SoilBank.unusable_by_reason`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from soilocp.model.slip import slip_ratio_unchecked
+from soilocp import _core
 
 #: code -> name; 0 = usable
 REASONS = ("", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn")
@@ -45,7 +45,7 @@ EXPLAIN = {
                "model does not describe",
 }
 
-V_STILL = 0.02  # m/s: below this the ground under a wheel does not move of its own (its direction is the rim's)
+V_STILL = 0.02  # m/s: below this the ground under a wheel does not move of its own (its direction is the rim's; slip.rs)
 
 
 @dataclass(frozen=True)
@@ -60,22 +60,15 @@ class UsabilityLimits:
     yaw_turning: float = 0.1  # rad/s
 
 
-def travel_direction(rim: np.ndarray, ground: np.ndarray) -> np.ndarray:
-    """d per wheel, +-1: the sign of the ground speed under the wheel, or of the rim where the ground
-    stands (|V_i| < ``V_STILL``), +1 where both stand."""
-    d = np.where(np.abs(ground) >= V_STILL, np.sign(ground), np.sign(rim))
-    return np.where(d == 0, 1.0, d)
-
-
-def travel_slip(rim: np.ndarray, ground: np.ndarray, floor: float, direction: np.ndarray | None = None):
+def travel_slip(rim, ground, floor: float):
     """Eq. 1 in the wheel's direction of travel (docs/method.md §17): S = d (R_w omega - V) /
-    max(|V|, |R_w omega|, floor), d = :func:`travel_direction`.  Correction to the print: the print is
-    for forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel
-    that drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a
-    braking wheel and flipped its motion resistance.  Returns (S, d), arrays like ``rim``."""
-    d = travel_direction(rim, ground) if direction is None else direction
-    s = slip_ratio_unchecked(rim, ground, 1.0, 0.0, floor).slip
-    return d * s, d
+    max(|V|, |R_w omega|, floor), d the sign of the ground speed under the wheel, or of the rim where the
+    ground stands (|V| < ``V_STILL``), +1 where both stand.  Correction to the print: the print is for
+    forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel that
+    drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a braking
+    wheel and flipped its motion resistance.  Returns (S, d), arrays of the broadcast shape of ``rim`` and
+    ``ground``.  The compiled core's (soilocp/_core/src/slip.rs), which the slip gate runs."""
+    return _core.travel_slip(np.asarray(rim, dtype=float), np.asarray(ground, dtype=float), float(floor))
 
 
 def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
@@ -84,19 +77,13 @@ def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_
     """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
     :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
     the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
-    F_GT / W) and the half-track (c + d) / 2 in m."""
+    F_GT / W) and the half-track (c + d) / 2 in m.  The compiled core's (soilocp/_core/src/soil/usability.rs),
+    which the slip gate runs."""
+    f = (lambda a: np.asarray(a, dtype=float))
     lim = limits
-    code = np.zeros(slip.shape, dtype=np.int8)
-    left, right = rim[:, :2].mean(axis=1), rim[:, 2:].mean(axis=1)
-    yaw, v = np.abs(yaw_rate), np.abs(body_speed)
-    skid = (((left * right < 0) & (np.minimum(np.abs(left), np.abs(right)) > lim.rim_turning))
-            | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
-    powered = np.abs(gross) > lim.gross_idle
-    code[(v[:, None] < lim.stall_speed) & powered] = STALL
-    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
-    code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
-    code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
-    return code
+    return _core.wheel_usability(f(slip), f(rim), f(ground), f(body_speed).reshape(-1), f(yaw_rate).reshape(-1),
+                                 f(gross), float(half_track), (lim.stall_speed, lim.gross_idle, lim.rim_stopped,
+                                                               lim.moving, lim.rim_turning, lim.yaw_turning))
 
 
 def describe(codes) -> str:

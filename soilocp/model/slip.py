@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from soilocp import _core
 from soilocp.model.checks import as_float_array, positive_scalar
 
 #: Below this speed (m/s) slip is reported but flagged as not informative (docs/method.md §6):
@@ -59,10 +60,9 @@ def slip_ratio(
     return slip_ratio_unchecked(w, v, r, deadband, floor)
 
 
-def slip_ratio_unchecked(wheel_speed: np.ndarray, ground_speed, wheel_radius: float, deadband: float,
-                         floor: float) -> Slip:
-    """:func:`slip_ratio` (eq. 1 as corrected there) for arrays already checked: the per-sample path."""
-    rim = wheel_speed * wheel_radius
-    scale = np.maximum(np.abs(rim), np.abs(ground_speed))
-    s = (rim - ground_speed) / np.maximum(scale, floor)
+def slip_ratio_unchecked(wheel_speed, ground_speed, wheel_radius: float, deadband: float, floor: float) -> Slip:
+    """:func:`slip_ratio` (eq. 1 as corrected there) for arguments already checked: the per-sample path.
+    Eq. 1 itself is the compiled core's (soilocp/_core/src/slip.rs), written once for every caller."""
+    s, scale = _core.slip_ratio(np.asarray(wheel_speed, dtype=float), np.asarray(ground_speed, dtype=float),
+                                float(wheel_radius), float(floor))
     return Slip(slip=s, informative=scale >= deadband)

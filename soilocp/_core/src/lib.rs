@@ -26,6 +26,12 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
     // the soil-grid update (issue 28)
     m.add_class::<py::soil::SoilGridBank>()?;
+    // the slip gate, eq. 1 and the wheels' usability codes (issue 28)
+    m.add_class::<py::soil::SlipGateBank>()?;
+    m.add_function(wrap_pyfunction!(py::soil::soil_classes, m)?)?;
+    m.add_function(wrap_pyfunction!(py::slip::slip_ratio, m)?)?;
+    m.add_function(wrap_pyfunction!(py::slip::travel_slip, m)?)?;
+    m.add_function(wrap_pyfunction!(py::slip::wheel_usability, m)?)?;
     // the observer (issue 28): its filter bank
     m.add_class::<py::observer::ObserverCore>()?;
     // the torque scale (issue 27 item 5, issue 28): its bank, eq. TC and eq. 20 for the offline fit

@@ -4,6 +4,7 @@
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
+pub mod slip;
 pub mod soil;
 pub mod torque_scale;
 pub mod traction;

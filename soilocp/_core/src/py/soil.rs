@@ -8,12 +8,16 @@ use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
 use crate::constants::Constants;
 use crate::soil::bank::{self, Sample};
+use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
+use crate::soil::status::{Report, StatusBank};
+use crate::soil::usability::Limits;
 use crate::traction::Kind;
 
 /// What `SoilGridBank.step` returns, per selected vehicle (k rows): wheel flags (k, 4) uint8
@@ -34,10 +38,252 @@ type StepArrays<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
+/// What the slip gate returns, a tuple of soilocp.estimation.soil_config.SoilInputs' fields in order:
+/// slip, informative, observed, variance, slip_sigma, gate_slip, gate_sigma, held (k, 4);
+/// ground_stale, identifiable, speed (k,); span (k, 4) and slip_ends (k, 4, 2) where any vehicle of
+/// the step refreshes a wheel, else None; unusable codes (k, 4).
+type GateArrays<'py> = Bound<'py, PyTuple>;
+
+fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> {
+    let k = s.len();
+    let f = |get: fn(&Sample) -> [f64; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
+    let b = |get: fn(&Sample) -> [bool; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
+    let any_span = s.first().is_some_and(|x| x.span.is_some());
+    let items: [Bound<'py, PyAny>; 14] = [
+        f(|x| x.slip).into_any(),
+        b(|x| x.informative).into_any(),
+        f(|x| x.observed).into_any(),
+        f(|x| x.variance).into_any(),
+        f(|x| x.slip_sigma).into_any(),
+        f(|x| x.gate_slip).into_any(),
+        f(|x| x.gate_sigma).into_any(),
+        b(|x| x.held).into_any(),
+        Array1::from_iter(s.iter().map(|x| x.ground_stale))
+            .into_pyarray(py)
+            .into_any(),
+        Array1::from_iter(s.iter().map(|x| x.identifiable))
+            .into_pyarray(py)
+            .into_any(),
+        Array1::from_iter(s.iter().map(|x| x.speed)).into_pyarray(py).into_any(),
+        if any_span {
+            f(|x| x.span.unwrap_or([0.0; 4])).into_any()
+        } else {
+            py.None().into_bound(py)
+        },
+        if any_span {
+            Array3::from_shape_fn((k, 4, 2), |(j, w, e)| s[j].slip_ends.map_or(0.0, |v| v[w][e]))
+                .into_pyarray(py)
+                .into_any()
+        } else {
+            py.None().into_bound(py)
+        },
+        Array2::from_shape_fn((k, 4), |(j, w)| s[j].unusable[w])
+            .into_pyarray(py)
+            .into_any(),
+    ];
+    PyTuple::new(py, items)
+}
+
+/// The slip gate of N vehicles (docs/method.md §6, §9, §10, §17; crate::soil::gate): its low-pass
+/// slip is the state.
+#[pyclass(module = "soilocp._core")]
+pub struct SlipGateBank {
+    inner: gate::SlipGateBank,
+}
+
+impl SlipGateBank {
+    /// The step of the vehicles `idx` at `stamp` from their packed observer outputs `rows`.
+    fn run(
+        &mut self,
+        idx: &PyReadonlyArray1<'_, i64>,
+        stamp: &PyReadonlyArray1<'_, f64>,
+        rows: &Bound<'_, PyAny>,
+    ) -> PyResult<Vec<Sample>> {
+        let k = idx.as_array().len();
+        let idx = column("idx", idx, k)?;
+        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
+            return Err(PyValueError::new_err(format!(
+                "idx {bad}: vehicle indices must be >= 0"
+            )));
+        }
+        let idx: Vec<usize> = idx.iter().map(|&i| i as usize).collect();
+        let stamp = column("stamp", stamp, k)?;
+        let shape_error = |got: String| {
+            PyValueError::new_err(format!(
+                "rows (the packed observer outputs) must have shape ({k}, {}), got {got}",
+                gate::COLUMNS
+            ))
+        };
+        // an array (k, COLUMNS), or one message's numbers as a flat sequence (no numpy array to make)
+        let flat: Vec<f64> = if let Ok(a) = rows.extract::<PyReadonlyArray2<'_, f64>>() {
+            let v = a.as_array();
+            if v.shape() != [k, gate::COLUMNS] {
+                return Err(shape_error(format!("{:?}", v.shape())));
+            }
+            v.iter().copied().collect()
+        } else {
+            let v: Vec<f64> = rows.extract().map_err(|_| {
+                shape_error(format!(
+                    "a {} (need a float array or a sequence of numbers)",
+                    rows.get_type()
+                ))
+            })?;
+            if v.len() != k * gate::COLUMNS {
+                return Err(shape_error(format!("{} numbers", v.len())));
+            }
+            v
+        };
+        let rows: Vec<&[f64]> = flat.chunks_exact(gate::COLUMNS).collect();
+        self.inner.step(&idx, &stamp, &rows).map_err(PyValueError::new_err)
+    }
+}
+
+#[pymethods]
+impl SlipGateBank {
+    /// The gate of `n_vehicles`: each wheel's lateral position `wheel_y` (4,) m, whether the soil
+    /// update compares `gross` traction (else net), and the numbers of `params` (names of
+    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by their names in
+    /// soilocp.estimation.wheel_usability.UsabilityLimits).
+    #[new]
+    fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
+        const NAMES: [&str; 19] = [
+            "wheel_radius",
+            "half_track",
+            "static_load",
+            "shared",
+            "lift_off_force",
+            "slip_deadband",
+            "slip_floor",
+            "slip_sigma",
+            "speed_sigma",
+            "gate_smoothing",
+            "fresh_age",
+            "max_input_age",
+            "min_load_fraction",
+            "stall_speed",
+            "gross_idle",
+            "rim_stopped",
+            "moving",
+            "rim_turning",
+            "yaw_turning",
+        ];
+        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str())) {
+            return Err(PyValueError::new_err(format!("gate params: unknown field {k:?}")));
+        }
+        let get = |name: &str| -> PyResult<f64> {
+            match params.get(name) {
+                None => Err(PyValueError::new_err(format!("gate params: missing field {name:?}"))),
+                Some(v) if !v.is_finite() => Err(PyValueError::new_err(format!(
+                    "gate params: {name} = {v} must be finite"
+                ))),
+                Some(v) => Ok(*v),
+            }
+        };
+        if !wheel_y.iter().all(|v| v.is_finite()) {
+            return Err(PyValueError::new_err(format!("wheel_y {wheel_y:?} must be finite")));
+        }
+        let cfg = GateParams {
+            wheel_radius: get("wheel_radius")?,
+            wheel_y,
+            half_track: get("half_track")?,
+            static_load: get("static_load")?,
+            shared: get("shared")?,
+            gross,
+            lift_off_force: get("lift_off_force")?,
+            slip_deadband: get("slip_deadband")?,
+            slip_floor: get("slip_floor")?,
+            slip_sigma: get("slip_sigma")?,
+            speed_sigma: get("speed_sigma")?,
+            gate_smoothing: get("gate_smoothing")?,
+            fresh_age: get("fresh_age")?,
+            max_input_age: get("max_input_age")?,
+            min_load_fraction: get("min_load_fraction")?,
+            limits: Limits {
+                stall_speed: get("stall_speed")?,
+                gross_idle: get("gross_idle")?,
+                rim_stopped: get("rim_stopped")?,
+                moving: get("moving")?,
+                rim_turning: get("rim_turning")?,
+                yaw_turning: get("yaw_turning")?,
+            },
+        };
+        let inner = gate::SlipGateBank::new(cfg, n_vehicles).map_err(PyValueError::new_err)?;
+        Ok(SlipGateBank { inner })
+    }
+
+    /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s and the packed observer
+    /// outputs `rows` (k, `columns`).  Returns the arrays of `GateArrays` (module doc).
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        rows: Bound<'py, PyAny>,
+    ) -> PyResult<GateArrays<'py>> {
+        let samples = self.run(&idx, &stamp, &rows)?;
+        gate_arrays(py, &samples)
+    }
+
+    /// Numbers per vehicle in a packed row.
+    #[classattr]
+    fn columns() -> usize {
+        gate::COLUMNS
+    }
+
+    #[getter]
+    fn n_vehicles(&self) -> usize {
+        self.inner.lp.len()
+    }
+
+    /// The low-pass slips (N, 4).
+    #[getter]
+    fn lp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.inner.lp.len();
+        Array2::from_shape_fn((n, 4), |(i, w)| self.inner.lp[i][w]).into_pyarray(py)
+    }
+
+    /// The stamp each vehicle's low-pass was last stepped at (N,) (NaN: never).
+    #[getter]
+    fn lp_stamp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from_vec(self.inner.lp_stamp.clone()).into_pyarray(py)
+    }
+}
+
 /// The grid Bayes soil filters of N vehicles (docs/method.md §9, §11, §16).
 #[pyclass(module = "soilocp._core")]
 pub struct SoilGridBank {
     inner: bank::SoilGridBank,
+    /// the records' state, once `set_status` gave its settings
+    status: Option<StatusBank>,
+    /// the last step's records (its vehicles in order)
+    reports: Vec<Report>,
+}
+
+/// What `report` returns per vehicle of the last step: codes (k, 3) int64 (status, reason, K
+/// reported 0 / 1), numbers (k, 8) (K, its 1-sigma, ln K's, the last informative update's stamp
+/// (NaN: none), the reason's 4 numbers) and the used wheels (k, 4) bool.
+type ReportArrays<'py> = (
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<bool>>,
+);
+
+fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -> ReportArrays<'py> {
+    let k = reports.len();
+    let codes = Array2::from_shape_fn((k, 3), |(j, i)| {
+        let r = &reports[j];
+        [r.status as i64, r.reason as i64, i64::from(r.k.is_some())][i]
+    });
+    let nums = Array2::from_shape_fn((k, 8), |(j, i)| {
+        let r = &reports[j];
+        match i {
+            0..=2 => r.k.map_or(f64::NAN, |v| v[i]),
+            3 => r.last_update.unwrap_or(f64::NAN),
+            _ => r.args[i - 4],
+        }
+    });
+    let used = Array2::from_shape_fn((k, 4), |(j, w)| used[j][w]);
+    (codes.into_pyarray(py), nums.into_pyarray(py), used.into_pyarray(py))
 }
 
 /// Rows of four (one per wheel) of a (k, 4) array, refused with the argument's name otherwise.
@@ -69,6 +315,64 @@ fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
     } else {
         Err(PyValueError::new_err(format!("{name} must be finite, got {rows:?}")))
     }
+}
+
+impl SoilGridBank {
+    /// The bank's step of the samples and, where `set_status` configured them, their records.
+    fn step_samples(&mut self, samples: &[Sample]) -> PyResult<Vec<bank::Step>> {
+        let out = self.inner.step(samples).map_err(PyValueError::new_err)?;
+        self.reports = match self.status.as_mut() {
+            Some(st) => st.report(&self.inner, samples, &out),
+            None => Vec::new(),
+        };
+        Ok(out)
+    }
+
+    /// The update of the samples' vehicles, refused with a ValueError (naming the field) where a
+    /// number the update needs is not finite.
+    fn run<'py>(&mut self, py: Python<'py>, samples: &[Sample]) -> PyResult<StepArrays<'py>> {
+        check_finite(samples)?;
+        let out = self.step_samples(samples)?;
+        let k = out.len();
+        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
+        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        Ok((
+            wheel.into_pyarray(py),
+            col(&|s| s.dt),
+            flag(&|s| s.informed),
+            flag(&|s| s.taken),
+            col(&|s| s.k_report),
+            col(&|s| s.log_stat),
+            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
+            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
+            flag(&|s| s.axle.mismatch),
+            Array2::from_shape_fn((k, 3), |(j, i)| {
+                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
+            })
+            .into_pyarray(py),
+            col(&|s| s.floor_cdf),
+        ))
+    }
+}
+
+/// The numbers the update needs must be finite: a ValueError naming the field otherwise.
+fn check_finite(samples: &[Sample]) -> PyResult<()> {
+    for (name, get) in [
+        ("slip", (|s: &Sample| s.slip) as fn(&Sample) -> [f64; 4]),
+        ("observed", |s: &Sample| s.observed),
+        ("variance", |s: &Sample| s.variance),
+        ("slip_sigma", |s: &Sample| s.slip_sigma),
+    ] {
+        let rows: Vec<[f64; 4]> = samples.iter().map(get).collect();
+        finite(name, &rows)?;
+    }
+    for s in samples {
+        if !s.stamp.is_finite() {
+            return Err(PyValueError::new_err(format!("stamp {}: must be finite", s.stamp)));
+        }
+    }
+    Ok(())
 }
 
 #[pymethods]
@@ -117,7 +421,11 @@ impl SoilGridBank {
             log_prior: scale_log_prior.as_array().to_vec(),
         };
         let inner = bank::SoilGridBank::new(grid, cfg, nodes, k_floor, n_vehicles).map_err(PyValueError::new_err)?;
-        Ok(SoilGridBank { inner })
+        Ok(SoilGridBank {
+            inner,
+            status: None,
+            reports: Vec::new(),
+        })
     }
 
     /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s; slip, observed,
@@ -163,17 +471,6 @@ impl SoilGridBank {
             quads("variance", &variance, k)?,
             quads("slip_sigma", &slip_sigma, k)?,
         );
-        for (name, rows) in [
-            ("slip", &slip),
-            ("observed", &observed),
-            ("variance", &variance),
-            ("slip_sigma", &slip_sigma),
-        ] {
-            finite(name, rows)?;
-        }
-        if let Some(bad) = stamp.iter().find(|v| !v.is_finite()) {
-            return Err(PyValueError::new_err(format!("stamp {bad}: must be finite")));
-        }
         let (gate_slip, gate_sigma) = (quads("gate_slip", &gate_slip, k)?, quads("gate_sigma", &gate_sigma, k)?);
         let (informative, held) = (quads("informative", &informative, k)?, quads("held", &held, k)?);
         let ground_stale = column("ground_stale", &ground_stale, k)?;
@@ -236,26 +533,56 @@ impl SoilGridBank {
                 scale_sigma: scale_sigma.as_ref().map(|s| s[j]),
             })
             .collect();
-        let out = self.inner.step(&samples).map_err(PyValueError::new_err)?;
-        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
-        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
-        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
-        Ok((
-            wheel.into_pyarray(py),
-            col(&|s| s.dt),
-            flag(&|s| s.informed),
-            flag(&|s| s.taken),
-            col(&|s| s.k_report),
-            col(&|s| s.log_stat),
-            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
-            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
-            flag(&|s| s.axle.mismatch),
-            Array2::from_shape_fn((k, 3), |(j, i)| {
-                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
-            })
-            .into_pyarray(py),
-            col(&|s| s.floor_cdf),
-        ))
+        self.run(py, &samples)
+    }
+
+    /// The soil stage's one call per step: the slip gate `gate` on the packed observer outputs
+    /// `rows` (k, COLUMNS) (soilocp.estimation.slip_gate.GATE_FIELDS) of the vehicles `idx` at `stamp`
+    /// (k,), then the update of their beliefs with the gate's samples and `scale_sigma` (k,) (the
+    /// online torque scale's relative 1-sigma, None: the prior), and their records.  Returns (the
+    /// gate's arrays, as `SlipGateBank.step`; the records' arrays, as `report`).
+    #[pyo3(signature = (gate, idx, stamp, rows, scale_sigma=None))]
+    fn step_gated<'py>(
+        &mut self,
+        py: Python<'py>,
+        mut gate: PyRefMut<'py, SlipGateBank>,
+        idx: PyReadonlyArray1<'py, i64>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        rows: Bound<'py, PyAny>,
+        scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
+    ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
+        if self.status.is_none() {
+            return Err(PyValueError::new_err(
+                "step_gated: call set_status first (the records' settings)",
+            ));
+        }
+        let mut samples = gate.run(&idx, &stamp, &rows)?;
+        if let Some(a) = scale_sigma {
+            let sig = column("scale_sigma", &a, samples.len())?;
+            for (s, v) in samples.iter_mut().zip(sig) {
+                s.scale_sigma = Some(v);
+            }
+        }
+        let inputs = gate_arrays(py, &samples)?;
+        check_finite(&samples)?;
+        let out = self.step_samples(&samples)?;
+        let used: Vec<[bool; 4]> = out.iter().map(|s| s.wheel.map(|f| f & bank::USED != 0)).collect();
+        Ok((inputs, report_arrays(py, &self.reports, &used)))
+    }
+
+    /// The records' settings (names of crate::soil::status::StatusBank::NAMES): from now on each
+    /// step also makes its vehicles' records (`report`, `step_gated`).
+    fn set_status(&mut self, params: HashMap<String, f64>) -> PyResult<()> {
+        let n = self.inner.vehicles.len();
+        self.status = Some(StatusBank::from_map(&params, n).map_err(PyValueError::new_err)?);
+        Ok(())
+    }
+
+    /// The records of the last step's vehicles (the arrays of `ReportArrays`, module doc).
+    fn report<'py>(&self, py: Python<'py>, used: PyReadonlyArray2<'py, u8>) -> PyResult<ReportArrays<'py>> {
+        let wheel = quads("used", &used, self.reports.len())?;
+        let used: Vec<[bool; 4]> = wheel.iter().map(|w| w.map(|f| f & bank::USED != 0)).collect();
+        Ok(report_arrays(py, &self.reports, &used))
     }
 
     /// Start vehicle `i`'s beliefs over from `belief` (G,): the pooled and the no-change one, and
@@ -336,4 +663,42 @@ impl SoilGridBank {
     fn scale_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         Array1::from_iter(self.inner.vehicles.iter().map(|b| b.scale_prior)).into_pyarray(py)
     }
+}
+
+/// What `soil_classes` returns: each belief's class index and its probability.
+type Classes<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<f64>>);
+
+/// The most probable soil class of each belief ln K ~ N(`log_k`, `log_k_std`^2) (n,) and its
+/// probability (crate::soil::classes) between the boundaries `edges` (m + 1,): (index (n,), p (n,)).
+#[pyfunction]
+pub fn soil_classes<'py>(
+    py: Python<'py>,
+    log_k: PyReadonlyArray1<'py, f64>,
+    log_k_std: PyReadonlyArray1<'py, f64>,
+    edges: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Classes<'py>> {
+    let (l, s, e) = (log_k.as_array(), log_k_std.as_array(), edges.as_array());
+    if l.len() != s.len() {
+        return Err(PyValueError::new_err(format!(
+            "log_k ({},) and log_k_std ({},) must have one length",
+            l.len(),
+            s.len()
+        )));
+    }
+    let e = e.to_vec();
+    if e.len() < 2 {
+        return Err(PyValueError::new_err("edges: need at least two class boundaries"));
+    }
+    let (idx, p): (Vec<i64>, Vec<f64>) = l
+        .iter()
+        .zip(s.iter())
+        .map(|(&l, &s)| {
+            let (i, p) = crate::soil::classes::classify(l, s, &e);
+            (i as i64, p)
+        })
+        .unzip();
+    Ok((
+        Array1::from_vec(idx).into_pyarray(py),
+        Array1::from_vec(p).into_pyarray(py),
+    ))
 }

@@ -1,0 +1,150 @@
+//! `soilocp._core.slip_ratio` / `travel_slip` / `wheel_usability`: eq. 1 (crate::slip) and the
+//! wheels' usability codes (crate::soil::usability) over arrays, for the Python functions of the
+//! same names (soilocp.model.slip, soilocp.estimation.wheel_usability) and their callers off the
+//! soil stage (the control loop, the torque scale, the simulator's checks).
+
+use numpy::ndarray::{Array2, ArrayD, ArrayViewD, IxDyn, Zip};
+use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::slip;
+use crate::soil::usability::{self, Limits};
+
+type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
+
+/// Both arrays as views of their common shape (numpy's broadcasting), or an error naming them.
+fn broadcast<'a>(
+    names: (&str, &str),
+    a: &'a ArrayViewD<'_, f64>,
+    b: &'a ArrayViewD<'_, f64>,
+) -> PyResult<(ArrayViewD<'a, f64>, ArrayViewD<'a, f64>)> {
+    let (sa, sb) = (a.shape(), b.shape());
+    let n = sa.len().max(sb.len());
+    let dim = |s: &[usize], i: usize| if i + s.len() >= n { s[i + s.len() - n] } else { 1 };
+    let fail = || {
+        PyValueError::new_err(format!(
+            "{} (shape {sa:?}) and {} (shape {sb:?}) do not broadcast",
+            names.0, names.1
+        ))
+    };
+    let shape: Vec<usize> = (0..n)
+        .map(|i| match (dim(sa, i), dim(sb, i)) {
+            (x, y) if x == y || y == 1 => Ok(x),
+            (1, y) => Ok(y),
+            _ => Err(fail()),
+        })
+        .collect::<PyResult<_>>()?;
+    let shape = IxDyn(&shape);
+    Ok((
+        a.broadcast(shape.clone()).ok_or_else(fail)?,
+        b.broadcast(shape).ok_or_else(fail)?,
+    ))
+}
+
+/// Eq. 1 with the floor of docs/method.md §10 (crate::slip::slip) from wheel speeds omega (rad/s),
+/// the ground speeds V (m/s; the two broadcast) and the wheel radius R_w (m): (S, max(|R_w omega|,
+/// |V|)), the second the measure of §6's deadband.
+#[pyfunction]
+pub fn slip_ratio<'py>(
+    py: Python<'py>,
+    wheel_speed: PyReadonlyArrayDyn<'py, f64>,
+    ground_speed: PyReadonlyArrayDyn<'py, f64>,
+    wheel_radius: f64,
+    floor: f64,
+) -> PyResult<(Arr<'py>, Arr<'py>)> {
+    let (w, v) = (wheel_speed.as_array(), ground_speed.as_array());
+    let (w, v) = broadcast(("wheel_speed", "ground_speed"), &w, &v)?;
+    let mut s = ArrayD::<f64>::zeros(w.raw_dim());
+    let mut scale = ArrayD::<f64>::zeros(w.raw_dim());
+    Zip::from(&mut s)
+        .and(&mut scale)
+        .and(&w)
+        .and(&v)
+        .for_each(|s, c, &w, &v| {
+            let rim = w * wheel_radius;
+            *s = slip::slip(rim, v, floor);
+            *c = slip::scale(rim, v);
+        });
+    Ok((s.into_pyarray(py), scale.into_pyarray(py)))
+}
+
+/// Eq. 1 in each wheel's direction of travel (docs/method.md §17, crate::slip::travel_slip) from rim
+/// speeds R_w omega and the ground speeds under the wheels (m/s; the two broadcast): (d S, d).
+#[pyfunction]
+pub fn travel_slip<'py>(
+    py: Python<'py>,
+    rim: PyReadonlyArrayDyn<'py, f64>,
+    ground: PyReadonlyArrayDyn<'py, f64>,
+    floor: f64,
+) -> PyResult<(Arr<'py>, Arr<'py>)> {
+    let (r, g) = (rim.as_array(), ground.as_array());
+    let (r, g) = broadcast(("rim", "ground"), &r, &g)?;
+    let mut s = ArrayD::<f64>::zeros(r.raw_dim());
+    let mut d = ArrayD::<f64>::zeros(r.raw_dim());
+    Zip::from(&mut s).and(&mut d).and(&r).and(&g).for_each(|s, d, &r, &g| {
+        (*s, *d) = slip::travel_slip(r, g, floor);
+    });
+    Ok((s.into_pyarray(py), d.into_pyarray(py)))
+}
+
+fn rows4(name: &str, a: &PyReadonlyArray2<'_, f64>, k: usize) -> PyResult<Vec<[f64; 4]>> {
+    let v = a.as_array();
+    if v.shape() != [k, 4] {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have shape ({k}, 4), got {:?}",
+            v.shape()
+        )));
+    }
+    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
+}
+
+/// The unusable code (k, 4) per wheel (docs/method.md §17, crate::soil::usability::codes) from the
+/// travel-frame slip, rim speeds and ground speeds under the wheels (k, 4), the body's ground speed
+/// and yaw rate (k,), the gross traction (k, 4), the half-track (m) and the limits (stall_speed,
+/// gross_idle, rim_stopped, moving, rim_turning, yaw_turning).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub fn wheel_usability<'py>(
+    py: Python<'py>,
+    slip: PyReadonlyArray2<'py, f64>,
+    rim: PyReadonlyArray2<'py, f64>,
+    ground: PyReadonlyArray2<'py, f64>,
+    body_speed: PyReadonlyArray1<'py, f64>,
+    yaw_rate: PyReadonlyArray1<'py, f64>,
+    gross: PyReadonlyArray2<'py, f64>,
+    half_track: f64,
+    limits: (f64, f64, f64, f64, f64, f64),
+) -> PyResult<Bound<'py, PyArray2<i8>>> {
+    let k = slip.as_array().nrows();
+    let (s, r, g, gr) = (
+        rows4("slip", &slip, k)?,
+        rows4("rim", &rim, k)?,
+        rows4("ground", &ground, k)?,
+        rows4("gross", &gross, k)?,
+    );
+    let (v, y) = (body_speed.as_array(), yaw_rate.as_array());
+    if v.len() != k || y.len() != k {
+        return Err(PyValueError::new_err(format!(
+            "body_speed and yaw_rate must have shape ({k},), got ({},) and ({},)",
+            v.len(),
+            y.len()
+        )));
+    }
+    let lim = Limits {
+        stall_speed: limits.0,
+        gross_idle: limits.1,
+        rim_stopped: limits.2,
+        moving: limits.3,
+        rim_turning: limits.4,
+        yaw_turning: limits.5,
+    };
+    let mut out = Array2::<i8>::zeros((k, 4));
+    for j in 0..k {
+        let c = usability::codes(&s[j], &r[j], &g[j], v[j], y[j], &gr[j], half_track, &lim);
+        for w in 0..4 {
+            out[[j, w]] = c[w];
+        }
+    }
+    Ok(out.into_pyarray(py))
+}

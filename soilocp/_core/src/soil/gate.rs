@@ -1,0 +1,358 @@
+//! The slip gate of N vehicles (docs/method.md §6, §9, §10, §13, §17): from the observer's output,
+//! each wheel's slip (eq. 1 in its direction of travel), the traction it is compared with, their
+//! uncertainties, the low-pass slip the soil gate decides on, the refresh pairs of a slow stream,
+//! and whether the wheel may inform K now; the soil bank's [`Sample`] of each vehicle.
+//!
+//! The observer's output comes packed, one row of [`COLUMNS`] numbers per vehicle (the fields of
+//! soilocp.estimation.observer_bank.ObserverBankOutput that the gate reads, in the order of
+//! soilocp.estimation.slip_gate.GATE_FIELDS), so that a step is one array across the boundary.
+
+use crate::observer::numeric::{np_max, np_min};
+use crate::slip;
+use crate::soil::bank::Sample;
+use crate::soil::usability::{self, Limits, SLIP_BEYOND_EQ1};
+
+/// The per-wheel fields of a packed row, four columns each from `4 * index`.
+pub mod quad {
+    pub const MU: usize = 0;
+    pub const MU_VAR: usize = 1;
+    pub const GROSS: usize = 2;
+    pub const GROSS_VAR: usize = 3;
+    pub const WHEEL_SPEED: usize = 4;
+    pub const NORMAL_FORCE: usize = 5;
+    pub const SPEED_AGE: usize = 6;
+    pub const TORQUE_AGE: usize = 7;
+    pub const INTERVAL: usize = 8;
+    pub const INTERVAL_GROSS: usize = 9;
+    pub const INTERVAL_GROSS_VAR: usize = 10;
+    pub const INTERVAL_RIM_START: usize = 11;
+    pub const INTERVAL_RIM_END: usize = 12;
+    pub const INTERVAL_GROUND_START: usize = 13;
+    pub const INTERVAL_GROUND_END: usize = 14;
+    pub const INTERVAL_RIM_SIGMA: usize = 15;
+    /// bool (0 / 1)
+    pub const INTERVAL_LEARNING: usize = 16;
+    pub const COUNT: usize = 17;
+}
+
+/// The per-vehicle fields of a packed row, one column each after the quads.
+pub mod scalar {
+    use super::quad;
+    pub const GROUND_SPEED: usize = 4 * quad::COUNT;
+    pub const YAW_RATE: usize = GROUND_SPEED + 1;
+    /// bool (0 / 1)
+    pub const RESET: usize = GROUND_SPEED + 2;
+    pub const GROUND_SPEED_AGE: usize = GROUND_SPEED + 3;
+    /// bool (0 / 1)
+    pub const GROUND_SPEED_MEASURED: usize = GROUND_SPEED + 4;
+}
+
+/// Numbers per vehicle in a packed row.
+pub const COLUMNS: usize = scalar::GROUND_SPEED + 5;
+
+/// The gate's settings: the vehicle's, eq. 1's and SoilConfig's numbers it reads (their meaning:
+/// PipelineConfig's and SoilConfig's field descriptions).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GateParams {
+    /// m
+    pub wheel_radius: f64,
+    /// m, each wheel's lateral position (left > 0)
+    pub wheel_y: [f64; 4],
+    /// m, (c + d) / 2
+    pub half_track: f64,
+    /// m g / 4, N
+    pub static_load: f64,
+    /// 2 for a skid-steer (one torque measurement per side), else 1
+    pub shared: f64,
+    /// compare gross traction (eq. 3) rather than the net (eq. 6): refresh pairs only then
+    pub gross: bool,
+    /// N: a wheel at or below this normal force is lifted off
+    pub lift_off_force: f64,
+    pub slip_deadband: f64,
+    pub slip_floor: f64,
+    pub slip_sigma: f64,
+    pub speed_sigma: f64,
+    pub gate_smoothing: f64,
+    pub fresh_age: f64,
+    pub max_input_age: f64,
+    pub min_load_fraction: f64,
+    pub limits: Limits,
+}
+
+/// N vehicles' gate state: the low-pass slip and the stamp it was last stepped at (NaN: never).
+#[derive(Clone, Debug)]
+pub struct SlipGateBank {
+    pub cfg: GateParams,
+    pub lp: Vec<[f64; 4]>,
+    pub lp_stamp: Vec<f64>,
+}
+
+#[inline]
+fn row4(row: &[f64], q: usize) -> [f64; 4] {
+    let o = 4 * q;
+    [row[o], row[o + 1], row[o + 2], row[o + 3]]
+}
+
+/// Eq. 1 in each wheel's direction of travel (§17) and the deadband's measure max(|R_w omega|, |V|),
+/// for a refresh interval's end: (body-frame slip, scale, direction).
+#[inline]
+fn ends(rim: f64, ground: f64, floor: f64) -> (f64, f64, f64) {
+    (
+        slip::slip(rim, ground, floor),
+        slip::scale(rim, ground),
+        slip::travel_direction(rim, ground),
+    )
+}
+
+impl SlipGateBank {
+    pub fn new(cfg: GateParams, n: usize) -> Result<Self, String> {
+        if n == 0 {
+            return Err("slip gate: n_vehicles must be >= 1".into());
+        }
+        Ok(SlipGateBank {
+            cfg,
+            lp: vec![[0.0; 4]; n],
+            lp_stamp: vec![f64::NAN; n],
+        })
+    }
+
+    /// One sample per vehicle `idx[j]` (distinct, in range): its stamp (s) and its packed observer
+    /// output (`rows[j]`, [`COLUMNS`] numbers).  `any_refresh`: whether the soil update is to get
+    /// each wheel's refresh span and slip ends (it is when any of the k vehicles refreshes a wheel,
+    /// as the arrays of the update are the step's).  The [`Sample`]s carry no scale sigma.
+    pub fn step(&mut self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<Vec<Sample>, String> {
+        let n = self.lp.len();
+        let mut seen = vec![false; n];
+        for &i in idx {
+            if i >= n {
+                return Err(format!("vehicle index {i} out of range for {n} vehicles"));
+            }
+            if seen[i] {
+                return Err(format!("vehicle index {i} appears twice in one step"));
+            }
+            seen[i] = true;
+        }
+        let cfg = &self.cfg;
+        let refreshes = |row: &[f64]| cfg.gross && row4(row, quad::INTERVAL).iter().any(|&v| v > 0.0);
+        let any_refresh = rows.iter().any(|r| refreshes(r));
+        let mut out = Vec::with_capacity(idx.len());
+        for ((&i, &t), row) in idx.iter().zip(stamp).zip(rows) {
+            let (s, lp) = self.one(i, t, row, any_refresh);
+            self.lp[i] = lp;
+            self.lp_stamp[i] = t;
+            out.push(s);
+        }
+        Ok(out)
+    }
+
+    /// Vehicle `i`'s sample and its new low-pass slip.
+    fn one(&self, i: usize, stamp: f64, row: &[f64], any_refresh: bool) -> (Sample, [f64; 4]) {
+        let cfg = &self.cfg;
+        let q = |f: usize| row4(row, f);
+        let flag = |f: usize| q(f).map(|v| v != 0.0);
+        let (v_body, yaw) = (row[scalar::GROUND_SPEED], row[scalar::YAW_RATE]);
+        let reset = row[scalar::RESET] != 0.0;
+        let measured = row[scalar::GROUND_SPEED_MEASURED] != 0.0;
+        let (wheel_speed, gross, normal_force) = (q(quad::WHEEL_SPEED), q(quad::GROSS), q(quad::NORMAL_FORCE));
+        let v_wheel: [f64; 4] = std::array::from_fn(|w| v_body - yaw * cfg.wheel_y[w]);
+        let rim = wheel_speed.map(|s| s * cfg.wheel_radius);
+        // eq. 1 and the traction law in each wheel's direction of travel (§17): a wheel travelling
+        // backwards is the mirror image of one travelling forwards, its slip and its traction both negated
+        let direction: [f64; 4] = std::array::from_fn(|w| slip::travel_direction(rim[w], v_wheel[w]));
+        let mut slip: [f64; 4] = std::array::from_fn(|w| direction[w] * slip::slip(rim[w], v_wheel[w], cfg.slip_floor));
+        let mut scale: [f64; 4] = std::array::from_fn(|w| slip::scale(rim[w], v_wheel[w]));
+        let (measure, measure_var) = if cfg.gross {
+            (gross, q(quad::GROSS_VAR))
+        } else {
+            (q(quad::MU), q(quad::MU_VAR))
+        };
+        let mut observed: [f64; 4] = std::array::from_fn(|w| direction[w] * measure[w]);
+        let mut variance = measure_var.map(|v| v * cfg.shared);
+        let mut unusable = usability::codes(&slip, &rim, &v_wheel, v_body, yaw, &gross, cfg.half_track, &cfg.limits);
+        // a slow stream's refresh: the pair from the readings (eq. 13 integrated over a held speed's
+        // interval, or at a held torque's refresh) instead of the observer's prediction through the
+        // held value; gross only
+        let interval = q(quad::INTERVAL);
+        let refresh = interval.map(|v| cfg.gross && v > 0.0);
+        let filtered_slip = slip; // the low-pass runs on the filtered speeds' slip
+        let mut slip_ends = [[0.0; 2]; 4];
+        if any_refresh {
+            let (r0, r1, g0, g1) = (
+                q(quad::INTERVAL_RIM_START),
+                q(quad::INTERVAL_RIM_END),
+                q(quad::INTERVAL_GROUND_START),
+                q(quad::INTERVAL_GROUND_END),
+            );
+            let (i_gross, i_var) = (q(quad::INTERVAL_GROSS), q(quad::INTERVAL_GROSS_VAR));
+            for w in 0..4 {
+                let (s0, scale0, d0) = ends(r0[w], g0[w], cfg.slip_floor);
+                let (s1, scale1, d1) = ends(r1[w], g1[w], cfg.slip_floor);
+                let (s0, s1) = (d1 * s0, d1 * s1);
+                // a pair whose interval reverses the travel is no one slip path of one law: not informative
+                let scale0 = if d0 == d1 { scale0 } else { 0.0 };
+                slip_ends[w] = [s0, s1];
+                if refresh[w] {
+                    // the slip path's middle; informative only where the wheel moved at both ends
+                    slip[w] = 0.5 * (s0 + s1);
+                    scale[w] = np_min(scale0, scale1);
+                    observed[w] = d1 * i_gross[w];
+                    if s0.abs() > 1.0 || s1.abs() > 1.0 {
+                        unusable[w] = SLIP_BEYOND_EQ1;
+                    }
+                    variance[w] = i_var[w] * cfg.shared;
+                }
+            }
+        }
+        let informative: [bool; 4] = std::array::from_fn(|w| {
+            scale[w] >= cfg.slip_deadband && normal_force[w] > cfg.lift_off_force && !reset && unusable[w] == 0
+        });
+        // slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (§6, §9); a refresh
+        // interval's mean rim speed is known only to interval_rim_sigma
+        let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
+        let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
+            let s = cfg.slip_sigma.hypot(cfg.speed_sigma / np_max(scale[w], 1e-3));
+            if any_refresh && refresh[w] {
+                s.hypot(rim_sigma[w] / np_max(scale[w], 1e-3))
+            } else {
+                s
+            }
+        });
+        // the low-pass slip the gate decides on (§9): gating on the raw, noisy slip keeps the samples
+        // whose noise pushed |S| up and biases K
+        let tau = cfg.gate_smoothing;
+        let last = self.lp_stamp[i];
+        let dt = stamp - last;
+        let mut restart = last.is_nan() || reset || dt <= 0.0 || dt > 1.0;
+        let alpha = if tau > 0.0 {
+            if restart {
+                1.0
+            } else {
+                -((-dt) / tau).exp_m1()
+            }
+        } else {
+            restart = true;
+            1.0
+        };
+        let prev = self.lp[i];
+        let lp: [f64; 4] = std::array::from_fn(|w| {
+            if restart {
+                filtered_slip[w]
+            } else {
+                prev[w] + alpha * (filtered_slip[w] - prev[w])
+            }
+        });
+        let shrink = (alpha / (2.0 - alpha)).sqrt(); // stationary std of low-passed white noise
+        let mut gate_slip = lp;
+        let mut gate_sigma = slip_sigma.map(|s| s * shrink);
+        // between refreshes the low-pass follows a prediction: the gate takes the interval's slip
+        for w in 0..4 {
+            if any_refresh && refresh[w] {
+                gate_slip[w] = slip[w];
+                gate_sigma[w] = slip_sigma[w];
+            }
+        }
+        // between the refreshes of a slow stream the filtered speed is a prediction and the samples
+        // repeat one measurement: K learns from samples within fresh_age of a new reading, and where
+        // the interval's own pair is served (interval_learning) at the refresh only
+        let (learning, speed_age, torque_age) =
+            (flag(quad::INTERVAL_LEARNING), q(quad::SPEED_AGE), q(quad::TORQUE_AGE));
+        let held: [bool; 4] = std::array::from_fn(|w| {
+            if learning[w] {
+                !refresh[w]
+            } else {
+                speed_age[w] > cfg.fresh_age || torque_age[w] > cfg.fresh_age
+            }
+        });
+        let min_load = cfg.min_load_fraction * cfg.static_load;
+        // the codes judge measured speeds and torques: between a slow stream's refreshes the filtered
+        // speed is a prediction, and a held wheel informs no K anyway
+        let unusable: [i64; 4] = std::array::from_fn(|w| if held[w] || !measured { 0 } else { unusable[w] as i64 });
+        let sample = Sample {
+            vehicle: i,
+            stamp,
+            slip,
+            observed,
+            variance,
+            slip_sigma,
+            gate_slip,
+            gate_sigma,
+            informative: std::array::from_fn(|w| informative[w] && measured && normal_force[w] >= min_load),
+            held,
+            ground_stale: row[scalar::GROUND_SPEED_AGE] > cfg.max_input_age,
+            identifiable: measured,
+            speed: v_body,
+            span: any_refresh.then(|| std::array::from_fn(|w| if refresh[w] { interval[w] } else { 0.0 })),
+            slip_ends: any_refresh.then_some(slip_ends),
+            unusable,
+            scale_sigma: None,
+        };
+        (sample, lp)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params() -> GateParams {
+        GateParams {
+            wheel_radius: 0.15,
+            wheel_y: [0.25, 0.25, -0.25, -0.25],
+            half_track: 0.25,
+            static_load: 100.0,
+            shared: 1.0,
+            gross: true,
+            lift_off_force: 1.0,
+            slip_deadband: 0.15,
+            slip_floor: 0.05,
+            slip_sigma: 0.005,
+            speed_sigma: 0.008,
+            gate_smoothing: 0.15,
+            fresh_age: 0.05,
+            max_input_age: 0.5,
+            min_load_fraction: 0.25,
+            limits: Limits::default(),
+        }
+    }
+
+    fn row(omega: f64, v: f64) -> Vec<f64> {
+        let mut r = vec![0.0; COLUMNS];
+        for w in 0..4 {
+            r[4 * quad::WHEEL_SPEED + w] = omega;
+            r[4 * quad::GROSS + w] = 0.3;
+            r[4 * quad::GROSS_VAR + w] = 1e-4;
+            r[4 * quad::NORMAL_FORCE + w] = 100.0;
+        }
+        r[scalar::GROUND_SPEED] = v;
+        r[scalar::GROUND_SPEED_MEASURED] = 1.0;
+        r
+    }
+
+    #[test]
+    fn slip_of_eq1_and_the_low_pass() {
+        let mut g = SlipGateBank::new(params(), 2).unwrap();
+        // 1.25 m/s rim over 1 m/s ground: S = 0.2 (§6), informative, and the low-pass starts at it
+        let r = row(1.25 / 0.15, 1.0);
+        let s = g.step(&[1], &[0.0], &[&r]).unwrap();
+        assert!((s[0].slip[0] - 0.2).abs() < 1e-12);
+        assert_eq!(s[0].informative, [true; 4]);
+        assert_eq!(s[0].gate_slip, s[0].slip);
+        assert!(s[0].span.is_none());
+        // 10 ms later at S = 0: the low-pass moves by 1 - exp(-0.01 / 0.15) of the way
+        let r = row(1.0 / 0.15, 1.0);
+        let s = g.step(&[1], &[0.01], &[&r]).unwrap();
+        let alpha = 1.0 - (-0.01f64 / 0.15).exp();
+        assert!((s[0].gate_slip[0] - 0.2 * (1.0 - alpha)).abs() < 1e-12);
+        assert!(g.lp_stamp[0].is_nan());
+        assert!(g.step(&[2], &[0.0], &[&r]).is_err());
+    }
+
+    #[test]
+    fn reversing_wheel_drives_in_its_direction_of_travel() {
+        let mut g = SlipGateBank::new(params(), 1).unwrap();
+        let r = row(-0.45 / 0.15, -0.04 - 1e-12);
+        let s = g.step(&[0], &[0.0], &[&r]).unwrap();
+        assert!((s[0].slip[0] - 0.41 / 0.45).abs() < 1e-9);
+        assert!((s[0].observed[0] + 0.3).abs() < 1e-15);
+    }
+}

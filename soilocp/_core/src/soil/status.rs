@@ -1,0 +1,480 @@
+//! What a vehicle's soil record says after a step (docs/method.md §9, §11-13, §16-17): K and its
+//! band from the bank's step, held between informative samples and withdrawn after
+//! `expire_after` (never a drifting number), and the status with the code of its reason.  The
+//! reason text stays in Python (soilocp.estimation.soil_strength), made from the code and the
+//! numbers of [`Report::args`].
+//!
+//! Python's `math.hypot`, `min` and `max` made these numbers before the port; [`py_hypot`],
+//! [`py_min`] and [`py_max`] are theirs (CPython's hypot is not libm's: 0.4 % of random pairs
+//! differ in the last bit).
+
+use std::collections::HashMap;
+
+use crate::soil::bank::{Sample, SoilGridBank, Step, HELD, UNDETERMINED, USED};
+
+/// Status codes, in the order of soilocp.estimation.soil_config.Status.
+pub const OK: u8 = 0;
+pub const UNCERTAIN: u8 = 1;
+pub const HOLDING: u8 = 2;
+pub const NO_ESTIMATE: u8 = 3;
+pub const NOT_OBSERVABLE: u8 = 4;
+pub const MODEL_MISMATCH: u8 = 5;
+
+/// Reason codes (soilocp.estimation.soil_strength words them; `args` in brackets).
+pub mod reason {
+    pub const NONE: u8 = 0;
+    /// slip not informative yet
+    pub const NOT_YET: u8 = 1;
+    pub const STAMP_BACKWARDS: u8 = 2;
+    /// [age]
+    pub const WITHDRAWN: u8 = 3;
+    /// [age]
+    pub const HOLDING: u8 = 4;
+    /// [ln K 1-sigma]
+    pub const WIDE: u8 = 5;
+    /// [ln K 1-sigma, scale prior, c mean]
+    pub const SYSTEMATIC_SCALE: u8 = 6;
+    /// [ln K 1-sigma, scale prior, c mean]: and the data suggest a wrong torque constant
+    pub const SYSTEMATIC_SCALE_CALIBRATE: u8 = 7;
+    /// [ln K 1-sigma]
+    pub const SYSTEMATIC_RADIUS: u8 = 8;
+    pub const NOT_IDENTIFIABLE: u8 = 9;
+    /// [ln K front, ln K rear, z]
+    pub const AXLES: u8 = 10;
+    /// [mean NIS]
+    pub const NIS: u8 = 11;
+    pub const BELOW_FLOOR: u8 = 12;
+    /// [s since the last update, NaN: none yet]
+    pub const GROUND_STALE: u8 = 13;
+    /// [s since the last update, NaN: none yet]
+    pub const READINGS_HELD: u8 = 14;
+    pub const UNDETERMINED: u8 = 15;
+    /// [c mean, scale prior]
+    pub const LEANS: u8 = 16;
+    pub const AXLE_WINDOW: u8 = 17;
+    /// [evidence s]
+    pub const EVIDENCE: u8 = 18;
+    /// out of model (the wheels' codes word the rest): a skid turn
+    pub const OUT_SKID: u8 = 19;
+    /// out of model, no wheel informs K, no K
+    pub const OUT_NO_WHEEL: u8 = 20;
+    /// out of model, no wheel informs K, holding [age]
+    pub const OUT_HOLDING: u8 = 21;
+    /// out of model, K from the other wheels
+    pub const OUT_OTHERS: u8 = 22;
+}
+
+/// SoilConfig's numbers the status reads, and the grid's ln K span.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StatusParams {
+    pub hold_after: f64,
+    pub expire_after: f64,
+    pub uncertain_log_sigma: f64,
+    pub q_log_k: f64,
+    pub radius_sigma: f64,
+    pub evidence_window: f64,
+    pub mismatch_min_evidence: f64,
+    pub mismatch_nis: f64,
+    pub axle_mismatch_z: f64,
+    /// ln K span of the grid: the band's cap ("undetermined")
+    pub span: f64,
+}
+
+/// One vehicle's record state: the last informative update's stamp, the estimate then (K, its
+/// 1-sigma, ln K's), and since when the data lean to a torque scale the state does not assume.
+#[derive(Clone, Copy, Debug)]
+pub struct Hold {
+    pub last_update: Option<f64>,
+    pub held: Option<[f64; 3]>,
+    pub lean_since: f64,
+}
+
+impl Default for Hold {
+    fn default() -> Self {
+        Hold {
+            last_update: None,
+            held: None,
+            lean_since: f64::NAN,
+        }
+    }
+}
+
+/// A step's record of one vehicle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Report {
+    pub status: u8,
+    pub reason: u8,
+    pub args: [f64; 4],
+    /// K, its 1-sigma and ln K's, if K is reported
+    pub k: Option<[f64; 3]>,
+    pub last_update: Option<f64>,
+}
+
+/// What the status reads of a sample besides the bank's step.
+#[derive(Clone, Copy, Debug)]
+pub struct Seen {
+    pub stamp: f64,
+    pub ground_stale: bool,
+    pub identifiable: bool,
+    pub unusable: [i64; 4],
+    /// the axle check's window: time over the threshold, all the judged time
+    pub axle_window: (f64, f64),
+    /// the torque scale's 1-sigma now
+    pub scale_prior: f64,
+}
+
+/// Python's `min(a, b)`: `b` only where it is smaller.
+#[inline]
+pub fn py_min(a: f64, b: f64) -> f64 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
+/// Python's `max(a, b)`: `b` only where it is larger.
+#[inline]
+pub fn py_max(a: f64, b: f64) -> f64 {
+    if b > a {
+        b
+    } else {
+        a
+    }
+}
+
+/// x y exactly as hi + lo (Dekker's product with Veltkamp's split).
+#[inline]
+fn two_product(x: f64, y: f64) -> (f64, f64) {
+    const SPLIT: f64 = 134_217_729.0; // 2^27 + 1
+    let split = |a: f64| {
+        let c = SPLIT * a;
+        let hi = c - (c - a);
+        (hi, a - hi)
+    };
+    let p = x * y;
+    let ((xh, xl), (yh, yl)) = (split(x), split(y));
+    let lo = ((xh * yh - p) + xh * yl + xl * yh) + xl * yl;
+    (p, lo)
+}
+
+/// a + b as hi + lo, |a| >= |b|.
+#[inline]
+fn fast_two_sum(a: f64, b: f64) -> (f64, f64) {
+    let x = a + b;
+    let z = x - a;
+    (x, b - z)
+}
+
+/// CPython's `math.hypot(x, y)` (Modules/mathmodule.c, vector_norm): a lossless scaling by the
+/// larger's power of two, exact squares, and one differential correction of the square root.
+pub fn py_hypot(x: f64, y: f64) -> f64 {
+    let (a, b) = (x.abs(), y.abs());
+    if a.is_infinite() || b.is_infinite() {
+        return f64::INFINITY;
+    }
+    if a.is_nan() || b.is_nan() {
+        return f64::NAN;
+    }
+    let max = if a > b { a } else { b };
+    if max == 0.0 {
+        return max;
+    }
+    if max < f64::MIN_POSITIVE {
+        // subnormals: to normals first, as CPython does
+        return f64::MIN_POSITIVE * py_hypot(a / f64::MIN_POSITIVE, b / f64::MIN_POSITIVE);
+    }
+    // frexp: max = m 2^e with m in [0.5, 1)
+    let e = ((max.to_bits() >> 52) & 0x7ff) as i32 - 1022;
+    let scale = f64::from_bits(((1023 - e) as u64) << 52); // 2^-e, normal for normal max
+    let (mut csum, mut frac1, mut frac2) = (1.0, 0.0, 0.0);
+    for v in [a, b] {
+        let v = v * scale;
+        let (hi, lo) = two_product(v, v);
+        let (s, t) = fast_two_sum(csum, hi);
+        csum = s;
+        frac1 += lo;
+        frac2 += t;
+    }
+    let mut h = (csum - 1.0 + (frac1 + frac2)).sqrt();
+    let (hi, lo) = two_product(-h, h);
+    let (s, t) = fast_two_sum(csum, hi);
+    csum = s;
+    frac1 += lo;
+    frac2 += t;
+    let x = csum - 1.0 + (frac1 + frac2);
+    h += x / (2.0 * h);
+    h / scale
+}
+
+impl StatusParams {
+    /// The held / withdrawn / uncertain logic of the record (§9: hold, flagged; never drift):
+    /// (status, reason, args, (K, K 1-sigma, ln K 1-sigma) if any).
+    fn hold(&self, h: &mut Hold, stamp: f64, k: f64, k_std: f64, log_std: f64) -> (u8, u8, [f64; 4], Option<[f64; 3]>) {
+        let Some(last) = h.last_update else {
+            return (NO_ESTIMATE, reason::NOT_YET, [0.0; 4], None);
+        };
+        let age = stamp - last;
+        if age < 0.0 {
+            // stamps went backwards (a restarted source): the old update time means nothing
+            h.last_update = None;
+            h.held = None;
+            return (NO_ESTIMATE, reason::STAMP_BACKWARDS, [0.0; 4], None);
+        }
+        if age > self.hold_after + self.expire_after {
+            return (NO_ESTIMATE, reason::WITHDRAWN, [age, 0.0, 0.0, 0.0], None);
+        }
+        let (mut k, mut k_std, mut log_std) = (k, k_std, log_std);
+        match h.held {
+            Some(held) if age != 0.0 => {
+                // no information this sample: the last informed estimate, with a band never
+                // narrower than the soil's own drift since the update allows (q_log_k per sqrt(s))
+                k = held[0];
+                log_std = py_max(log_std, py_hypot(held[2], self.q_log_k * age.sqrt()));
+                k_std = py_max(py_max(k_std, held[1]), k * log_std.sinh());
+            }
+            _ => h.held = Some([k, k_std, log_std]),
+        }
+        let est = Some([k, k_std, log_std]);
+        if age > self.hold_after {
+            return (HOLDING, reason::HOLDING, [age, 0.0, 0.0, 0.0], est);
+        }
+        if log_std > self.uncertain_log_sigma {
+            return (UNCERTAIN, reason::WIDE, [log_std, 0.0, 0.0, 0.0], est);
+        }
+        (OK, reason::NONE, [0.0; 4], est)
+    }
+
+    /// The record of one vehicle after its step `s` (soil/bank.rs), from its sample's `seen`.
+    pub fn report(&self, h: &mut Hold, s: &Step, seen: &Seen) -> Report {
+        let st = seen.stamp;
+        if s.informed {
+            h.last_update = Some(st);
+        }
+        let (log_stat, k_med) = (s.log_stat, s.k_report);
+        let [evidence, nis_sum, s_kk, _, s_ks] = s.stats;
+        let [sys_scale, c_mean, c_std] = s.scale;
+        let prior = seen.scale_prior;
+        // how long the data have leant to a wrong torque constant
+        if (c_mean - 1.0).abs() <= py_max(2.0 * c_std, prior) {
+            h.lean_since = f64::NAN;
+        } else if h.lean_since.is_nan() || h.lean_since > st {
+            h.lean_since = st; // none yet (NaN), or a restarted clock: it starts now
+        }
+        let sys_radius = if s_kk > 0.0 {
+            self.radius_sigma * s_ks.abs() / s_kk
+        } else {
+            0.0
+        };
+        let axle_off = s.axle.mismatch;
+        // axles that disagree: the truth is usually near one of them, so their distance is a
+        // systematic term; the band is capped at the grid's whole ln K span ("undetermined")
+        let sys_axle = if axle_off {
+            (s.axle.theta_front - s.axle.theta_rear).abs()
+        } else {
+            0.0
+        };
+        let sys = py_min(py_hypot(py_hypot(sys_scale, sys_radius), sys_axle), self.span);
+        let log_std = py_min(py_hypot(log_stat, sys), self.span);
+        let k_std = k_med * log_std.sinh();
+        let (mut status, mut why, mut args, est) = self.hold(h, st, k_med, k_std, log_std);
+        if status == UNCERTAIN && sys > log_stat && sys_scale >= sys_radius {
+            why = if st - h.lean_since >= self.evidence_window {
+                reason::SYSTEMATIC_SCALE_CALIBRATE
+            } else {
+                reason::SYSTEMATIC_SCALE
+            };
+            args = [log_std, prior, c_mean, 0.0];
+        } else if status == UNCERTAIN && sys > log_stat {
+            why = reason::SYSTEMATIC_RADIUS;
+            args = [log_std, 0.0, 0.0, 0.0];
+        }
+        let nis = if evidence > 0.0 { nis_sum / evidence } else { 0.0 };
+        let used = s.wheel.iter().any(|f| f & USED != 0);
+        let any_flag = |flag: u8| s.wheel.iter().any(|f| f & flag != 0);
+        let since = h.last_update.map_or(f64::NAN, |t| st - t);
+        if !seen.identifiable {
+            (status, why, args) = (NOT_OBSERVABLE, reason::NOT_IDENTIFIABLE, [0.0; 4]);
+        } else if est.is_some() && axle_off {
+            (status, why) = (MODEL_MISMATCH, reason::AXLES);
+            args = [s.axle.theta_front, s.axle.theta_rear, s.axle.z, 0.0];
+        } else if est.is_some() && evidence >= self.mismatch_min_evidence && nis > self.mismatch_nis {
+            (status, why, args) = (MODEL_MISMATCH, reason::NIS, [nis, 0.0, 0.0, 0.0]);
+        } else if est.is_some() && s.floor_cdf > 0.5 {
+            (status, why, args) = (MODEL_MISMATCH, reason::BELOW_FLOOR, [0.0; 4]);
+        } else if (status == NO_ESTIMATE || status == HOLDING) && any_flag(HELD) && !used {
+            status = NOT_OBSERVABLE;
+            why = if seen.ground_stale {
+                reason::GROUND_STALE
+            } else {
+                reason::READINGS_HELD
+            };
+            args = [since, 0.0, 0.0, 0.0];
+        } else if (status == NO_ESTIMATE || status == HOLDING) && any_flag(UNDETERMINED) && !used {
+            (status, why, args) = (NOT_OBSERVABLE, reason::UNDETERMINED, [0.0; 4]);
+        }
+        if status == OK {
+            (status, why, args) = self.vouch(h, seen, st, evidence, c_mean);
+        }
+        if seen.identifiable && seen.unusable.iter().any(|&c| c != 0) {
+            (status, why, args) = out_of_model(status, why, args, seen, used, est.is_some(), h, st);
+        }
+        let k = if status == NOT_OBSERVABLE { None } else { est };
+        Report {
+            status,
+            reason: why,
+            args,
+            k,
+            last_update: h.last_update,
+        }
+    }
+
+    /// Status of an estimate whose band is narrow enough for ok: ok only where its own checks
+    /// vouch for it (docs/robustness.md, "ok means ok"), else uncertain naming what they lack (the
+    /// data lean to another torque scale; the axles read different soils for most of the window
+    /// though one does not inform now; too little evidence since the window restarted).
+    fn vouch(&self, h: &Hold, seen: &Seen, st: f64, evidence: f64, c_mean: f64) -> (u8, u8, [f64; 4]) {
+        let (over, weight) = seen.axle_window;
+        if !h.lean_since.is_nan() && h.lean_since <= st {
+            return (UNCERTAIN, reason::LEANS, [c_mean, seen.scale_prior, 0.0, 0.0]);
+        }
+        let enough = 1.0 - (-self.mismatch_min_evidence / self.evidence_window).exp();
+        if self.axle_mismatch_z > 0.0 && weight >= enough && over > 0.5 * weight {
+            return (UNCERTAIN, reason::AXLE_WINDOW, [0.0; 4]);
+        }
+        if evidence < self.mismatch_min_evidence {
+            return (UNCERTAIN, reason::EVIDENCE, [evidence, 0.0, 0.0, 0.0]);
+        }
+        (OK, reason::NONE, [0.0; 4])
+    }
+}
+
+/// A sample with wheels the longitudinal model does not describe (§17): never ok.  A skid turn:
+/// not observable while it lasts; no wheel used: the last estimate held, flagged, with its age;
+/// other wheels used: uncertain, K from them.  A model mismatch or not observable of other causes
+/// keeps its reason, a skid turn aside.
+#[allow(clippy::too_many_arguments)]
+fn out_of_model(
+    status: u8,
+    why: u8,
+    args: [f64; 4],
+    seen: &Seen,
+    used: bool,
+    have_k: bool,
+    h: &Hold,
+    st: f64,
+) -> (u8, u8, [f64; 4]) {
+    if seen.unusable.contains(&(crate::soil::usability::SKID_TURN as i64)) {
+        return (NOT_OBSERVABLE, reason::OUT_SKID, [0.0; 4]);
+    }
+    if status == MODEL_MISMATCH || status == NOT_OBSERVABLE {
+        return (status, why, args);
+    }
+    if !used {
+        if !have_k {
+            return (NOT_OBSERVABLE, reason::OUT_NO_WHEEL, [0.0; 4]);
+        }
+        let age = h.last_update.map_or(0.0, |t| st - t);
+        return (HOLDING, reason::OUT_HOLDING, [age, 0.0, 0.0, 0.0]);
+    }
+    if status == OK {
+        return (UNCERTAIN, reason::OUT_OTHERS, [0.0; 4]);
+    }
+    (status, why, args)
+}
+
+/// N vehicles' record states and the settings.
+#[derive(Clone, Debug)]
+pub struct StatusBank {
+    pub cfg: StatusParams,
+    pub holds: Vec<Hold>,
+}
+
+impl StatusBank {
+    /// The field names of [`StatusParams`] (the Python side passes a dict of them).
+    pub const NAMES: [&'static str; 10] = [
+        "hold_after",
+        "expire_after",
+        "uncertain_log_sigma",
+        "q_log_k",
+        "radius_sigma",
+        "evidence_window",
+        "mismatch_min_evidence",
+        "mismatch_nis",
+        "axle_mismatch_z",
+        "span",
+    ];
+
+    /// From a name -> value map with exactly [`StatusBank::NAMES`], for `n` vehicles.
+    pub fn from_map(m: &HashMap<String, f64>, n: usize) -> Result<StatusBank, String> {
+        if let Some(k) = m.keys().find(|k| !Self::NAMES.contains(&k.as_str())) {
+            return Err(format!("status params: unknown field {k:?}"));
+        }
+        let get = |name: &str| -> Result<f64, String> {
+            match m.get(name) {
+                None => Err(format!("status params: missing field {name:?}")),
+                Some(v) if !v.is_finite() => Err(format!("status params: {name} = {v} must be finite")),
+                Some(v) => Ok(*v),
+            }
+        };
+        let cfg = StatusParams {
+            hold_after: get("hold_after")?,
+            expire_after: get("expire_after")?,
+            uncertain_log_sigma: get("uncertain_log_sigma")?,
+            q_log_k: get("q_log_k")?,
+            radius_sigma: get("radius_sigma")?,
+            evidence_window: get("evidence_window")?,
+            mismatch_min_evidence: get("mismatch_min_evidence")?,
+            mismatch_nis: get("mismatch_nis")?,
+            axle_mismatch_z: get("axle_mismatch_z")?,
+            span: get("span")?,
+        };
+        Ok(StatusBank {
+            cfg,
+            holds: vec![Hold::default(); n],
+        })
+    }
+
+    /// The records of a step's vehicles: `steps` are `bank.step(samples)`'s, in order.
+    pub fn report(&mut self, bank: &SoilGridBank, samples: &[Sample], steps: &[Step]) -> Vec<Report> {
+        samples
+            .iter()
+            .zip(steps)
+            .map(|(smp, step)| {
+                let b = &bank.vehicles[smp.vehicle];
+                let seen = Seen {
+                    stamp: smp.stamp,
+                    ground_stale: smp.ground_stale,
+                    identifiable: smp.identifiable,
+                    unusable: smp.unusable,
+                    axle_window: (b.axles.over, b.axles.weight),
+                    scale_prior: b.scale_prior,
+                };
+                self.cfg.report(&mut self.holds[smp.vehicle], step, &seen)
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hypot_is_pythons() {
+        // math.hypot's values (CPython 3.11), where libm's hypot differs in the last bit
+        assert_eq!(py_hypot(3.0, 4.0), 5.0);
+        assert_eq!(py_hypot(0.0, -0.0), 0.0);
+        assert!(py_hypot(f64::NAN, 1.0).is_nan());
+        assert_eq!(py_hypot(f64::NAN, f64::INFINITY), f64::INFINITY);
+        assert_eq!(py_hypot(1e-310, 0.0), 1e-310);
+        assert_eq!(py_hypot(0.1, 0.2), 0.223_606_797_749_979);
+    }
+
+    #[test]
+    fn python_min_max_keep_the_first_of_equals_and_nan() {
+        assert!(py_max(f64::NAN, 1.0).is_nan());
+        assert_eq!(py_max(1.0, f64::NAN), 1.0);
+        assert!(py_min(f64::NAN, 1.0).is_nan());
+    }
+}

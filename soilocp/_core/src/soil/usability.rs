@@ -1,0 +1,138 @@
+//! Which wheels the longitudinal model describes now (docs/method.md §17): the unusable code of a
+//! wheel, 0 where it may inform K.  The names and the reason text of the codes stay in Python
+//! (soilocp.estimation.wheel_usability.REASONS, EXPLAIN, describe).
+
+use crate::observer::numeric::np_min;
+
+/// The longitudinal model describes the wheel.
+pub const USABLE: i8 = 0;
+/// |S| > 1: the rim and the ground under it move in opposite directions (beyond eq. 1).
+pub const SLIP_BEYOND_EQ1: i8 = 1;
+/// The body moves, the wheel stands and no torque acts on it.
+pub const STOPPED_UNPOWERED: i8 = 2;
+/// The ground speed is near zero while a torque acts.
+pub const STALL: i8 = 3;
+/// The vehicle turns about a point within its track: the wheels slide sideways (eq. 12).
+pub const SKID_TURN: i8 = 4;
+
+/// Thresholds of [`codes`] (soilocp.estimation.wheel_usability.UsabilityLimits).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    /// m/s: |V| below this with a torque is a stall
+    pub stall_speed: f64,
+    /// |gross traction| at most this: no torque acts on the wheel
+    pub gross_idle: f64,
+    /// m/s: a rim slower than this stands
+    pub rim_stopped: f64,
+    /// m/s: the body moves (eq. 1's deadband)
+    pub moving: f64,
+    /// m/s: a side's rim turns
+    pub rim_turning: f64,
+    /// rad/s
+    pub yaw_turning: f64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            stall_speed: 0.1,
+            gross_idle: 0.05,
+            rim_stopped: 0.02,
+            moving: 0.15,
+            rim_turning: 0.05,
+            yaw_turning: 0.1,
+        }
+    }
+}
+
+/// The unusable code per wheel (docs/method.md §17, the first that applies of skid turn, |S| > 1,
+/// stopped unpowered, stall) from the travel-frame slip (eq. 1 with §17's direction), the rim
+/// speeds R_w omega and the ground speeds under the wheels (m/s), the body's ground speed (m/s),
+/// yaw rate (rad/s), each wheel's gross traction (eq. 13's F_GT / W) and the half-track (c + d) / 2
+/// (m).  Wheels 1 LR, 2 LF (left side), 3 RF, 4 RR (right side).
+#[allow(clippy::too_many_arguments)]
+pub fn codes(
+    slip: &[f64; 4],
+    rim: &[f64; 4],
+    ground: &[f64; 4],
+    body_speed: f64,
+    yaw_rate: f64,
+    gross: &[f64; 4],
+    half_track: f64,
+    lim: &Limits,
+) -> [i8; 4] {
+    // numpy's mean of two: their sum over the count
+    let (left, right) = ((rim[0] + rim[1]) / 2.0, (rim[2] + rim[3]) / 2.0);
+    let (yaw, v) = (yaw_rate.abs(), body_speed.abs());
+    let skid = (left * right < 0.0 && np_min(left.abs(), right.abs()) > lim.rim_turning)
+        || (yaw > lim.yaw_turning && v < yaw * half_track);
+    let mut code = [USABLE; 4];
+    for w in 0..4 {
+        let powered = gross[w].abs() > lim.gross_idle;
+        // the later conditions take precedence: a skid turn explains the rest (an in-place turn is
+        // also V ~ 0 under torque)
+        if v < lim.stall_speed && powered {
+            code[w] = STALL;
+        }
+        if rim[w].abs() < lim.rim_stopped && !powered && ground[w].abs() > lim.moving {
+            code[w] = STOPPED_UNPOWERED;
+        }
+        if slip[w].abs() > 1.0 {
+            code[w] = SLIP_BEYOND_EQ1;
+        }
+        if skid {
+            code[w] = SKID_TURN;
+        }
+    }
+    code
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vectors_of_method_md() {
+        let lim = Limits::default();
+        let ht = 0.3;
+        let c = codes(
+            &[1.2, 0.1, 0.1, 0.1],
+            &[0.5; 4],
+            &[0.5; 4],
+            0.5,
+            0.0,
+            &[0.3; 4],
+            ht,
+            &lim,
+        );
+        assert_eq!(c, [SLIP_BEYOND_EQ1, 0, 0, 0]);
+        let c = codes(
+            &[-1.0, -1.0, 0.02, 0.02],
+            &[0.0, 0.0, 0.34, 0.34],
+            &[0.33; 4],
+            0.33,
+            0.0,
+            &[0.0, 0.0, 0.3, 0.3],
+            ht,
+            &lim,
+        );
+        assert_eq!(c, [STOPPED_UNPOWERED, STOPPED_UNPOWERED, 0, 0]);
+        let c = codes(&[0.8; 4], &[0.25; 4], &[0.05; 4], 0.05, 0.0, &[0.5; 4], ht, &lim);
+        assert_eq!(c, [STALL; 4]);
+        let c = codes(
+            &[0.9, 0.9, -0.9, -0.9],
+            &[0.3, 0.3, -0.3, -0.3],
+            &[0.0; 4],
+            0.0,
+            2.0,
+            &[0.5; 4],
+            ht,
+            &lim,
+        );
+        assert_eq!(c, [SKID_TURN; 4]);
+        assert_eq!(
+            codes(&[0.0; 4], &[0.0; 4], &[0.0; 4], 0.0, 0.0, &[0.0; 4], ht, &lim),
+            [0; 4]
+        );
+    }
+}

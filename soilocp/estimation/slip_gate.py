@@ -1,0 +1,80 @@
+"""The slip gate: from the observer's output, each wheel's slip (eq. 1 with the floor and deadband of
+docs/method.md §6, §10, in its direction of travel, §17), the traction it is compared with, their
+uncertainties, the low-pass slip the soil gate decides on (``gate_smoothing``: gating on the raw, noisy
+slip keeps the samples whose noise pushed |S| up and biases K, §9), a slow stream's refresh pairs, and
+the wheels the longitudinal model describes now (:mod:`soilocp.estimation.wheel_usability`'s codes),
+for N vehicles.
+
+The gate runs in the compiled core (``soilocp._core.SlipGateBank``, soilocp/_core/src/soil/gate.rs, one
+call per step); this module packs the observer's output into the one array the core reads and keeps
+the settings.  The soil stage normally runs the gate and the soil update in one core call
+(:meth:`soilocp.estimation.soil_strength.SoilBank.step_gated`); :meth:`SlipGate.step` alone serves the
+map prior's hook (soilocp.map.prior.start_from_map), which runs between the two, and the paper method.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas.pipeline import ObserverOutput
+
+from soilocp import _core
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBankOutput
+from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.wheel_usability import UsabilityLimits
+
+__all__ = ["GATE_FIELDS", "SlipGate", "pack_message", "pack_output"]
+
+#: The ObserverBankOutput fields the gate reads, in the order of a packed row (soilocp/_core/src/soil/gate.rs):
+#: per-wheel fields (four numbers each), then per-vehicle ones (bools as 0 / 1)
+GATE_QUADS = ("mu", "mu_var", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age", "torque_age",
+              "interval", "interval_gross", "interval_gross_var", "interval_rim_start", "interval_rim_end",
+              "interval_ground_start", "interval_ground_end", "interval_rim_sigma", "interval_learning")
+GATE_SCALARS = ("ground_speed", "yaw_rate", "reset", "ground_speed_age", "ground_speed_measured")
+GATE_FIELDS = GATE_QUADS + GATE_SCALARS
+
+
+def pack_output(ob: ObserverBankOutput) -> np.ndarray:
+    """The observer's output for k vehicles as the gate's packed rows (k, ``SlipGateBank.columns``)."""
+    k = np.shape(ob.ground_speed)[0]
+    return np.concatenate([*(np.reshape(getattr(ob, f), (k, 4)) for f in GATE_QUADS),
+                           np.stack([getattr(ob, f) for f in GATE_SCALARS], axis=1)], axis=1, dtype=float)
+
+
+def pack_message(obs: ObserverOutput) -> tuple:
+    """One ObserverOutput message as the gate's packed row: a flat tuple of ``SlipGateBank.columns`` numbers,
+    which the core reads as it is (a numpy array of these mixed floats and bools costs 3x the tuple)."""
+    return (*obs.mu, *obs.mu_var, *obs.gross, *obs.gross_var, *obs.wheel_speed, *obs.normal_force,
+            *obs.speed_age, *obs.torque_age, *obs.interval, *obs.interval_gross, *obs.interval_gross_var,
+            *obs.interval_rim_start, *obs.interval_rim_end, *obs.interval_ground_start,
+            *obs.interval_ground_end, *obs.interval_rim_sigma, *obs.interval_learning,
+            obs.ground_speed, obs.yaw_rate, obs.reset, obs.ground_speed_age, obs.ground_speed_measured)
+
+
+class SlipGate:
+    """The slip gate of N vehicles (module doc): ``soilocp._core.SlipGateBank`` with the pipeline's settings."""
+
+    def __init__(self, config, n_vehicles: int, limits: UsabilityLimits = UsabilityLimits()):
+        v, soil = config.vehicle, config.soil
+        wheel_y = tuple(float(y) for y in np.asarray(v.wheel_y, dtype=float).reshape(4))
+        params = dict(
+            wheel_radius=v.wheel_radius,
+            half_track=0.5 * (v.c + v.d),
+            static_load=v.mass * config.observer.gravity / 4.0,
+            # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
+            shared=2.0 if v.drive == "per_side" else 1.0,
+            lift_off_force=LIFT_OFF_FORCE,
+            slip_deadband=config.slip_deadband, slip_floor=config.slip_floor,
+            slip_sigma=soil.slip_sigma, speed_sigma=soil.speed_sigma, gate_smoothing=soil.gate_smoothing,
+            fresh_age=soil.fresh_age, max_input_age=soil.max_input_age, min_load_fraction=soil.min_load_fraction,
+            stall_speed=limits.stall_speed, gross_idle=limits.gross_idle, rim_stopped=limits.rim_stopped,
+            moving=limits.moving, rim_turning=limits.rim_turning, yaw_turning=limits.yaw_turning,
+        )
+        self.core = _core.SlipGateBank(int(n_vehicles), wheel_y, soil.measurement == "gross",
+                                       {k: float(x) for k, x in params.items()})
+
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput | np.ndarray | tuple) -> SoilInputs:
+        """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them (or its packed rows:
+        :func:`pack_output`'s array, or :func:`pack_message`'s tuple for one vehicle)."""
+        rows = ob if isinstance(ob, (np.ndarray, tuple)) else pack_output(ob)
+        return SoilInputs(*self.core.step(np.asarray(ix, dtype=np.int64), np.asarray(stamp, dtype=float), rows))
