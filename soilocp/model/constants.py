@@ -78,14 +78,21 @@ class ModelConstants(BaseModel):
     @property
     def kernel(self):
         """These constants as the compiled core's ``soilocp._core.Constants`` (built once)."""
-        key = (self.C1, self.C2, self.C3, self.C4, self.C5, self.C6, self.alpha, self.beta, self.bridge_slip)
-        cached = self._kernel
+        # read through __dict__ and __pydantic_private__: pydantic's attribute hooks cost 8 us per call here,
+        # and the OCP stage asks at every new K
+        fields = self.__dict__
+        key = tuple([fields[name] for name in _KERNEL_FIELDS])
+        private = self.__pydantic_private__
+        cached = private.get("_kernel")
         if cached is None or cached[0] != key:
             from soilocp import _core
 
             cached = (key, _core.Constants(*key))
-            self._kernel = cached
+            private["_kernel"] = cached
         return cached[1]
+
+
+_KERNEL_FIELDS = ("C1", "C2", "C3", "C4", "C5", "C6", "alpha", "beta", "bridge_slip")
 
 
 DEFAULT_CONSTANTS = ModelConstants()
