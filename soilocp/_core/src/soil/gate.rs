@@ -117,9 +117,9 @@ impl SlipGateBank {
     }
 
     /// One sample per vehicle `idx[j]` (distinct, in range): its stamp (s) and its packed observer
-    /// output (`rows[j]`, [`COLUMNS`] numbers).  `any_refresh`: whether the soil update is to get
-    /// each wheel's refresh span and slip ends (it is when any of the k vehicles refreshes a wheel,
-    /// as the arrays of the update are the step's).  The [`Sample`]s carry no scale sigma.
+    /// output (`rows[j]`, [`COLUMNS`] numbers).  Every sample carries its wheels' refresh spans and
+    /// slip ends when any of the k vehicles refreshes a wheel (the numpy gate's arrays were the
+    /// step's), none otherwise.  The [`Sample`]s carry no scale sigma.
     pub fn step(&mut self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<Vec<Sample>, String> {
         let n = self.lp.len();
         let mut seen = vec![false; n];
