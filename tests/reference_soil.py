@@ -251,7 +251,7 @@ class ReferenceSoilBank:
         bool: the ground speed's last reading is older than ``max_input_age`` (no wheel informs K,
         and the reason names the ground speed, not the wheels' readings); ``span`` (k, 4) s: a pair that
         stands for a longer interval than the sample's own (a slow wheel-speed or torque stream's refresh,
-        :mod:`soilocp.estimation.refresh_traction`) weighs that interval's exponent, at most 1; 0 or None:
+        the core's soilocp/_core/src/observer/intervals.rs) weighs that interval's exponent, at most 1; 0 or None:
         the sample's;
         ``slip_ends`` (k, 4, 2): such a pair's slip at its interval's start and end: its mean gross traction
         is compared with the curve averaged over that slip path (Simpson's rule); ``scale_sigma`` (k,) or None:
@@ -633,7 +633,7 @@ class ReferenceSlipGate:
         else:
             observed, var = direction * ob.mu, ob.mu_var * self._shared
         unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
-        # a slow stream's refresh: the pair from the readings (soilocp.estimation.refresh_traction: eq. 13
+        # a slow stream's refresh: the pair from the readings (soilocp/_core/src/observer/intervals.rs: eq. 13
         # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
         # prediction through the held value; gross only
         refresh = ob.interval > 0 if cfg.soil.measurement == "gross" else np.zeros(ob.interval.shape, dtype=bool)
