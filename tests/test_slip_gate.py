@@ -203,3 +203,37 @@ def test_core_records_equal_the_python_records_on_random_sequences(seed, steps, 
         got = bank.update(ix, stamp, inp, sigma)
         c = None if inp.unusable is None or not np.asarray(inp.unusable).any() else np.asarray(inp.unusable, np.int64)
         assert got == ref.summaries(ix, stamp, recording.last, inp, c)
+
+
+def test_one_call_equals_gate_then_update_and_a_refused_step_moves_nothing():
+    """The soil stage's one core call (SoilBank.step_gated: gate, update, records) against the two-call path the
+    map prior uses (SlipGate.step, then SoilBank.update) on a drive; and a step the core refuses (a non-finite
+    packed row, a scale sigma of the wrong length) leaves the gate's low-pass and the beliefs as they were."""
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    normal, observer = NormalForceStage(cfg), ObserverStage(cfg)
+    one_gate, one_bank = SlipGate(cfg, 1), SoilBank(cfg.constants, cfg.soil, 1)
+    two_gate, two_bank = SlipGate(cfg, 1), SoilBank(cfg.constants, cfg.soil, 1)
+    ix = np.zeros(1, dtype=int)
+    refused = 0
+    for n, (sample, _) in enumerate(get_variant("nominal").simulate(0, duration=6.0)):
+        msg = observer.step(sample, normal.step(sample))
+        rows, stamp = np.array([pack_message(msg)], dtype=float), np.array([msg.stamp])
+        if n % 97 == 50:  # a bad step between good ones
+            lp, lp_stamp, belief = one_gate.core.lp, one_gate.core.lp_stamp, one_bank.core.p.copy()
+            bad = rows.copy()
+            bad[0, 4 * GATE_FIELDS.index("gross")] = np.nan  # the gross traction the soil update reads
+            for args in ((bad, None), (rows, np.array([0.01, 0.02]))):
+                with pytest.raises(ValueError):
+                    one_bank.step_gated(one_gate, ix, stamp, *args)
+                refused += 1
+            np.testing.assert_array_equal(one_gate.core.lp, lp)
+            np.testing.assert_array_equal(one_gate.core.lp_stamp, lp_stamp)
+            np.testing.assert_array_equal(one_bank.core.p, belief)
+        inp_one, got = one_bank.step_gated(one_gate, ix, stamp, rows)
+        inp_two = two_gate.step(ix, stamp, rows)
+        want = two_bank.update(ix, stamp, inp_two)
+        _same(inp_one, inp_two, f"#{msg.seq}")
+        assert got == want, (msg.seq, got, want)
+    assert refused >= 4

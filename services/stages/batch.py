@@ -4,8 +4,7 @@ A drop-in for the four services ``normal-force``, ``observer``, ``soil-strength`
 one deployment (the gateway stays as it is): it subscribes to every vehicle's ``sensors/clean``,
 computes the normal forces of all pending samples in one call (:func:`soilocp.model.normal_force`'s
 solver, eqs. 21-25), steps all vehicles that have a sample together with
-:class:`soilocp.estimation.batch.BatchPipeline` (numpy over stacked arrays instead of one filterpy filter
-per vehicle), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same numbers as
+:class:`soilocp.estimation.batch.BatchPipeline` (the compiled core's banks, one call per step for all of them), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same numbers as
 the per-vehicle services and ``soilocp estimate`` (``tests/test_batch.py``).  It *is* the OCP
 publisher (subclass of :class:`~services.stages.ocp.OcpService`: same queryable, history, stale
 reports, health on ``soilocp/<vid>/status/ocp``) and also holds the ``normal-force``,

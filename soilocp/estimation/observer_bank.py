@@ -72,7 +72,7 @@ class ObserverInputs:
     wheel_speed: np.ndarray
     wheel_torque: np.ndarray
     ground_speed: np.ndarray  # NaN: no independent ground-speed sensor (slip and K not identifiable)
-    normal_force: np.ndarray  # as computed by the normal-force stage (clamped to LIFT_OFF_FORCE here)
+    normal_force: np.ndarray  # as computed by the normal-force stage (the core clamps it to LIFT_OFF_FORCE)
 
     def check(self) -> int:
         """k, the number of vehicles, after checking every field's shape ((k,) or (k, 4)), dtype and

@@ -91,7 +91,7 @@ class TorqueScaleBank:
         # soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
         self.k_default = float(np.median(list(constants.soils.values())))
         self._n = n_vehicles
-        # the squares as Python takes them (pow), so that the state's variances are the numpy kernel's to the bit.
+        # the squares as Python takes them (pow), so that the state's variances are tests/reference_torque_scale.py's to the bit.
         # An inactive bank (disabled, or no prior) has no state: k = 1 +- prior_sigma always
         self._core = None if not self.active else _core.TorqueScaleCore(
             constants.kernel, n_vehicles, vehicle.mass, vehicle.wheel_inertia, vehicle.wheel_radius, {

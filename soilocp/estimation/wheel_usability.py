@@ -45,9 +45,6 @@ EXPLAIN = {
                "model does not describe",
 }
 
-V_STILL = 0.02  # m/s: below this the ground under a wheel does not move of its own (its direction is the rim's; slip.rs)
-
-
 @dataclass(frozen=True)
 class UsabilityLimits:
     """Thresholds of :func:`wheel_usability` (docs/method.md §17)."""
@@ -63,7 +60,7 @@ class UsabilityLimits:
 def travel_slip(rim, ground, floor: float):
     """Eq. 1 in the wheel's direction of travel (docs/method.md §17): S = d (R_w omega - V) /
     max(|V|, |R_w omega|, floor), d the sign of the ground speed under the wheel, or of the rim where the
-    ground stands (|V| < ``V_STILL``), +1 where both stand.  Correction to the print: the print is for
+    ground stands (|V| < 0.02 m/s, slip.rs's V_STILL), +1 where both stand.  Correction to the print: the print is for
     forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel that
     drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a braking
     wheel and flipped its motion resistance.  Returns (S, d), arrays of the broadcast shape of ``rim`` and

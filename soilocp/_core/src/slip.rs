@@ -8,10 +8,10 @@
 //!   braking one, in the body frame; [`travel_slip`] turns it into the wheel's direction of travel
 //!   (the print is for forward travel only).
 
-use crate::observer::numeric::np_max;
+use crate::observer::numeric::{np_max, np_sign as sign};
 
 /// m/s: below this the ground under a wheel does not move of its own, and the wheel's direction of
-/// travel is its rim's (soilocp.estimation.wheel_usability.V_STILL).
+/// travel is its rim's.
 pub const V_STILL: f64 = 0.02;
 
 /// Eq. 1 with the floor of §10: S = (R_w omega - V) / max(|V|, |R_w omega|, floor), from the rim
@@ -49,18 +49,6 @@ pub fn travel_direction(rim: f64, ground: f64) -> f64 {
 pub fn travel_slip(rim: f64, ground: f64, floor: f64) -> (f64, f64) {
     let d = travel_direction(rim, ground);
     (d * slip(rim, ground, floor), d)
-}
-
-/// `np.sign`: -1, 0 or +1, NaN for NaN.
-#[inline]
-fn sign(x: f64) -> f64 {
-    if x > 0.0 {
-        1.0
-    } else if x < 0.0 {
-        -1.0
-    } else {
-        x // 0.0, -0.0 or NaN, as numpy gives them
-    }
 }
 
 #[cfg(test)]

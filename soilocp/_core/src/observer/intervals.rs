@@ -215,7 +215,7 @@ impl RefreshIntervals {
         out
     }
 
-    /// A slow torque stream's refresh (a motor current held 0.1-1 s between readings) while the
+    /// docs/method.md §13: a slow torque stream's refresh (a motor current held 0.1-1 s between readings) while the
     /// wheel speed is read at every sample, for vehicle `g`: eq. 13 at this instant from the
     /// readings, g = (T - I_w omega_dot) / (R_w Fz), with omega_dot the last two speed readings'
     /// difference (1-sigma I_w sqrt(2) speed_sigma / dt / (R_w Fz): 0.008 at 100 Hz), at the slip

@@ -43,7 +43,7 @@ pub const ROVER: Vehicle = Vehicle {
 
 /// The travel direction of each wheel, smoothed over `travel_speed` (§11): clip(v / s, -1, 1).
 #[inline]
-pub fn travel_direction(v_wheel: f64, travel_speed: f64) -> f64 {
+pub fn smoothed_direction(v_wheel: f64, travel_speed: f64) -> f64 {
     np_min(np_max(v_wheel / travel_speed, -1.0), 1.0)
 }
 
@@ -59,7 +59,7 @@ pub fn resistance_map(l: &Layout, v: &Vehicle, x: &[f64], travel_speed: f64, bri
                 let rim = x[om + i] * v.wheel_radius;
                 let ground = ground0 - psi * v.wheel_y[i];
                 let slip = crate::slip::slip(rim, ground, 0.05);
-                let d = travel_direction(ground, travel_speed);
+                let d = smoothed_direction(ground, travel_speed);
                 let a = slip.abs();
                 out[2 * i] = if bridge > 0.0 { d * np_min(a / bridge, 1.0) } else { d };
                 out[2 * i + 1] = a * d;

@@ -12,6 +12,18 @@
 //!   products; sparse rows, most of ours, differ less): not bit-identical, hence the documented
 //!   tolerance of scripts/equivalence.py.
 
+/// `np.sign(x)`: -1, 0 or +1; 0.0, -0.0 and NaN as they came.
+#[inline]
+pub fn np_sign(x: f64) -> f64 {
+    if x > 0.0 {
+        1.0
+    } else if x < 0.0 {
+        -1.0
+    } else {
+        x
+    }
+}
+
 /// `np.minimum(a, b)`: NaN if either is NaN.
 #[inline]
 pub fn np_min(a: f64, b: f64) -> f64 {

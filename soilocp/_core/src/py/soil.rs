@@ -1,6 +1,6 @@
 //! `soilocp._core.SoilGridBank`: N vehicles' ln K grid beliefs (crate::soil), one call per step for
-//! k selected vehicles, arrays in and arrays / codes out.  The status and reason text stay in
-//! Python (soilocp.estimation.soil_strength), made from what `step` returns.
+//! k selected vehicles, arrays in and arrays / codes out: the records' status and reason codes are
+//! made in crate::soil::status; Python (soilocp.estimation.soil_strength) words them.
 
 use std::collections::HashMap;
 
@@ -92,13 +92,14 @@ pub struct SlipGateBank {
 }
 
 impl SlipGateBank {
-    /// The step of the vehicles `idx` at `stamp` from their packed observer outputs `rows`.
+    /// The step of the vehicles `idx` at `stamp` from their packed observer outputs `rows`: the
+    /// samples, and a [`PendingGate`] to commit once the caller has accepted them.
     fn run(
-        &mut self,
+        &self,
         idx: &PyReadonlyArray1<'_, i64>,
         stamp: &PyReadonlyArray1<'_, f64>,
         rows: &Bound<'_, PyAny>,
-    ) -> PyResult<Vec<Sample>> {
+    ) -> PyResult<(Vec<Sample>, PendingGate)> {
         let k = idx.as_array().len();
         let idx = column("idx", idx, k)?;
         if let Some(bad) = idx.iter().find(|&&i| i < 0) {
@@ -134,8 +135,21 @@ impl SlipGateBank {
             v
         };
         let rows: Vec<&[f64]> = flat.chunks_exact(gate::COLUMNS).collect();
-        self.inner.step(&idx, &stamp, &rows).map_err(PyValueError::new_err)
+        let (samples, lps) = self.inner.samples(&idx, &stamp, &rows).map_err(PyValueError::new_err)?;
+        Ok((samples, PendingGate { idx, stamp, lps }))
     }
+
+    fn commit(&mut self, pending: PendingGate) {
+        self.inner.commit(&pending.idx, &pending.stamp, &pending.lps);
+    }
+}
+
+/// A gate step computed and not yet kept: kept only once its samples are accepted, so that a refused
+/// step (a non-finite sample, a bad scale sigma) leaves the low-pass slips as they were.
+struct PendingGate {
+    idx: Vec<usize>,
+    stamp: Vec<f64>,
+    lps: Vec<[f64; 4]>,
 }
 
 #[pymethods]
@@ -220,7 +234,9 @@ impl SlipGateBank {
         stamp: PyReadonlyArray1<'py, f64>,
         rows: Bound<'py, PyAny>,
     ) -> PyResult<GateArrays<'py>> {
-        let samples = self.run(&idx, &stamp, &rows)?;
+        let (samples, pending) = self.run(&idx, &stamp, &rows)?;
+        check_finite(&samples)?; // before the state moves: a refused step leaves the low-pass as it was
+        self.commit(pending);
         gate_arrays(py, &samples)
     }
 
@@ -556,16 +572,17 @@ impl SoilGridBank {
                 "step_gated: call set_status first (the records' settings)",
             ));
         }
-        let mut samples = gate.run(&idx, &stamp, &rows)?;
+        let (mut samples, pending) = gate.run(&idx, &stamp, &rows)?;
         if let Some(a) = scale_sigma {
             let sig = column("scale_sigma", &a, samples.len())?;
             for (s, v) in samples.iter_mut().zip(sig) {
                 s.scale_sigma = Some(v);
             }
         }
-        let inputs = gate_arrays(py, &samples)?;
         check_finite(&samples)?;
         let out = self.step_samples(&samples)?;
+        gate.commit(pending);
+        let inputs = gate_arrays(py, &samples)?;
         let used: Vec<[bool; 4]> = out.iter().map(|s| s.wheel.map(|f| f & bank::USED != 0)).collect();
         Ok((inputs, report_arrays(py, &self.reports, &used)))
     }
@@ -594,8 +611,8 @@ impl SoilGridBank {
     }
 
     /// Vehicle `i`'s axle-check window (soil/axles.rs): the decaying time with the axles' z over
-    /// the threshold, and all the judged time, as of its last step.  The status reads them where one
-    /// axle is not informing now, so the check does not judge now (soil_strength.SoilBank._vouch).
+    /// the threshold, and all the judged time, as of its last step (crate::soil::status reads them where
+    /// one axle is not informing now; the tests' reference records read them here).
     fn axle_window(&self, i: usize) -> PyResult<(f64, f64)> {
         let b = self
             .inner

@@ -324,8 +324,8 @@ impl TorqueScaleCore {
     }
 }
 
-/// Eq. TC (crate::torque_scale::balance::longitudinal_balance) over 1-D arrays of one length
-/// (the caller broadcasts): (x, y) in N.  `resistance` None: b is the whole F_MR.
+/// Eq. TC, the longitudinal force balance of docs/method.md §15 (crate::torque_scale::balance::longitudinal_balance),
+/// over 1-D arrays of one length (the caller broadcasts): (x, y) in N.  `resistance` None: b is the whole F_MR.
 #[pyfunction]
 #[pyo3(signature = (f_x, omega_dot_sum, torque_sum, mass, wheel_inertia, wheel_radius, resistance=None))]
 #[allow(clippy::too_many_arguments)]
@@ -354,7 +354,8 @@ pub fn longitudinal_balance<'py>(
     Ok((x.into_pyarray(py), y.into_pyarray(py)))
 }
 
-/// F_MR,model (crate::torque_scale::balance::modelled_resistance) per row: slips and normal
+/// F_MR,model: eq. 4's motion resistance summed over the wheels, even in slip with the wheel's direction
+/// of travel (docs/method.md §11, §17; crate::torque_scale::balance::modelled_resistance) per row: slips and normal
 /// forces (k, 4), soil strength and direction of travel (k,); returns (k,) in N.
 #[pyfunction]
 pub fn modelled_resistance<'py>(

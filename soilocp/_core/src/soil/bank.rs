@@ -4,6 +4,7 @@
 //! (evidence, NIS, the systematic budget's sums), the scale profile, the scale's systematic term
 //! and the axle check.
 
+use crate::observer::numeric::np_sign as sign;
 use crate::soil::axles::{AxleCheck, AxleVerdict};
 use crate::soil::grid::Grid;
 use crate::soil::numeric::{pairwise_sum, row_max};
@@ -391,16 +392,6 @@ impl SoilGridBank {
             axle,
             floor_cdf: cdf[self.floor_idx.min(g - 1)],
         }
-    }
-}
-
-fn sign(x: f64) -> f64 {
-    if x > 0.0 {
-        1.0
-    } else if x < 0.0 {
-        -1.0
-    } else {
-        x // 0 and NaN as np.sign
     }
 }
 

@@ -118,9 +118,22 @@ impl SlipGateBank {
 
     /// One sample per vehicle `idx[j]` (distinct, in range): its stamp (s) and its packed observer
     /// output (`rows[j]`, [`COLUMNS`] numbers).  Every sample carries its wheels' refresh spans and
-    /// slip ends when any of the k vehicles refreshes a wheel (the numpy gate's arrays were the
-    /// step's), none otherwise.  The [`Sample`]s carry no scale sigma.
+    /// slip ends when any of the k vehicles refreshes a wheel (arrays of the whole
+    /// step, as the gate's callers read them), none otherwise.  The [`Sample`]s carry no scale sigma.
     pub fn step(&mut self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<Vec<Sample>, String> {
+        let (samples, lps) = self.samples(idx, stamp, rows)?;
+        self.commit(idx, stamp, &lps);
+        Ok(samples)
+    }
+
+    /// [`Self::step`] without touching the state: the samples and each vehicle's new low-pass slip,
+    /// for [`Self::commit`] once the caller has accepted them (a refused step leaves the gate as it was).
+    pub fn samples(
+        &self,
+        idx: &[usize],
+        stamp: &[f64],
+        rows: &[&[f64]],
+    ) -> Result<(Vec<Sample>, Vec<[f64; 4]>), String> {
         let n = self.lp.len();
         let mut seen = vec![false; n];
         for &i in idx {
@@ -135,17 +148,25 @@ impl SlipGateBank {
         let cfg = &self.cfg;
         let refreshes = |row: &[f64]| cfg.gross && row4(row, quad::INTERVAL).iter().any(|&v| v > 0.0);
         let any_refresh = rows.iter().any(|r| refreshes(r));
-        let mut out = Vec::with_capacity(idx.len());
-        for ((&i, &t), row) in idx.iter().zip(stamp).zip(rows) {
-            let (s, lp) = self.one(i, t, row, any_refresh);
-            self.lp[i] = lp;
-            self.lp_stamp[i] = t;
-            out.push(s);
-        }
-        Ok(out)
+        Ok(idx
+            .iter()
+            .zip(stamp)
+            .zip(rows)
+            .map(|((&i, &t), row)| self.one(i, t, row, any_refresh))
+            .unzip())
     }
 
-    /// Vehicle `i`'s sample and its new low-pass slip.
+    /// Keep the low-pass slips `lps` of [`Self::samples`] as the vehicles' state at `stamp`.
+    pub fn commit(&mut self, idx: &[usize], stamp: &[f64], lps: &[[f64; 4]]) {
+        for ((&i, &t), lp) in idx.iter().zip(stamp).zip(lps) {
+            self.lp[i] = *lp;
+            self.lp_stamp[i] = t;
+        }
+    }
+
+    /// Vehicle `i`'s sample and its new low-pass slip: eq. 1 in the wheel's direction of travel with the
+    /// floor and deadband (docs/method.md §6, §10, §17), and the gate's low-pass slip and its
+    /// stationary 1-sigma (§9).
     fn one(&self, i: usize, stamp: f64, row: &[f64], any_refresh: bool) -> (Sample, [f64; 4]) {
         let cfg = &self.cfg;
         let q = |f: usize| row4(row, f);

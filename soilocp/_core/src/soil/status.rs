@@ -469,6 +469,11 @@ mod tests {
         assert_eq!(py_hypot(f64::NAN, f64::INFINITY), f64::INFINITY);
         assert_eq!(py_hypot(1e-310, 0.0), 1e-310);
         assert_eq!(py_hypot(0.1, 0.2), 0.223_606_797_749_979);
+        // libm's hypot gives ...415 here: a port to f64::hypot fails this line
+        assert_eq!(
+            py_hypot(0.115_102_498_427_927_3, 0.885_060_070_379_661_1),
+            0.892_513_256_666_141_3
+        );
     }
 
     #[test]

@@ -100,7 +100,9 @@ impl TorqueScaleBank {
         }
     }
 
-    /// Add vehicle i's sample, close its window if full and update its state by it.  Returns k's
+    /// Add vehicle i's sample (eq. 1 with the §10 floor for the window's slip test, eq. 20's gravity
+    /// reaction, eq. 4's resistance where modelled), close its window if full and update its state by
+    /// eq. TC (docs/method.md §15).  Returns k's
     /// mean and 1-sigma after this sample.
     pub fn step(&mut self, i: usize, s: &Sample) -> (f64, f64) {
         let (p, r) = (&self.params, self.body.wheel_radius);

@@ -27,7 +27,7 @@ impl ScaleState {
         (self.theta[0], self.p[0][0].sqrt())
     }
 
-    /// One window's step: predict by its span (random walks; k's only where the window can see
+    /// One window's step of eq. TC's state (k, F_MR) (docs/method.md §15): predict by its span (random walks; k's only where the window can see
     /// it again, `accel`), then the update with y = k x - b.  A window without acceleration
     /// informs b alone: a Schmidt update (k's gain 0), so that at constant speed k stays at its
     /// prior however long the drive; Joseph form, which stays a covariance with a gain that is not

@@ -6,7 +6,8 @@
 use std::collections::HashMap;
 
 /// TorqueScaleConfig's per-sample numbers.  The squares are passed as Python computed them
-/// (`x**2`, libm's pow), so that the state's variances are the numpy kernel's to the bit.
+/// (`x**2`, libm's pow), so that the state's variances are those of the numpy kernel it replaced
+/// (tests/reference_torque_scale.py) to the bit.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Params {
     /// s: the force balance is taken over window means
