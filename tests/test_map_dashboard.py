@@ -9,7 +9,6 @@ import math
 import os
 import random
 import shutil
-import time
 import urllib.request
 
 import pytest
@@ -63,7 +62,18 @@ def mapped(tmp_path_factory):
         assert wait_for(connected, 60), procs.tail("dashboard")
         with client(ep) as s:
             assert wait_for(lambda: list(s.liveliness().get(keys.map_key("fleet", "alive"), timeout=1)), 60)
-            time.sleep(1.0)  # the dashboard's track subscriber is declared right after it connected
+            # the estimates are sent once, so first prove the dashboard's track subscriber is reached
+            # through the router: a probe in a frame of its own, put until its track shows
+            probe = s.declare_publisher(keys.soil("probe"))
+            seq = iter(range(10**6))
+
+            def probe_tracked():
+                pts = [((0.0, 0.0), (0.0, 0.0)), ((0.5, 0.5), (0.5, 0.5))][next(seq) % 2]
+                probe.put(estimate("probe", next(seq), 100.0, xy=pts, frame="probe").model_dump_json().encode())
+                return "probe" in _get(url + "/api/map?frame=probe")["tracks"]
+
+            assert wait_for(probe_tracked, 60), procs.tail("dashboard")
+            probe.undeclare()
             for seed, vid in enumerate(FLEET):
                 pub = s.declare_publisher(keys.soil(vid))
                 for p in _drive_estimates(vid, seed):
@@ -83,7 +93,11 @@ def test_map_api_gives_cells_with_bands_and_tracks(mapped):
             else None
 
     view = wait_for(ready, 120)  # the map service commits in batches; a loaded machine needs more than 30 s
-    assert view, (_get(url + "/api/map?frame=field"), procs.tail("dashboard"))
+    if not view:
+        last = _get(url + "/api/map?frame=field")
+        pytest.fail(f"map view not complete after 120 s: {len(last['cells'])} cells (want >= 20), tracks "
+                    f"{ {v: len(t) for v, t in last['tracks'].items()} } (want 3 of > 50), error {last['error']!r}\n"
+                    f"dashboard: {procs.tail('dashboard')}\nmap: {procs.tail('map')}")
     assert view["error"] is None and view["frame"] == "field"
     for c in view["cells"]:
         k_true = mixed_field().soil_at(*[sum(q) / 4 for q in zip(*c["polygon"][:4])])[1]

@@ -71,12 +71,14 @@ class DashboardHub:
         if self.stop_event.is_set():
             session.close()
             return
-        self.session = session
         self.monitor = FleetMonitor(session, self.state, poll_period_s=self.poll_period_s).start()
         from services.fleet.map_view import TrackRecorder  # the map view's vehicle tracks (docs/map.md)
 
         self.tracks = TrackRecorder(session).start()
+        # "connected" is read from the session: it is set only once every subscriber is declared,
+        # so an estimate published after the page says connected reaches the tracks
         self.connected_at = time.time()
+        self.session = session
 
     def close(self) -> None:
         self.stop_event.set()
