@@ -1,6 +1,7 @@
 //! The Python side of the kernels: each function takes arrays (a bank of N vehicles or a grid),
 //! runs the pure-Rust kernel once per element and returns arrays; one call per step.
 
+pub mod args;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;

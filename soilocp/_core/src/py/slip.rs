@@ -11,6 +11,8 @@ use pyo3::prelude::*;
 use crate::slip;
 use crate::soil::usability::{self, Limits};
 
+use super::args::quads;
+
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
 /// Both arrays as views of their common shape (numpy's broadcasting), or an error naming them.
@@ -88,17 +90,6 @@ pub fn travel_slip<'py>(
     Ok((s.into_pyarray(py), d.into_pyarray(py)))
 }
 
-fn rows4(name: &str, a: &PyReadonlyArray2<'_, f64>, k: usize) -> PyResult<Vec<[f64; 4]>> {
-    let v = a.as_array();
-    if v.shape() != [k, 4] {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k}, 4), got {:?}",
-            v.shape()
-        )));
-    }
-    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
-}
-
 /// The unusable code (k, 4) per wheel (docs/method.md §17, crate::soil::usability::codes) from the
 /// travel-frame slip, rim speeds and ground speeds under the wheels (k, 4), the body's ground speed
 /// and yaw rate (k,), the gross traction (k, 4), the half-track (m) and the limits (stall_speed,
@@ -118,10 +109,10 @@ pub fn wheel_usability<'py>(
 ) -> PyResult<Bound<'py, PyArray2<i8>>> {
     let k = slip.as_array().nrows();
     let (s, r, g, gr) = (
-        rows4("slip", &slip, k)?,
-        rows4("rim", &rim, k)?,
-        rows4("ground", &ground, k)?,
-        rows4("gross", &gross, k)?,
+        quads("slip", &slip, k)?,
+        quads("rim", &rim, k)?,
+        quads("ground", &ground, k)?,
+        quads("gross", &gross, k)?,
     );
     let (v, y) = (body_speed.as_array(), yaw_rate.as_array());
     if v.len() != k || y.len() != k {

@@ -4,6 +4,8 @@
 
 use std::collections::HashMap;
 
+use super::args::{column, quads};
+
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
@@ -300,29 +302,6 @@ fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -
     });
     let used = Array2::from_shape_fn((k, 4), |(j, w)| used[j][w]);
     (codes.into_pyarray(py), nums.into_pyarray(py), used.into_pyarray(py))
-}
-
-/// Rows of four (one per wheel) of a (k, 4) array, refused with the argument's name otherwise.
-fn quads<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray2<'_, T>, k: usize) -> PyResult<Vec<[T; 4]>> {
-    let v = a.as_array();
-    if v.shape() != [k, 4] {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k}, 4), got {:?}",
-            v.shape()
-        )));
-    }
-    Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
-}
-
-fn column<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray1<'_, T>, k: usize) -> PyResult<Vec<T>> {
-    let v = a.as_array();
-    if v.len() != k {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k},), got ({},)",
-            v.len()
-        )));
-    }
-    Ok(v.to_vec())
 }
 
 fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {

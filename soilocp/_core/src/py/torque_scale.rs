@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -14,29 +14,11 @@ use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank::{self, Sample};
 use crate::torque_scale::params::Params;
 
+use super::args::{check_len, check_quads};
+
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 /// `apply`'s result: the scaled torques (k, 4) and K's band scale (k,), or None (never learnt).
 type Scaled<'py> = Option<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)>;
-
-fn check_1d(name: &str, a: &ArrayView1<'_, f64>, k: usize) -> PyResult<()> {
-    if a.len() != k {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k},), got ({},)",
-            a.len()
-        )));
-    }
-    Ok(())
-}
-
-fn check_2d(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
-    if a.shape() != [k, 4] {
-        return Err(PyValueError::new_err(format!(
-            "{name} must have shape ({k}, 4), got {:?}",
-            a.shape()
-        )));
-    }
-    Ok(())
-}
 
 fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult<()> {
     if values.all(|v| v.is_finite()) {
@@ -113,14 +95,14 @@ impl TorqueScaleCore {
             ("yaw_rate", &yaw_rate),
             ("ground_speed", &ground_speed),
         ] {
-            check_1d(name, a, k)?;
+            check_len(name, a.len(), k)?;
         }
         let (ws, tq) = (wheel_speed.as_array(), wheel_torque.as_array());
-        check_2d("wheel_speed", &ws, k)?;
-        check_2d("wheel_torque", &tq, k)?;
+        check_quads("wheel_speed", ws.shape(), k)?;
+        check_quads("wheel_torque", tq.shape(), k)?;
         let nf = normal_force.map(|a| a.as_array());
         if let Some(a) = &nf {
-            check_2d("normal_force", a, k)?;
+            check_quads("normal_force", a.shape(), k)?;
         }
         Ok(ix
             .iter()
@@ -278,10 +260,10 @@ impl TorqueScaleCore {
         let ix = self.indices(&idx)?;
         let k = ix.len();
         let ks = soil_strength.as_array();
-        check_1d("soil_strength", &ks, k)?;
+        check_len("soil_strength", ks.len(), k)?;
         let slip = slip.as_ref().map(|a| a.as_array());
         if let Some(a) = &slip {
-            check_2d("slip", a, k)?;
+            check_quads("slip", a.shape(), k)?;
         }
         for (j, &i) in ix.iter().enumerate() {
             self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| row(a, j)));
@@ -342,11 +324,11 @@ pub fn longitudinal_balance<'py>(
     let body = Body::new(mass, wheel_inertia, wheel_radius).map_err(PyValueError::new_err)?;
     let (f, od, t) = (f_x.as_array(), omega_dot_sum.as_array(), torque_sum.as_array());
     let n = f.len();
-    check_1d("omega_dot_sum", &od, n)?;
-    check_1d("torque_sum", &t, n)?;
+    check_len("omega_dot_sum", od.len(), n)?;
+    check_len("torque_sum", t.len(), n)?;
     let res = resistance.as_ref().map(|a| a.as_array());
     if let Some(a) = &res {
-        check_1d("resistance", a, n)?;
+        check_len("resistance", a.len(), n)?;
     }
     let (x, y): (Vec<f64>, Vec<f64>) = (0..n)
         .map(|j| balance::longitudinal_balance(f[j], od[j], t[j], res.as_ref().map(|a| a[j]), &body))
@@ -373,9 +355,9 @@ pub fn modelled_resistance<'py>(
         direction.as_array(),
     );
     let n = k.len();
-    check_2d("slip", &s, n)?;
-    check_2d("normal_force", &fz, n)?;
-    check_1d("direction", &d, n)?;
+    check_quads("slip", s.shape(), n)?;
+    check_quads("normal_force", fz.shape(), n)?;
+    check_len("direction", d.len(), n)?;
     let out: Vec<f64> = (0..n)
         .map(|j| balance::modelled_resistance(&row(&s, j), k[j], &row(&fz, j), d[j], constants))
         .collect();
