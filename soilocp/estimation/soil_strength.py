@@ -32,10 +32,11 @@ against eq. 6, as the paper does.
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Optional, get_args
 
 import numpy as np
 
+from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
@@ -328,13 +329,19 @@ class SoilBank:
         raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
 
-#: the core's status codes (soilocp/_core/src/soil/status.rs), in order
-_STATUSES: tuple[Status, ...] = ("ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch")
-#: the core's reason codes (status.rs, ``reason``)
+#: the core's status codes (soilocp/_core/src/soil/status.rs), code -> name, checked against the schema's
+_STATUSES: tuple[Status, ...] = tuple(_core.SoilGridBank.status_names)
+assert set(_STATUSES) == set(get_args(Status)), f"soilocp._core's status names {_STATUSES} are not the schema's"
+#: the core's reason codes (status.rs, ``reason::NAMES``) by name: a name the core dropped fails here, at import
+_R = {name: code for code, name in enumerate(_core.SoilGridBank.reason_names)}
 (_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
  _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,
  _R_GROUND_STALE, _R_READINGS_HELD, _R_UNDETERMINED, _R_LEANS, _R_AXLE_WINDOW, _R_EVIDENCE, _R_OUT_SKID,
- _R_OUT_NO_WHEEL, _R_OUT_HOLDING, _R_OUT_OTHERS) = range(23)
+ _R_OUT_NO_WHEEL, _R_OUT_HOLDING, _R_OUT_OTHERS) = (_R[name] for name in (
+    "none", "not_yet", "stamp_backwards", "withdrawn", "holding", "wide", "systematic_scale",
+    "systematic_scale_calibrate", "systematic_radius", "not_identifiable", "axles", "nis", "below_floor",
+    "ground_stale", "readings_held", "undetermined", "leans", "axle_window", "evidence", "out_skid",
+    "out_no_wheel", "out_holding", "out_others"))
 
 
 class BayesSoilEstimator:

@@ -33,8 +33,9 @@ import numpy as np
 from soilocp import _core
 
 #: code -> name; 0 = usable
-REASONS = ("", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn")
-USABLE, SLIP_BEYOND_EQ1, STOPPED_UNPOWERED, STALL, SKID_TURN = range(5)
+REASONS: tuple[str, ...] = tuple(_core.SoilGridBank.unusable_names)  # soilocp/_core/src/soil/usability.rs
+USABLE, SLIP_BEYOND_EQ1, STOPPED_UNPOWERED, STALL, SKID_TURN = (REASONS.index(name) for name in (
+    "", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn"))
 
 #: what each code means, for the record's reason
 EXPLAIN = {

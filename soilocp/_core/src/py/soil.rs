@@ -18,8 +18,8 @@ use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
-use crate::soil::status::{Report, StatusBank};
-use crate::soil::usability::Limits;
+use crate::soil::status::{self, Report, StatusBank};
+use crate::soil::usability::{self, Limits};
 use crate::traction::Kind;
 
 /// What `SoilGridBank.step` returns, per selected vehicle (k rows): wheel flags (k, 4) uint8
@@ -248,6 +248,18 @@ impl SlipGateBank {
         gate::COLUMNS
     }
 
+    /// The names of a packed row's per-wheel fields, in order (four columns each).
+    #[classattr]
+    fn quad_fields() -> Vec<&'static str> {
+        gate::QUAD_NAMES.to_vec()
+    }
+
+    /// The names of a packed row's per-vehicle fields, in order, after the quads.
+    #[classattr]
+    fn scalar_fields() -> Vec<&'static str> {
+        gate::SCALAR_NAMES.to_vec()
+    }
+
     #[getter]
     fn n_vehicles(&self) -> usize {
         self.inner.lp.len()
@@ -372,6 +384,24 @@ fn check_finite(samples: &[Sample]) -> PyResult<()> {
 
 #[pymethods]
 impl SoilGridBank {
+    /// The records' status codes' names, code -> name.
+    #[classattr]
+    fn status_names() -> Vec<&'static str> {
+        status::STATUS_NAMES.to_vec()
+    }
+
+    /// The records' reason codes' names, code -> name (the Python side words each).
+    #[classattr]
+    fn reason_names() -> Vec<&'static str> {
+        status::reason::NAMES.to_vec()
+    }
+
+    /// The wheels' unusable codes' names, code -> name ("": usable).
+    #[classattr]
+    fn unusable_names() -> Vec<&'static str> {
+        usability::NAMES.to_vec()
+    }
+
     /// The bank of `n_vehicles` from `constants`, the `measurement` ("gross" or "net"), the grid as
     /// numpy made it (theta = ln K nodes, k_grid = e^theta, amp = C1 (1 - e^{-C2 K})), the scale
     /// profile's nodes (z in 1-sigma units, their log prior), the weakest fitted soil's K / 2

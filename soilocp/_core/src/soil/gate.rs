@@ -47,6 +47,36 @@ pub mod scalar {
     pub const GROUND_SPEED_MEASURED: usize = GROUND_SPEED + 4;
 }
 
+/// The names of the per-wheel fields, in [`quad`]'s order (soilocp.estimation.slip_gate.GATE_QUADS).
+pub const QUAD_NAMES: [&str; quad::COUNT] = [
+    "mu",
+    "mu_var",
+    "gross",
+    "gross_var",
+    "wheel_speed",
+    "normal_force",
+    "speed_age",
+    "torque_age",
+    "interval",
+    "interval_gross",
+    "interval_gross_var",
+    "interval_rim_start",
+    "interval_rim_end",
+    "interval_ground_start",
+    "interval_ground_end",
+    "interval_rim_sigma",
+    "interval_learning",
+];
+
+/// The names of the per-vehicle fields, in [`scalar`]'s order (soilocp.estimation.slip_gate.GATE_SCALARS).
+pub const SCALAR_NAMES: [&str; 5] = [
+    "ground_speed",
+    "yaw_rate",
+    "reset",
+    "ground_speed_age",
+    "ground_speed_measured",
+];
+
 /// Numbers per vehicle in a packed row.
 pub const COLUMNS: usize = scalar::GROUND_SPEED + 5;
 
@@ -314,6 +344,45 @@ impl SlipGateBank {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_follow_the_column_indices() {
+        use quad::*;
+        let quads = [
+            (MU, "mu"),
+            (MU_VAR, "mu_var"),
+            (GROSS, "gross"),
+            (GROSS_VAR, "gross_var"),
+            (WHEEL_SPEED, "wheel_speed"),
+            (NORMAL_FORCE, "normal_force"),
+            (SPEED_AGE, "speed_age"),
+            (TORQUE_AGE, "torque_age"),
+            (INTERVAL, "interval"),
+            (INTERVAL_GROSS, "interval_gross"),
+            (INTERVAL_GROSS_VAR, "interval_gross_var"),
+            (INTERVAL_RIM_START, "interval_rim_start"),
+            (INTERVAL_RIM_END, "interval_rim_end"),
+            (INTERVAL_GROUND_START, "interval_ground_start"),
+            (INTERVAL_GROUND_END, "interval_ground_end"),
+            (INTERVAL_RIM_SIGMA, "interval_rim_sigma"),
+            (INTERVAL_LEARNING, "interval_learning"),
+        ];
+        assert_eq!(quads.len(), COUNT);
+        for (i, name) in quads {
+            assert_eq!(QUAD_NAMES[i], name);
+        }
+        let scalars = [
+            (scalar::GROUND_SPEED, "ground_speed"),
+            (scalar::YAW_RATE, "yaw_rate"),
+            (scalar::RESET, "reset"),
+            (scalar::GROUND_SPEED_AGE, "ground_speed_age"),
+            (scalar::GROUND_SPEED_MEASURED, "ground_speed_measured"),
+        ];
+        for (i, name) in scalars {
+            assert_eq!(SCALAR_NAMES[i - scalar::GROUND_SPEED], name);
+        }
+        assert_eq!(COLUMNS, 4 * QUAD_NAMES.len() + SCALAR_NAMES.len());
+    }
 
     fn params() -> GateParams {
         GateParams {

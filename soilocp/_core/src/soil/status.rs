@@ -20,6 +20,16 @@ pub const NO_ESTIMATE: u8 = 3;
 pub const NOT_OBSERVABLE: u8 = 4;
 pub const MODEL_MISMATCH: u8 = 5;
 
+/// The status codes' names, code -> name (soilocp.estimation.soil_strength takes them from here).
+pub const STATUS_NAMES: [&str; 6] = [
+    "ok",
+    "uncertain",
+    "holding",
+    "no_estimate",
+    "not_observable",
+    "model_mismatch",
+];
+
 /// Reason codes (soilocp.estimation.soil_strength words them; `args` in brackets).
 pub mod reason {
     pub const NONE: u8 = 0;
@@ -62,6 +72,33 @@ pub mod reason {
     pub const OUT_HOLDING: u8 = 21;
     /// out of model, K from the other wheels
     pub const OUT_OTHERS: u8 = 22;
+
+    /// The reason codes' names, code -> name (soilocp.estimation.soil_strength words each).
+    pub const NAMES: [&str; 23] = [
+        "none",
+        "not_yet",
+        "stamp_backwards",
+        "withdrawn",
+        "holding",
+        "wide",
+        "systematic_scale",
+        "systematic_scale_calibrate",
+        "systematic_radius",
+        "not_identifiable",
+        "axles",
+        "nis",
+        "below_floor",
+        "ground_stale",
+        "readings_held",
+        "undetermined",
+        "leans",
+        "axle_window",
+        "evidence",
+        "out_skid",
+        "out_no_wheel",
+        "out_holding",
+        "out_others",
+    ];
 }
 
 /// SoilConfig's numbers the status reads, and the grid's ln K span.
@@ -459,6 +496,52 @@ impl StatusBank {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_follow_the_codes() {
+        let statuses = [
+            (OK, "ok"),
+            (UNCERTAIN, "uncertain"),
+            (super::HOLDING, "holding"),
+            (NO_ESTIMATE, "no_estimate"),
+            (NOT_OBSERVABLE, "not_observable"),
+            (MODEL_MISMATCH, "model_mismatch"),
+        ];
+        assert_eq!(statuses.len(), STATUS_NAMES.len());
+        for (c, name) in statuses {
+            assert_eq!(STATUS_NAMES[c as usize], name);
+        }
+        use reason::*;
+        let reasons = [
+            (NONE, "none"),
+            (NOT_YET, "not_yet"),
+            (STAMP_BACKWARDS, "stamp_backwards"),
+            (WITHDRAWN, "withdrawn"),
+            (reason::HOLDING, "holding"),
+            (WIDE, "wide"),
+            (SYSTEMATIC_SCALE, "systematic_scale"),
+            (SYSTEMATIC_SCALE_CALIBRATE, "systematic_scale_calibrate"),
+            (SYSTEMATIC_RADIUS, "systematic_radius"),
+            (NOT_IDENTIFIABLE, "not_identifiable"),
+            (AXLES, "axles"),
+            (NIS, "nis"),
+            (BELOW_FLOOR, "below_floor"),
+            (GROUND_STALE, "ground_stale"),
+            (READINGS_HELD, "readings_held"),
+            (reason::UNDETERMINED, "undetermined"),
+            (LEANS, "leans"),
+            (AXLE_WINDOW, "axle_window"),
+            (EVIDENCE, "evidence"),
+            (OUT_SKID, "out_skid"),
+            (OUT_NO_WHEEL, "out_no_wheel"),
+            (OUT_HOLDING, "out_holding"),
+            (OUT_OTHERS, "out_others"),
+        ];
+        assert_eq!(reasons.len(), reason::NAMES.len());
+        for (c, name) in reasons {
+            assert_eq!(reason::NAMES[c as usize], name);
+        }
+    }
 
     #[test]
     fn hypot_is_pythons() {

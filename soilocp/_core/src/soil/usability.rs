@@ -15,6 +15,9 @@ pub const STALL: i8 = 3;
 /// The vehicle turns about a point within its track: the wheels slide sideways (eq. 12).
 pub const SKID_TURN: i8 = 4;
 
+/// The codes' names, code -> name ("" for usable): soilocp.estimation.wheel_usability.REASONS takes them.
+pub const NAMES: [&str; 5] = ["", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn"];
+
 /// Thresholds of [`codes`] (soilocp.estimation.wheel_usability.UsabilityLimits).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
@@ -90,6 +93,21 @@ pub fn codes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_follow_the_codes() {
+        let codes = [
+            (USABLE, ""),
+            (SLIP_BEYOND_EQ1, "slip_beyond_eq1"),
+            (STOPPED_UNPOWERED, "stopped_unpowered"),
+            (STALL, "stall"),
+            (SKID_TURN, "skid_turn"),
+        ];
+        assert_eq!(codes.len(), NAMES.len());
+        for (c, name) in codes {
+            assert_eq!(NAMES[c as usize], name);
+        }
+    }
 
     #[test]
     fn vectors_of_method_md() {
