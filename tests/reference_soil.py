@@ -10,15 +10,14 @@ the status logic left out: :meth:`ReferenceSoilBank.update` returns the numbers 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import ModelConstants
 from soilocp.model.traction import curve_unchecked
-from soilocp.estimation.soil_config import SoilConfig, SoilState, class_bounds
-from soilocp.estimation.soil_strength import _HoldLogic
+from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds
 from soilocp.estimation.wheel_usability import REASONS, describe
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
@@ -721,6 +720,44 @@ def classify_many(log_k: np.ndarray, log_k_std: np.ndarray, constants: ModelCons
 # --- the soil records as Python made them before the core (soilocp/estimation/soil_strength.py's SoilBank._vouch,
 # --- _summaries and _out_of_model at 86852cb), on the core step's arrays: the reference of
 # --- tests/test_slip_gate.py's record test
+
+class _HoldLogic:
+    """The records' 'holding' / expiry bookkeeping and the held band (docs/method.md §9: hold, flagged; never
+    drift): the reference of soilocp/_core/src/soil/status.rs ``StatusParams::hold``, which the product runs."""
+
+    def __init__(self, cfg: SoilConfig):
+        self.cfg = cfg
+        self.last_update: Optional[float] = None
+        self.held: Optional[tuple[float, float | None, float | None]] = None
+
+    def status(self, stamp: float, k: float, k_std, log_std) -> tuple[Status, str, tuple]:
+        cfg = self.cfg
+        if self.last_update is None:
+            return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, (None, None, None)
+        age = stamp - self.last_update
+        if age < 0:  # stamps went backwards (a restarted source): the old update time means nothing
+            self.last_update = self.held = None
+            return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", (None, None, None)
+        if age > cfg.hold_after + cfg.expire_after:
+            return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", (None, None, None)
+        if age == 0.0 or self.held is None:
+            self.held = (k, k_std, log_std)  # fresh: this sample updated the belief
+        else:
+            # no information this sample: report the last informed estimate, not the belief
+            # that is diffusing towards the change prior (docs/method.md §9: never drift)
+            k, _, held_log = self.held
+            if log_std is not None and held_log is not None:
+                # a held band never narrower than the soil's own drift allows since the update (q_log_k per
+                # sqrt(s)): the belief's spread widens with the change hazard per metre, and at a standstill
+                # with the random walk only; the age is in the record (SoilState.held_for_s)
+                log_std = max(log_std, math.hypot(held_log, cfg.q_log_k * math.sqrt(age)))
+            k_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0, k * math.sinh(log_std or 0.0))
+        if age > cfg.hold_after:
+            return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (k, k_std, log_std)
+        if log_std is not None and log_std > cfg.uncertain_log_sigma:
+            return "uncertain", f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: K poorly determined", (k, k_std, log_std)
+        return "ok", "", (k, k_std, log_std)
+
 
 class ReferenceRecords:
     """Status, reason, K held or withdrawn, band and class of a :class:`soilocp.estimation.soil_strength.SoilBank`'s

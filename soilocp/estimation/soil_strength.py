@@ -65,42 +65,20 @@ def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma
     return ok
 
 
-class _HoldLogic:
-    """The paper method's 'holding' / expiry bookkeeping (docs/method.md §9: hold, flagged; never drift); the
-    bank's records are the core's (soilocp/_core/src/soil/status.rs ``StatusParams::hold``, the same rules)."""
-
-    def __init__(self, cfg: SoilConfig):
-        self.cfg = cfg
-        self.last_update: Optional[float] = None
-        self.held: Optional[tuple[float, float | None, float | None]] = None
-
-    def status(self, stamp: float, k: float, k_std, log_std) -> tuple[Status, str, tuple]:
-        cfg = self.cfg
-        if self.last_update is None:
-            return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, (None, None, None)
-        age = stamp - self.last_update
-        if age < 0:  # stamps went backwards (a restarted source): the old update time means nothing
-            self.last_update = self.held = None
-            return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", (None, None, None)
-        if age > cfg.hold_after + cfg.expire_after:
-            return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", (None, None, None)
-        if age == 0.0 or self.held is None:
-            self.held = (k, k_std, log_std)  # fresh: this sample updated the belief
-        else:
-            # no information this sample: report the last informed estimate, not the belief
-            # that is diffusing towards the change prior (docs/method.md §9: never drift)
-            k, _, held_log = self.held
-            if log_std is not None and held_log is not None:
-                # a held band never narrower than the soil's own drift allows since the update (q_log_k per
-                # sqrt(s)): the belief's spread widens with the change hazard per metre, and at a standstill
-                # with the random walk only; the age is in the record (SoilState.held_for_s)
-                log_std = max(log_std, math.hypot(held_log, cfg.q_log_k * math.sqrt(age)))
-            k_std = k_std if k_std is None else max(k_std, self.held[1] or 0.0, k * math.sinh(log_std or 0.0))
-        if age > cfg.hold_after:
-            return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", (k, k_std, log_std)
-        if log_std is not None and log_std > cfg.uncertain_log_sigma:
-            return "uncertain", f"ln K 1-sigma {log_std:.2f} > {cfg.uncertain_log_sigma}: K poorly determined", (k, k_std, log_std)
-        return "ok", "", (k, k_std, log_std)
+def _paper_status(cfg: SoilConfig, stamp: float, last_update: Optional[float]) -> tuple[Status, str]:
+    """The paper method's status from the age of its last update (docs/method.md §9: hold, flagged; never
+    drift; withdraw after ``hold_after + expire_after``); its K only changes when it updates, so the held
+    value is its K.  The Bayes bank's records are the core's (soilocp/_core/src/soil/status.rs)."""
+    if last_update is None:
+        return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min
+    age = stamp - last_update
+    if age < 0:
+        return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn"
+    if age > cfg.hold_after + cfg.expire_after:
+        return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn"
+    if age > cfg.hold_after:
+        return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate"
+    return "ok", ""
 
 
 class SoilBank:
@@ -377,7 +355,7 @@ class PaperSoilEstimator:
         self.c = constants
         self.cfg = config or SoilConfig(method="paper", measurement="net")
         self.k = float(self.cfg.k_initial)
-        self._hold = _HoldLogic(self.cfg)
+        self.last_update: Optional[float] = None
 
     def update(self, stamp: float, slip, observed, variance=None, informative=(True,) * 4, slip_sigma=None) -> SoilState:
         cfg = self.cfg
@@ -399,9 +377,12 @@ class PaperSoilEstimator:
             self.k = float(np.clip(self.k + cfg.learning_rate * eta, cfg.k_min, cfg.k_max))  # eq. 36
             used[i] = True
         if used.any():
-            self._hold.last_update = stamp
-        status, reason, (rk, _, _) = self._hold.status(stamp, self.k, None, None)
+            self.last_update = stamp
+        status, reason = _paper_status(cfg, stamp, self.last_update)
+        if self.last_update is not None and stamp < self.last_update:
+            self.last_update = None  # stamps went backwards (a restarted source): the old update time means nothing
+        rk = self.k if status != "no_estimate" else None
         cls = conf = None
         if rk is not None:
             cls, conf = classify(rk, 0.1, self.c)
-        return SoilState(rk, None, None, cls, conf, status, reason, self._hold.last_update, tuple(bool(u) for u in used))
+        return SoilState(rk, None, None, cls, conf, status, reason, self.last_update, tuple(bool(u) for u in used))
