@@ -13,11 +13,35 @@ import pytest
 from reference_observer import ReadingClock
 from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.estimation.observer import ObserverConfig
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.variants import get_variant
 
 DT = 0.01
 QUANTUM = 2 * math.pi / 16384 / DT  # rad/s: one encoder count per 10 ms at 16384 counts per turn
+
+
+def _feed_core(values, dt=DT, share=0.5, window=0.5):
+    """The same channel as the ground speed of a one-vehicle observer bank (the core's readings.rs: the ground
+    speed may be NaN, no reading); (fresh, age) per sample, fresh being a reading of age 0."""
+    cfg = PipelineConfig(observer=ObserverConfig(full_rate_share=share, repeat_window=window))
+    bank = ObserverBank(cfg.vehicle, cfg.observer, 1)
+    fz = np.full((1, 4), cfg.vehicle.mass * 9.81 / 4)
+    out = []
+    for i, v in enumerate(values):
+        o = bank.step(None, ObserverInputs(
+            stamp=np.array([i * dt]), specific_force_x=np.zeros(1), yaw_rate=np.zeros(1), pitch=np.zeros(1),
+            wheel_speed=np.full((1, 4), 5.0), wheel_torque=np.full((1, 4), 10.0), ground_speed=np.array([v]),
+            normal_force=fz))
+        age = float(o.ground_speed_age[0])
+        out.append((age == 0.0, age))
+    return out
+
+
+@pytest.fixture(params=["reference", "core"])
+def feed(request):
+    """Each scenario on the tests' numpy reference and on the product's core."""
+    return _feed if request.param == "reference" else _feed_core
 
 
 def _feed(values, dt=DT, share=0.5, window=0.5):
@@ -39,30 +63,30 @@ def _quantised(speeds):
     return np.diff(counts) * QUANTUM
 
 
-def test_a_quantised_full_rate_stream_repeats_are_readings():
+def test_a_quantised_full_rate_stream_repeats_are_readings(feed):
     # accelerating (the value changes at every sample), then steady at 6.79 rad/s: the count
     # difference repeats for several samples in a row, and each repeat is a reading
     speeds = np.concatenate([np.linspace(4.0, 6.79, 100), np.full(200, 6.79)])
     values = _quantised(speeds)
-    got = _feed(values)
+    got = feed(values)
     repeats = [i for i in range(150, 300) if values[i] == values[i - 1]]
     assert len(repeats) > 50
     assert all(got[i][0] and got[i][1] == 0.0 for i in repeats)
 
 
-def test_a_held_slow_stream_is_not_a_reading_until_it_changes():
+def test_a_held_slow_stream_is_not_a_reading_until_it_changes(feed):
     # a 5 Hz driver held by a 100 Hz logger: 20 samples of one value, then the next
     values = np.repeat(np.linspace(3.0, 7.0, 15), 20)
-    got = _feed(values)
+    got = feed(values)
     for i in range(20, len(values)):
         changed = values[i] != values[i - 1]
         assert got[i][0] == changed
         assert got[i][1] == pytest.approx((i % 20) * DT)
 
 
-def test_a_full_rate_stream_that_froze_is_held_after_the_repeat_window():
+def test_a_full_rate_stream_that_froze_is_held_after_the_repeat_window(feed):
     values = np.concatenate([_quantised(np.linspace(4.0, 6.0, 100)), np.full(150, 1.234)])
-    got = _feed(values, window=0.5)
+    got = feed(values, window=0.5)
     assert all(f for f, _ in got[101:150])  # within 0.5 s of the last change: readings
     assert not any(f for f, _ in got[152:])  # then a frozen driver, not a speed
     assert got[-1][1] == pytest.approx((len(values) - 1 - 150) * DT, abs=1e-9)
@@ -103,11 +127,11 @@ def test_the_observer_stays_on_a_quantised_encoder_at_steady_speed():
     assert np.quantile(new, 0.99) < 0.03 < np.quantile(held, 0.99)
 
 
-def test_a_dropout_does_not_make_a_held_stream_full_rate():
+def test_a_dropout_does_not_make_a_held_stream_full_rate(feed):
     # a 10 Hz ground speed held at 100 Hz, after 1 s of NaN (no reading): the NaN samples are no
     # evidence of a full-rate stream, so every held repeat stays held
     values = np.concatenate([np.full(100, np.nan), np.repeat(np.linspace(1.0, 1.5, 18), 10)])
-    got = _feed(values)
+    got = feed(values)
     held = [i for i in range(101, len(values)) if values[i] == values[i - 1]]
     assert len(held) > 100 and not any(got[i][0] for i in held)
 
