@@ -12,6 +12,7 @@ import pytest
 from reference_observer import GroundSpeedLatency
 from soilocp.estimation.estimate import EstimateSummary, estimate_lines
 from soilocp.estimation.observer import ObserverConfig
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.variants import get_variant
 
@@ -41,17 +42,51 @@ def _latency(lag: float, rate: float = 100.0, refresh: float = 0.1, bias: float 
     return np.array(out)
 
 
+def _latency_core(lag: float, rate: float = 100.0, refresh: float = 0.1, bias: float = 0.0, seconds: float = 40.0,
+                  seed: int = 0) -> np.ndarray:
+    """:func:`_latency`'s drive through a one-vehicle observer bank (the product's core: its readings clock
+    decides which ground speeds are new, its latency fit runs inside the step); the fitted latency after each
+    sample."""
+    rng = np.random.default_rng(seed)
+    fine = 1000.0
+    t_fine = np.arange(0.0, seconds, 1.0 / fine)
+    a_fine = np.sin(2 * math.pi * 0.3 * t_fine) + 0.4 * np.sin(2 * math.pi * 0.7 * t_fine + 1.0)
+    v_fine = 1.0 + np.cumsum(a_fine) / fine
+    cfg = PipelineConfig()
+    bank = ObserverBank(cfg.vehicle, cfg.observer, 1)
+    fz = np.full((1, 4), cfg.vehicle.mass * cfg.observer.gravity / 4)
+    out, last_refresh, reading = [], -1.0, math.nan
+    for t in np.arange(0.0, seconds, 1.0 / rate):
+        i = int(round(t * fine))
+        if t - last_refresh >= refresh - 1e-9:
+            reading = float(np.interp(t - lag, t_fine, v_fine)) + rng.normal(0.0, 0.01)
+            last_refresh = t
+        acc = a_fine[i] + bias + rng.normal(0.0, 0.03)
+        o = bank.step(None, ObserverInputs(
+            stamp=np.array([t]), specific_force_x=np.array([acc]), yaw_rate=np.zeros(1), pitch=np.zeros(1),
+            wheel_speed=np.full((1, 4), v_fine[i] / cfg.vehicle.wheel_radius), wheel_torque=np.zeros((1, 4)),
+            ground_speed=np.array([reading]), normal_force=fz))
+        out.append(float(o.ground_speed_latency[0]))
+    return np.array(out)
+
+
+@pytest.fixture(params=["reference", "core"])
+def latency(request):
+    """Each drive on the tests' numpy reference and on the product's core."""
+    return _latency if request.param == "reference" else _latency_core
+
+
 @pytest.mark.parametrize("lag, rate, refresh", [(0.05, 100.0, 0.1), (0.1, 50.0, 0.02), (0.05, 20.0, 0.05)])
-def test_a_late_ground_speed_is_measured(lag, rate, refresh):
-    got = _latency(lag, rate, refresh)
+def test_a_late_ground_speed_is_measured(lag, rate, refresh, latency):
+    got = latency(lag, rate, refresh)
     assert got[-1] == pytest.approx(lag, abs=0.012)
     assert np.all(got <= 0.3)
 
 
 @pytest.mark.parametrize("rate, bias", [(100.0, 0.0), (20.0, 0.0), (100.0, 0.1), (100.0, -0.1)])
-def test_no_latency_reads_zero(rate, bias):
+def test_no_latency_reads_zero(rate, bias, latency):
     # at 20 Hz the rectangle rule would read dt / 2 = 25 ms; a bias adds b dt to y, uncorrelated with x
-    got = _latency(0.0, rate, refresh=1.0 / rate, bias=bias)
+    got = latency(0.0, rate, refresh=1.0 / rate, bias=bias)
     assert np.max(got[len(got) // 4:]) < 0.01
 
 
