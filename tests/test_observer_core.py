@@ -87,6 +87,7 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
     cfg = ObserverConfig(structure=p["structure"])
     bank = ObserverBank(vehicle, cfg, 1)
     ref = TractionObserver(vehicle, cfg)
+    guarded = np.zeros(4, dtype=bool)  # wheels whose open interval began at a divergence-guard reset
     for k, (t, fx, yaw, pitch, omega, torque, gs, fz) in enumerate(_drive(p)):
         if k:
             ref.kf.x, ref.kf.P, ref._rejections = bank.x[0], bank.P[0], bank.rejections[0]
@@ -102,6 +103,9 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
             limits = np.array([cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed])
             bad = not np.isfinite(rx).all() or not np.isfinite(ref.kf.P).all()
             assert bad or (speeds > limits).any(), (k, o.reset_reason[0], speeds)
+            # an interval that starts here takes its ground speed from each side's own state (the reference's
+            # left physics), so the first pair each wheel closes after the guard is not comparable at its start
+            guarded[:] = True
             continue
         for name in ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed"):
             np.testing.assert_allclose(getattr(o, name)[0], getattr(r, name), rtol=TOL, atol=TOL,
@@ -116,11 +120,14 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
         assert o.ground_speed_age[0] == r.age[4] or np.isnan(o.ground_speed_age[0]) and np.isnan(r.age[4]), k
         assert o.ground_speed_latency[0] == pytest.approx(r.ground_speed_latency, rel=TOL, abs=TOL), k
         np.testing.assert_array_equal(o.interval_learning[0], r.pairs.active, err_msg=f"step {k}")
+        closed = o.interval[0] > 0
         for name in ("interval", "gross", "gross_var", "rim_start", "rim_end", "ground_start", "ground_end",
                      "rim_sigma"):
             field = name if name == "interval" else f"interval_{name}"
-            np.testing.assert_allclose(getattr(o, field)[0], getattr(r.pairs, name), rtol=TOL, atol=TOL,
-                                       err_msg=f"step {k} {field}")
+            judged = ~(guarded & closed) if name == "ground_start" else np.ones(4, dtype=bool)
+            np.testing.assert_allclose(getattr(o, field)[0][judged], getattr(r.pairs, name)[judged], rtol=TOL,
+                                       atol=TOL, err_msg=f"step {k} {field}")
+        guarded &= ~closed
 
 
 def test_reset_reasons_are_worded_from_the_core_codes():
