@@ -18,7 +18,7 @@ from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import ModelConstants
 from soilocp.model.traction import curve_unchecked
 from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds
-from soilocp.estimation.wheel_usability import REASONS, describe
+from soilocp.estimation.wheel_usability import describe
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
 from soilocp.estimation.soil_strength import _gate
@@ -28,6 +28,10 @@ from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, STALL
 
 UNKNOWN_SPEED = 1.0
 
+
+
+#: the wheels' unusable codes' names, the reference's own (the product's come from the core under test)
+REASONS = ("", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn")
 
 
 class LogKGrid(ProductGrid):

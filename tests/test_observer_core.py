@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from reference_observer import TractionObserver
@@ -73,6 +73,11 @@ def _drive(p: dict, steps: int = 300):
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow], report_multiple_bugs=False)
 @given(drive_params)
+# found by hypothesis: 20 Hz from t = 1 s, held encoders, the divergence guard resets at step 230 and the
+# refresh interval begun there closes at step 232
+@example({"structure": "none", "per_side": False, "interval_mean": False, "rate": 20.0, "speed": -1.0, "slip": 0.0,
+          "torque": 35.0, "hold_every": 2, "torque_every": 1, "ground_speed": "every", "spike_at": 0, "gap_at": 0,
+          "backwards_at": 0, "seed": 0})
 def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
     """Every output of every step within 1e-9 (relative and absolute) of the references (filterpy's filter on
     the same model, numpy's readings clock, latency fit and refresh pairs), the same ages, rejected rows,
@@ -87,7 +92,8 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
     cfg = ObserverConfig(structure=p["structure"])
     bank = ObserverBank(vehicle, cfg, 1)
     ref = TractionObserver(vehicle, cfg)
-    guarded = np.zeros(4, dtype=bool)  # wheels whose open interval began at a divergence-guard reset
+    guarded = np.zeros(4, dtype=bool)  # wheels whose open refresh interval began at a divergence-guard reset
+    prev_omega = np.full(4, np.nan)
     for k, (t, fx, yaw, pitch, omega, torque, gs, fz) in enumerate(_drive(p)):
         if k:
             ref.kf.x, ref.kf.P, ref._rejections = bank.x[0], bank.P[0], bank.rejections[0]
@@ -103,9 +109,10 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
             limits = np.array([cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed])
             bad = not np.isfinite(rx).all() or not np.isfinite(ref.kf.P).all()
             assert bad or (speeds > limits).any(), (k, o.reset_reason[0], speeds)
-            # an interval that starts here takes its ground speed from each side's own state (the reference's
-            # left physics), so the first pair each wheel closes after the guard is not comparable at its start
-            guarded[:] = True
+            # a refresh interval that starts here (its wheel's reading changed) takes its ground speed from each
+            # side's own state, and the reference's left physics: that interval's start is not comparable
+            guarded = omega != prev_omega
+            prev_omega = omega
             continue
         for name in ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed"):
             np.testing.assert_allclose(getattr(o, name)[0], getattr(r, name), rtol=TOL, atol=TOL,
@@ -120,14 +127,14 @@ def test_core_observer_equals_the_filterpy_reference_step_by_step(p):
         assert o.ground_speed_age[0] == r.age[4] or np.isnan(o.ground_speed_age[0]) and np.isnan(r.age[4]), k
         assert o.ground_speed_latency[0] == pytest.approx(r.ground_speed_latency, rel=TOL, abs=TOL), k
         np.testing.assert_array_equal(o.interval_learning[0], r.pairs.active, err_msg=f"step {k}")
-        closed = o.interval[0] > 0
         for name in ("interval", "gross", "gross_var", "rim_start", "rim_end", "ground_start", "ground_end",
                      "rim_sigma"):
             field = name if name == "interval" else f"interval_{name}"
-            judged = ~(guarded & closed) if name == "ground_start" else np.ones(4, dtype=bool)
+            judged = ~guarded if name == "ground_start" else np.ones(4, dtype=bool)
             np.testing.assert_allclose(getattr(o, field)[0][judged], getattr(r.pairs, name)[judged], rtol=TOL,
                                        atol=TOL, err_msg=f"step {k} {field}")
-        guarded &= ~closed
+        guarded &= omega == prev_omega  # a new reading closed that interval and started one on the shared state
+        prev_omega = omega
 
 
 def test_reset_reasons_are_worded_from_the_core_codes():

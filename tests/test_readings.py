@@ -23,7 +23,8 @@ QUANTUM = 2 * math.pi / 16384 / DT  # rad/s: one encoder count per 10 ms at 1638
 
 def _feed_core(values, dt=DT, share=0.5, window=0.5):
     """The same channel as the ground speed of a one-vehicle observer bank (the core's readings.rs: the ground
-    speed may be NaN, no reading); (fresh, age) per sample, fresh being a reading of age 0."""
+    speed may be NaN, no reading); (fresh, age) per sample.  The core reports ages only, so fresh is read as
+    age 0: on the core the scenarios' fresh checks follow from their age checks."""
     cfg = PipelineConfig(observer=ObserverConfig(full_rate_share=share, repeat_window=window))
     bank = ObserverBank(cfg.vehicle, cfg.observer, 1)
     fz = np.full((1, 4), cfg.vehicle.mass * 9.81 / 4)

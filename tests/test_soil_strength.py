@@ -168,6 +168,31 @@ def test_paper_rule_skips_slip_where_mu_decreases_with_k():
     assert est.k == 20.0 and not any(state.used)
 
 
+def test_paper_rule_holds_then_withdraws_and_forgets_a_restarted_source():
+    """Its K is held (flagged 'holding') hold_after s after the last update, withdrawn hold_after +
+    expire_after s after it, and stamps going backwards withdraw it and forget the update time."""
+    est = PaperSoilEstimator()
+    cfg = est.cfg
+    s = np.array([0.3, 0.3, 0.3, 0.3])
+    none = np.zeros(4, dtype=bool)
+    st = est.update(0.0, s, net_traction(s, 80.0), None, INFO)
+    assert any(st.used) and st.status == "ok" and st.last_update_stamp == 0.0
+    k = st.soil_strength
+    st = est.update(cfg.hold_after / 2, s, net_traction(s, 80.0), None, none)
+    assert (st.status, st.soil_strength, st.last_update_stamp) == ("ok", k, 0.0)
+    st = est.update(cfg.hold_after + 0.1, s, net_traction(s, 80.0), None, none)
+    assert st.status == "holding" and st.soil_strength == k and "holding the last estimate" in st.reason
+    st = est.update(cfg.hold_after + cfg.expire_after + 0.1, s, net_traction(s, 80.0), None, none)
+    assert st.status == "no_estimate" and st.soil_strength is None and "withdrawn" in st.reason
+    st = est.update(1.0, s, net_traction(s, 80.0), None, INFO)  # a new update at t = 1 s
+    assert st.status == "ok" and st.last_update_stamp == 1.0
+    st = est.update(0.5, s, net_traction(s, 80.0), None, none)  # the source restarted
+    assert (st.status, st.soil_strength, st.last_update_stamp) == ("no_estimate", None, None)
+    assert "backwards" in st.reason
+    st = est.update(0.6, s, net_traction(s, 80.0), None, none)
+    assert st.status == "no_estimate" and "not been informative yet" in st.reason
+
+
 def test_classify_by_log_k_with_confidence():
     assert classify(50, 0.05) [0] == "sand"
     assert classify(1000, 0.05)[0] == "firm"

@@ -15,7 +15,7 @@ from soilocp.estimation.observer_bank import ObserverBank
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs
 from soilocp.estimation.soil_strength import BayesSoilEstimator
 from soilocp.estimation.wheel_usability import (REASONS, SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED,
-                                                describe, travel_slip, wheel_usability)
+                                                USABLE, describe, travel_slip, wheel_usability)
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.normal_force import normal_forces
 from soilocp.model.traction import gross_traction
@@ -119,7 +119,9 @@ def test_usability_codes():
                         np.array([0.3]), np.full((1, 4), 0.3), half_track)
     assert not c.any()
     assert describe([SKID_TURN] * 4).startswith("skid turn") and "wheels 1, 2, 3, 4" in describe([SKID_TURN] * 4)
-    assert REASONS[STALL] == "stall"
+    # the names are the record's vocabulary (SoilEstimate.unusable, the map, dashboards): the core's table
+    assert REASONS == ("", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn")
+    assert (USABLE, SLIP_BEYOND_EQ1, STOPPED_UNPOWERED, STALL, SKID_TURN) == (0, 1, 2, 3, 4)
 
 
 def test_out_of_model_wheels_make_no_ok_record_and_are_counted(grass_drive):

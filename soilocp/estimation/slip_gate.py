@@ -33,8 +33,11 @@ GATE_QUADS = ("mu", "mu_var", "gross", "gross_var", "wheel_speed", "normal_force
 GATE_SCALARS = ("ground_speed", "yaw_rate", "reset", "ground_speed_age", "ground_speed_measured")
 GATE_FIELDS = GATE_QUADS + GATE_SCALARS
 # pack_message writes these fields in this order for speed: the core names its columns, so a change shows here
-assert (GATE_QUADS, GATE_SCALARS) == (tuple(_core.SlipGateBank.quad_fields), tuple(_core.SlipGateBank.scalar_fields)), \
-    "soilocp._core's gate columns changed: rebuild the core, or follow them in GATE_QUADS / GATE_SCALARS and pack_message"
+# (an ImportError, not an assert: a mis-packed row must not pass silently under python -O)
+if (GATE_QUADS, GATE_SCALARS) != (tuple(getattr(_core.SlipGateBank, "quad_fields", ())),
+                                  tuple(getattr(_core.SlipGateBank, "scalar_fields", ()))):
+    raise ImportError("soilocp._core's gate columns are not GATE_QUADS / GATE_SCALARS: rebuild the core "
+                      "(make setup), or follow its columns here and in pack_message")
 
 
 def pack_output(ob: ObserverBankOutput) -> np.ndarray:

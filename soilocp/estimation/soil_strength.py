@@ -65,20 +65,21 @@ def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma
     return ok
 
 
-def _paper_status(cfg: SoilConfig, stamp: float, last_update: Optional[float]) -> tuple[Status, str]:
+def _paper_status(cfg: SoilConfig, stamp: float, last_update: Optional[float]) -> tuple[Status, str, Optional[float]]:
     """The paper method's status from the age of its last update (docs/method.md §9: hold, flagged; never
-    drift; withdraw after ``hold_after + expire_after``); its K only changes when it updates, so the held
-    value is its K.  The Bayes bank's records are the core's (soilocp/_core/src/soil/status.rs)."""
+    drift; withdraw after ``hold_after + expire_after``), and the last update time to keep (None once the
+    stamps went backwards: a restarted source's old time means nothing).  Its K only changes when it updates,
+    so the held value is its K.  The Bayes bank's records are the core's (soilocp/_core/src/soil/status.rs)."""
     if last_update is None:
-        return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min
+        return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, None
     age = stamp - last_update
     if age < 0:
-        return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn"
+        return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", None
     if age > cfg.hold_after + cfg.expire_after:
-        return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn"
+        return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", last_update
     if age > cfg.hold_after:
-        return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate"
-    return "ok", ""
+        return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", last_update
+    return "ok", "", last_update
 
 
 class SoilBank:
@@ -308,10 +309,12 @@ class SoilBank:
 
 
 #: the core's status codes (soilocp/_core/src/soil/status.rs), code -> name, checked against the schema's
-_STATUSES: tuple[Status, ...] = tuple(_core.SoilGridBank.status_names)
-assert set(_STATUSES) == set(get_args(Status)), f"soilocp._core's status names {_STATUSES} are not the schema's"
-#: the core's reason codes (status.rs, ``reason::NAMES``) by name: a name the core dropped fails here, at import
-_R = {name: code for code, name in enumerate(_core.SoilGridBank.reason_names)}
+_STATUSES: tuple[Status, ...] = tuple(getattr(_core.SoilGridBank, "status_names", ()))
+#: the core's reason codes (status.rs, ``reason::NAMES``) by name
+_R = {name: code for code, name in enumerate(getattr(_core.SoilGridBank, "reason_names", ()))}
+if set(_STATUSES) != set(get_args(Status)) or _R.get("none") != 0:
+    raise ImportError(f"soilocp._core's status names {_STATUSES} are not the schema's, or its reason 0 is not "
+                      "'none': rebuild the core (make setup)")
 (_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
  _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,
  _R_GROUND_STALE, _R_READINGS_HELD, _R_UNDETERMINED, _R_LEANS, _R_AXLE_WINDOW, _R_EVIDENCE, _R_OUT_SKID,
@@ -378,9 +381,7 @@ class PaperSoilEstimator:
             used[i] = True
         if used.any():
             self.last_update = stamp
-        status, reason = _paper_status(cfg, stamp, self.last_update)
-        if self.last_update is not None and stamp < self.last_update:
-            self.last_update = None  # stamps went backwards (a restarted source): the old update time means nothing
+        status, reason, self.last_update = _paper_status(cfg, stamp, self.last_update)
         rk = self.k if status != "no_estimate" else None
         cls = conf = None
         if rk is not None:

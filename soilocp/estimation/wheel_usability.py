@@ -33,7 +33,10 @@ import numpy as np
 from soilocp import _core
 
 #: code -> name; 0 = usable
-REASONS: tuple[str, ...] = tuple(_core.SoilGridBank.unusable_names)  # soilocp/_core/src/soil/usability.rs
+REASONS: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "unusable_names", ()))  # soilocp/_core/src/soil/usability.rs
+if REASONS[:1] != ("",):  # 0 is "usable" wherever a code is tested for truth
+    raise ImportError(f"soilocp._core's unusable codes {REASONS} do not start with the usable one: rebuild the core "
+                      "(make setup)")
 USABLE, SLIP_BEYOND_EQ1, STOPPED_UNPOWERED, STALL, SKID_TURN = (REASONS.index(name) for name in (
     "", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn"))
 

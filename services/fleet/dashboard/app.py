@@ -71,14 +71,16 @@ class DashboardHub:
         if self.stop_event.is_set():
             session.close()
             return
+        self.session = session  # close() closes it, whatever the connect thread reached
         self.monitor = FleetMonitor(session, self.state, poll_period_s=self.poll_period_s).start()
         from services.fleet.map_view import TrackRecorder  # the map view's vehicle tracks (docs/map.md)
 
         self.tracks = TrackRecorder(session).start()
-        # "connected" is read from the session: it is set only once every subscriber is declared,
-        # so an estimate published after the page says connected reaches the tracks
-        self.connected_at = time.time()
-        self.session = session
+        # "connected" (connected_at) only once every subscriber is declared: a client that waits for it
+        # does not race this thread; the declarations still reach the router asynchronously, so a
+        # publisher that must not lose a message confirms delivery itself (tests/test_map_dashboard.py)
+        if not self.stop_event.is_set():
+            self.connected_at = time.time()
 
     def close(self) -> None:
         self.stop_event.set()
@@ -95,7 +97,8 @@ class DashboardHub:
 
     # --- views --------------------------------------------------------------------------------
     def router(self) -> dict[str, Any]:
-        return {"endpoints": self.connect, "connected": self.session is not None, "connected_at": self.connected_at,
+        return {"endpoints": self.connect, "connected": self.session is not None and self.connected_at is not None,
+                "connected_at": self.connected_at,
                 "dropped": self.state.dropped, "bad_payloads": self.state.bad_payloads}
 
     def constants_view(self) -> dict[str, Any]:

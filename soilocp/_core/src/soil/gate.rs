@@ -45,6 +45,7 @@ pub mod scalar {
     pub const GROUND_SPEED_AGE: usize = GROUND_SPEED + 3;
     /// bool (0 / 1)
     pub const GROUND_SPEED_MEASURED: usize = GROUND_SPEED + 4;
+    pub const COUNT: usize = 5;
 }
 
 /// The names of the per-wheel fields, in [`quad`]'s order (soilocp.estimation.slip_gate.GATE_QUADS).
@@ -69,7 +70,7 @@ pub const QUAD_NAMES: [&str; quad::COUNT] = [
 ];
 
 /// The names of the per-vehicle fields, in [`scalar`]'s order (soilocp.estimation.slip_gate.GATE_SCALARS).
-pub const SCALAR_NAMES: [&str; 5] = [
+pub const SCALAR_NAMES: [&str; scalar::COUNT] = [
     "ground_speed",
     "yaw_rate",
     "reset",
@@ -78,7 +79,7 @@ pub const SCALAR_NAMES: [&str; 5] = [
 ];
 
 /// Numbers per vehicle in a packed row.
-pub const COLUMNS: usize = scalar::GROUND_SPEED + 5;
+pub const COLUMNS: usize = scalar::GROUND_SPEED + scalar::COUNT;
 
 /// The gate's settings: the vehicle's, eq. 1's and SoilConfig's numbers it reads (their meaning:
 /// PipelineConfig's and SoilConfig's field descriptions).
