@@ -32,8 +32,8 @@ import numpy as np
 
 from soilocp import _core
 
-#: code -> name; 0 = usable
-REASONS: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "unusable_names", ()))  # soilocp/_core/src/soil/usability.rs
+#: code -> name, 0 = usable: soilocp/_core/src/soil/usability.rs's table
+REASONS: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "unusable_names", ()))
 if REASONS[:1] != ("",):  # 0 is "usable" wherever a code is tested for truth
     raise ImportError(f"soilocp._core's unusable codes {REASONS} do not start with the usable one: rebuild the core "
                       "(make setup)")
