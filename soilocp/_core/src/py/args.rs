@@ -1,6 +1,8 @@
-//! Argument checks the bindings share: a (k,) or a (k, 4) array of a step's k vehicles, refused
-//! with a ValueError that names the argument and the shape it came with.
+//! Argument checks the bindings share: a (k,) or a (k, 4) array of a step's k vehicles (and, for the
+//! observer's inputs, every entry finite), refused with a ValueError that names the argument and what it
+//! came with.
 
+use numpy::ndarray::{ArrayView1, ArrayView2};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -37,4 +39,26 @@ pub fn column<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray1<'_, T>,
     let v = a.as_array();
     check_len(name, v.len(), k)?;
     Ok(v.to_vec())
+}
+
+/// A (k,) input of the observer's step: its shape, and every entry finite (`nan_ok`: or NaN, "none");
+/// the message is the Python side's (soilocp.estimation.observer_bank.ObserverInputs.check).
+pub fn check_finite_column(name: &str, a: &ArrayView1<'_, f64>, k: usize, nan_ok: bool) -> PyResult<()> {
+    let ok = a.iter().all(|v| v.is_finite() || (nan_ok && v.is_nan()));
+    if a.len() != k || !ok {
+        return Err(PyValueError::new_err(format!(
+            "inputs.{name} must be a finite array of shape ({k},), got {a}"
+        )));
+    }
+    Ok(())
+}
+
+/// A (k, 4) input of the observer's step: its shape, and every entry finite.
+pub fn check_finite_quads(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
+    if a.shape() != [k, 4] || !a.iter().all(|v| v.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "inputs.{name} must be a finite array of shape ({k}, 4), got {a}"
+        )));
+    }
+    Ok(())
 }

@@ -8,6 +8,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReado
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use super::args;
 use crate::observer::bank::{FilterBank, Settings, RESET_REASONS};
 use crate::observer::intervals::IntervalSettings;
 use crate::observer::latency::SMOOTHING;
@@ -23,27 +24,6 @@ pub struct ObserverCore {
 fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
     v.try_into()
         .map_err(|_| PyValueError::new_err(format!("{name} must have {K} entries, got {}", v.len())))
-}
-
-/// A (k,) input: its shape, and every entry finite (`nan_ok`: or NaN, "none").
-fn check_flat(name: &str, a: &ArrayView1<'_, f64>, k: usize, nan_ok: bool) -> PyResult<()> {
-    let ok = a.iter().all(|v| v.is_finite() || (nan_ok && v.is_nan()));
-    if a.len() != k || !ok {
-        return Err(PyValueError::new_err(format!(
-            "inputs.{name} must be a finite array of shape ({k},), got {a}"
-        )));
-    }
-    Ok(())
-}
-
-/// A (k, 4) input: its shape, and every entry finite.
-fn check_quad(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyResult<()> {
-    if a.shape() != [k, 4] || !a.iter().all(|v| v.is_finite()) {
-        return Err(PyValueError::new_err(format!(
-            "inputs.{name} must be a finite array of shape ({k}, 4), got {a}"
-        )));
-    }
-    Ok(())
 }
 
 /// The names of the step's output blocks, in their order (ObserverBankOutput's fields).
@@ -248,15 +228,15 @@ impl ObserverCore {
             ground_speed.as_array(),
             dt_cubed.as_array(),
         );
-        check_flat("stamp", &stamp, k, false)?;
-        check_flat("specific_force_x", &fx, k, false)?;
-        check_flat("yaw_rate", &yaw, k, false)?;
-        check_flat("pitch", &pitch, k, false)?;
-        check_flat("ground_speed", &gs, k, true)?;
+        args::check_finite_column("stamp", &stamp, k, false)?;
+        args::check_finite_column("specific_force_x", &fx, k, false)?;
+        args::check_finite_column("yaw_rate", &yaw, k, false)?;
+        args::check_finite_column("pitch", &pitch, k, false)?;
+        args::check_finite_column("ground_speed", &gs, k, true)?;
         let (ws, tq, fz) = (wheel_speed.as_array(), wheel_torque.as_array(), normal_force.as_array());
-        check_quad("wheel_speed", &ws, k)?;
-        check_quad("wheel_torque", &tq, k)?;
-        check_quad("normal_force", &fz, k)?;
+        args::check_finite_quads("wheel_speed", &ws, k)?;
+        args::check_finite_quads("wheel_torque", &tq, k)?;
+        args::check_finite_quads("normal_force", &fz, k)?;
         let shape = |name: &str, a: &ArrayView1<'_, f64>| -> PyResult<()> {
             if a.len() != k {
                 return Err(PyValueError::new_err(format!(
