@@ -185,6 +185,21 @@ mod tests {
 
     /// A drive that satisfies eq. TC exactly with k_true (true torque = k_true x logged), F_MR
     /// 25 N, wheels rolling without slip at 1 m/s plus a swing of `accel` m/s^2 (period 4 s).
+    /// A sample of a robot driving straight on level ground: all four wheels at `omega`, the
+    /// measured total torque `torque` shared equally.
+    fn straight(t: f64, f_x: f64, omega: f64, torque: f64, v: f64, normal_force: Option<[f64; 4]>) -> Sample {
+        Sample {
+            stamp: t,
+            f_x,
+            pitch: 0.0,
+            yaw_rate: 0.0,
+            wheel_speed: [omega; 4],
+            torque: [torque / 4.0; 4],
+            ground_speed: v,
+            normal_force,
+        }
+    }
+
     fn drive(bank: &mut TorqueScaleBank, k_true: f64, accel: f64, seconds: f64) -> (f64, f64) {
         let w = 2.0 * std::f64::consts::PI / 4.0;
         let mut out = (f64::NAN, f64::NAN);
@@ -195,17 +210,7 @@ mod tests {
             let omega = v / BODY.wheel_radius;
             let od = 4.0 * a / BODY.wheel_radius;
             let torque = (BODY.mass * a + 25.0) * BODY.wheel_radius + BODY.wheel_inertia * od;
-            let s = Sample {
-                stamp: t,
-                f_x: a,
-                pitch: 0.0,
-                yaw_rate: 0.0,
-                wheel_speed: [omega; 4],
-                torque: [torque / k_true / 4.0; 4],
-                ground_speed: v,
-                normal_force: None,
-            };
-            out = bank.step(0, &s);
+            out = bank.step(0, &straight(t, a, omega, torque / k_true, v, None));
         }
         out
     }
@@ -289,17 +294,7 @@ mod tests {
                 prev_w = omega;
                 let torque = (BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
                 b.feed_soil(0, k_soil, None);
-                let sample = Sample {
-                    stamp: t,
-                    f_x: a,
-                    pitch: 0.0,
-                    yaw_rate: 0.0,
-                    wheel_speed: [omega; 4],
-                    torque: [torque / k_true / 4.0; 4],
-                    ground_speed: v,
-                    normal_force: Some(fz),
-                };
-                out = b.step(0, &sample).0;
+                out = b.step(0, &straight(t, a, omega, torque / k_true, v, Some(fz))).0;
             }
             out
         };
