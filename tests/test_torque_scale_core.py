@@ -126,11 +126,12 @@ class _Checked(TorqueScaleBank):
     def __init__(self, *args, **kw):
         super().__init__(*args, **kw)
         self.ref = ref.ReferenceTorqueScale(*args, **kw)
+        self.slot = len(_Checked.calls)
         _Checked.calls.append([0, 0])
 
     def apply(self, ix, inputs):
         logged = np.array(inputs.wheel_torque, dtype=float, copy=True)
-        out, sigma = super().apply(ix, inputs)
+        out, sigma = super().apply(ix, inputs)  # the stages' path (the chain steps the core itself: _checked_chain)
         want_t, want_sigma = self.ref.apply_arrays(np.asarray(ix), inputs.stamp, inputs.specific_force_x, inputs.pitch,
                                                    inputs.yaw_rate, inputs.wheel_speed, logged, inputs.ground_speed,
                                                    inputs.normal_force)
@@ -146,11 +147,33 @@ class _Checked(TorqueScaleBank):
         self.ref.feed_soil(np.asarray(ix), soil_strength, slip)
 
 
+_chain_step = batch_module.BatchPipeline.step_all
+
+
+def _checked_chain(self, idx, samples, normal_forces):
+    """BatchPipeline.step_all, whose one core call steps the scale inside the chain: the reference takes the
+    same logged inputs first, the states must then be its to the bit, and it is fed the records' K and slips."""
+    ix = np.asarray(idx)
+    inputs = pipeline_module.observer_inputs(samples, normal_forces)
+    scale = self.scale
+    _, want_sigma = scale.ref.apply_arrays(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
+                                           inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed,
+                                           inputs.normal_force)
+    ob, soils, ocps = _chain_step(self, idx, samples, normal_forces)
+    assert _same(scale.theta, scale.ref.theta) and _same(scale.P, scale.ref.P)
+    ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in soils])
+    scale.ref.feed_soil(ix, ks, np.array([s.slip for s in soils], dtype=float))
+    _Checked.calls[scale.slot][0] += 1
+    _Checked.calls[scale.slot][1] += int(want_sigma is not None)
+    return ob, soils, ocps
+
+
 @pytest.fixture()
 def checked(monkeypatch):
     _Checked.calls = []
     monkeypatch.setattr(pipeline_module, "TorqueScaleBank", _Checked)
     monkeypatch.setattr(batch_module, "TorqueScaleBank", _Checked)
+    monkeypatch.setattr(batch_module.BatchPipeline, "step_all", _checked_chain)
     return _Checked.calls
 
 

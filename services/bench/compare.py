@@ -46,6 +46,8 @@ def figures(report: dict[str, Any]) -> dict[str, tuple[Optional[float], str]]:
     out["offline replay, x real time (per CPU s)"] = (_num(rp.get("x_real_time_cpu")), HIGHER)
     for n, st in (report.get("batch_stages") or {}).items():
         out[f"batched step, {n} vehicles, CPU median per vehicle-sample, us"] = (_num(st.get("cpu_p50")), LOWER)
+        out[f"estimation math (normal forces + chain call), {n} vehicles, CPU median per vehicle-sample, us"] = (
+            _num(st.get("math_cpu_p50")), LOWER)
     for row in report.get("latency") or []:
         tag = f"{row['pipeline']} {row['rate_hz']:.0f} Hz"
         r = row.get("result") or {}

@@ -126,27 +126,40 @@ def replay_rate(samples: Sequence[SensorSample], config=None, rate_hz: float = 1
 def batch_costs(samples: Sequence[SensorSample], counts: Sequence[int], config=None,
                 steps: Optional[int] = None) -> dict[str, dict[str, Any]]:
     """Microseconds per vehicle-sample of the batched observer + soil + OCP (``soilocp.estimation.batch``)
-    stepping ``n`` vehicles together, for each n in ``counts`` (every vehicle replays the drive)."""
+    stepping ``n`` vehicles together, for each n in ``counts`` (every vehicle replays the drive): the whole
+    step (stacking the samples, the chain, the soil and OCP records), and its estimation math alone
+    (``math_*``: the normal forces of the block, eqs. 21-25, and the one ``ChainCore.step`` call with the
+    observer's clock, on inputs stacked beforehand)."""
     from soilocp.estimation.batch import BatchPipeline
-    from soilocp.estimation.pipeline import NormalForceStage, PipelineConfig
+    from soilocp.estimation.pipeline import NormalForceStage, PipelineConfig, observer_inputs
+    from soilocp.model.normal_force import NormalForceSolver
 
     cfg = config or PipelineConfig()
     samples = list(samples[: steps or len(samples)])
     nfs = NormalForceStage(cfg)
     forces = [np.asarray(nfs.step(s).normal_force) for s in samples]
+    solve = NormalForceSolver(cfg.vehicle)
     out: dict[str, dict[str, Any]] = {}
     for n in counts:
-        bp = BatchPipeline(cfg, n)
+        bp, bm = BatchPipeline(cfg, n), BatchPipeline(cfg, n)
         idx = np.arange(n)
         per: list[float] = []
         per_cpu: list[float] = []
+        math_cpu: list[float] = []
         for s, fz in zip(samples, forces):
             block, fzs = [s] * n, [fz] * n
             t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
             bp.step(idx, block, fzs)  # stacking the inputs and building the OCP records included
             per.append((time.perf_counter_ns() - t0) / 1000.0 / n)
             per_cpu.append((time.thread_time_ns() - c0) / 1000.0 / n)
+            inputs, sf = observer_inputs(block, fzs), np.array([s.specific_force] * n)
+            c0 = time.thread_time_ns()
+            inputs.normal_force = solve(sf)
+            bm.observer.run(bm.chain.step, idx, inputs)
+            math_cpu.append((time.thread_time_ns() - c0) / 1000.0 / n)
         out[str(n)] = summarize(per)
         c = summarize(per_cpu)
         out[str(n)].update(cpu_p50=c["p50"], cpu_p99=c["p99"], cpu_mean=c["mean"])
+        c = summarize(math_cpu)
+        out[str(n)].update(math_cpu_p50=c["p50"], math_cpu_p99=c["p99"])
     return out

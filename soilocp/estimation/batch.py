@@ -19,14 +19,16 @@ from typing import Sequence
 
 import numpy as np
 
-from schemas.pipeline import OcpEstimate
+from schemas.pipeline import OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
 
+from soilocp import _core
 from soilocp.model.checks import check_count, check_index
-from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
-from soilocp.model.ocp import ocp_arrays
+from soilocp.estimation.observer_bank import ObserverBank, ObserverBankOutput, ObserverInputs, _output
+from soilocp.model.ocp import OCP_NAMES, ocp_arrays
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
+from soilocp.estimation.soil_config import SoilInputs
 from soilocp.estimation.soil_strength import SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank
 
@@ -49,6 +51,11 @@ class BatchPipeline:
         self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
         self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles,
                                      cfg.constants)
+        # the whole chain in one core call per step, over the banks above (their state); the map prior's
+        # hook runs between the gate and the update, so with priors the stages are called one by one
+        self.chain = None if self.priors is not None else _core.ChainCore(
+            self.observer._core, self.gate.core, self.soil.core, cfg.constants.kernel, self.scale._core,
+            feed_soil=self.scale.active and cfg.torque_scale.model_resistance)
 
     @staticmethod
     def inputs_from_samples(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
@@ -57,23 +64,33 @@ class BatchPipeline:
 
     def step(self, idx, samples: Sequence[SensorSample], normal_forces: Sequence) -> list[OcpEstimate]:
         """One sample per vehicle in ``idx`` (same order): the OCP record of each."""
+        return self.step_all(idx, samples, normal_forces)[2]
+
+    def step_all(self, idx, samples: Sequence[SensorSample],
+                 normal_forces: Sequence) -> tuple[ObserverBankOutput, list[SoilEstimate], list[OcpEstimate]]:
+        """One sample per vehicle in ``idx`` (same order): the observer's output (arrays, one row per vehicle),
+        and each vehicle's soil estimate and OCP record."""
         ix = check_index(idx, self.n_vehicles)
-        inputs, scale_sigma = self.scale.apply(ix, observer_inputs(samples, normal_forces))
-        ob = self.observer.step(ix, inputs)
-        rows = pack_output(ob)
-        if self.priors is None:  # the gate and the soil update: one core call
-            inp, states = self.soil.step_gated(self.gate, ix, inputs.stamp, rows, scale_sigma)
+        inputs = observer_inputs(samples, normal_forces)
+        if self.chain is not None:  # one core call: scale, observer, gate, soil update, K fed back, OCPs
+            blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)
+            ob, inp = _output(*blocks), SoilInputs(*fields)
+            states = self.soil.states(ix, inputs.stamp, inp, report)
+            ocp = dict(zip(OCP_NAMES, ocp))
         else:  # the map's hook runs between the gate and the update, as in SoilStage
             from soilocp.map.prior import start_from_map
 
+            inputs, scale_sigma = self.scale.apply(ix, inputs)
+            ob = self.observer.step(ix, inputs)
             inp = start_from_map([self.priors[i] for i in ix], self.soil, ix, samples,
-                                 self.gate.step(ix, inputs.stamp, rows))
+                                 self.gate.step(ix, inputs.stamp, pack_output(ob)))
             states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
-        ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
-        self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
-        ocp = ocp_arrays(ks, self.config.constants)
-        out = []
+            ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
+            self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
+            ocp = ocp_arrays(ks, self.config.constants)
+        soils, ocps = [], []
         for j, (sample, st) in enumerate(zip(samples, states)):
             soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
-            out.append(ocp_message(soil, ocp, j))
-        return out
+            soils.append(soil)
+            ocps.append(ocp_message(soil, ocp, j))
+        return ob, soils, ocps

@@ -1,16 +1,25 @@
 """Offline estimation: a sensor log (JSON Lines) in, one OCP record per valid sample out.
 
-The same validation and the same pipeline stages as the live services.  Invalid lines are
+The same validation as the live services, and the same kernels: each vehicle's chain is the compiled
+core's in one call per sample (:class:`soilocp.estimation.batch.BatchPipeline` with N = 1: the
+torque scale, observer, slip gate, soil update and OCPs of the stage services, without the messages
+between them; ``tests/test_batch.py`` checks it against the stages), or, for the paper's soil method,
+the stages themselves (:class:`soilocp.estimation.pipeline.VehiclePipeline`).  Invalid lines are
 reported with their line number and skipped, never fatal.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Iterator, Optional
+from typing import Callable, Iterable, Iterator, NamedTuple, Optional
 
+import numpy as np
+
+from schemas.pipeline import OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
+from soilocp.estimation.batch import BatchPipeline
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.model.normal_force import NormalForceSolver
 from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 
@@ -27,6 +36,53 @@ class EstimateSummary:
     resets: dict[str, int] = field(default_factory=dict)
     #: wheel-samples the longitudinal model did not describe (no K from them), by reason (docs/method.md §17)
     unusable: dict[str, int] = field(default_factory=dict)
+
+
+class Observed(NamedTuple):
+    """What a record takes from the observer (``full``) and the summary counts (its reset)."""
+
+    reset_reason: str
+    gross: list[float]
+    resistance: list[float]
+    mu_var: list[float]
+    ground_speed: float
+    ground_speed_latency: float
+
+
+class _Chain:
+    """One vehicle's chain in one core call per sample (``BatchPipeline``, N = 1), after the normal-force
+    stage's solver (eqs. 21-25)."""
+
+    _ONE = np.zeros(1, dtype=np.int64)
+
+    def __init__(self, config: PipelineConfig):
+        self._solve = NormalForceSolver(config.vehicle)
+        self._batch = BatchPipeline(config, 1)
+
+    def process_all(self, sample: SensorSample) -> tuple[list[float], Observed, SoilEstimate, OcpEstimate]:
+        fz = self._solve(sample.specific_force)
+        ob, soils, ocps = self._batch.step_all(self._ONE, [sample], [fz])
+        seen = Observed(ob.reset_reason[0], ob.gross[0].tolist(), ob.resistance[0].tolist(), ob.mu_var[0].tolist(),
+                        float(ob.ground_speed[0]), float(ob.ground_speed_latency[0]))
+        return fz.tolist(), seen, soils[0], ocps[0]
+
+
+class _Stages:
+    """One vehicle's four stages with their messages (the paper's soil method, which the core's bank does not run)."""
+
+    def __init__(self, config: PipelineConfig):
+        self._pipe = VehiclePipeline(config)
+
+    def process_all(self, sample: SensorSample) -> tuple[list[float], Observed, SoilEstimate, OcpEstimate]:
+        nf, ob, so, oc = self._pipe.process_all(sample)
+        seen = Observed(ob.reset_reason, list(ob.gross), list(ob.resistance), list(ob.mu_var), ob.ground_speed,
+                        ob.ground_speed_latency)
+        return list(nf.normal_force), seen, so, oc
+
+
+def vehicle_chain(config: PipelineConfig):
+    """The offline chain of one vehicle for ``config`` (module doc)."""
+    return _Chain(config) if config.soil.method == "bayes" else _Stages(config)
 
 
 def estimate_lines(
@@ -52,7 +108,7 @@ def estimate_samples(
 ) -> Iterator[tuple[SensorSample, dict]]:
     """:func:`estimate_lines`, each record with the validated sensor sample it was estimated from
     (the MCAP export writes both, so the file carries the same channels as the live server)."""
-    pipelines: dict[str, VehiclePipeline] = {}
+    pipelines: dict[str, _Chain | _Stages] = {}
     validators: dict[str, SampleValidator] = {}
     summary = summary if summary is not None else EstimateSummary()
     for lineno, line in enumerate(lines, start=1):
@@ -69,12 +125,12 @@ def estimate_samples(
             continue
         pipe = pipelines.get(sample.vehicle_id)
         if pipe is None:
-            pipe = pipelines[sample.vehicle_id] = VehiclePipeline(config)
+            pipe = pipelines[sample.vehicle_id] = vehicle_chain(config)
         try:
             nf, ob, so, oc = pipe.process_all(sample)
         except Exception as exc:  # no exception escapes a stage: restart this vehicle's chain, keep going
             summary.stage_errors.append((lineno, f"{type(exc).__name__}: {exc}"[:300]))
-            pipelines[sample.vehicle_id] = VehiclePipeline(config)
+            pipelines[sample.vehicle_id] = vehicle_chain(config)
             continue
         if ob.reset_reason:
             summary.resets[ob.reset_reason] = summary.resets.get(ob.reset_reason, 0) + 1
@@ -86,10 +142,10 @@ def estimate_samples(
                 summary.unusable[why] = summary.unusable.get(why, 0) + 1
         rec = oc.model_dump()
         if full:
-            rec["normal_force"] = list(nf.normal_force)
-            rec["gross"] = list(ob.gross)
-            rec["resistance"] = list(ob.resistance)
-            rec["mu_var"] = list(ob.mu_var)
+            rec["normal_force"] = nf
+            rec["gross"] = ob.gross
+            rec["resistance"] = ob.resistance
+            rec["mu_var"] = ob.mu_var
             rec["filtered_ground_speed"] = ob.ground_speed
             rec["ground_speed_latency"] = ob.ground_speed_latency
             rec["informative"] = list(so.informative)

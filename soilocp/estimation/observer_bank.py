@@ -227,6 +227,12 @@ class ObserverBank:
     def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
         """One observer step (readings, predict / gated update (eq. 35, standard form), refresh pairs) for
         the vehicles ``idx`` (None: all), in one core call; ValueError naming a malformed input."""
+        return _output(*self.run(self._core.step, idx, inputs))
+
+    def run(self, call, idx, inputs: ObserverInputs):
+        """``call`` (the core's ``ObserverCore.step``, or a call that steps the observer inside it:
+        ``ChainCore.step``) on the vehicles ``idx`` (None: all) and their inputs, with the clock's dt**3 and
+        exponentials; then the clock advances.  Returns what ``call`` returns."""
         ix = None if idx is None else check_index(idx, self.n_vehicles)
         if ix is not None and ix.dtype != np.int64:
             ix = ix.astype(np.int64)
@@ -244,17 +250,16 @@ class ObserverBank:
             neg = -np.abs(dt)  # -dt where the fit uses it (0 <= dt <= max_gap); no overflow elsewhere
             smoothing, window = self._latency_tau
             extra = (np.expm1(neg / smoothing), np.exp(neg / window))
-        args = (ix, st, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch, inputs.wheel_speed, inputs.wheel_torque,
-                inputs.ground_speed, inputs.normal_force, dt**3, *extra)
         try:
-            blocks = self._core.step(*args)
+            out = call(ix, st, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch, inputs.wheel_speed,
+                       inputs.wheel_torque, inputs.ground_speed, inputs.normal_force, dt**3, *extra)
         except TypeError:  # not float arrays: converted (or refused, naming the field) by the check, then again
             inputs.check()
-            blocks = self._core.step(ix, inputs.stamp, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch,
-                                     inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed,
-                                     inputs.normal_force, dt**3, *extra)
+            out = call(ix, inputs.stamp, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch,
+                       inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force,
+                       dt**3, *extra)
         if ix is None:
             self.last_stamp[:] = st
         else:
             self.last_stamp[ix] = st
-        return _output(*blocks)
+        return out

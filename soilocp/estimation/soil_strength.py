@@ -194,7 +194,13 @@ class SoilBank:
         fields, report = self.core.step_gated(gate.core, ix, stamp, rows,
                                               None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))
         inputs = SoilInputs(*fields)
-        return inputs, self._states(ix, stamp, self._count_unusable(inputs.unusable, k), report)
+        return inputs, self.states(ix, stamp, inputs, report)
+
+    def states(self, ix: np.ndarray, stamp: np.ndarray, inputs: SoilInputs, report) -> list[SoilState]:
+        """The states of the vehicles ``ix`` at ``stamp`` (k,) from a gated step's inputs (their unusable
+        wheels, counted in :attr:`unusable_by_reason`) and the core's records ``report`` (``step_gated``'s, or
+        ``ChainCore.step``'s)."""
+        return self._states(ix, stamp, self._count_unusable(inputs.unusable, ix.size), report)
 
     def _count_unusable(self, unusable, k: int) -> np.ndarray | None:
         """The wheels' unusable codes (k, 4) int64, counted in :attr:`unusable_by_reason`; None when all are 0."""

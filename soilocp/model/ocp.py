@@ -15,7 +15,8 @@ from soilocp import _core
 from soilocp.model.checks import positive, positive_scalar
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 
-_OCP_NAMES = ("mu_T", "S_T", "S_E", "te_at_S_E")
+#: the OCP arrays of the core (`ocp_bank`, `ChainCore.step`), in their order
+OCP_NAMES = ("mu_T", "S_T", "S_E", "te_at_S_E")
 
 
 def _bank(k: np.ndarray, constants: ModelConstants) -> tuple[np.ndarray, ...]:
@@ -87,7 +88,7 @@ def ocp_arrays(soil_strength, constants: ModelConstants = DEFAULT_CONSTANTS) -> 
     in (0, 1).  The one OCP kernel of the single-vehicle stage and the batched service: one call
     of the core for the whole bank."""
     k = np.ascontiguousarray(soil_strength, dtype=float).reshape(-1)
-    return dict(zip(_OCP_NAMES, _bank(k, constants)))
+    return dict(zip(OCP_NAMES, _bank(k, constants)))
 
 
 def ocp_from_soil_strength(soil_strength: float, constants: ModelConstants = DEFAULT_CONSTANTS) -> OCP:

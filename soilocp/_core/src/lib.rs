@@ -39,5 +39,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::torque_scale::longitudinal_balance, m)?)?;
     m.add_function(wrap_pyfunction!(py::torque_scale::modelled_resistance, m)?)?;
     m.add_function(wrap_pyfunction!(py::normal_force::gravity_from_attitude, m)?)?;
+    // the whole chain of a bank in one call per step (issue 28): the offline path, the batched service
+    m.add_class::<py::chain::ChainCore>()?;
     Ok(())
 }

@@ -74,6 +74,23 @@ pub struct Estimate {
     pub pairs: Pairs,
 }
 
+impl Estimate {
+    /// s since each wheel's speed reading was last new.
+    pub fn speed_age(&self) -> [f64; 4] {
+        [self.age[0], self.age[1], self.age[2], self.age[3]]
+    }
+
+    /// s since the ground speed reading was last new.
+    pub fn ground_speed_age(&self) -> f64 {
+        self.age[4]
+    }
+
+    /// s since each wheel's torque reading was last new.
+    pub fn torque_age(&self) -> [f64; 4] {
+        [self.age[5], self.age[6], self.age[7], self.age[8]]
+    }
+}
+
 pub struct ObserverBank {
     pub filter: FilterBank,
     pub reading: Reading,

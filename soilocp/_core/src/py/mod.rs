@@ -2,6 +2,7 @@
 //! runs the pure-Rust kernel once per element and returns arrays; one call per step.
 
 pub mod args;
+pub mod chain;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;

@@ -3,7 +3,7 @@
 //! (soilocp.estimation.observer_bank.ObserverBank) words the reset reasons from the codes and
 //! wraps the arrays in its dataclass.
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -14,7 +14,7 @@ use crate::observer::intervals::IntervalSettings;
 use crate::observer::latency::SMOOTHING;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
-use crate::observer::vehicles::{ObserverBank, Raw, Reading, LIFT_OFF_FORCE};
+use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, LIFT_OFF_FORCE};
 
 #[pyclass(module = "soilocp._core")]
 pub struct ObserverCore {
@@ -50,7 +50,7 @@ const FLATS: [&str; 4] = ["ground_speed", "yaw_rate", "ground_speed_age", "groun
 const BOOL_QUADS: [&str; 2] = ["mu_determined", "interval_learning"];
 const BOOL_FLATS: [&str; 2] = ["reset", "ground_speed_measured"];
 
-type StepOut<'py> = (
+pub(crate) type StepOut<'py> = (
     Bound<'py, PyArray3<f64>>,
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray3<bool>>,
@@ -64,6 +64,167 @@ type Model<'py> = (
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray2<f64>>,
 );
+
+/// The step's output blocks (module doc of `step`) of the vehicles' estimates, in their order.
+pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
+    let k = out.len();
+    let mut quads = Array3::<f64>::zeros((QUADS.len(), k, 4));
+    let mut flats = Array2::<f64>::zeros((FLATS.len(), k));
+    let mut bquads = Array3::<bool>::from_elem((BOOL_QUADS.len(), k, 4), false);
+    let mut bflats = Array2::<bool>::from_elem((BOOL_FLATS.len(), k), false);
+    let mut rejected = Array1::<i64>::zeros(k);
+    let mut codes = Array1::<u8>::zeros(k);
+    for (j, o) in out.iter().enumerate() {
+        let p = &o.pairs;
+        let rows: [&[f64; 4]; 17] = [
+            &o.mu,
+            &o.mu_var,
+            &o.resistance,
+            &o.gross,
+            &o.gross_var,
+            &o.wheel_speed,
+            &o.normal_force,
+            &o.speed_age(),
+            &o.torque_age(),
+            &p.interval,
+            &p.gross,
+            &p.gross_var,
+            &p.rim_start,
+            &p.rim_end,
+            &p.ground_start,
+            &p.ground_end,
+            &p.rim_sigma,
+        ];
+        for (f, row) in rows.iter().enumerate() {
+            for w in 0..4 {
+                quads[[f, j, w]] = row[w];
+            }
+        }
+        for (f, v) in [o.ground_speed, o.yaw_rate, o.ground_speed_age(), o.ground_speed_latency]
+            .into_iter()
+            .enumerate()
+        {
+            flats[[f, j]] = v;
+        }
+        for w in 0..4 {
+            bquads[[0, j, w]] = o.mu_determined[w];
+            bquads[[1, j, w]] = p.active[w];
+        }
+        bflats[[0, j]] = o.reset > 0;
+        bflats[[1, j]] = o.ground_speed_measured;
+        rejected[j] = o.rejected;
+        codes[j] = o.reset;
+    }
+    (
+        quads.into_pyarray(py),
+        flats.into_pyarray(py),
+        bquads.into_pyarray(py),
+        bflats.into_pyarray(py),
+        rejected.into_pyarray(py),
+        codes.into_pyarray(py),
+    )
+}
+
+impl ObserverCore {
+    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
+    pub(crate) fn bank_mut(&mut self) -> &mut ObserverBank {
+        &mut self.inner
+    }
+
+    /// A step's vehicles (`idx`, None: all in order; distinct, in range) and their samples, every
+    /// input checked (shape, finite; ValueError naming the field) before any vehicle's state changes.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn raws(
+        &self,
+        idx: Option<&PyReadonlyArray1<'_, i64>>,
+        stamp: &PyReadonlyArray1<'_, f64>,
+        specific_force_x: &PyReadonlyArray1<'_, f64>,
+        yaw_rate: &PyReadonlyArray1<'_, f64>,
+        pitch: &PyReadonlyArray1<'_, f64>,
+        wheel_speed: &PyReadonlyArray2<'_, f64>,
+        wheel_torque: &PyReadonlyArray2<'_, f64>,
+        ground_speed: &PyReadonlyArray1<'_, f64>,
+        normal_force: &PyReadonlyArray2<'_, f64>,
+        dt_cubed: &PyReadonlyArray1<'_, f64>,
+        expm1_smoothing: Option<&PyReadonlyArray1<'_, f64>>,
+        exp_window: Option<&PyReadonlyArray1<'_, f64>>,
+    ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
+        let n_veh = self.inner.filter.n_vehicles;
+        let stamp = stamp.as_array();
+        let k = stamp.len();
+        let idx_view = idx.map(|a| a.as_array());
+        let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
+        if k != m {
+            return Err(PyValueError::new_err(format!(
+                "inputs hold {k} samples for {m} vehicle indices"
+            )));
+        }
+        let mut vehicles = Vec::with_capacity(k);
+        if let Some(ix) = &idx_view {
+            let mut seen = vec![false; n_veh];
+            for &g in ix.iter() {
+                if g < 0 || g as usize >= n_veh || seen[g as usize] {
+                    return Err(PyValueError::new_err(format!(
+                        "idx must be distinct vehicle indices in [0, {n_veh}), got {ix}"
+                    )));
+                }
+                seen[g as usize] = true;
+                vehicles.push(g as usize);
+            }
+        } else {
+            vehicles.extend(0..n_veh);
+        }
+        let (fx, yaw, pitch, gs, dt3) = (
+            specific_force_x.as_array(),
+            yaw_rate.as_array(),
+            pitch.as_array(),
+            ground_speed.as_array(),
+            dt_cubed.as_array(),
+        );
+        args::check_finite_column("stamp", &stamp, k, false)?;
+        args::check_finite_column("specific_force_x", &fx, k, false)?;
+        args::check_finite_column("yaw_rate", &yaw, k, false)?;
+        args::check_finite_column("pitch", &pitch, k, false)?;
+        args::check_finite_column("ground_speed", &gs, k, true)?;
+        let (ws, tq, fz) = (wheel_speed.as_array(), wheel_torque.as_array(), normal_force.as_array());
+        args::check_finite_quads("wheel_speed", &ws, k)?;
+        args::check_finite_quads("wheel_torque", &tq, k)?;
+        args::check_finite_quads("normal_force", &fz, k)?;
+        args::check_len("dt_cubed", dt3.len(), k)?;
+        let e1 = expm1_smoothing.map(|a| a.as_array());
+        let e2 = exp_window.map(|a| a.as_array());
+        if self.inner.latency.is_some() {
+            match (&e1, &e2) {
+                (Some(a), Some(b)) => {
+                    args::check_len("expm1_smoothing", a.len(), k)?;
+                    args::check_len("exp_window", b.len(), k)?;
+                }
+                _ => {
+                    return Err(PyValueError::new_err(
+                        "expm1_smoothing and exp_window are needed: the ground-speed latency fit is on",
+                    ))
+                }
+            }
+        }
+        let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
+        let raws = (0..k)
+            .map(|j| Raw {
+                stamp: stamp[j],
+                specific_force_x: fx[j],
+                yaw_rate: yaw[j],
+                pitch: pitch[j],
+                wheel_speed: row4(&ws, j),
+                wheel_torque: row4(&tq, j),
+                ground_speed: gs[j],
+                normal_force: row4(&fz, j),
+                dt_cubed: dt3[j],
+                expm1_smoothing: e1.as_ref().map_or(f64::NAN, |a| a[j]),
+                exp_window: e2.as_ref().map_or(f64::NAN, |a| a[j]),
+            })
+            .collect();
+        Ok((vehicles, raws))
+    }
+}
 
 #[pymethods]
 impl ObserverCore {
@@ -196,142 +357,26 @@ impl ObserverCore {
         expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
         exp_window: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<StepOut<'py>> {
-        let n_veh = self.inner.filter.n_vehicles;
-        let stamp = stamp.as_array();
-        let k = stamp.len();
-        let idx_view = idx.as_ref().map(|a| a.as_array());
-        let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
-        if k != m {
-            return Err(PyValueError::new_err(format!(
-                "inputs hold {k} samples for {m} vehicle indices"
-            )));
-        }
-        let mut vehicles = Vec::with_capacity(k);
-        if let Some(ix) = &idx_view {
-            let mut seen = vec![false; n_veh];
-            for &g in ix.iter() {
-                if g < 0 || g as usize >= n_veh || seen[g as usize] {
-                    return Err(PyValueError::new_err(format!(
-                        "idx must be distinct vehicle indices in [0, {n_veh}), got {ix}"
-                    )));
-                }
-                seen[g as usize] = true;
-                vehicles.push(g as usize);
-            }
-        } else {
-            vehicles.extend(0..n_veh);
-        }
-        let (fx, yaw, pitch, gs, dt3) = (
-            specific_force_x.as_array(),
-            yaw_rate.as_array(),
-            pitch.as_array(),
-            ground_speed.as_array(),
-            dt_cubed.as_array(),
-        );
-        args::check_finite_column("stamp", &stamp, k, false)?;
-        args::check_finite_column("specific_force_x", &fx, k, false)?;
-        args::check_finite_column("yaw_rate", &yaw, k, false)?;
-        args::check_finite_column("pitch", &pitch, k, false)?;
-        args::check_finite_column("ground_speed", &gs, k, true)?;
-        let (ws, tq, fz) = (wheel_speed.as_array(), wheel_torque.as_array(), normal_force.as_array());
-        args::check_finite_quads("wheel_speed", &ws, k)?;
-        args::check_finite_quads("wheel_torque", &tq, k)?;
-        args::check_finite_quads("normal_force", &fz, k)?;
-        let shape = |name: &str, a: &ArrayView1<'_, f64>| -> PyResult<()> {
-            if a.len() != k {
-                return Err(PyValueError::new_err(format!(
-                    "{name} must have shape ({k},), got ({},)",
-                    a.len()
-                )));
-            }
-            Ok(())
-        };
-        shape("dt_cubed", &dt3)?;
-        let e1 = expm1_smoothing.as_ref().map(|a| a.as_array());
-        let e2 = exp_window.as_ref().map(|a| a.as_array());
-        if self.inner.latency.is_some() {
-            match (&e1, &e2) {
-                (Some(a), Some(b)) => {
-                    shape("expm1_smoothing", a)?;
-                    shape("exp_window", b)?;
-                }
-                _ => {
-                    return Err(PyValueError::new_err(
-                        "expm1_smoothing and exp_window are needed: the ground-speed latency fit is on",
-                    ))
-                }
-            }
-        }
-        let mut quads = Array3::<f64>::zeros((QUADS.len(), k, 4));
-        let mut flats = Array2::<f64>::zeros((FLATS.len(), k));
-        let mut bquads = Array3::<bool>::from_elem((BOOL_QUADS.len(), k, 4), false);
-        let mut bflats = Array2::<bool>::from_elem((BOOL_FLATS.len(), k), false);
-        let mut rejected = Array1::<i64>::zeros(k);
-        let mut codes = Array1::<u8>::zeros(k);
-        let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
-        for (j, &g) in vehicles.iter().enumerate() {
-            let raw = Raw {
-                stamp: stamp[j],
-                specific_force_x: fx[j],
-                yaw_rate: yaw[j],
-                pitch: pitch[j],
-                wheel_speed: row4(&ws, j),
-                wheel_torque: row4(&tq, j),
-                ground_speed: gs[j],
-                normal_force: row4(&fz, j),
-                dt_cubed: dt3[j],
-                expm1_smoothing: e1.as_ref().map_or(f64::NAN, |a| a[j]),
-                exp_window: e2.as_ref().map_or(f64::NAN, |a| a[j]),
-            };
-            let o = self.inner.step(g, &raw);
-            let p = &o.pairs;
-            let rows: [&[f64; 4]; 17] = [
-                &o.mu,
-                &o.mu_var,
-                &o.resistance,
-                &o.gross,
-                &o.gross_var,
-                &o.wheel_speed,
-                &o.normal_force,
-                &[o.age[0], o.age[1], o.age[2], o.age[3]],
-                &[o.age[5], o.age[6], o.age[7], o.age[8]],
-                &p.interval,
-                &p.gross,
-                &p.gross_var,
-                &p.rim_start,
-                &p.rim_end,
-                &p.ground_start,
-                &p.ground_end,
-                &p.rim_sigma,
-            ];
-            for (f, row) in rows.iter().enumerate() {
-                for w in 0..4 {
-                    quads[[f, j, w]] = row[w];
-                }
-            }
-            for (f, v) in [o.ground_speed, o.yaw_rate, o.age[4], o.ground_speed_latency]
-                .into_iter()
-                .enumerate()
-            {
-                flats[[f, j]] = v;
-            }
-            for w in 0..4 {
-                bquads[[0, j, w]] = o.mu_determined[w];
-                bquads[[1, j, w]] = p.active[w];
-            }
-            bflats[[0, j]] = o.reset > 0;
-            bflats[[1, j]] = o.ground_speed_measured;
-            rejected[j] = o.rejected;
-            codes[j] = o.reset;
-        }
-        Ok((
-            quads.into_pyarray(py),
-            flats.into_pyarray(py),
-            bquads.into_pyarray(py),
-            bflats.into_pyarray(py),
-            rejected.into_pyarray(py),
-            codes.into_pyarray(py),
-        ))
+        let (vehicles, raws) = self.raws(
+            idx.as_ref(),
+            &stamp,
+            &specific_force_x,
+            &yaw_rate,
+            &pitch,
+            &wheel_speed,
+            &wheel_torque,
+            &ground_speed,
+            &normal_force,
+            &dt_cubed,
+            expm1_smoothing.as_ref(),
+            exp_window.as_ref(),
+        )?;
+        let out: Vec<Estimate> = vehicles
+            .iter()
+            .zip(&raws)
+            .map(|(&g, r)| self.inner.step(g, r))
+            .collect();
+        Ok(blocks(py, &out))
     }
 
     /// A (n, n), b (n), H (7, n) of eq. 33 (the core's `observer::model`) at the state `x` (n,)

@@ -44,9 +44,9 @@ type StepArrays<'py> = (
 /// slip, informative, observed, variance, slip_sigma, gate_slip, gate_sigma, held (k, 4);
 /// ground_stale, identifiable, speed (k,); span (k, 4) and slip_ends (k, 4, 2) where any vehicle of
 /// the step refreshes a wheel, else None; unusable codes (k, 4).
-type GateArrays<'py> = Bound<'py, PyTuple>;
+pub(crate) type GateArrays<'py> = Bound<'py, PyTuple>;
 
-fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> {
+pub(crate) fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> {
     let k = s.len();
     let f = |get: fn(&Sample) -> [f64; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
     let b = |get: fn(&Sample) -> [bool; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
@@ -90,7 +90,7 @@ fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> 
 /// slip is the state.
 #[pyclass(module = "soilocp._core")]
 pub struct SlipGateBank {
-    inner: gate::SlipGateBank,
+    pub(crate) inner: gate::SlipGateBank,
 }
 
 impl SlipGateBank {
@@ -137,21 +137,28 @@ impl SlipGateBank {
             v
         };
         let rows: Vec<&[f64]> = flat.chunks_exact(gate::COLUMNS).collect();
-        let (samples, lps) = self.inner.samples(&idx, &stamp, &rows).map_err(PyValueError::new_err)?;
-        Ok((samples, PendingGate { idx, stamp, lps }))
+        self.run_rows(idx, stamp, &rows)
     }
 
-    fn commit(&mut self, pending: PendingGate) {
-        self.inner.commit(&pending.idx, &pending.stamp, &pending.lps);
+    /// The gate's samples of vehicles `idx` at `stamp` from their packed observer outputs `rows`
+    /// (crate::soil::gate::COLUMNS numbers each), and the [`PendingGate`] to commit.
+    pub(crate) fn run_rows(
+        &self,
+        idx: Vec<usize>,
+        stamp: Vec<f64>,
+        rows: &[&[f64]],
+    ) -> PyResult<(Vec<Sample>, PendingGate)> {
+        let (samples, lps) = self.inner.samples(&idx, &stamp, rows).map_err(PyValueError::new_err)?;
+        Ok((samples, PendingGate { idx, stamp, lps }))
     }
 }
 
 /// A gate step computed and not yet kept: kept only once its samples are accepted, so that a refused
 /// step (a non-finite sample, a bad scale sigma) leaves the low-pass slips as they were.
-struct PendingGate {
-    idx: Vec<usize>,
-    stamp: Vec<f64>,
-    lps: Vec<[f64; 4]>,
+pub(crate) struct PendingGate {
+    pub(crate) idx: Vec<usize>,
+    pub(crate) stamp: Vec<f64>,
+    pub(crate) lps: Vec<[f64; 4]>,
 }
 
 #[pymethods]
@@ -238,7 +245,7 @@ impl SlipGateBank {
     ) -> PyResult<GateArrays<'py>> {
         let (samples, pending) = self.run(&idx, &stamp, &rows)?;
         check_finite(&samples)?; // before the state moves: a refused step leaves the low-pass as it was
-        self.commit(pending);
+        self.inner.commit(&pending.idx, &pending.stamp, &pending.lps);
         gate_arrays(py, &samples)
     }
 
@@ -292,13 +299,13 @@ pub struct SoilGridBank {
 /// What `report` returns per vehicle of the last step: codes (k, 3) int64 (status, reason, K
 /// reported 0 / 1), numbers (k, 8) (K, its 1-sigma, ln K's, the last informative update's stamp
 /// (NaN: none), the reason's 4 numbers) and the used wheels (k, 4) bool.
-type ReportArrays<'py> = (
+pub(crate) type ReportArrays<'py> = (
     Bound<'py, PyArray2<i64>>,
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<bool>>,
 );
 
-fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -> ReportArrays<'py> {
+pub(crate) fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -> ReportArrays<'py> {
     let k = reports.len();
     let codes = Array2::from_shape_fn((k, 3), |(j, i)| {
         let r = &reports[j];
@@ -325,6 +332,44 @@ fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
 }
 
 impl SoilGridBank {
+    /// The update with the slip gate's `samples` (crate::soil::gate::SlipGateBank::samples, its low-pass
+    /// slips `pending`) and the online torque scale's relative 1-sigma (`scale_sigma`, one per sample;
+    /// None: the prior), and the records: the samples as updated, and each one's used wheels.  The
+    /// gate keeps its new low-pass slips only once the update has taken the samples.
+    pub(crate) fn gated(
+        &mut self,
+        gate: &mut gate::SlipGateBank,
+        mut samples: Vec<Sample>,
+        pending: PendingGate,
+        scale_sigma: Option<&[f64]>,
+    ) -> PyResult<(Vec<Sample>, Vec<[bool; 4]>)> {
+        if self.status.is_none() {
+            return Err(PyValueError::new_err(
+                "step_gated: call set_status first (the records' settings)",
+            ));
+        }
+        if let Some(sig) = scale_sigma {
+            for (s, &v) in samples.iter_mut().zip(sig) {
+                s.scale_sigma = Some(v);
+            }
+        }
+        check_finite(&samples)?;
+        let out = self.step_samples(&samples)?;
+        gate.commit(&pending.idx, &pending.stamp, &pending.lps);
+        let used = out.iter().map(|s| s.wheel.map(|f| f & bank::USED != 0)).collect();
+        Ok((samples, used))
+    }
+
+    /// The number of vehicles of the bank.
+    pub(crate) fn bank_len(&self) -> usize {
+        self.inner.vehicles.len()
+    }
+
+    /// The records of the last step's vehicles, in order.
+    pub(crate) fn reports(&self) -> &[Report] {
+        &self.reports
+    }
+
     /// The bank's step of the samples and, where `set_status` configured them, their records.
     fn step_samples(&mut self, samples: &[Sample]) -> PyResult<Vec<bank::Step>> {
         let out = self.inner.step(samples).map_err(PyValueError::new_err)?;
@@ -576,24 +621,12 @@ impl SoilGridBank {
         rows: Bound<'py, PyAny>,
         scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
-        if self.status.is_none() {
-            return Err(PyValueError::new_err(
-                "step_gated: call set_status first (the records' settings)",
-            ));
-        }
-        let (mut samples, pending) = gate.run(&idx, &stamp, &rows)?;
-        if let Some(a) = scale_sigma {
-            let sig = column("scale_sigma", &a, samples.len())?;
-            for (s, v) in samples.iter_mut().zip(sig) {
-                s.scale_sigma = Some(v);
-            }
-        }
-        check_finite(&samples)?;
-        let out = self.step_samples(&samples)?;
-        gate.commit(pending);
-        let inputs = gate_arrays(py, &samples)?;
-        let used: Vec<[bool; 4]> = out.iter().map(|s| s.wheel.map(|f| f & bank::USED != 0)).collect();
-        Ok((inputs, report_arrays(py, &self.reports, &used)))
+        let (samples, pending) = gate.run(&idx, &stamp, &rows)?;
+        let sig = scale_sigma
+            .map(|a| column("scale_sigma", &a, samples.len()))
+            .transpose()?;
+        let (samples, used) = self.gated(&mut gate.inner, samples, pending, sig.as_deref())?;
+        Ok((gate_arrays(py, &samples)?, report_arrays(py, &self.reports, &used)))
     }
 
     /// The records' settings (names of crate::soil::status::StatusBank::NAMES): from now on each

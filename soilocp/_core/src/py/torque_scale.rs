@@ -39,6 +39,11 @@ pub struct TorqueScaleCore {
 }
 
 impl TorqueScaleCore {
+    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
+    pub(crate) fn bank_mut(&mut self) -> &mut bank::TorqueScaleBank {
+        &mut self.inner
+    }
+
     /// The selected vehicles' indices, each in [0, N) and each once.
     fn indices(&self, idx: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<usize>> {
         let n = self.inner.len();
@@ -195,16 +200,16 @@ impl TorqueScaleCore {
             &ground_speed,
             Some(&normal_force),
         )?;
-        if out.iter().all(|&(m, sd)| self.inner.at_prior(m, sd)) {
+        let Some(scaled) = self.inner.scaled(&out) else {
             return Ok(None);
-        }
+        };
         let tq = wheel_torque.as_array();
         let k = ix.len();
         let mut torque = Vec::with_capacity(4 * k);
         let mut sigma = Vec::with_capacity(k);
-        for (j, &(m, sd)) in out.iter().enumerate() {
+        for (j, &(m, s)) in scaled.iter().enumerate() {
             torque.extend(row(&tq, j).iter().map(|t| t * m));
-            sigma.push(self.inner.band_sigma(sd) / m);
+            sigma.push(s);
         }
         let torque = Array2::from_shape_vec((k, 4), torque).expect("4 per vehicle");
         Ok(Some((

@@ -8,6 +8,7 @@
 //! soilocp.estimation.slip_gate.GATE_FIELDS), so that a step is one array across the boundary.
 
 use crate::observer::numeric::{np_max, np_min};
+use crate::observer::vehicles::Estimate;
 use crate::slip;
 use crate::soil::bank::Sample;
 use crate::soil::usability::{self, Limits, SLIP_BEYOND_EQ1};
@@ -80,6 +81,43 @@ pub const SCALAR_NAMES: [&str; scalar::COUNT] = [
 
 /// Numbers per vehicle in a packed row.
 pub const COLUMNS: usize = scalar::GROUND_SPEED + scalar::COUNT;
+
+/// The packed row of one vehicle's observer estimate (bools as 0 / 1): what
+/// soilocp.estimation.slip_gate.pack_output makes of the core's output blocks, for the chain's
+/// step, which hands the estimate over without leaving Rust.
+pub fn row_of(e: &Estimate) -> [f64; COLUMNS] {
+    let p = &e.pairs;
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    let quads: [(usize, [f64; 4]); quad::COUNT] = [
+        (quad::MU, e.mu),
+        (quad::MU_VAR, e.mu_var),
+        (quad::GROSS, e.gross),
+        (quad::GROSS_VAR, e.gross_var),
+        (quad::WHEEL_SPEED, e.wheel_speed),
+        (quad::NORMAL_FORCE, e.normal_force),
+        (quad::SPEED_AGE, e.speed_age()),
+        (quad::TORQUE_AGE, e.torque_age()),
+        (quad::INTERVAL, p.interval),
+        (quad::INTERVAL_GROSS, p.gross),
+        (quad::INTERVAL_GROSS_VAR, p.gross_var),
+        (quad::INTERVAL_RIM_START, p.rim_start),
+        (quad::INTERVAL_RIM_END, p.rim_end),
+        (quad::INTERVAL_GROUND_START, p.ground_start),
+        (quad::INTERVAL_GROUND_END, p.ground_end),
+        (quad::INTERVAL_RIM_SIGMA, p.rim_sigma),
+        (quad::INTERVAL_LEARNING, p.active.map(flag)),
+    ];
+    let mut row = [0.0; COLUMNS];
+    for (f, q) in quads {
+        row[4 * f..4 * f + 4].copy_from_slice(&q);
+    }
+    row[scalar::GROUND_SPEED] = e.ground_speed;
+    row[scalar::YAW_RATE] = e.yaw_rate;
+    row[scalar::RESET] = flag(e.reset > 0);
+    row[scalar::GROUND_SPEED_AGE] = e.ground_speed_age();
+    row[scalar::GROUND_SPEED_MEASURED] = flag(e.ground_speed_measured);
+    row
+}
 
 /// The gate's settings: the vehicle's, eq. 1's and SoilConfig's numbers it reads (their meaning:
 /// PipelineConfig's and SoilConfig's field descriptions).
@@ -345,6 +383,33 @@ impl SlipGateBank {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_estimate_packs_into_its_named_columns() {
+        let mut e = Estimate {
+            mu: [0.1, 0.2, 0.3, 0.4],
+            gross_var: [1.0, 2.0, 3.0, 4.0],
+            age: [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0],
+            ground_speed: 1.5,
+            reset: 3,
+            ground_speed_measured: true,
+            ..Default::default()
+        };
+        e.pairs.active = [true, false, false, true];
+        e.pairs.rim_sigma = [0.5; 4];
+        let row = row_of(&e);
+        let at = |f: usize| &row[4 * f..4 * f + 4];
+        assert_eq!(at(quad::MU), &e.mu);
+        assert_eq!(at(quad::GROSS_VAR), &e.gross_var);
+        assert_eq!(at(quad::SPEED_AGE), &[1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(at(quad::TORQUE_AGE), &[6.0, 7.0, 8.0, 9.0]);
+        assert_eq!(at(quad::INTERVAL_RIM_SIGMA), &[0.5; 4]);
+        assert_eq!(at(quad::INTERVAL_LEARNING), &[1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(row[scalar::GROUND_SPEED], 1.5);
+        assert_eq!(row[scalar::RESET], 1.0);
+        assert_eq!(row[scalar::GROUND_SPEED_AGE], 5.0);
+        assert_eq!(row[scalar::GROUND_SPEED_MEASURED], 1.0);
+    }
 
     #[test]
     fn names_follow_the_column_indices() {

@@ -166,6 +166,17 @@ impl TorqueScaleBank {
         1.0 / (1.0 / p.prior_var + info).sqrt()
     }
 
+    /// What the observer and the soil update take from a step's (mean, 1-sigma) of k, one pair per
+    /// vehicle stepped: the factor of each vehicle's logged torques (k's mean) and k's relative
+    /// 1-sigma for K's band; None while every one is exactly its prior (never learnt: the torques and
+    /// the soil's scale prior stay as configured).
+    pub fn scaled(&self, stepped: &[(f64, f64)]) -> Option<Vec<(f64, f64)>> {
+        if stepped.iter().all(|&(m, sd)| self.at_prior(m, sd)) {
+            return None;
+        }
+        Some(stepped.iter().map(|&(m, sd)| (m, self.band_sigma(sd) / m)).collect())
+    }
+
     /// Whether (mean, 1-sigma) is exactly the state's prior: k never learnt.
     #[inline]
     pub fn at_prior(&self, m: f64, sd: f64) -> bool {

@@ -1,0 +1,184 @@
+//! `soilocp._core.ChainCore`: the whole estimation chain of a bank of vehicles in one call per
+//! step, for the offline path and the batched service: the online torque scale, the observer, the
+//! slip gate, the soil-grid update with its records, the scale's feed of K back, and the OCPs
+//! (eqs. 7-10).  It holds the stage objects the Python side built (`ObserverCore`,
+//! `TorqueScaleCore`, `SlipGateBank`, `SoilGridBank`) and steps their state in place with the same
+//! kernels their own calls run, so a stage's calls and the chain's give the same numbers; nothing
+//! crosses the boundary between the stages.
+
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use super::observer::{blocks, ObserverCore, StepOut};
+use super::soil::{gate_arrays, report_arrays, GateArrays, ReportArrays, SlipGateBank, SoilGridBank};
+use super::torque_scale::TorqueScaleCore;
+use crate::constants::Constants;
+use crate::observer::vehicles::{Estimate, Raw};
+use crate::ocp;
+use crate::soil::gate::{self, COLUMNS};
+use crate::torque_scale::bank::Sample as ScaleSample;
+
+type Arr<'py> = Bound<'py, PyArray1<f64>>;
+
+/// The OCP arrays of the step's vehicles: mu_T, S_T, S_E and TE at S_E (k,) each, as `ocp_bank`.
+type OcpArrays<'py> = (Arr<'py>, Arr<'py>, Arr<'py>, Arr<'py>);
+
+/// What `ChainCore.step` returns: the observer's blocks (as `ObserverCore.step`), the slip gate's
+/// arrays (as `SlipGateBank.step`), the records (as `SoilGridBank.report`) and the OCPs.
+type ChainOut<'py> = (StepOut<'py>, GateArrays<'py>, ReportArrays<'py>, OcpArrays<'py>);
+
+#[pyclass(module = "soilocp._core")]
+pub struct ChainCore {
+    observer: Py<ObserverCore>,
+    gate: Py<SlipGateBank>,
+    soil: Py<SoilGridBank>,
+    constants: Constants,
+    /// None: the torque scale is off (k = 1 and the soil's scale prior as configured)
+    scale: Option<Py<TorqueScaleCore>>,
+    /// feed each step's K and slips back to the scale (its modelled motion resistance, eq. 4)
+    feed_soil: bool,
+}
+
+/// The torque scale's sample of an observer input: the logged torques, before the scale.
+fn scale_sample(r: &Raw) -> ScaleSample {
+    ScaleSample {
+        stamp: r.stamp,
+        f_x: r.specific_force_x,
+        pitch: r.pitch,
+        yaw_rate: r.yaw_rate,
+        wheel_speed: r.wheel_speed,
+        torque: r.wheel_torque,
+        ground_speed: r.ground_speed,
+        normal_force: Some(r.normal_force),
+    }
+}
+
+#[pymethods]
+impl ChainCore {
+    /// The chain over the stage objects of one bank of N vehicles: the `observer`, the slip `gate`,
+    /// the `soil` bank (its records' settings given: `set_status`), the traction law's `constants`
+    /// (the OCPs'), the torque `scale` (None: off) and whether K is fed back to it (`feed_soil`).
+    #[new]
+    #[pyo3(signature = (observer, gate, soil, constants, scale=None, feed_soil=false))]
+    fn py_new(
+        py: Python<'_>,
+        observer: Py<ObserverCore>,
+        gate: Py<SlipGateBank>,
+        soil: Py<SoilGridBank>,
+        constants: Constants,
+        scale: Option<Py<TorqueScaleCore>>,
+        feed_soil: bool,
+    ) -> PyResult<Self> {
+        let n = observer.bind(py).borrow_mut().bank_mut().filter.n_vehicles;
+        let mut sizes = vec![
+            ("gate", gate.bind(py).borrow().inner.lp.len()),
+            ("soil", soil.bind(py).borrow().bank_len()),
+        ];
+        if let Some(s) = &scale {
+            sizes.push(("scale", s.bind(py).borrow_mut().bank_mut().len()));
+        }
+        if let Some((name, m)) = sizes.iter().find(|(_, m)| *m != n) {
+            return Err(PyValueError::new_err(format!(
+                "{name} holds {m} vehicles, the observer {n}: the chain's stages must be one bank"
+            )));
+        }
+        Ok(ChainCore {
+            observer,
+            gate,
+            soil,
+            constants,
+            scale,
+            feed_soil,
+        })
+    }
+
+    /// One step of the vehicles `idx` (None: all, in order), with the observer's inputs
+    /// (`ObserverCore.step`'s, the logged torques): the torque scale steps on them and the
+    /// observer takes the torques times k's mean; the gate packs the observer's estimates; the soil
+    /// update takes the gate's samples with k's relative 1-sigma; K goes back to the scale; the OCPs
+    /// of K.  Every input is checked (ValueError naming the field) before any state changes; a
+    /// sample the soil update refuses leaves the gate as it was.
+    #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
+                        normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        idx: Option<PyReadonlyArray1<'py, i64>>,
+        stamp: PyReadonlyArray1<'py, f64>,
+        specific_force_x: PyReadonlyArray1<'py, f64>,
+        yaw_rate: PyReadonlyArray1<'py, f64>,
+        pitch: PyReadonlyArray1<'py, f64>,
+        wheel_speed: PyReadonlyArray2<'py, f64>,
+        wheel_torque: PyReadonlyArray2<'py, f64>,
+        ground_speed: PyReadonlyArray1<'py, f64>,
+        normal_force: PyReadonlyArray2<'py, f64>,
+        dt_cubed: PyReadonlyArray1<'py, f64>,
+        expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
+        exp_window: Option<PyReadonlyArray1<'py, f64>>,
+    ) -> PyResult<ChainOut<'py>> {
+        let mut obs = self.observer.bind(py).borrow_mut();
+        let (vehicles, mut raws) = obs.raws(
+            idx.as_ref(),
+            &stamp,
+            &specific_force_x,
+            &yaw_rate,
+            &pitch,
+            &wheel_speed,
+            &wheel_torque,
+            &ground_speed,
+            &normal_force,
+            &dt_cubed,
+            expm1_smoothing.as_ref(),
+            exp_window.as_ref(),
+        )?;
+        let mut scale_sigma: Option<Vec<f64>> = None;
+        if let Some(scale) = &self.scale {
+            let mut scale = scale.bind(py).borrow_mut();
+            let bank = scale.bank_mut();
+            let stepped: Vec<(f64, f64)> = vehicles
+                .iter()
+                .zip(&raws)
+                .map(|(&g, r)| bank.step(g, &scale_sample(r)))
+                .collect();
+            if let Some(scaled) = bank.scaled(&stepped) {
+                for (r, &(m, _)) in raws.iter_mut().zip(&scaled) {
+                    r.wheel_torque = r.wheel_torque.map(|t| t * m);
+                }
+                scale_sigma = Some(scaled.iter().map(|&(_, s)| s).collect());
+            }
+        }
+        let bank = obs.bank_mut();
+        let est: Vec<Estimate> = vehicles.iter().zip(&raws).map(|(&g, r)| bank.step(g, r)).collect();
+        let rows: Vec<[f64; COLUMNS]> = est.iter().map(gate::row_of).collect();
+        let rows: Vec<&[f64]> = rows.iter().map(|r| &r[..]).collect();
+        let mut gate = self.gate.bind(py).borrow_mut();
+        let mut soil = self.soil.bind(py).borrow_mut();
+        let stamps = raws.iter().map(|r| r.stamp).collect();
+        let (samples, pending) = gate.run_rows(vehicles.clone(), stamps, &rows)?;
+        let (samples, used) = soil.gated(&mut gate.inner, samples, pending, scale_sigma.as_deref())?;
+        let ks: Vec<f64> = soil.reports().iter().map(|r| r.k.map_or(f64::NAN, |v| v[0])).collect();
+        if let (true, Some(scale)) = (self.feed_soil, &self.scale) {
+            let mut scale = scale.bind(py).borrow_mut();
+            let bank = scale.bank_mut();
+            for ((&g, &k), s) in vehicles.iter().zip(&ks).zip(&samples) {
+                bank.feed_soil(g, k, Some(s.slip));
+            }
+        }
+        if let Some(j) = ks.iter().position(|&k| !ocp::evaluable(k, &self.constants)) {
+            return Err(PyValueError::new_err(format!(
+                "soil_strength[{j}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
+                ks[j]
+            )));
+        }
+        let o: Vec<ocp::Ocp> = ks.iter().map(|&k| ocp::ocp(k, &self.constants)).collect();
+        let col = |f: fn(&ocp::Ocp) -> f64| o.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
+        Ok((
+            blocks(py, &est),
+            gate_arrays(py, &samples)?,
+            report_arrays(py, soil.reports(), &used),
+            (col(|x| x.mu_t), col(|x| x.s_t), col(|x| x.s_e), col(|x| x.te_at_s_e)),
+        ))
+    }
+}
