@@ -23,7 +23,7 @@ from schemas.pipeline import OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
 
 from soilocp import _core
-from soilocp.model.checks import check_count, check_index
+from soilocp.model.checks import check_count
 from soilocp.estimation.observer_bank import ObserverBank, ObserverBankOutput, ObserverInputs, _output
 from soilocp.model.ocp import OCP_NAMES, ocp_arrays
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
@@ -70,7 +70,7 @@ class BatchPipeline:
                  normal_forces: Sequence) -> tuple[ObserverBankOutput, list[SoilEstimate], list[OcpEstimate]]:
         """One sample per vehicle in ``idx`` (same order): the observer's output (arrays, one row per vehicle),
         and each vehicle's soil estimate and OCP record."""
-        ix = check_index(idx, self.n_vehicles)
+        ix = self.observer.index(idx)
         inputs = observer_inputs(samples, normal_forces)
         if self.chain is not None:  # one core call: scale, observer, gate, soil update, K fed back, OCPs
             blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)

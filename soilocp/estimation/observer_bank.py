@@ -227,15 +227,17 @@ class ObserverBank:
     def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
         """One observer step (readings, predict / gated update (eq. 35, standard form), refresh pairs) for
         the vehicles ``idx`` (None: all), in one core call; ValueError naming a malformed input."""
-        return _output(*self.run(self._core.step, idx, inputs))
+        return _output(*self.run(self._core.step, None if idx is None else self.index(idx), inputs))
 
-    def run(self, call, idx, inputs: ObserverInputs):
+    def index(self, idx) -> np.ndarray:
+        """``idx`` checked (ValueError: not distinct vehicle indices in range), as the core's int64 array."""
+        ix = check_index(idx, self.n_vehicles)
+        return ix if ix.dtype == np.int64 else ix.astype(np.int64)
+
+    def run(self, call, ix: np.ndarray | None, inputs: ObserverInputs):
         """``call`` (the core's ``ObserverCore.step``, or a call that steps the observer inside it:
-        ``ChainCore.step``) on the vehicles ``idx`` (None: all) and their inputs, with the clock's dt**3 and
-        exponentials; then the clock advances.  Returns what ``call`` returns."""
-        ix = None if idx is None else check_index(idx, self.n_vehicles)
-        if ix is not None and ix.dtype != np.int64:
-            ix = ix.astype(np.int64)
+        ``ChainCore.step``) on the vehicles ``ix`` (:meth:`index`'s; None: all) and their inputs, with the
+        clock's dt**3 and exponentials; then the clock advances.  Returns what ``call`` returns."""
         st = inputs.stamp
         last = self.last_stamp if ix is None else self.last_stamp[ix]
         if type(st) is not np.ndarray or st.dtype != np.float64 or st.shape != last.shape:

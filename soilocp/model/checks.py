@@ -61,6 +61,9 @@ def check_count(n: object) -> int:
 
 
 def check_index(idx, n: int) -> np.ndarray:
+    """``idx`` as a 1-D integer array of distinct vehicle indices in [0, n); ValueError otherwise."""
+    if type(idx) is np.ndarray and idx.shape == (1,) and idx.dtype == np.int64 and 0 <= idx[0] < n:
+        return idx  # one vehicle's step: the common call, checked without a reduction
     ix = np.asarray(idx)
     if ix.ndim != 1 or ix.size == 0 or not np.issubdtype(ix.dtype, np.integer):
         raise ValueError(f"idx {idx!r} is invalid: need a non-empty 1-D array of vehicle indices")
