@@ -22,7 +22,7 @@ from soilocp.estimation.wheel_usability import describe
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
 from soilocp.estimation.soil_strength import _gate
-from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBankOutput
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBlocks
 from soilocp.estimation.soil_config import SoilInputs
 from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED, UsabilityLimits
 
@@ -620,7 +620,7 @@ class ReferenceSlipGate:
         self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
         self._half_track = 0.5 * (config.vehicle.c + config.vehicle.d)
 
-    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput) -> SoilInputs:
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBlocks) -> SoilInputs:
         """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them."""
         cfg = self.cfg
         r = cfg.vehicle.wheel_radius

@@ -16,7 +16,7 @@ from reference_soil import ReferenceRecords, ReferenceSlipGate
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.estimation.soil_strength import SoilBank
 from tests.test_soil_core import _inputs
-from soilocp.estimation.observer_bank import ObserverBankOutput
+from soilocp.estimation.observer_bank import BLOCK_FIELDS, RESET_REASONS, ROWS, ObserverBlocks
 from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, PipelineConfig
 from soilocp.estimation.slip_gate import GATE_FIELDS, SlipGate, pack_message, pack_output
 from soilocp.estimation.soil_config import SoilConfig
@@ -30,25 +30,33 @@ CONFIGS = {
 }
 
 
-def _output(rng: np.random.Generator, k: int) -> ObserverBankOutput:
+def _blocks(rows: dict, rejected, reset_reason) -> ObserverBlocks:
+    """An observer output of named rows ((k, 4) or (k,) each, every core row), the rejections and reset reasons."""
+    assert rows.keys() == ROWS.keys(), rows.keys() ^ ROWS.keys()
+    blocks = [np.array([rows[f] for f in names], dtype=kind) for names, kind in zip(BLOCK_FIELDS, (float, float, bool, bool))]
+    codes = [RESET_REASONS.index(r) + 1 if r else 0 for r in reset_reason]
+    return ObserverBlocks(*blocks, np.asarray(rejected, dtype=np.int64), np.array(codes, dtype=np.uint8))
+
+
+def _output(rng: np.random.Generator, k: int) -> ObserverBlocks:
     def quad(lo, hi, zero=0.2):
         a = rng.uniform(lo, hi, (k, 4))
         return np.where(rng.random((k, 4)) < zero, 0.0, a)
 
     interval = np.where(rng.random((k, 4)) < 0.4, rng.uniform(0.005, 1.5, (k, 4)), 0.0)
     ground = np.where(rng.random(k) < 0.2, rng.uniform(-0.03, 0.03, k), rng.uniform(-3.0, 3.0, k))
-    return ObserverBankOutput(
+    return _blocks(dict(
         mu=quad(-1.2, 1.2), mu_var=quad(1e-6, 0.3), mu_determined=rng.random((k, 4)) < 0.8,
         resistance=quad(0.0, 0.2), gross=quad(-1.5, 1.5), gross_var=quad(1e-6, 0.3),
         wheel_speed=quad(-20.0, 20.0), ground_speed=ground, yaw_rate=rng.uniform(-2.5, 2.5, k) * (rng.random(k) < 0.6),
-        rejected=np.zeros(k, dtype=int), reset=rng.random(k) < 0.1, reset_reason=[""] * k,
+        reset=rng.random(k) < 0.1,
         normal_force=quad(-50.0, 900.0, 0.05), speed_age=quad(0.0, 0.2), torque_age=quad(0.0, 0.2),
         ground_speed_age=rng.uniform(0.0, 1.0, k), ground_speed_measured=rng.random(k) < 0.85,
         ground_speed_latency=np.zeros(k), interval=interval, interval_gross=quad(-1.5, 1.5),
         interval_gross_var=quad(1e-6, 0.3), interval_rim_start=quad(-3.0, 3.0), interval_rim_end=quad(-3.0, 3.0),
         interval_ground_start=quad(-3.0, 3.0), interval_ground_end=quad(-3.0, 3.0),
         interval_rim_sigma=quad(0.0, 0.05), interval_learning=rng.random((k, 4)) < 0.3,
-    )
+    ), np.zeros(k, dtype=int), [""] * k)
 
 
 #: the low-pass's weight 1 - e^(-dt / tau) is libm's expm1 in the core; numpy's (SVML on AVX-512 machines)
@@ -98,9 +106,7 @@ def test_core_gate_equals_the_numpy_gate_step_by_step_on_a_drive(variant):
     for sample, _ in get_variant(variant).simulate(0, duration=6.0):
         msg = observer.step(sample, normal.step(sample))
         rows = pack_message(msg)
-        ob = ObserverBankOutput(**{f.name: np.array([getattr(msg, "rejected_measurements" if f.name == "rejected"
-                                                             else f.name)])
-                                   for f in dataclasses.fields(ObserverBankOutput)})
+        ob = _blocks({f: [getattr(msg, f)] for f in ROWS}, [msg.rejected_measurements], [msg.reset_reason])
         np.testing.assert_array_equal(np.array([rows], dtype=float), pack_output(ob))
         stamp = np.array([msg.stamp])
         a, b = core.step(ix, stamp, rows), ref.step(ix, stamp, ob)

@@ -24,7 +24,7 @@ from schemas.sensor import SensorSample
 
 from soilocp import _core
 from soilocp.model.checks import check_count
-from soilocp.estimation.observer_bank import ObserverBank, ObserverBankOutput, ObserverInputs, _output
+from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks, ObserverInputs
 from soilocp.model.ocp import OCP_NAMES, ocp_arrays
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
@@ -67,14 +67,14 @@ class BatchPipeline:
         return self.step_all(idx, samples, normal_forces)[2]
 
     def step_all(self, idx, samples: Sequence[SensorSample],
-                 normal_forces: Sequence) -> tuple[ObserverBankOutput, list[SoilEstimate], list[OcpEstimate]]:
+                 normal_forces: Sequence) -> tuple[ObserverBlocks, list[SoilEstimate], list[OcpEstimate]]:
         """One sample per vehicle in ``idx`` (same order): the observer's output (arrays, one row per vehicle),
         and each vehicle's soil estimate and OCP record."""
         ix = self.observer.index(idx)
         inputs = observer_inputs(samples, normal_forces)
         if self.chain is not None:  # one core call: scale, observer, gate, soil update, K fed back, OCPs
             blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)
-            ob, inp = _output(*blocks), SoilInputs(*fields)
+            ob, inp = ObserverBlocks(*blocks), SoilInputs(*fields)
             states = self.soil.states(ix, inputs.stamp, inp, report)
             ocp = dict(zip(OCP_NAMES, ocp))
         else:  # the map's hook runs between the gate and the update, as in SoilStage

@@ -8,7 +8,8 @@ split and the encoder lead (``wheel_inputs.rs``, §14), the ground-speed latency
 filter (the model below, predict, the gated update, re-anchoring, conditioning, resets, the divergence guard;
 ``bank.rs``) and the refresh pairs of slow streams (``intervals.rs``, §13), with every vehicle's state of each.
 This module checks the call's inputs, computes numpy's dt**3 and the latency fit's two exponentials (whose
-last bits the core keeps), words the reset reasons from the core's codes and wraps the arrays.  The tests
+last bits the core keeps), and returns the core's output blocks with their rows named by the core
+(:class:`ObserverBlocks`), of which :func:`observer_message` makes the ObserverOutput message.  The tests
 check it against filterpy's KalmanFilter and plain numpy references (tests/reference_observer.py), step by
 step.
 
@@ -43,8 +44,11 @@ Model (paper eqs. 11-15, 26-35, corrected; the state layout is :class:`soilocp.e
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+
+from schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
@@ -105,71 +109,93 @@ class ObserverInputs:
         return k
 
 
-@dataclass
-class ObserverBankOutput:
-    """The observer's estimate for k vehicles: arrays (k,) or (k, 4)."""
-
-    mu: np.ndarray  # net traction per wheel (eq. 6's mu), inside [-mu_bound, mu_bound]
-    mu_var: np.ndarray
-    mu_determined: np.ndarray  # bool: the data determine mu_i (posterior 1-sigma <= mu_std_determined)
-    resistance: np.ndarray
-    gross: np.ndarray  # mu + mu_xR: what the wheel torque balance measures (eq. 13)
-    gross_var: np.ndarray
-    wheel_speed: np.ndarray
-    ground_speed: np.ndarray
-    yaw_rate: np.ndarray
-    rejected: np.ndarray
-    reset: np.ndarray
-    reset_reason: list[str]  # "" when no reset
-    normal_force: np.ndarray
-    speed_age: np.ndarray  # s since the wheel's speed reading was last new (the core's readings clock)
-    ground_speed_age: np.ndarray  # (k,) s since the ground speed reading was last new
-    torque_age: np.ndarray  # s since the wheel's torque reading was last new
-    ground_speed_measured: np.ndarray  # (k,) bool: an independent ground speed came with the sample
-    ground_speed_latency: np.ndarray  # (k,) s the ground speed was led by (the core's latency fit; 0: none)
-    # a slow stream's refresh at this sample, the pair from the readings (the core's intervals.rs; interval 0: none)
-    interval: np.ndarray
-    interval_gross: np.ndarray
-    interval_gross_var: np.ndarray
-    interval_rim_start: np.ndarray
-    interval_rim_end: np.ndarray
-    interval_ground_start: np.ndarray
-    interval_ground_end: np.ndarray
-    interval_rim_sigma: np.ndarray
-    interval_learning: np.ndarray  # bool: one stream slow, the other at the sample rate: K learns at the refreshes
+#: The rows of the core's four output blocks, named by the core (soilocp/_core/src/py/observer.rs), in its
+#: order: floats (k, 4) and (k,), bools (k, 4) and (k,).  Each row is the ObserverOutput field of the same name
+#: and kind (checked below), so a row the core adds reaches the message, or the import fails.
+BLOCK_FIELDS = tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in ("quad", "flat", "bool_quad", "bool_flat"))
+QUAD_FIELDS, FLAT_FIELDS, BOOL_QUAD_FIELDS, BOOL_FLAT_FIELDS = BLOCK_FIELDS
+#: Every core row by name: (block, row)
+ROWS = {name: (b, r) for b, names in enumerate(BLOCK_FIELDS) for r, name in enumerate(names)}
+# ObserverOutput's fields that are no core row: the envelope, the two made from the step's last two arrays
+# (rejections, reset codes) and those the stage adds (the torque scale, the sample's position)
+_NOT_ROWS = {"schema_version", "vehicle_id", "seq", "stamp", "rejected_measurements", "reset_reason", "torque_scale",
+             "torque_scale_std", "position", "geo"}
 
 
-# the rows of the core's output blocks, in its order (checked at import: the core names them)
-_QUADS = ("mu", "mu_var", "resistance", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age", "torque_age",
-          "interval", "interval_gross", "interval_gross_var", "interval_rim_start", "interval_rim_end",
-          "interval_ground_start", "interval_ground_end", "interval_rim_sigma")
-_FLATS = ("ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency")
-_BOOL_QUADS = ("mu_determined", "interval_learning")
-_BOOL_FLATS = ("reset", "ground_speed_measured")
-assert (_QUADS, _FLATS, _BOOL_QUADS, _BOOL_FLATS) == tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in (
-    "quad", "flat", "bool_quad", "bool_flat")), "soilocp._core's observer output blocks changed: rebuild the core"
+def _check_rows() -> None:
+    # ImportError, not assert: a row that misses the message (or lands in the wrong kind) must not pass under -O
+    fields = ObserverOutput.model_fields
+    kinds = (Quad, float, BoolQuad, bool)
+    wrong = [f"{name} ({kinds[b]}, message: {fields[name].annotation if name in fields else 'none'})"
+             for name, (b, _) in ROWS.items() if name not in fields or fields[name].annotation != kinds[b]]
+    unfed = sorted(set(fields) - set(ROWS) - _NOT_ROWS)
+    twice = len(ROWS) != sum(map(len, BLOCK_FIELDS))
+    if twice or wrong or unfed:
+        raise ImportError(f"soilocp._core's observer rows and schemas.pipeline.ObserverOutput disagree: rows without "
+                          f"their message field {wrong}, message fields without a row {unfed}"
+                          f"{', a row name in two blocks' if twice else ''}: rebuild the core (make setup), or follow "
+                          f"its rows in the message")
 
 
-def _output(quads, flats, bool_quads, bool_flats, rejected, codes) -> ObserverBankOutput:
-    """The core's output blocks as the dataclass: views of the blocks' rows, unpacked (not indexed one by one:
-    a third of the cost)."""
-    (mu, mu_var, res, gross, gross_var, wheel_speed, fz, speed_age, torque_age, interval, i_gross, i_gross_var,
-     i_rim_start, i_rim_end, i_ground_start, i_ground_end, i_rim_sigma) = quads
-    ground_speed, yaw_rate, ground_speed_age, latency = flats
-    determined, learning = bool_quads
-    reset, measured = bool_flats
-    return ObserverBankOutput(
-        mu, mu_var, determined, res, gross, gross_var, wheel_speed, ground_speed, yaw_rate, rejected, reset,
-        [RESET_REASONS[c - 1] if c else "" for c in codes.tolist()], fz, speed_age, ground_speed_age, torque_age,
-        measured, latency, interval, i_gross, i_gross_var, i_rim_start, i_rim_end, i_ground_start, i_ground_end,
-        i_rim_sigma, learning)
+_check_rows()
+
+
+class ObserverBlocks(NamedTuple):
+    """The observer's output for k vehicles as the core's step returns it: four blocks whose rows the core names
+    (``BLOCK_FIELDS``), the rejections and the reset codes.  Each row reads by its name, a view of its block
+    (``out.mu`` (k, 4), ``out.ground_speed`` (k,), ``out.reset_reason`` the codes' words); :func:`observer_message`
+    makes the j-th vehicle's ObserverOutput of it and :func:`soilocp.estimation.slip_gate.pack_output` the
+    gate's rows."""
+
+    quads: np.ndarray  # (len(QUAD_FIELDS), k, 4) float
+    flats: np.ndarray  # (len(FLAT_FIELDS), k) float
+    bool_quads: np.ndarray  # (len(BOOL_QUAD_FIELDS), k, 4) bool
+    bool_flats: np.ndarray  # (len(BOOL_FLAT_FIELDS), k) bool
+    rejected: np.ndarray  # (k,) int: measurement rows dropped by the innovation gate this step
+    codes: np.ndarray  # (k,) reset codes: 0 none, else RESET_REASONS[code - 1]
+
+    @property
+    def reset_reason(self) -> list[str]:
+        """The reset reasons (k,), "" where there was none."""
+        return [RESET_REASONS[c - 1] if c else "" for c in self.codes.tolist()]
+
+
+def _name_rows() -> None:
+    for name, (b, r) in ROWS.items():
+        if hasattr(ObserverBlocks, name):  # a row named like a block or a tuple method would hide one of them
+            raise ImportError(f"soilocp._core's observer row {name!r} shadows ObserverBlocks.{name}")
+        # the row's meaning is written once, in the message it becomes
+        setattr(ObserverBlocks, name, property(lambda self, b=b, r=r: self[b][r],
+                                               doc=ObserverOutput.model_fields[name].description))
+
+
+_name_rows()
+
+
+def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBlocks, j: int,
+                     torque_scale: float = 1.0, torque_scale_std: float | None = None) -> ObserverOutput:
+    """The j-th vehicle of an observer step (eqs. 26-35: the posterior's traction, resistance and speeds, with the
+    readings clock, latency and refresh pairs of docs/method.md §13) as the ObserverOutput message, every row as
+    the field of its name, with the online torque scale the torques were multiplied by and its relative 1-sigma
+    (None: the state is off)."""
+    quads, flats, bool_quads, bool_flats, rejected, codes = out
+    # one tolist per block (a (len, 4) view for vehicle j) and tuples, which pydantic takes for the Quad
+    # fields without a conversion
+    rows = dict(zip(QUAD_FIELDS, map(tuple, quads[:, j].tolist())))
+    rows.update(zip(FLAT_FIELDS, flats[:, j].tolist()))
+    rows.update(zip(BOOL_QUAD_FIELDS, map(tuple, bool_quads[:, j].tolist())))
+    rows.update(zip(BOOL_FLAT_FIELDS, bool_flats[:, j].tolist()))
+    code = int(codes[j])
+    return ObserverOutput(vehicle_id=vehicle_id, seq=seq, stamp=stamp, rejected_measurements=int(rejected[j]),
+                          reset_reason=RESET_REASONS[code - 1] if code else "", torque_scale=torque_scale,
+                          torque_scale_std=torque_scale_std, **rows)
 
 
 class ObserverBank:
     """N traction observers stepped together (see the module doc).  ``step(idx, inputs)`` steps
     the vehicles ``idx`` (any subset, each at most once; None: all, in order); vehicles need not
     be in step.  Everything per sample runs in the compiled core (``soilocp._core.ObserverCore``,
-    one call per step); this class words the reset reasons and wraps the arrays."""
+    one call per step); this class checks the inputs and returns the core's blocks, named (:class:`ObserverBlocks`)."""
 
     def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int):
         self.vehicle = vehicle
@@ -224,10 +250,10 @@ class ObserverBank:
         """Wheel-speed states re-anchored to their reading at low speed (docs/method.md §17)."""
         return self._core.anchored
 
-    def step(self, idx, inputs: ObserverInputs) -> ObserverBankOutput:
+    def step(self, idx, inputs: ObserverInputs) -> ObserverBlocks:
         """One observer step (readings, predict / gated update (eq. 35, standard form), refresh pairs) for
         the vehicles ``idx`` (None: all), in one core call; ValueError naming a malformed input."""
-        return _output(*self.run(self._core.step, None if idx is None else self.index(idx), inputs))
+        return ObserverBlocks(*self.run(self._core.step, None if idx is None else self.index(idx), inputs))
 
     def index(self, idx) -> np.ndarray:
         """``idx`` checked (ValueError: not distinct vehicle indices in range), as the core's int64 array."""

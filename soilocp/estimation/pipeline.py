@@ -26,7 +26,7 @@ from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_cons
 from soilocp.model.files import read_json
 from soilocp.model.normal_force import NormalForceSolver
 from soilocp.estimation.observer import ObserverConfig
-from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverBankOutput, ObserverInputs
+from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverInputs, observer_message
 from soilocp.map.place import estimate_place
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
@@ -128,32 +128,6 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
         wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
         normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
-    )
-
-
-def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBankOutput, j: int,
-                     torque_scale: float = 1.0, torque_scale_std: float | None = None) -> ObserverOutput:
-    """The j-th vehicle of a kernel output (arrays (k, 4) per wheel, (k,) per vehicle) as the
-    ObserverOutput message, with the online torque scale the torques were multiplied by and its relative
-    1-sigma (None: the state is off)."""
-    # one tuple per field (callgrind: fewer instructions than one stacked array's tolist, and
-    # pydantic takes tuples for the Quad fields without a conversion)
-    return ObserverOutput(
-        vehicle_id=vehicle_id, seq=seq, stamp=stamp,
-        mu=_quad(out.mu[j]), mu_var=_quad(out.mu_var[j]), mu_determined=_bools(out.mu_determined[j]),
-        resistance=_quad(out.resistance[j]), gross=_quad(out.gross[j]), gross_var=_quad(out.gross_var[j]),
-        wheel_speed=_quad(out.wheel_speed[j]), ground_speed=float(out.ground_speed[j]),
-        yaw_rate=float(out.yaw_rate[j]), normal_force=_quad(out.normal_force[j]),
-        rejected_measurements=int(out.rejected[j]), reset=bool(out.reset[j]), reset_reason=out.reset_reason[j],
-        speed_age=_quad(out.speed_age[j]), torque_age=_quad(out.torque_age[j]),
-        ground_speed_age=float(out.ground_speed_age[j]),
-        ground_speed_measured=bool(out.ground_speed_measured[j]), ground_speed_latency=float(out.ground_speed_latency[j]),
-        interval=_quad(out.interval[j]), interval_gross=_quad(out.interval_gross[j]),
-        interval_gross_var=_quad(out.interval_gross_var[j]), interval_rim_start=_quad(out.interval_rim_start[j]),
-        interval_rim_end=_quad(out.interval_rim_end[j]), interval_ground_start=_quad(out.interval_ground_start[j]),
-        interval_ground_end=_quad(out.interval_ground_end[j]), interval_rim_sigma=_quad(out.interval_rim_sigma[j]),
-        interval_learning=_bools(out.interval_learning[j]),
-        torque_scale=torque_scale, torque_scale_std=torque_scale_std,
     )
 
 

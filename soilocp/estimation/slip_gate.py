@@ -19,13 +19,14 @@ import numpy as np
 from schemas.pipeline import ObserverOutput
 
 from soilocp import _core
-from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBankOutput
+from soilocp.estimation.observer_bank import (BOOL_FLAT_FIELDS, BOOL_QUAD_FIELDS, FLAT_FIELDS, LIFT_OFF_FORCE, QUAD_FIELDS,
+                                             ObserverBlocks)
 from soilocp.estimation.soil_config import SoilInputs
 from soilocp.estimation.wheel_usability import UsabilityLimits
 
 __all__ = ["GATE_FIELDS", "SlipGate", "pack_message", "pack_output"]
 
-#: The ObserverBankOutput fields the gate reads, in the order of a packed row (soilocp/_core/src/soil/gate.rs):
+#: The observer rows the gate reads, in the order of a packed row (soilocp/_core/src/soil/gate.rs):
 #: per-wheel fields (four numbers each), then per-vehicle ones (bools as 0 / 1)
 GATE_QUADS = ("mu", "mu_var", "gross", "gross_var", "wheel_speed", "normal_force", "speed_age", "torque_age",
               "interval", "interval_gross", "interval_gross_var", "interval_rim_start", "interval_rim_end",
@@ -40,11 +41,19 @@ if (GATE_QUADS, GATE_SCALARS) != (tuple(getattr(_core.SlipGateBank, "quad_fields
                       "(make setup), or follow its columns here and in pack_message")
 
 
-def pack_output(ob: ObserverBankOutput) -> np.ndarray:
-    """The observer's output for k vehicles as the gate's packed rows (k, ``SlipGateBank.columns``)."""
-    k = np.shape(ob.ground_speed)[0]
-    return np.concatenate([*(np.reshape(getattr(ob, f), (k, 4)) for f in GATE_QUADS),
-                           np.stack([getattr(ob, f) for f in GATE_SCALARS], axis=1)], axis=1, dtype=float)
+# each column's row in the observer's blocks, floats then bools
+_quad_rows, _flat_rows = QUAD_FIELDS + BOOL_QUAD_FIELDS, FLAT_FIELDS + BOOL_FLAT_FIELDS
+_QUAD_ROWS = np.array([_quad_rows.index(f) for f in GATE_QUADS])
+_FLAT_ROWS = np.array([_flat_rows.index(f) for f in GATE_SCALARS])
+
+
+def pack_output(ob: ObserverBlocks) -> np.ndarray:
+    """The observer's output for k vehicles as the gate's packed rows (k, ``SlipGateBank.columns``), read from
+    its blocks."""
+    quads = np.concatenate((ob.quads, ob.bool_quads))[_QUAD_ROWS]  # (columns' quads, k, 4), bools as 0 / 1
+    flats = np.concatenate((ob.flats, ob.bool_flats))[_FLAT_ROWS]
+    k = flats.shape[1]
+    return np.concatenate((quads.transpose(1, 0, 2).reshape(k, -1), flats.T), axis=1)
 
 
 def pack_message(obs: ObserverOutput) -> tuple:
@@ -79,8 +88,8 @@ class SlipGate:
         self.core = _core.SlipGateBank(int(n_vehicles), wheel_y, soil.measurement == "gross",
                                        {k: float(x) for k, x in params.items()})
 
-    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBankOutput | np.ndarray | tuple) -> SoilInputs:
+    def step(self, ix: np.ndarray, stamp: np.ndarray, ob: ObserverBlocks | np.ndarray | tuple) -> SoilInputs:
         """ix (k,) vehicle indices, stamp (k,) s, and the observer's output for them (or its packed rows:
         :func:`pack_output`'s array, or :func:`pack_message`'s tuple for one vehicle)."""
-        rows = ob if isinstance(ob, (np.ndarray, tuple)) else pack_output(ob)
+        rows = pack_output(ob) if isinstance(ob, ObserverBlocks) else ob  # the blocks are a tuple too: tested for first
         return SoilInputs(*self.core.step(np.asarray(ix, dtype=np.int64), np.asarray(stamp, dtype=float), rows))
