@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from reference_observer import TractionObserver
 from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig
-from soilocp.estimation.observer_bank import RESET_REASONS, ObserverBank, ObserverInputs
+from soilocp.estimation.observer_bank import RESET_REASONS, ROWS, ObserverBank, ObserverInputs, observer_message
 from soilocp.model.normal_force import STANDARD_GRAVITY
 from soilocp.model.vehicle import DEFAULT_VEHICLE
 
@@ -217,3 +217,48 @@ def test_the_bank_names_a_malformed_input_field():
     # lists and integer arrays are converted
     o = bank.step(None, inputs(wheel_torque=[[1, 2, 3, 4]], pitch=[0.0]))
     assert o.reset_reason == ["start"] and o.mu.shape == (1, 4) and o.rejected.dtype == np.int64
+
+
+def test_the_message_holds_every_row_of_its_vehicle():
+    """observer_message: every row the core names is the message field of that name, for the vehicle asked,
+    with the rejections and the reset's reason; the rows read by name are views of the core's blocks."""
+    bank = ObserverBank(DEFAULT_VEHICLE, None, 3)
+    rng = np.random.default_rng(5)
+    stamps = np.ones(3)
+    for n in range(40):
+        ix = np.sort(rng.choice(3, int(rng.integers(1, 4)), replace=False))
+        stamps[ix] += 0.01 if n != 30 else -0.5  # a stamp going back: a reset with its reason
+        k = ix.size
+        out = bank.step(ix, ObserverInputs(
+            stamps[ix].copy(), rng.normal(0, 0.5, k), rng.normal(0, 0.1, k), np.zeros(k),
+            rng.uniform(3.0, 5.0, (k, 4)), rng.uniform(0.0, 8.0, (k, 4)), rng.uniform(0.5, 0.8, k),
+            np.full((k, 4), 150.0)))
+        assert np.shares_memory(out.mu, out.quads) and out.ground_speed_measured.dtype == bool
+        for j in range(k):
+            msg = observer_message(f"v{ix[j]}", n, float(stamps[ix[j]]), out, j, 1.1, 0.02)
+            for name in ROWS:
+                want = getattr(out, name)[j].tolist()
+                assert getattr(msg, name) == (tuple(want) if isinstance(want, list) else want), (n, j, name)
+            assert (msg.rejected_measurements, msg.reset_reason) == (int(out.rejected[j]), out.reset_reason[j])
+            assert (msg.vehicle_id, msg.seq, msg.torque_scale, msg.torque_scale_std) == (f"v{ix[j]}", n, 1.1, 0.02)
+    assert bank.resets_by_reason["stamp_backwards"] >= 1
+
+
+def test_rows_that_miss_the_message_fail_at_import(monkeypatch):
+    """A row the core adds without its ObserverOutput field (or the reverse) refuses the import."""
+    from soilocp.estimation import observer_bank
+
+    _check_rows = observer_bank._check_rows
+    _check_rows()
+    with monkeypatch.context() as m:
+        m.setattr(observer_bank, "ROWS", {**ROWS, "slip_angle": (1, len(observer_bank.FLAT_FIELDS))})
+        with pytest.raises(ImportError, match="slip_angle"):
+            _check_rows()
+    with monkeypatch.context() as m:
+        m.setattr(observer_bank, "ROWS", {f: at for f, at in ROWS.items() if f != "gross"})
+        with pytest.raises(ImportError, match="gross"):
+            _check_rows()
+    with monkeypatch.context() as m:  # a row of another kind than its field: a flat row for a Quad
+        m.setattr(observer_bank, "ROWS", {**ROWS, "mu": (1, 0)})
+        with pytest.raises(ImportError, match="mu"):
+            _check_rows()

@@ -128,6 +128,28 @@ def test_packed_rows_follow_the_core_layout():
         gate.step(np.array([2]), np.zeros(1), np.zeros((1, 73)))
 
 
+def test_the_blocks_and_the_messages_pack_alike():
+    """pack_output on a bank step's blocks (the batched path) and pack_message on each vehicle's message (the
+    soil service's) give the same rows, every column the observer row of its name."""
+    from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs, observer_message
+
+    bank = ObserverBank(DEFAULT_VEHICLE, None, 3)
+    rng = np.random.default_rng(2)
+    for n in range(30):
+        k = 3
+        out = bank.step(None, ObserverInputs(
+            np.full(k, 1.0 + 0.01 * n), rng.normal(0, 0.5, k), rng.normal(0, 0.1, k), np.zeros(k),
+            rng.uniform(3.0, 5.0, (k, 4)), rng.uniform(0.0, 8.0, (k, 4)),
+            np.where(rng.random(k) < 0.3, np.nan, rng.uniform(0.5, 0.8, k)), np.full((k, 4), 150.0)))
+        rows = pack_output(out)
+        assert rows.shape == (k, 73) and rows.dtype == np.float64 and rows.flags.c_contiguous
+        for j in range(k):
+            msg = observer_message("v", n, 1.0 + 0.01 * n, out, j)
+            assert list(rows[j]) == list(pack_message(msg)), (n, j)
+            want = [x for f in GATE_FIELDS for x in np.atleast_1d(getattr(out, f)[j]).astype(float)]
+            assert list(rows[j]) == want, (n, j)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_core_soil_classes_equal_the_numpy_classes(seed):
