@@ -616,7 +616,7 @@ class ObserverEstimate:
     yaw_rate: float
     rejected: int
     reset: bool
-    # the readings around the filter (ObserverBankOutput's fields of the same names), set by step
+    # the readings around the filter (the observer's rows of the same names, ObserverBlocks), set by step
     normal_force: np.ndarray | None = None
     age: np.ndarray | None = None  # (9,): wheel speeds, ground speed, torques
     ground_speed_latency: float = 0.0
