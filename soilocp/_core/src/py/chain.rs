@@ -14,10 +14,11 @@ use super::observer::{blocks, ObserverCore, StepOut};
 use super::soil::{gate_arrays, report_arrays, GateArrays, ReportArrays, SlipGateBank, SoilGridBank};
 use super::torque_scale::TorqueScaleCore;
 use crate::constants::Constants;
-use crate::observer::vehicles::{Estimate, Raw};
+use crate::observer::vehicles::{Estimate, ObserverBank, Raw};
 use crate::ocp;
+use crate::soil::bank::Sample;
 use crate::soil::gate::{self, COLUMNS};
-use crate::torque_scale::bank::Sample as ScaleSample;
+use crate::torque_scale::bank::{Sample as ScaleSample, TorqueScaleBank};
 
 type Arr<'py> = Bound<'py, PyArray1<f64>>;
 
@@ -51,6 +52,80 @@ fn scale_sample(r: &Raw) -> ScaleSample {
         torque: r.wheel_torque,
         ground_speed: r.ground_speed,
         normal_force: Some(r.normal_force),
+    }
+}
+
+/// One step's stages, borrowed from their Python objects for the step.
+struct Stages<'a> {
+    observer: &'a mut ObserverBank,
+    scale: Option<&'a mut TorqueScaleBank>,
+    gate: &'a mut SlipGateBank,
+    soil: &'a mut SoilGridBank,
+    constants: &'a Constants,
+    feed_soil: bool,
+}
+
+/// What a step makes, before it becomes arrays.
+struct Done {
+    estimates: Vec<Estimate>,
+    samples: Vec<Sample>,
+    used: Vec<[bool; 4]>,
+    ocp: Vec<ocp::Ocp>,
+}
+
+impl Stages<'_> {
+    /// The chain's step of `vehicles` by their checked samples `raws` (`ChainCore.step`).
+    fn step(mut self, vehicles: &[usize], mut raws: Vec<Raw>) -> PyResult<Done> {
+        let mut scale_sigma: Option<Vec<f64>> = None;
+        if let Some(bank) = self.scale.as_deref_mut() {
+            let stepped: Vec<(f64, f64)> = vehicles
+                .iter()
+                .zip(&raws)
+                .map(|(&g, r)| bank.step(g, &scale_sample(r)))
+                .collect();
+            if let Some(scaled) = bank.scaled(&stepped) {
+                for (r, &(m, _)) in raws.iter_mut().zip(&scaled) {
+                    r.wheel_torque = r.wheel_torque.map(|t| t * m);
+                }
+                scale_sigma = Some(scaled.iter().map(|&(_, s)| s).collect());
+            }
+        }
+        let estimates: Vec<Estimate> = vehicles
+            .iter()
+            .zip(&raws)
+            .map(|(&g, r)| self.observer.step(g, r))
+            .collect();
+        let rows: Vec<[f64; COLUMNS]> = estimates.iter().map(gate::row_of).collect();
+        let rows: Vec<&[f64]> = rows.iter().map(|r| &r[..]).collect();
+        let stamps = raws.iter().map(|r| r.stamp).collect();
+        let (samples, pending) = self.gate.run_rows(vehicles.to_vec(), stamps, &rows)?;
+        let (samples, used) = self
+            .soil
+            .gated(&mut self.gate.inner, samples, pending, scale_sigma.as_deref())?;
+        let ks: Vec<f64> = self
+            .soil
+            .reports()
+            .iter()
+            .map(|r| r.k.map_or(f64::NAN, |v| v[0]))
+            .collect();
+        if let (true, Some(bank)) = (self.feed_soil, self.scale) {
+            for ((&g, &k), s) in vehicles.iter().zip(&ks).zip(&samples) {
+                bank.feed_soil(g, k, Some(s.slip));
+            }
+        }
+        if let Some(j) = ks.iter().position(|&k| !ocp::evaluable(k, self.constants)) {
+            return Err(PyValueError::new_err(format!(
+                "soil_strength[{j}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
+                ks[j]
+            )));
+        }
+        let ocp = ks.iter().map(|&k| ocp::ocp(k, self.constants)).collect();
+        Ok(Done {
+            estimates,
+            samples,
+            used,
+            ocp,
+        })
     }
 }
 
@@ -119,7 +194,7 @@ impl ChainCore {
         exp_window: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<ChainOut<'py>> {
         let mut obs = self.observer.bind(py).borrow_mut();
-        let (vehicles, mut raws) = obs.raws(
+        let (vehicles, raws) = obs.raws(
             idx.as_ref(),
             &stamp,
             &specific_force_x,
@@ -133,51 +208,26 @@ impl ChainCore {
             expm1_smoothing.as_ref(),
             exp_window.as_ref(),
         )?;
-        let mut scale_sigma: Option<Vec<f64>> = None;
-        if let Some(scale) = &self.scale {
-            let mut scale = scale.bind(py).borrow_mut();
-            let bank = scale.bank_mut();
-            let stepped: Vec<(f64, f64)> = vehicles
-                .iter()
-                .zip(&raws)
-                .map(|(&g, r)| bank.step(g, &scale_sample(r)))
-                .collect();
-            if let Some(scaled) = bank.scaled(&stepped) {
-                for (r, &(m, _)) in raws.iter_mut().zip(&scaled) {
-                    r.wheel_torque = r.wheel_torque.map(|t| t * m);
-                }
-                scale_sigma = Some(scaled.iter().map(|&(_, s)| s).collect());
-            }
-        }
-        let bank = obs.bank_mut();
-        let est: Vec<Estimate> = vehicles.iter().zip(&raws).map(|(&g, r)| bank.step(g, r)).collect();
-        let rows: Vec<[f64; COLUMNS]> = est.iter().map(gate::row_of).collect();
-        let rows: Vec<&[f64]> = rows.iter().map(|r| &r[..]).collect();
+        let mut scale = self.scale.as_ref().map(|s| s.bind(py).borrow_mut());
         let mut gate = self.gate.bind(py).borrow_mut();
         let mut soil = self.soil.bind(py).borrow_mut();
-        let stamps = raws.iter().map(|r| r.stamp).collect();
-        let (samples, pending) = gate.run_rows(vehicles.clone(), stamps, &rows)?;
-        let (samples, used) = soil.gated(&mut gate.inner, samples, pending, scale_sigma.as_deref())?;
-        let ks: Vec<f64> = soil.reports().iter().map(|r| r.k.map_or(f64::NAN, |v| v[0])).collect();
-        if let (true, Some(scale)) = (self.feed_soil, &self.scale) {
-            let mut scale = scale.bind(py).borrow_mut();
-            let bank = scale.bank_mut();
-            for ((&g, &k), s) in vehicles.iter().zip(&ks).zip(&samples) {
-                bank.feed_soil(g, k, Some(s.slip));
-            }
-        }
-        if let Some(j) = ks.iter().position(|&k| !ocp::evaluable(k, &self.constants)) {
-            return Err(PyValueError::new_err(format!(
-                "soil_strength[{j}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
-                ks[j]
-            )));
-        }
-        let o: Vec<ocp::Ocp> = ks.iter().map(|&k| ocp::ocp(k, &self.constants)).collect();
-        let col = |f: fn(&ocp::Ocp) -> f64| o.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
+        let stages = Stages {
+            observer: obs.bank_mut(),
+            scale: scale.as_mut().map(|s| s.bank_mut()),
+            gate: &mut gate,
+            soil: &mut soil,
+            constants: &self.constants,
+            feed_soil: self.feed_soil,
+        };
+        // the GIL is released for the step: a Zenoh callback can hand over the next samples meanwhile (the
+        // stage objects stay borrowed: another thread that reads one of them now gets a RuntimeError, not a
+        // half-stepped state)
+        let done = py.detach(move || stages.step(&vehicles, raws))?;
+        let col = |f: fn(&ocp::Ocp) -> f64| done.ocp.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
         Ok((
-            blocks(py, &est),
-            gate_arrays(py, &samples)?,
-            report_arrays(py, soil.reports(), &used),
+            blocks(py, &done.estimates),
+            gate_arrays(py, &done.samples)?,
+            report_arrays(py, soil.reports(), &done.used),
             (col(|x| x.mu_t), col(|x| x.s_t), col(|x| x.s_e), col(|x| x.te_at_s_e)),
         ))
     }
