@@ -5,6 +5,8 @@ unusable wheels, refresh intervals with slip paths, an online torque-scale 1-sig
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -68,9 +70,7 @@ def test_core_update_equals_the_numpy_reference(seed, steps, measurement, change
                           inp.gate_slip, inp.gate_sigma, inp.held, inp.identifiable, inp.speed, inp.ground_stale,
                           inp.span, inp.slip_ends, sigma, inp.unusable)
         codes_in = None if inp.unusable is None or not inp.unusable.any() else inp.unusable
-        got = bank.core.step(ix.astype(np.int64), stamp, inp.slip, inp.observed, inp.variance, inp.slip_sigma,
-                             inp.gate_slip, inp.gate_sigma, inp.informative, inp.held, inp.ground_stale,
-                             inp.identifiable, inp.speed, inp.span, inp.slip_ends, codes_in, sigma)
+        got = bank.core.step(ix.astype(np.int64), stamp, inp.arrays(k), codes_in, sigma)
         wheel, dt, info, taken, k_report, log_stat, stats, scale, axle_off, axle, floor_cdf = got
         assert np.array_equal((wheel & 1) > 0, want["use"])
         assert np.array_equal((wheel & 2) > 0, want["undetermined"])
@@ -94,15 +94,15 @@ def test_core_update_equals_the_numpy_reference(seed, steps, measurement, change
 
 def test_bad_input_is_refused_with_its_name():
     bank = SoilBank(DEFAULT_CONSTANTS, SoilConfig(), 2)
-    inp = _inputs(np.random.default_rng(0), 1, False, False)
-    args = (inp.slip, inp.observed, inp.variance, inp.slip_sigma, inp.gate_slip, inp.gate_sigma, inp.informative,
-            inp.held, inp.ground_stale, inp.identifiable, inp.speed)
+    inp = _inputs(np.random.default_rng(0), 1, False, False).arrays(1)
     with pytest.raises(ValueError, match="out of range"):
-        bank.core.step(np.array([5]), np.array([0.0]), *args)
+        bank.core.step(np.array([5]), np.array([0.0]), inp)
     with pytest.raises(ValueError, match="slip must have shape"):
-        bank.core.step(np.array([0]), np.array([0.0]), inp.slip[:, :3], *args[1:])
+        bank.core.step(np.array([0]), np.array([0.0]), dataclasses.replace(inp, slip=inp.slip[:, :3]))
     with pytest.raises(ValueError, match="stamp"):
-        bank.core.step(np.array([0]), np.array([np.nan]), *args)
+        bank.core.step(np.array([0]), np.array([np.nan]), inp)
     with pytest.raises(ValueError, match="given twice"):
-        two = [np.repeat(a, 2, axis=0) for a in args]
-        bank.core.step(np.array([1, 1]), np.array([0.0, 0.0]), *two)
+        two = SoilInputs(*(None if a is None else np.repeat(a, 2, axis=0) for a in dataclasses.astuple(inp)))
+        bank.core.step(np.array([1, 1]), np.array([0.0, 0.0]), two)
+    with pytest.raises(ValueError, match="observed must be a finite array"):  # the struct's own check names it
+        dataclasses.replace(inp, observed=np.full((1, 4), np.nan)).arrays(1)

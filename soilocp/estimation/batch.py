@@ -24,7 +24,7 @@ from schemas.sensor import SensorSample
 
 from soilocp import _core
 from soilocp.model.checks import check_count
-from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks, ObserverInputs
+from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks
 from soilocp.model.ocp import OCP_NAMES, ocp_arrays
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
@@ -56,11 +56,6 @@ class BatchPipeline:
         self.chain = None if self.priors is not None else _core.ChainCore(
             self.observer._core, self.gate.core, self.soil.core, cfg.constants.kernel, self.scale._core,
             feed_soil=self.scale.active and cfg.torque_scale.model_resistance)
-
-    @staticmethod
-    def inputs_from_samples(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
-        """Stack ``SensorSample``s and their normal forces (each a 4-sequence) into the kernel's inputs."""
-        return observer_inputs(samples, normal_forces)
 
     def step(self, idx, samples: Sequence[SensorSample], normal_forces: Sequence) -> list[OcpEstimate]:
         """One sample per vehicle in ``idx`` (same order): the OCP record of each."""

@@ -196,3 +196,21 @@ class SoilInputs:
     span: np.ndarray | None  # (k, 4) s a wheel's pair stands for: a refresh interval (0: the sample's own; None: none)
     slip_ends: np.ndarray | None  # (k, 4, 2) a refresh pair's slip at its interval's start and end (None: no pair)
     unusable: np.ndarray | None = None  # (k, 4) int: soilocp.estimation.wheel_usability's code (0: usable)
+
+    def arrays(self, k: int) -> SoilInputs:
+        """These inputs of k vehicles as the core reads them (float64 / bool arrays of their shapes: the soil
+        core's ``SoilGridBank.step`` takes the struct whole); ValueError naming a malformed or non-finite
+        slip, observed, variance or slip_sigma."""
+        f64, flag = (lambda a: np.asarray(a, dtype=float)), (lambda a: np.asarray(a, dtype=bool))
+        quads = {}
+        for name in ("slip", "observed", "variance", "slip_sigma"):
+            a = f64(getattr(self, name))
+            if a.shape != (k, 4) or not np.isfinite(a).all():
+                raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
+            quads[name] = a
+        return SoilInputs(
+            informative=flag(self.informative), gate_slip=f64(self.gate_slip), gate_sigma=f64(self.gate_sigma),
+            held=flag(self.held), ground_stale=flag(self.ground_stale).reshape(k),
+            identifiable=flag(self.identifiable).reshape(k), speed=f64(self.speed).reshape(k),
+            span=None if self.span is None else f64(self.span),
+            slip_ends=None if self.slip_ends is None else f64(self.slip_ends), unusable=self.unusable, **quads)

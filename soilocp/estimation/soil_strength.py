@@ -168,19 +168,10 @@ class SoilBank:
         ix = check_index(idx, self.n_vehicles)
         k = ix.size
         stamp = np.asarray(stamp, dtype=float).reshape(k)
-        slip, obs, var, s_sig = (np.asarray(a, dtype=float) for a in (inputs.slip, inputs.observed, inputs.variance,
-                                                                      inputs.slip_sigma))
-        for name, a in (("slip", slip), ("observed", obs), ("variance", var), ("slip_sigma", s_sig)):
-            if a.shape != (k, 4) or not np.isfinite(a).all():
-                raise ValueError(f"{name} must be a finite array of shape ({k}, 4), got {a!r}")
+        inputs = inputs.arrays(k)
         codes = self._count_unusable(inputs.unusable, k)
-        f64, flag = (lambda a: np.asarray(a, dtype=float)), (lambda a: np.asarray(a, dtype=bool))
-        wheel = self.core.step(
-            ix.astype(np.int64), stamp, slip, obs, var, s_sig, f64(inputs.gate_slip), f64(inputs.gate_sigma),
-            flag(inputs.informative), flag(inputs.held), flag(inputs.ground_stale).reshape(k),
-            flag(inputs.identifiable).reshape(k), f64(inputs.speed).reshape(k),
-            None if inputs.span is None else f64(inputs.span), None if inputs.slip_ends is None else f64(inputs.slip_ends),
-            codes, None if scale_sigma is None else f64(scale_sigma).reshape(k))[0]
+        wheel = self.core.step(ix.astype(np.int64), stamp, inputs, codes,
+                               None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))[0]
         return self._states(ix, stamp, codes, self.core.report(wheel))
 
     def step_gated(self, gate, idx, stamp, rows: np.ndarray, scale_sigma=None) -> tuple[SoilInputs, list[SoilState]]:

@@ -427,6 +427,26 @@ fn check_finite(samples: &[Sample]) -> PyResult<()> {
     Ok(())
 }
 
+/// A step's inputs, read by attribute from soilocp.estimation.soil_config.SoilInputs (its fields, as
+/// float64 / bool arrays: SoilInputs.arrays): (k, 4) per wheel, (k,) per vehicle, span (k, 4) and
+/// slip_ends (k, 4, 2) or None.  Its `unusable` codes come apart, counted first by the caller.
+#[derive(FromPyObject)]
+pub(crate) struct Inputs<'py> {
+    slip: PyReadonlyArray2<'py, f64>,
+    informative: PyReadonlyArray2<'py, bool>,
+    observed: PyReadonlyArray2<'py, f64>,
+    variance: PyReadonlyArray2<'py, f64>,
+    slip_sigma: PyReadonlyArray2<'py, f64>,
+    gate_slip: PyReadonlyArray2<'py, f64>,
+    gate_sigma: PyReadonlyArray2<'py, f64>,
+    held: PyReadonlyArray2<'py, bool>,
+    ground_stale: PyReadonlyArray1<'py, bool>,
+    identifiable: PyReadonlyArray1<'py, bool>,
+    speed: PyReadonlyArray1<'py, f64>,
+    span: Option<PyReadonlyArray2<'py, f64>>,
+    slip_ends: Option<PyReadonlyArray3<'py, f64>>,
+}
+
 #[pymethods]
 impl SoilGridBank {
     /// The records' status codes' names, code -> name.
@@ -498,35 +518,36 @@ impl SoilGridBank {
         })
     }
 
-    /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s; slip, observed,
-    /// variance, slip_sigma, gate_slip, gate_sigma (k, 4); informative, held (k, 4) bool;
-    /// ground_stale, identifiable (k,) bool; speed (k,) m/s (NaN: unknown); optional span (k, 4),
-    /// slip_ends (k, 4, 2), unusable (k, 4) int codes, scale_sigma (k,).  Returns the arrays of
-    /// `StepArrays` (module doc).
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (idx, stamp, slip, observed, variance, slip_sigma, gate_slip, gate_sigma, informative, held,
-                        ground_stale, identifiable, speed, span=None, slip_ends=None, unusable=None, scale_sigma=None))]
+    /// One sample per vehicle in `idx` (k distinct indices): stamp (k,) s; the step's [`Inputs`]
+    /// (a SoilInputs: slip, observed, variance, slip_sigma, gate_slip, gate_sigma (k, 4); informative,
+    /// held (k, 4) bool; ground_stale, identifiable (k,) bool; speed (k,) m/s (NaN: unknown); span
+    /// (k, 4) and slip_ends (k, 4, 2) or None); optional unusable (k, 4) int codes and scale_sigma
+    /// (k,).  Returns the arrays of `StepArrays` (module doc).
+    #[pyo3(signature = (idx, stamp, inputs, unusable=None, scale_sigma=None))]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
         idx: PyReadonlyArray1<'py, i64>,
         stamp: PyReadonlyArray1<'py, f64>,
-        slip: PyReadonlyArray2<'py, f64>,
-        observed: PyReadonlyArray2<'py, f64>,
-        variance: PyReadonlyArray2<'py, f64>,
-        slip_sigma: PyReadonlyArray2<'py, f64>,
-        gate_slip: PyReadonlyArray2<'py, f64>,
-        gate_sigma: PyReadonlyArray2<'py, f64>,
-        informative: PyReadonlyArray2<'py, bool>,
-        held: PyReadonlyArray2<'py, bool>,
-        ground_stale: PyReadonlyArray1<'py, bool>,
-        identifiable: PyReadonlyArray1<'py, bool>,
-        speed: PyReadonlyArray1<'py, f64>,
-        span: Option<PyReadonlyArray2<'py, f64>>,
-        slip_ends: Option<PyReadonlyArray3<'py, f64>>,
+        inputs: Inputs<'py>,
         unusable: Option<PyReadonlyArray2<'py, i64>>,
         scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<StepArrays<'py>> {
+        let Inputs {
+            slip,
+            informative,
+            observed,
+            variance,
+            slip_sigma,
+            gate_slip,
+            gate_sigma,
+            held,
+            ground_stale,
+            identifiable,
+            speed,
+            span,
+            slip_ends,
+        } = inputs;
         let k = idx.as_array().len();
         let idx = column("idx", &idx, k)?;
         if let Some(bad) = idx.iter().find(|&&i| i < 0) {
