@@ -5,6 +5,11 @@ soilocp/model/force_balance.py and soilocp/model/normal_force.py had them).  Kep
 the tests can hold the core to it, to the bit; the product never imports it.  Eq. 4's coefficient
 itself is the product's (``motion_resistance``): this reference checks the torque scale, not the
 traction law (tests/reference_physics.py does that).
+
+Since the port, one change of the kernel's model is mirrored here: a window whose innovation is beyond
+``resistance_jump`` of its sigmas is a jump of F_MR, which informs F_MR alone, and after one no other until
+a window of the other acceleration sign has been fitted
+(docs/robustness.md, "The accelerate/brake rows: a jump of the resistance").
 """
 
 from __future__ import annotations
@@ -57,6 +62,8 @@ class ReferenceTorqueScale:
         self.soil_slip = np.full((n, 4), np.nan)
         self.theta = np.tile([1.0, 0.0], (n, 1))
         self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
+        self.jump_sign = np.full(n, np.nan)
+        self.jumps = np.zeros(n, dtype=int)  # windows taken as a jump of F_MR, per vehicle (for the tests)
         self.t0 = np.full(n, np.nan)
         self.t_prev = np.full(n, np.nan)
         self.prev = np.zeros((n, 4))
@@ -127,8 +134,8 @@ class ReferenceTorqueScale:
             valid = ~slow[j]
             if valid.any():
                 jj = j[valid]
-                accel = np.abs(means[valid, 0] - means[valid, 1]) >= cfg.min_accel
-                self._update(ix[jj], span[jj], x[valid], y[valid], accel)
+                a = means[valid, 0] - means[valid, 1]
+                self._update(ix[jj], span[jj], x[valid], y[valid], a)
         restart = ~cont | full
         self.t0[ix] = np.where(restart, stamp, self.t0[ix])
         self.w0[ix] = np.where(restart, w_sum, self.w0[ix])
@@ -138,17 +145,32 @@ class ReferenceTorqueScale:
         self.t_prev[ix] = stamp
         return self.scale(ix)
 
-    def _update(self, iv, span, x, y, accel) -> None:
+    def _update(self, iv, span, x, y, a) -> None:
         cfg = self.cfg
+        accel = np.abs(a) >= cfg.min_accel
+        sign = np.where(accel, np.sign(a), 0.0)
         th, P = self.theta[iv], self.P[iv]
         P[:, 0, 0] += cfg.scale_walk**2 * span * accel
         P[:, 1, 1] += cfg.resistance_walk**2 * span
         H = np.stack([x, -np.ones_like(x)], axis=1)
+        innov = y - np.einsum("mi,mi->m", H, th)
         PH = np.einsum("mij,mj->mi", P, H)
         S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
+        # a jump of F_MR: b's variance back to its prior, uncorrelated with k; the window informs b alone
+        jump_var = cfg.resistance_jump**2
+        pending = self.jump_sign[iv]
+        jump = (jump_var > 0) & np.isnan(pending) & (innov * innov > jump_var * S)
+        # after a jump, no other until a window of the other acceleration sign has been fitted by k and b
+        self.jump_sign[iv] = np.where(jump, sign, np.where(accel & (sign != pending), np.nan, pending))
+        self.jumps[iv] += jump
+        if jump.any():
+            P[jump, 0, 1] = 0.0
+            P[jump, 1, 0] = 0.0
+            P[jump, 1, 1] = cfg.resistance_sigma**2
+            PH = np.einsum("mij,mj->mi", P, H)
+            S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
         K = PH / S[:, None]
-        K[:, 0] = np.where(accel, K[:, 0], 0.0)
-        innov = y - np.einsum("mi,mi->m", H, th)
+        K[:, 0] = np.where(accel & ~jump, K[:, 0], 0.0)
         th = th + K * innov[:, None]
         A = np.eye(2)[None] - K[:, :, None] * H[:, None, :]
         P = np.einsum("mij,mjk,mlk->mil", A, P, A) + cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]

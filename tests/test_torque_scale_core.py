@@ -69,7 +69,7 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
     return out
 
 
-def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool):
+def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: bool = False):
     n = len(samples_per_vehicle)
     core = TorqueScaleBank(V, cfg, prior_sigma, n)
     numpy_ = ref.ReferenceTorqueScale(V, cfg, prior_sigma, n)
@@ -94,7 +94,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool):
             numpy_.feed_soil(ix, list(k), slip)
     assert _same(core.theta, numpy_.theta) and _same(core.P, numpy_.P)
     assert _same(core.band_sigma(np.sqrt(core.P[:, 0, 0])), numpy_.band_sigma(np.sqrt(numpy_.P[:, 0, 0])))
-    return learnt
+    return (learnt, numpy_) if with_ref else learnt
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -111,11 +111,13 @@ def test_the_core_is_the_numpy_kernel_on_random_drives(seed, n, k_true, accel, p
 
 
 def test_the_random_drives_exercise_learning():
-    """The property above is not vacuous: its drives close windows that inform k."""
+    """The property above is not vacuous: its drives close windows that inform k, and some are taken as jumps of
+    F_MR (the fed-back K moves the modelled resistance)."""
     rng = np.random.default_rng(1)
-    learnt = _run_both([_drive(rng, 1500, 0.8, 0.8, 0.002, False)], TorqueScaleConfig(model_resistance=True),
-                       0.05, rng, feed=True)
+    learnt, numpy_ = _run_both([_drive(rng, 1500, 0.8, 0.8, 0.002, False)], TorqueScaleConfig(model_resistance=True),
+                               0.05, rng, feed=True, with_ref=True)
     assert learnt > 500
+    assert numpy_.jumps.sum() > 0
 
 
 class _Checked(TorqueScaleBank):

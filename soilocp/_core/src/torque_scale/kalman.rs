@@ -10,6 +10,9 @@ use crate::torque_scale::params::Params;
 pub struct ScaleState {
     pub theta: [f64; 2],
     pub p: [[f64; 2]; 2],
+    /// after a jump of b, the sign of that window's acceleration (0: none) until a window of the
+    /// other sign has been fitted; NaN: a jump may be taken
+    pub jump_sign: f64,
 }
 
 impl ScaleState {
@@ -18,6 +21,7 @@ impl ScaleState {
         ScaleState {
             theta: [1.0, 0.0],
             p: [[p.state_var, 0.0], [0.0, p.resistance_var]],
+            jump_sign: f64::NAN,
         }
     }
 
@@ -28,22 +32,54 @@ impl ScaleState {
     }
 
     /// One window's step of eq. TC's state (k, F_MR) (docs/method.md §15): predict by its span (random walks; k's only where the window can see
-    /// it again, `accel`), then the update with y = k x - b.  A window without acceleration
+    /// it again: its mean acceleration `accel`, f_x less eq. 20's g_x, reaches `min_accel`), then the update with y = k x - b.  A window without acceleration
     /// informs b alone: a Schmidt update (k's gain 0), so that at constant speed k stays at its
     /// prior however long the drive; Joseph form, which stays a covariance with a gain that is not
     /// the optimal one.  Operation order of the numpy kernel it replaced (its einsums).
-    pub fn update(&mut self, span: f64, x: f64, y: f64, accel: bool, p: &Params) {
+    ///
+    /// A jump of F_MR (the soil under the wheels changed, a draft was hooked on): a window whose
+    /// innovation is beyond `jump_var` times its variance is not explained by the slow random
+    /// walk, and would otherwise be read as a change of k (a soil change of 25 N in F_MR is 40 %
+    /// of k at 0.5 m/s^2 on 60 kg).  b's variance returns to its prior, uncorrelated with k, and
+    /// the window informs b alone, as a window without acceleration does.  A jump shifts every
+    /// window's balance alike, a wrong k shifts it with the acceleration's sign; so after a jump no
+    /// other is taken until a window of the other acceleration sign has been fitted by k and b
+    /// together (with b at its prior, the contrast of windows of both signs): a k far from its prior
+    /// is learnt from that contrast, not taken for jump after jump.  Returns whether it was one.
+    pub fn update(&mut self, span: f64, x: f64, y: f64, accel: f64, p: &Params) -> bool {
+        let sign = if accel.abs() >= p.min_accel {
+            accel.signum()
+        } else {
+            0.0
+        };
+        let accel = sign != 0.0;
         let (th, pm) = (self.theta, &mut self.p);
         pm[0][0] += p.scale_walk_var * span * if accel { 1.0 } else { 0.0 };
         pm[1][1] += p.resistance_walk_var * span;
         let h = [x, -1.0];
-        let ph = [pm[0][0] * h[0] + pm[0][1] * h[1], pm[1][0] * h[0] + pm[1][1] * h[1]];
-        let s = (h[0] * ph[0] + h[1] * ph[1]) + p.force_var;
+        let innov = y - (h[0] * th[0] + h[1] * th[1]);
+        let gain_terms = |pm: &[[f64; 2]; 2]| {
+            let ph = [pm[0][0] * h[0] + pm[0][1] * h[1], pm[1][0] * h[0] + pm[1][1] * h[1]];
+            let s = (h[0] * ph[0] + h[1] * ph[1]) + p.force_var;
+            (ph, s)
+        };
+        let (mut ph, mut s) = gain_terms(pm);
+        let jump = p.jump_var > 0.0 && self.jump_sign.is_nan() && innov * innov > p.jump_var * s;
+        if jump {
+            self.jump_sign = sign;
+        } else if accel && sign != self.jump_sign {
+            self.jump_sign = f64::NAN;
+        }
+        if jump {
+            pm[0][1] = 0.0;
+            pm[1][0] = 0.0;
+            pm[1][1] = p.resistance_var;
+            (ph, s) = gain_terms(pm);
+        }
         let mut k = [ph[0] / s, ph[1] / s];
-        if !accel {
+        if !accel || jump {
             k[0] = 0.0;
         }
-        let innov = y - (h[0] * th[0] + h[1] * th[1]);
         self.theta = [th[0] + k[0] * innov, th[1] + k[1] * innov];
         let eye = [[1.0, 0.0], [0.0, 1.0]];
         let a: [[f64; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|j| eye[i][j] - k[i] * h[j]));
@@ -54,6 +90,7 @@ impl ScaleState {
             (t(0, 0) + t(0, 1)) + (t(1, 0) + t(1, 1))
         };
         *pm = std::array::from_fn(|i| std::array::from_fn(|l| apa(i, l) + p.force_var * k[i] * k[l]));
+        jump
     }
 }
 
@@ -68,12 +105,50 @@ mod tests {
         let mut st = ScaleState::prior(&p);
         for i in 0..400 {
             let x = 300.0 + 200.0 * ((i as f64) * 0.7).sin();
-            st.update(1.0, x, 0.8 * x - 25.0, true, &p);
+            st.update(1.0, x, 0.8 * x - 25.0, 1.0, &p);
         }
         let (k, sd) = st.scale();
         assert!((k - 0.8).abs() < 1e-3, "k {k}");
         assert!((st.theta[1] - 25.0).abs() < 0.5, "b {}", st.theta[1]);
         assert!(sd < 0.01 && (st.p[0][1] - st.p[1][0]).abs() <= 1e-12 * st.p[1][1]);
+    }
+
+    /// A step of b (a soil change: +12 N to -15 N) between windows of a swing: the window where it shows
+    /// is taken as a jump (b's variance back to its prior, k's gain 0), so k stays where the windows
+    /// before put it and ends at the truth; without the jump test the step is read as a change of k.
+    #[test]
+    fn a_step_of_the_resistance_is_a_jump_not_a_change_of_k() {
+        let run = |jump_var: f64| {
+            let p = Params {
+                jump_var,
+                ..Params::defaults()
+            };
+            let mut st = ScaleState::prior(&p);
+            let (mut jumps, mut k) = (0, [f64::NAN; 2]);
+            for i in 0..40 {
+                let a = if i % 2 == 0 { 0.5 } else { -0.5 };
+                let x = 60.0 * a + 8.0;
+                let b = if i < 20 { 12.0 } else { -15.0 };
+                if i == 20 {
+                    k[0] = st.theta[0];
+                }
+                jumps += st.update(1.0, x, 1.08 * x - b, a, &p) as i32;
+                if i == 20 {
+                    k[1] = st.theta[0];
+                }
+            }
+            (k, st.theta[0], jumps)
+        };
+        let (k, end, jumps) = run(9.0);
+        assert_eq!(jumps, 1);
+        assert!((k[0] - 1.08).abs() < 0.01 && k[1] == k[0], "k {k:?}");
+        assert!((end - 1.08).abs() < 0.005, "k {end}");
+        let (k, _, jumps) = run(0.0);
+        assert_eq!(jumps, 0);
+        assert!(
+            (k[1] - 1.08).abs() > 0.02,
+            "without the jump test the step moves k: {k:?}"
+        );
     }
 
     /// Without acceleration k keeps its prior exactly (the Schmidt update), b moves.
@@ -82,7 +157,7 @@ mod tests {
         let p = Params::defaults();
         let mut st = ScaleState::prior(&p);
         for _ in 0..50 {
-            st.update(1.0, 400.0, 0.8 * 400.0 - 25.0, false, &p);
+            st.update(1.0, 400.0, 0.8 * 400.0 - 25.0, 0.0, &p);
         }
         assert_eq!(st.theta[0], 1.0);
         assert_eq!(st.p[0][0], p.state_var);

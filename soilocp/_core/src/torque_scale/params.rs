@@ -30,6 +30,9 @@ pub struct Params {
     pub force_var: f64,
     /// resistance_sigma^2: F_MR's prior, N^2
     pub resistance_var: f64,
+    /// resistance_jump^2: a window whose squared innovation exceeds this many times its
+    /// variance is a jump of F_MR (0: never), which informs F_MR alone
+    pub jump_var: f64,
     /// k's prior 1-sigma of the state, and its square
     pub state_sigma: f64,
     pub state_var: f64,
@@ -46,7 +49,7 @@ pub struct Params {
 
 impl Params {
     /// The field names the Python side passes (a dict of them, `model_resistance` as 0 or 1).
-    pub const NAMES: [&'static str; 17] = [
+    pub const NAMES: [&'static str; 18] = [
         "window",
         "min_speed",
         "max_yaw_rate",
@@ -57,6 +60,7 @@ impl Params {
         "resistance_walk_var",
         "force_var",
         "resistance_var",
+        "jump_var",
         "state_sigma",
         "state_var",
         "prior_sigma",
@@ -102,6 +106,7 @@ impl Params {
             resistance_walk_var: get("resistance_walk_var", true)?,
             force_var: get("force_var", false)?,
             resistance_var: get("resistance_var", false)?,
+            jump_var: get("jump_var", true)?,
             state_sigma: get("state_sigma", false)?,
             state_var: get("state_var", false)?,
             prior_sigma: get("prior_sigma", false)?,
@@ -124,8 +129,9 @@ impl Params {
             max_slip: 0.15,
             scale_walk_var: 0.002 * 0.002,
             resistance_walk_var: 2.0 * 2.0,
-            force_var: 3.0 * 3.0,
+            force_var: 1.0 * 1.0,
             resistance_var: 60.0 * 60.0,
+            jump_var: 3.0 * 3.0,
             state_sigma: 0.10,
             state_var: 0.10 * 0.10,
             prior_sigma: 0.05,
@@ -153,6 +159,7 @@ mod tests {
             p.resistance_walk_var,
             p.force_var,
             p.resistance_var,
+            p.jump_var,
             p.state_sigma,
             p.state_var,
             p.prior_sigma,
