@@ -7,8 +7,9 @@ itself is the product's (``motion_resistance``): this reference checks the torqu
 traction law (tests/reference_physics.py does that).
 
 Since the port, one change of the kernel's model is mirrored here: a window whose innovation is beyond
-``resistance_jump`` of its sigmas is a jump of F_MR, which informs F_MR alone, and after one no other until
-a window of the other acceleration sign has been fitted
+``resistance_jump`` of its sigmas is a jump of F_MR, which informs F_MR alone (only once windows of both
+acceleration signs have been fitted since F_MR was last reset), and k moves only once windows of both signs
+have been fitted since then (a shadow posterior, which they all inform, becomes the state then)
 (docs/robustness.md, "The accelerate/brake rows: a jump of the resistance").
 """
 
@@ -62,7 +63,9 @@ class ReferenceTorqueScale:
         self.soil_slip = np.full((n, 4), np.nan)
         self.theta = np.tile([1.0, 0.0], (n, 1))
         self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
-        self.jump_sign = np.full(n, np.nan)
+        self.signs = np.zeros(n, dtype=np.int64)  # acceleration signs fitted since b's last reset: 1 accel, 2 brake
+        self.shadow_theta = self.theta.copy()  # as if every accelerating or braking window informed k
+        self.shadow_P = self.P.copy()
         self.jumps = np.zeros(n, dtype=int)  # windows taken as a jump of F_MR, per vehicle (for the tests)
         self.t0 = np.full(n, np.nan)
         self.t_prev = np.full(n, np.nan)
@@ -148,30 +151,45 @@ class ReferenceTorqueScale:
     def _update(self, iv, span, x, y, a) -> None:
         cfg = self.cfg
         accel = np.abs(a) >= cfg.min_accel
-        sign = np.where(accel, np.sign(a), 0.0)
+        sign = np.where(accel, np.where(a > 0, 1, 2), 0)
+        signs = self.signs[iv]
         th, P = self.theta[iv], self.P[iv]
-        P[:, 0, 0] += cfg.scale_walk**2 * span * accel
-        P[:, 1, 1] += cfg.resistance_walk**2 * span
+        sth, sP = self.shadow_theta[iv], self.shadow_P[iv]
+        for M in (P, sP):
+            M[:, 0, 0] += cfg.scale_walk**2 * span * accel
+            M[:, 1, 1] += cfg.resistance_walk**2 * span
         H = np.stack([x, -np.ones_like(x)], axis=1)
         innov = y - np.einsum("mi,mi->m", H, th)
         PH = np.einsum("mij,mj->mi", P, H)
         S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
-        # a jump of F_MR: b's variance back to its prior, uncorrelated with k; the window informs b alone
+        # a jump of F_MR (only once windows of both signs have been fitted since b's last reset): b's variance
+        # back to its prior, uncorrelated with k; the window informs b alone, and the shadow restarts from it
         jump_var = cfg.resistance_jump**2
-        pending = self.jump_sign[iv]
-        jump = (jump_var > 0) & np.isnan(pending) & (innov * innov > jump_var * S)
-        # after a jump, no other until a window of the other acceleration sign has been fitted by k and b
-        self.jump_sign[iv] = np.where(jump, sign, np.where(accel & (sign != pending), np.nan, pending))
+        jump = (jump_var > 0) & (signs == 3) & (innov * innov > jump_var * S)
         self.jumps[iv] += jump
-        if jump.any():
-            P[jump, 0, 1] = 0.0
-            P[jump, 1, 0] = 0.0
-            P[jump, 1, 1] = cfg.resistance_sigma**2
-            PH = np.einsum("mij,mj->mi", P, H)
-            S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
+        P[jump, 0, 1] = 0.0
+        P[jump, 1, 0] = 0.0
+        P[jump, 1, 1] = cfg.resistance_sigma**2
+        signs = np.where(jump, sign, signs | sign)
+        # the shadow: every accelerating or braking window informs k; the state: once both signs are fitted
+        s_innov = y - np.einsum("mi,mi->m", H, sth)
+        sth, sP = self._correct(sth, sP, H, s_innov, accel)
+        th, P = self._correct(th, P, H, innov, np.zeros_like(accel))
+        both = ~jump & (signs == 3)
+        th = np.where(both[:, None], sth, th)
+        P = np.where(both[:, None, None], sP, P)
+        sth = np.where(jump[:, None], th, sth)
+        sP = np.where(jump[:, None, None], P, sP)
+        self.theta[iv], self.P[iv], self.signs[iv] = th, P, signs
+        self.shadow_theta[iv], self.shadow_P[iv] = sth, sP
+
+    def _correct(self, th, P, H, innov, informs):
+        """The update with these innovations; k's gain 0 where not ``informs`` (the Schmidt update)."""
+        PH = np.einsum("mij,mj->mi", P, H)
+        S = np.einsum("mi,mi->m", H, PH) + self.cfg.force_sigma**2
         K = PH / S[:, None]
-        K[:, 0] = np.where(accel & ~jump, K[:, 0], 0.0)
+        K[:, 0] = np.where(informs, K[:, 0], 0.0)
         th = th + K * innov[:, None]
         A = np.eye(2)[None] - K[:, :, None] * H[:, None, :]
-        P = np.einsum("mij,mjk,mlk->mil", A, P, A) + cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]
-        self.theta[iv], self.P[iv] = th, P
+        P = np.einsum("mij,mjk,mlk->mil", A, P, A) + self.cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]
+        return th, P

@@ -22,7 +22,12 @@ straight, every wheel's slip within ``max_slip``, finite):
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
 ``min_accel`` informs k; any other window informs F_MR alone (a Schmidt update: k's gain is 0), so
 at constant speed k stays at its prior, however long the drive, and a cruise fixes what F_MR is
-at the current k.  The torques the observer sees are the logged ones times k's mean, and the soil
+at the current k.  And k moves only once windows of both signs (accelerating and braking) have been
+fitted since F_MR was last reset (the prior or a jump): a force that does not flip sign with the
+acceleration (a draft growing with the speed of a start from rest, the resistance at a sweep's slips)
+shifts the windows of one sign alike, and only the contrast of the two tells it from k.  Until then a
+shadow posterior lets those windows inform k, and becomes the state at the first window of the other sign.
+The torques the observer sees are the logged ones times k's mean, and the soil
 estimator's scale prior becomes k's relative posterior 1-sigma (:class:`soilocp.estimation.soil_strength.SoilBank`,
 ``scale_sigma``): K's band includes the scale's posterior.
 

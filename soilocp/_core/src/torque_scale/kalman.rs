@@ -10,9 +10,13 @@ use crate::torque_scale::params::Params;
 pub struct ScaleState {
     pub theta: [f64; 2],
     pub p: [[f64; 2]; 2],
-    /// after a jump of b, the sign of that window's acceleration (0: none) until a window of the
-    /// other sign has been fitted; NaN: a jump may be taken
-    pub jump_sign: f64,
+    /// the acceleration signs of the windows fitted since b was last reset (the prior or a
+    /// jump): bit 1 accelerating, bit 2 braking
+    pub signs: u8,
+    /// the posterior as if every accelerating or braking window since that reset had informed k
+    /// (the state itself once both signs have been fitted)
+    pub shadow_theta: [f64; 2],
+    pub shadow_p: [[f64; 2]; 2],
 }
 
 impl ScaleState {
@@ -21,7 +25,9 @@ impl ScaleState {
         ScaleState {
             theta: [1.0, 0.0],
             p: [[p.state_var, 0.0], [0.0, p.resistance_var]],
-            jump_sign: f64::NAN,
+            signs: 0,
+            shadow_theta: [1.0, 0.0],
+            shadow_p: [[p.state_var, 0.0], [0.0, p.resistance_var]],
         }
     }
 
@@ -31,81 +37,114 @@ impl ScaleState {
         (self.theta[0], self.p[0][0].sqrt())
     }
 
-    /// One window's step of eq. TC's state (k, F_MR) (docs/method.md §15): predict by its span (random walks; k's only where the window can see
-    /// it again: its mean acceleration `accel`, f_x less eq. 20's g_x, reaches `min_accel`), then the update with y = k x - b.  A window without acceleration
-    /// informs b alone: a Schmidt update (k's gain 0), so that at constant speed k stays at its
-    /// prior however long the drive; Joseph form, which stays a covariance with a gain that is not
-    /// the optimal one.  Operation order of the numpy kernel it replaced (its einsums).
+    /// One window's step of eq. TC's state (k, F_MR) (docs/method.md §15): predict by its span
+    /// (random walks; k's only where the window can see it again: its mean acceleration `accel`,
+    /// f_x less eq. 20's g_x, reaches `min_accel`), then the update with y = k x - b.  A window
+    /// without acceleration informs b alone: a Schmidt update (k's gain 0), so that at constant
+    /// speed k stays at its prior however long the drive; Joseph form, which stays a covariance
+    /// with a gain that is not the optimal one.  Operation order of the numpy kernel it replaced
+    /// (its einsums).
+    ///
+    /// Both signs: the state's k moves only once windows of both acceleration signs have been
+    /// fitted since b was last reset (the prior or a jump); until then the windows inform b alone,
+    /// while a shadow posterior lets them inform k as well, and the first window of the other sign
+    /// makes the shadow the state (no window's information is lost).  A force that does not flip
+    /// sign with the acceleration (a draft that grows with the speed of a start from rest, the
+    /// resistance at a sweep's slips) shifts the windows of one sign alike, and only the contrast
+    /// of the two signs tells it from k.
     ///
     /// A jump of F_MR (the soil under the wheels changed, a draft was hooked on): a window whose
     /// innovation is beyond `jump_var` times its variance is not explained by the slow random
     /// walk, and would otherwise be read as a change of k (a soil change of 25 N in F_MR is 40 %
     /// of k at 0.5 m/s^2 on 60 kg).  b's variance returns to its prior, uncorrelated with k, and
-    /// the window informs b alone, as a window without acceleration does.  A jump shifts every
-    /// window's balance alike, a wrong k shifts it with the acceleration's sign; so after a jump no
-    /// other is taken until a window of the other acceleration sign has been fitted by k and b
-    /// together (with b at its prior, the contrast of windows of both signs): a k far from its prior
-    /// is learnt from that contrast, not taken for jump after jump.  Returns whether it was one.
+    /// the window informs b alone.  A jump shifts every window's balance alike, a wrong k shifts
+    /// it with the acceleration's sign; so a jump is taken only once windows of both signs have
+    /// been fitted since b was last reset (their contrast fits k): a k far from its prior is
+    /// learnt from that contrast, not taken for jump after jump.  Returns whether it was one.
     pub fn update(&mut self, span: f64, x: f64, y: f64, accel: f64, p: &Params) -> bool {
-        let sign = if accel.abs() >= p.min_accel {
-            accel.signum()
+        let sign: u8 = if accel.abs() < p.min_accel {
+            0
+        } else if accel > 0.0 {
+            1
         } else {
-            0.0
+            2
         };
-        let accel = sign != 0.0;
-        let (th, pm) = (self.theta, &mut self.p);
-        pm[0][0] += p.scale_walk_var * span * if accel { 1.0 } else { 0.0 };
-        pm[1][1] += p.resistance_walk_var * span;
+        let accel = sign != 0;
+        predict(&mut self.p, span, accel, p);
+        predict(&mut self.shadow_p, span, accel, p);
         let h = [x, -1.0];
-        let innov = y - (h[0] * th[0] + h[1] * th[1]);
-        let gain_terms = |pm: &[[f64; 2]; 2]| {
-            let ph = [pm[0][0] * h[0] + pm[0][1] * h[1], pm[1][0] * h[0] + pm[1][1] * h[1]];
-            let s = (h[0] * ph[0] + h[1] * ph[1]) + p.force_var;
-            (ph, s)
-        };
-        let (mut ph, mut s) = gain_terms(pm);
-        let jump = p.jump_var > 0.0 && self.jump_sign.is_nan() && innov * innov > p.jump_var * s;
+        let innov = y - (h[0] * self.theta[0] + h[1] * self.theta[1]);
+        let s = gain_terms(&self.p, h, p).1;
+        let jump = p.jump_var > 0.0 && self.signs == 3 && innov * innov > p.jump_var * s;
         if jump {
-            self.jump_sign = sign;
-        } else if accel && sign != self.jump_sign {
-            self.jump_sign = f64::NAN;
+            self.p[0][1] = 0.0;
+            self.p[1][0] = 0.0;
+            self.p[1][1] = p.resistance_var;
+            correct(&mut self.theta, &mut self.p, h, innov, false, p);
+            (self.signs, self.shadow_theta, self.shadow_p) = (sign, self.theta, self.p);
+            return true;
         }
-        if jump {
-            pm[0][1] = 0.0;
-            pm[1][0] = 0.0;
-            pm[1][1] = p.resistance_var;
-            (ph, s) = gain_terms(pm);
+        self.signs |= sign;
+        let th = self.shadow_theta;
+        let innov_shadow = y - (h[0] * th[0] + h[1] * th[1]);
+        correct(&mut self.shadow_theta, &mut self.shadow_p, h, innov_shadow, accel, p);
+        if self.signs == 3 {
+            // both signs fitted: the shadow, which every accelerating or braking window informed
+            (self.theta, self.p) = (self.shadow_theta, self.shadow_p);
+        } else {
+            correct(&mut self.theta, &mut self.p, h, innov, false, p);
         }
-        let mut k = [ph[0] / s, ph[1] / s];
-        if !accel || jump {
-            k[0] = 0.0;
-        }
-        self.theta = [th[0] + k[0] * innov, th[1] + k[1] * innov];
-        let eye = [[1.0, 0.0], [0.0, 1.0]];
-        let a: [[f64; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|j| eye[i][j] - k[i] * h[j]));
-        let old = *pm;
-        // A P A^T: per entry, the terms of each j summed over k first, then the two j's
-        let apa = |i: usize, l: usize| {
-            let t = |j: usize, m: usize| (a[i][j] * old[j][m]) * a[l][m];
-            (t(0, 0) + t(0, 1)) + (t(1, 0) + t(1, 1))
-        };
-        *pm = std::array::from_fn(|i| std::array::from_fn(|l| apa(i, l) + p.force_var * k[i] * k[l]));
-        jump
+        false
     }
+}
+
+/// The random walks over a window's span: b's always, k's where the window can see it again.
+fn predict(pm: &mut [[f64; 2]; 2], span: f64, accel: bool, p: &Params) {
+    pm[0][0] += p.scale_walk_var * span * if accel { 1.0 } else { 0.0 };
+    pm[1][1] += p.resistance_walk_var * span;
+}
+
+/// P H^T and the innovation's variance H P H^T + force_var.
+fn gain_terms(pm: &[[f64; 2]; 2], h: [f64; 2], p: &Params) -> ([f64; 2], f64) {
+    let ph = [pm[0][0] * h[0] + pm[0][1] * h[1], pm[1][0] * h[0] + pm[1][1] * h[1]];
+    let s = (h[0] * ph[0] + h[1] * ph[1]) + p.force_var;
+    (ph, s)
+}
+
+/// The update with the innovation `innov` of H = h; k's gain 0 unless `informs` (the Schmidt
+/// update); Joseph form.
+fn correct(th: &mut [f64; 2], pm: &mut [[f64; 2]; 2], h: [f64; 2], innov: f64, informs: bool, p: &Params) {
+    let (ph, s) = gain_terms(pm, h, p);
+    let mut k = [ph[0] / s, ph[1] / s];
+    if !informs {
+        k[0] = 0.0;
+    }
+    *th = [th[0] + k[0] * innov, th[1] + k[1] * innov];
+    let eye = [[1.0, 0.0], [0.0, 1.0]];
+    let a: [[f64; 2]; 2] = std::array::from_fn(|i| std::array::from_fn(|j| eye[i][j] - k[i] * h[j]));
+    let old = *pm;
+    // A P A^T: per entry, the terms of each j summed over k first, then the two j's
+    let apa = |i: usize, l: usize| {
+        let t = |j: usize, m: usize| (a[i][j] * old[j][m]) * a[l][m];
+        (t(0, 0) + t(0, 1)) + (t(1, 0) + t(1, 1))
+    };
+    *pm = std::array::from_fn(|i| std::array::from_fn(|l| apa(i, l) + p.force_var * k[i] * k[l]));
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Windows of an exact balance y = 0.8 x - 25 with x swinging: k and b are found.
+    /// Windows of an exact balance y = 0.8 x - 25 with x swinging (accelerating where x is above its
+    /// mean, braking below): k and b are found.
     #[test]
     fn exact_windows_give_k_and_the_resistance() {
         let p = Params::defaults();
         let mut st = ScaleState::prior(&p);
         for i in 0..400 {
-            let x = 300.0 + 200.0 * ((i as f64) * 0.7).sin();
-            st.update(1.0, x, 0.8 * x - 25.0, 1.0, &p);
+            let swing = ((i as f64) * 0.7).sin();
+            let x = 300.0 + 200.0 * swing;
+            st.update(1.0, x, 0.8 * x - 25.0, swing.signum(), &p);
         }
         let (k, sd) = st.scale();
         assert!((k - 0.8).abs() < 1e-3, "k {k}");
@@ -149,6 +188,23 @@ mod tests {
             (k[1] - 1.08).abs() > 0.02,
             "without the jump test the step moves k: {k:?}"
         );
+    }
+
+    /// Windows of one acceleration sign only (a start from rest under a draft that grows with the
+    /// speed, y = x - (10 + 0.1 x)) leave k at its prior: they inform b; the first window of the other
+    /// sign informs k.
+    #[test]
+    fn windows_of_one_sign_inform_the_resistance_alone() {
+        let p = Params::defaults();
+        let mut st = ScaleState::prior(&p);
+        for i in 0..5 {
+            let x = 40.0 + 10.0 * i as f64;
+            st.update(1.0, x, x - (10.0 + 0.1 * x), 0.5, &p);
+            let want = p.state_var + p.scale_walk_var * (i + 1) as f64;
+            assert!(st.theta[0] == 1.0 && (st.p[0][0] - want).abs() < 1e-15, "{:?}", st);
+        }
+        st.update(1.0, -20.0, -20.0 - 8.0, -0.5, &p);
+        assert!(st.theta[0] != 1.0 && st.signs == 3);
     }
 
     /// Without acceleration k keeps its prior exactly (the Schmidt update), b moves.
