@@ -156,7 +156,8 @@ def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = 
     logged = np.repeat((torque_true / k_true / 4.0)[:, None], 4, axis=1) + rng.normal(0, 0.05, (t.size, 4))
     f_x = a + rng.normal(0, 0.02, t.size)
     extra = {} if jump is None else {"resistance_jump": jump}
-    bank = TorqueScaleBank(V, TorqueScaleConfig(enabled=True, model_resistance=model, prior_sigma=None, **extra), 0.05, 1)
+    cfg = TorqueScaleConfig(enabled=True, model_resistance=model, prior_sigma=None, **extra)
+    bank = TorqueScaleBank(V, cfg, 0.05, 1)
     ix = np.array([0])
     for i in range(t.size):
         bank.feed_soil(ix, [k_soil[i]])

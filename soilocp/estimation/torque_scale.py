@@ -13,11 +13,12 @@ straight, every wheel's slip within ``max_slip``, finite):
 * b: the motion resistance the model does not give (and an accelerometer bias times m), a random walk
   of ``resistance_walk`` N per sqrt(s), and a jump where the soil under the wheels changes: a window whose
   innovation is beyond ``resistance_jump`` of its sigmas returns b's variance to its prior and informs b alone
-  (a wrong k shifts the balance with the acceleration's sign, a jump of b does not, so after a jump no other is
-  taken until a window of the other sign has been fitted by k and b together).  The resistance itself is modelled, not a state: eq. 4 at each
-  sample's slips (eq. 1 from the readings), normal forces and the soil's K as the soil stage last
-  reported it (:meth:`TorqueScaleBank.feed_soil`, the K fed back; a median reference soil until then),
-  :func:`soilocp.model.force_balance.modelled_resistance`, averaged over the window like the other terms.
+  (a wrong k shifts the balance with the acceleration's sign, a jump of b does not, so a jump is taken only
+  once windows of both signs have been fitted since b was last reset).  With ``model_resistance`` the
+  resistance itself is modelled, not a state: eq. 4 at each sample's slips (eq. 1 from the readings),
+  normal forces and the soil's K as the soil stage last reported it (:meth:`TorqueScaleBank.feed_soil`,
+  the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,
+  averaged over the window like the other terms.
 
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
 ``min_accel`` informs k; any other window informs F_MR alone (a Schmidt update: k's gain is 0), so
