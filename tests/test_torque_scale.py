@@ -75,6 +75,22 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
     assert m[0] == 1.0 and sd[0] == pytest.approx(0.05)
 
 
+def test_a_start_under_a_draft_that_grows_with_speed_leaves_k_until_it_brakes():
+    """From 0.3 m/s, 0.6 m/s^2 for 3 s against a draft of 20 + 40 v N (docs/control.md: the closed loop read k
+    0.9745 for 1.00 from such a start): windows of one sign inform F_MR alone; the braking that follows makes
+    the shadow, which they informed, the state: k moves then, and only then."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 6.0, 0.01)
+    a = np.where(t < 3.0, 0.6, -0.6)
+    v = 0.3 + np.cumsum(a) * 0.01
+    omega = np.repeat((v / V.wheel_radius)[:, None], 4, axis=1)
+    torque_true = (V.mass * a + 20.0 + 40.0 * v) * V.wheel_radius + V.wheel_inertia * 4.0 * a / V.wheel_radius
+    logged = np.repeat((torque_true / 4.0)[:, None], 4, axis=1) + rng.normal(0, 0.05, (t.size, 4))
+    est = _run((t, a + rng.normal(0, 0.02, t.size), omega, logged, v), TorqueScaleConfig())
+    assert np.all(est[t < 3.01, 0] == 1.0)  # three accelerating windows: k has not moved
+    assert est[-1, 0] != 1.0
+
+
 def test_disabled_it_is_the_prior():
     est = _run(_balance_stream(1.08, accel=0.8, seconds=10.0), TorqueScaleConfig(enabled=False))
     assert np.all(est[:, 0] == 1.0) and np.all(est[:, 1] == 0.05)
