@@ -12,6 +12,8 @@ import pytest
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.model.ocp import ocp_arrays, ocp_from_soil_strength
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.estimation.soil_strength import SoilBank
+from soilocp.estimation.torque_scale import TorqueScaleConfig
 from soilocp.sim.simulator import simulate
 from soilocp.sim.variants import get_variant
 
@@ -65,8 +67,12 @@ def _same_record(a: dict, b: dict, what) -> None:
             assert as_list(x) == as_list(y), (what, name, x, y)
 
 
-def test_batched_equals_single_vehicle_pipeline_in_every_field(drives):
-    cfg = PipelineConfig()
+@pytest.mark.parametrize("scale", ["default", "off", "modelled_resistance"])
+def test_batched_equals_single_vehicle_pipeline_in_every_field(drives, scale):
+    """The chain's one core call (BatchPipeline) against the stages' calls, with the torque scale as configured,
+    off (the chain without a scale) and with eq. 4's resistance fed the records' K."""
+    cfg = PipelineConfig(torque_scale={"default": TorqueScaleConfig(), "off": TorqueScaleConfig(enabled=False),
+                                       "modelled_resistance": TorqueScaleConfig(model_resistance=True)}[scale])
     names = list(drives)
     singles = {n: VehiclePipeline(cfg) for n in names}
     batch = BatchPipeline(cfg, len(names))
@@ -197,3 +203,36 @@ def test_batch_service_stream_equals_offline_estimate():
         for a, b in zip(live, offline[v]):
             assert a["status"] == b["status"] and a["soil_class"] == b["soil_class"], (v, a["seq"])
             _same_record(a, b, (v, a["seq"]))
+
+
+def test_a_chain_step_that_raises_after_the_observer_leaves_its_clock_with_the_core(drives):
+    """ChainCore.step can raise after the scale and the observer stepped (the soil update refusing a sample):
+    the bank's clock (whose dt**3 the next call passes) then follows the core's, one interval per step."""
+    cfg = PipelineConfig()
+    bank = BatchPipeline(cfg, 2)
+    s = next(iter(drives.values()))[:3]
+    fz = [np.full(4, 150.0)] * 3
+    bank.step_all(np.array([0]), s[:1], fz[:1])
+
+    def stepped_then_refused(*args):
+        bank.observer._core.step(*args)  # the observer moves on, then something after it raises
+        raise ValueError("refused after the observer")
+
+    from soilocp.estimation.pipeline import observer_inputs
+    with pytest.raises(ValueError, match="after the observer"):
+        bank.observer.run(stepped_then_refused, np.array([0]), observer_inputs(s[1:2], fz[1:2]))
+    assert bank.observer.last_stamp[0] == s[1].stamp and np.isnan(bank.observer.last_stamp[1])
+    assert np.array_equal(bank.observer.last_stamp, bank.observer._core.last_stamp, equal_nan=True)
+
+
+def test_the_chain_refuses_stages_of_different_banks_and_a_soil_bank_without_records():
+    from soilocp import _core
+
+    cfg = PipelineConfig()
+    two, three = BatchPipeline(cfg, 2), BatchPipeline(cfg, 3)
+    with pytest.raises(ValueError, match="soil holds 3 vehicles, the observer 2"):
+        _core.ChainCore(two.observer._core, two.gate.core, three.soil.core, cfg.constants.kernel, two.scale._core)
+    bare = SoilBank(cfg.constants, cfg.soil, 2)
+    bare.core = bare.grid.bank(2)  # the core's bank before its records' settings
+    with pytest.raises(ValueError, match="set_status"):
+        _core.ChainCore(two.observer._core, two.gate.core, bare.core, cfg.constants.kernel)

@@ -88,7 +88,10 @@ def test_a_start_under_a_draft_that_grows_with_speed_leaves_k_until_it_brakes():
     logged = np.repeat((torque_true / 4.0)[:, None], 4, axis=1) + rng.normal(0, 0.05, (t.size, 4))
     est = _run((t, a + rng.normal(0, 0.02, t.size), omega, logged, v), TorqueScaleConfig())
     assert np.all(est[t < 3.01, 0] == 1.0)  # three accelerating windows: k has not moved
-    assert est[-1, 0] != 1.0
+    # then it moves, and not to the truth: a draft that grows with speed is no scale and no constant F_MR, and
+    # the windows of the two signs at their different speeds read part of it as k (measured 0.868 for 1.00, the
+    # limit docs/robustness.md states); a change of the model that fixes or worsens this shows here
+    assert 0.85 < est[-1, 0] < 0.89
 
 
 def test_disabled_it_is_the_prior():

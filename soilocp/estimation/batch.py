@@ -1,16 +1,18 @@
-"""Many vehicles at once: the estimation chain for N vehicles in one process.
+"""Many vehicles at once: the estimation chain of N vehicles in one core call per step.
 
-The batched service steps N vehicles through the same array kernels that the single-vehicle
-stages of :mod:`soilocp.estimation.pipeline` run with N = 1: the observer
-(:class:`soilocp.estimation.observer_bank.ObserverBank`), the slip and its gate (:class:`soilocp.estimation.slip_gate.SlipGate`),
-the soil strength (:class:`soilocp.estimation.soil_strength.SoilBank`) and the OCPs
-(:func:`soilocp.model.ocp.ocp_arrays`), one numpy call per operation for the whole fleet.  Its records
-are built by the same message functions, so every field (statuses, reasons, classes, te_at_S_E)
-is the single path's (``tests/test_batch.py`` checks them all on real drives).
+:class:`BatchPipeline` builds the banks the single-vehicle stages of :mod:`soilocp.estimation.pipeline` run
+with N = 1 (the torque scale :class:`soilocp.estimation.torque_scale.TorqueScaleBank`, the observer
+:class:`soilocp.estimation.observer_bank.ObserverBank`, the slip gate :class:`soilocp.estimation.slip_gate.SlipGate`
+and the soil strength :class:`soilocp.estimation.soil_strength.SoilBank`) and steps them all with the compiled
+core's ``ChainCore`` (soilocp/_core/src/py/chain.rs): scale, observer, gate, soil update with its records, K fed
+back to the scale, and the OCPs (eqs. 7-10), in one call for every vehicle stepped.  Its records are built by
+the same message functions, so every field (statuses, reasons, classes, te_at_S_E) is the stages'
+(``tests/test_batch.py`` checks them all on real drives).  The offline path (``soilocp estimate``) runs it with
+N = 1 per vehicle, the batched service with N = many.
 
-Every step takes the indices of the vehicles that have a sample now (any subset, each at most
-once): vehicles are independent and need not be in step.  Only the default ``bayes`` soil method
-is batched.
+Every step takes the indices of the vehicles that have a sample now (any subset, each at most once): vehicles
+are independent and need not be in step.  Only the default ``bayes`` soil method is batched; with fleet-map
+priors the map's hook runs between the gate and the update, so the banks are called one by one.
 """
 
 from __future__ import annotations

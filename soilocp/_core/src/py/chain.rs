@@ -145,18 +145,23 @@ impl ChainCore {
         scale: Option<Py<TorqueScaleCore>>,
         feed_soil: bool,
     ) -> PyResult<Self> {
-        let n = observer.bind(py).borrow_mut().bank_mut().filter.n_vehicles;
+        let n = observer.bind(py).try_borrow_mut()?.bank_mut().filter.n_vehicles;
         let mut sizes = vec![
-            ("gate", gate.bind(py).borrow().inner.lp.len()),
-            ("soil", soil.bind(py).borrow().bank_len()),
+            ("gate", gate.bind(py).try_borrow()?.inner.lp.len()),
+            ("soil", soil.bind(py).try_borrow()?.bank_len()),
         ];
         if let Some(s) = &scale {
-            sizes.push(("scale", s.bind(py).borrow_mut().bank_mut().len()));
+            sizes.push(("scale", s.bind(py).try_borrow_mut()?.bank_mut().len()));
         }
         if let Some((name, m)) = sizes.iter().find(|(_, m)| *m != n) {
             return Err(PyValueError::new_err(format!(
                 "{name} holds {m} vehicles, the observer {n}: the chain's stages must be one bank"
             )));
+        }
+        if !soil.bind(py).try_borrow()?.has_status() {
+            return Err(PyValueError::new_err(
+                "soil: its records' settings are not given (SoilGridBank.set_status): the chain makes records",
+            ));
         }
         Ok(ChainCore {
             observer,
@@ -172,8 +177,10 @@ impl ChainCore {
     /// (`ObserverCore.step`'s, the logged torques): the torque scale steps on them and the
     /// observer takes the torques times k's mean; the gate packs the observer's estimates; the soil
     /// update takes the gate's samples with k's relative 1-sigma; K goes back to the scale; the OCPs
-    /// of K.  Every input is checked (ValueError naming the field) before any state changes; a
-    /// sample the soil update refuses leaves the gate as it was.
+    /// of K.  Every input is checked (ValueError naming the field) before any state changes.  A
+    /// sample the soil update refuses (not finite) raises after the scale and the observer have
+    /// stepped, and leaves the gate as it was (the caller re-reads the observer's clock:
+    /// `ObserverCore.last_stamp`).
     #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
                         normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
     #[allow(clippy::too_many_arguments)]
@@ -193,7 +200,8 @@ impl ChainCore {
         expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
         exp_window: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<ChainOut<'py>> {
-        let mut obs = self.observer.bind(py).borrow_mut();
+        // try_: a stage object another thread holds now is a RuntimeError, not a panic
+        let mut obs = self.observer.bind(py).try_borrow_mut()?;
         let (vehicles, raws) = obs.raws(
             idx.as_ref(),
             &stamp,
@@ -208,9 +216,9 @@ impl ChainCore {
             expm1_smoothing.as_ref(),
             exp_window.as_ref(),
         )?;
-        let mut scale = self.scale.as_ref().map(|s| s.bind(py).borrow_mut());
-        let mut gate = self.gate.bind(py).borrow_mut();
-        let mut soil = self.soil.bind(py).borrow_mut();
+        let mut scale = self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?;
+        let mut gate = self.gate.bind(py).try_borrow_mut()?;
+        let mut soil = self.soil.bind(py).try_borrow_mut()?;
         let stages = Stages {
             observer: obs.bank_mut(),
             scale: scale.as_mut().map(|s| s.bank_mut()),

@@ -460,6 +460,13 @@ impl ObserverCore {
         LIFT_OFF_FORCE
     }
 
+    /// Each vehicle's last stamp (N,) (NaN: none yet), as the core's clock has it (a copy): the Python
+    /// bank's mirror of it is set from here when a step that moved the clock raised.
+    #[getter]
+    fn last_stamp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.last_stamp.clone().into_pyarray(py)
+    }
+
     /// The states (N, n) (a copy).
     #[getter]
     fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {

@@ -360,6 +360,11 @@ impl SoilGridBank {
         Ok((samples, used))
     }
 
+    /// Whether the records' settings were given (`set_status`).
+    pub(crate) fn has_status(&self) -> bool {
+        self.status.is_some()
+    }
+
     /// The number of vehicles of the bank.
     pub(crate) fn bank_len(&self) -> usize {
         self.inner.vehicles.len()

@@ -55,19 +55,22 @@ impl ScaleState {
     ///
     /// A jump of F_MR (the soil under the wheels changed, a draft was hooked on): a window whose
     /// innovation is beyond `jump_var` times its variance is not explained by the slow random
-    /// walk, and would otherwise be read as a change of k (a soil change of 25 N in F_MR is 40 %
-    /// of k at 0.5 m/s^2 on 60 kg).  b's variance returns to its prior, uncorrelated with k, and
+    /// walk, and would otherwise be read as a change of k (a soil change of 25 N in F_MR, against
+    /// the 30 N that 0.5 m/s^2 takes on 60 kg).  b's variance returns to its prior, uncorrelated with k, and
     /// the window informs b alone.  A jump shifts every window's balance alike, a wrong k shifts
     /// it with the acceleration's sign; so a jump is taken only once windows of both signs have
     /// been fitted since b was last reset (their contrast fits k): a k far from its prior is
     /// learnt from that contrast, not taken for jump after jump.  Returns whether it was one.
     pub fn update(&mut self, span: f64, x: f64, y: f64, accel: f64, p: &Params) -> bool {
-        let sign: u8 = if accel.abs() < p.min_accel {
-            0
-        } else if accel > 0.0 {
-            1
+        // a NaN acceleration is none (the reference's |a| >= min_accel is False for it)
+        let sign: u8 = if accel.abs() >= p.min_accel {
+            if accel > 0.0 {
+                1
+            } else {
+                2
+            }
         } else {
-            2
+            0
         };
         let accel = sign != 0;
         predict(&mut self.p, span, accel, p);
