@@ -48,6 +48,18 @@ pub fn evaluable(k: f64, c: &Constants) -> bool {
     k.is_nan() || (k.is_finite() && k > 0.0 && (c.c5 / k).is_finite())
 }
 
+/// The OCPs ([`ocp`]) of a bank of K, or the error that names the first K the model cannot
+/// evaluate (its index in `ks`).
+pub fn bank(ks: &[f64], c: &Constants) -> Result<Vec<Ocp>, String> {
+    if let Some(i) = ks.iter().position(|&k| !evaluable(k, c)) {
+        return Err(format!(
+            "soil_strength[{i}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
+            ks[i]
+        ));
+    }
+    Ok(ks.iter().map(|&k| ocp(k, c)).collect())
+}
+
 /// Eqs. 7, 8, 10 and eq. 9 at S_E (NaN where S_E is not a driving slip in (0, 1)), for a K the
 /// caller has found [`evaluable`]; all NaN for a missing K.
 #[inline]
@@ -138,5 +150,10 @@ mod tests {
         assert!(evaluable(f64::NAN, &C) && evaluable(50.0, &C));
         assert!(!evaluable(0.0, &C) && !evaluable(-1.0, &C) && !evaluable(f64::INFINITY, &C));
         assert!(!evaluable(1e-320, &C), "C5 / K overflows");
+        let got = bank(&[50.0, f64::NAN], &C).unwrap();
+        assert_eq!(got[0], ocp(50.0, &C));
+        assert!(got[1].mu_t.is_nan());
+        let err = bank(&[50.0, f64::NAN, -1.0], &C).unwrap_err();
+        assert!(err.starts_with("soil_strength[2] = -1"), "{err}");
     }
 }

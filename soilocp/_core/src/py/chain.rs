@@ -113,13 +113,7 @@ impl Stages<'_> {
                 bank.feed_soil(g, k, Some(s.slip));
             }
         }
-        if let Some(j) = ks.iter().position(|&k| !ocp::evaluable(k, self.constants)) {
-            return Err(PyValueError::new_err(format!(
-                "soil_strength[{j}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
-                ks[j]
-            )));
-        }
-        let ocp = ks.iter().map(|&k| ocp::ocp(k, self.constants)).collect();
+        let ocp = ocp::bank(&ks, self.constants).map_err(PyValueError::new_err)?;
         Ok(Done {
             estimates,
             samples,

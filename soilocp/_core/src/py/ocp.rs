@@ -19,27 +19,10 @@ pub fn ocp_bank<'py>(
     soil_strength: PyReadonlyArray1<'py, f64>,
     constants: &Constants,
 ) -> PyResult<(Arr<'py>, Arr<'py>, Arr<'py>, Arr<'py>)> {
-    let k = soil_strength.as_array();
-    if let Some(i) = k.iter().position(|&k| !ocp::evaluable(k, constants)) {
-        return Err(PyValueError::new_err(format!(
-            "soil_strength[{i}] = {} is not a K the model can evaluate (finite, > 0, C5 / K finite)",
-            k[i]
-        )));
-    }
-    let n = k.len();
-    let (mut mu_t, mut s_t, mut s_e, mut te) = (
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-    );
-    for &kk in k.iter() {
-        let o = ocp::ocp(kk, constants);
-        mu_t.push(o.mu_t);
-        s_t.push(o.s_t);
-        s_e.push(o.s_e);
-        te.push(o.te_at_s_e);
-    }
+    let ks = soil_strength.as_array().to_vec();
+    let o = ocp::bank(&ks, constants).map_err(PyValueError::new_err)?;
+    let col = |f: fn(&ocp::Ocp) -> f64| o.iter().map(f).collect::<Vec<f64>>();
+    let (mu_t, s_t, s_e, te) = (col(|x| x.mu_t), col(|x| x.s_t), col(|x| x.s_e), col(|x| x.te_at_s_e));
     Ok((
         mu_t.into_pyarray(py),
         s_t.into_pyarray(py),
