@@ -89,6 +89,42 @@ impl Estimate {
     pub fn torque_age(&self) -> [f64; 4] {
         [self.age[5], self.age[6], self.age[7], self.age[8]]
     }
+
+    /// The first number that is not finite, by its output name (soilocp's ObserverOutput message,
+    /// whose fields must be finite), or None.
+    pub fn first_non_finite(&self) -> Option<&'static str> {
+        let p = &self.pairs;
+        let quads: [(&'static str, [f64; 4]); 17] = [
+            ("mu", self.mu),
+            ("mu_var", self.mu_var),
+            ("resistance", self.resistance),
+            ("gross", self.gross),
+            ("gross_var", self.gross_var),
+            ("wheel_speed", self.wheel_speed),
+            ("normal_force", self.normal_force),
+            ("speed_age", self.speed_age()),
+            ("torque_age", self.torque_age()),
+            ("interval", p.interval),
+            ("interval_gross", p.gross),
+            ("interval_gross_var", p.gross_var),
+            ("interval_rim_start", p.rim_start),
+            ("interval_rim_end", p.rim_end),
+            ("interval_ground_start", p.ground_start),
+            ("interval_ground_end", p.ground_end),
+            ("interval_rim_sigma", p.rim_sigma),
+        ];
+        let flats = [
+            ("ground_speed", self.ground_speed),
+            ("yaw_rate", self.yaw_rate),
+            ("ground_speed_age", self.ground_speed_age()),
+            ("ground_speed_latency", self.ground_speed_latency),
+        ];
+        quads
+            .iter()
+            .find(|(_, q)| !q.iter().all(|v| v.is_finite()))
+            .map(|(n, _)| *n)
+            .or_else(|| flats.iter().find(|(_, v)| !v.is_finite()).map(|(n, _)| *n))
+    }
 }
 
 pub struct ObserverBank {
@@ -232,5 +268,23 @@ impl ObserverBank {
             ground_speed_latency: latency,
             pairs: speed_pairs.merge(&torque_pairs),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_non_finite_output_is_named() {
+        let mut e = Estimate::default();
+        assert_eq!(e.first_non_finite(), None);
+        e.pairs.ground_end[2] = f64::NAN;
+        assert_eq!(e.first_non_finite(), Some("interval_ground_end"));
+        e.gross[0] = f64::INFINITY;
+        assert_eq!(e.first_non_finite(), Some("gross"));
+        let mut e = Estimate::default();
+        e.age[4] = f64::NAN;
+        assert_eq!(e.first_non_finite(), Some("ground_speed_age"));
     }
 }

@@ -95,6 +95,16 @@ impl Stages<'_> {
             .zip(&raws)
             .map(|(&g, r)| self.observer.step(g, r))
             .collect();
+        // what the stages' ObserverOutput message refuses (its numbers must be finite), the chain refuses too
+        let bad = estimates
+            .iter()
+            .zip(vehicles)
+            .find_map(|(e, &g)| e.first_non_finite().map(|n| (g, n)));
+        if let Some((g, name)) = bad {
+            return Err(PyValueError::new_err(format!(
+                "observer output {name} of vehicle {g} is not finite"
+            )));
+        }
         let rows: Vec<[f64; COLUMNS]> = estimates.iter().map(gate::row_of).collect();
         let rows: Vec<&[f64]> = rows.iter().map(|r| &r[..]).collect();
         let stamps = raws.iter().map(|r| r.stamp).collect();
@@ -171,9 +181,10 @@ impl ChainCore {
     /// (`ObserverCore.step`'s, the logged torques): the torque scale steps on them and the
     /// observer takes the torques times k's mean; the gate packs the observer's estimates; the soil
     /// update takes the gate's samples with k's relative 1-sigma; K goes back to the scale; the OCPs
-    /// of K.  Every input is checked (ValueError naming the field) before any state changes.  A
-    /// sample the soil update refuses (not finite) raises after the scale and the observer have
-    /// stepped, and leaves the gate as it was (the caller re-reads the observer's clock:
+    /// of K.  Every input is checked (ValueError naming the field) before any state changes.  An
+    /// observer output that is not finite (which the stages' ObserverOutput message refuses) or a
+    /// sample the soil update refuses raises after the scale and the observer have stepped, and
+    /// leaves the gate as it was (the caller re-reads the observer's clock:
     /// `ObserverCore.last_stamp`).
     #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
                         normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
