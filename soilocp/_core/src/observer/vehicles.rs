@@ -49,6 +49,29 @@ pub struct Raw {
     pub exp_window: f64,
 }
 
+/// The names of an [`Estimate`]'s numbers, per wheel ([`Estimate::quads`]) and per vehicle
+/// ([`Estimate::flats`]): the ObserverOutput message's fields (ObserverCore.quad_fields, flat_fields).
+pub const QUAD_NAMES: [&str; 17] = [
+    "mu",
+    "mu_var",
+    "resistance",
+    "gross",
+    "gross_var",
+    "wheel_speed",
+    "normal_force",
+    "speed_age",
+    "torque_age",
+    "interval",
+    "interval_gross",
+    "interval_gross_var",
+    "interval_rim_start",
+    "interval_rim_end",
+    "interval_ground_start",
+    "interval_ground_end",
+    "interval_rim_sigma",
+];
+pub const FLAT_NAMES: [&str; 4] = ["ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency"];
+
 /// One vehicle's estimate at a step.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Estimate {
@@ -90,40 +113,52 @@ impl Estimate {
         [self.age[5], self.age[6], self.age[7], self.age[8]]
     }
 
+    /// The per-wheel numbers, in [`QUAD_NAMES`]' order.
+    pub fn quads(&self) -> [[f64; 4]; 17] {
+        let p = &self.pairs;
+        [
+            self.mu,
+            self.mu_var,
+            self.resistance,
+            self.gross,
+            self.gross_var,
+            self.wheel_speed,
+            self.normal_force,
+            self.speed_age(),
+            self.torque_age(),
+            p.interval,
+            p.gross,
+            p.gross_var,
+            p.rim_start,
+            p.rim_end,
+            p.ground_start,
+            p.ground_end,
+            p.rim_sigma,
+        ]
+    }
+
+    /// The per-vehicle numbers, in [`FLAT_NAMES`]' order.
+    pub fn flats(&self) -> [f64; 4] {
+        [
+            self.ground_speed,
+            self.yaw_rate,
+            self.ground_speed_age(),
+            self.ground_speed_latency,
+        ]
+    }
+
     /// The first number that is not finite, by its output name (soilocp's ObserverOutput message,
     /// whose fields must be finite), or None.
     pub fn first_non_finite(&self) -> Option<&'static str> {
-        let p = &self.pairs;
-        let quads: [(&'static str, [f64; 4]); 17] = [
-            ("mu", self.mu),
-            ("mu_var", self.mu_var),
-            ("resistance", self.resistance),
-            ("gross", self.gross),
-            ("gross_var", self.gross_var),
-            ("wheel_speed", self.wheel_speed),
-            ("normal_force", self.normal_force),
-            ("speed_age", self.speed_age()),
-            ("torque_age", self.torque_age()),
-            ("interval", p.interval),
-            ("interval_gross", p.gross),
-            ("interval_gross_var", p.gross_var),
-            ("interval_rim_start", p.rim_start),
-            ("interval_rim_end", p.rim_end),
-            ("interval_ground_start", p.ground_start),
-            ("interval_ground_end", p.ground_end),
-            ("interval_rim_sigma", p.rim_sigma),
-        ];
-        let flats = [
-            ("ground_speed", self.ground_speed),
-            ("yaw_rate", self.yaw_rate),
-            ("ground_speed_age", self.ground_speed_age()),
-            ("ground_speed_latency", self.ground_speed_latency),
-        ];
-        quads
-            .iter()
-            .find(|(_, q)| !q.iter().all(|v| v.is_finite()))
-            .map(|(n, _)| *n)
-            .or_else(|| flats.iter().find(|(_, v)| !v.is_finite()).map(|(n, _)| *n))
+        let quads = QUAD_NAMES.iter().zip(self.quads());
+        let bad_quad = quads.into_iter().find(|(_, q)| !q.iter().all(|v| v.is_finite()));
+        bad_quad.map(|(n, _)| *n).or_else(|| {
+            FLAT_NAMES
+                .iter()
+                .zip(self.flats())
+                .find(|(_, v)| !v.is_finite())
+                .map(|(n, _)| *n)
+        })
     }
 }
 

@@ -14,7 +14,7 @@ use crate::observer::intervals::IntervalSettings;
 use crate::observer::latency::SMOOTHING;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
-use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, LIFT_OFF_FORCE};
+use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
 
 #[pyclass(module = "soilocp._core")]
 pub struct ObserverCore {
@@ -26,27 +26,8 @@ fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
         .map_err(|_| PyValueError::new_err(format!("{name} must have {K} entries, got {}", v.len())))
 }
 
-/// The names of the step's output blocks, in their order (ObserverBankOutput's fields).
-const QUADS: [&str; 17] = [
-    "mu",
-    "mu_var",
-    "resistance",
-    "gross",
-    "gross_var",
-    "wheel_speed",
-    "normal_force",
-    "speed_age",
-    "torque_age",
-    "interval",
-    "interval_gross",
-    "interval_gross_var",
-    "interval_rim_start",
-    "interval_rim_end",
-    "interval_ground_start",
-    "interval_ground_end",
-    "interval_rim_sigma",
-];
-const FLATS: [&str; 4] = ["ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency"];
+/// The names of the step's bool blocks, in their order (the ObserverOutput message's fields; the
+/// float blocks' are the Estimate's, QUAD_NAMES and FLAT_NAMES).
 const BOOL_QUADS: [&str; 2] = ["mu_determined", "interval_learning"];
 const BOOL_FLATS: [&str; 2] = ["reset", "ground_speed_measured"];
 
@@ -68,42 +49,20 @@ type Model<'py> = (
 /// The step's output blocks (module doc of `step`) of the vehicles' estimates, in their order.
 pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
     let k = out.len();
-    let mut quads = Array3::<f64>::zeros((QUADS.len(), k, 4));
-    let mut flats = Array2::<f64>::zeros((FLATS.len(), k));
+    let mut quads = Array3::<f64>::zeros((QUAD_NAMES.len(), k, 4));
+    let mut flats = Array2::<f64>::zeros((FLAT_NAMES.len(), k));
     let mut bquads = Array3::<bool>::from_elem((BOOL_QUADS.len(), k, 4), false);
     let mut bflats = Array2::<bool>::from_elem((BOOL_FLATS.len(), k), false);
     let mut rejected = Array1::<i64>::zeros(k);
     let mut codes = Array1::<u8>::zeros(k);
     for (j, o) in out.iter().enumerate() {
         let p = &o.pairs;
-        let rows: [&[f64; 4]; 17] = [
-            &o.mu,
-            &o.mu_var,
-            &o.resistance,
-            &o.gross,
-            &o.gross_var,
-            &o.wheel_speed,
-            &o.normal_force,
-            &o.speed_age(),
-            &o.torque_age(),
-            &p.interval,
-            &p.gross,
-            &p.gross_var,
-            &p.rim_start,
-            &p.rim_end,
-            &p.ground_start,
-            &p.ground_end,
-            &p.rim_sigma,
-        ];
-        for (f, row) in rows.iter().enumerate() {
+        for (f, row) in o.quads().iter().enumerate() {
             for w in 0..4 {
                 quads[[f, j, w]] = row[w];
             }
         }
-        for (f, v) in [o.ground_speed, o.yaw_rate, o.ground_speed_age(), o.ground_speed_latency]
-            .into_iter()
-            .enumerate()
-        {
+        for (f, v) in o.flats().into_iter().enumerate() {
             flats[[f, j]] = v;
         }
         for w in 0..4 {
@@ -430,12 +389,12 @@ impl ObserverCore {
     /// The names of the step's output blocks' rows, in order.
     #[classattr]
     fn quad_fields() -> Vec<&'static str> {
-        QUADS.to_vec()
+        QUAD_NAMES.to_vec()
     }
 
     #[classattr]
     fn flat_fields() -> Vec<&'static str> {
-        FLATS.to_vec()
+        FLAT_NAMES.to_vec()
     }
 
     #[classattr]
