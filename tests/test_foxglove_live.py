@@ -51,7 +51,8 @@ async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
     from websockets.exceptions import ConnectionClosed
 
     ws = await _connect(port, deadline)
-    out: dict = {"subprotocol": ws.subprotocol, "server_info": None, "channels": {}, "messages": defaultdict(list)}
+    out: dict = {"subprotocol": ws.subprotocol, "server_info": None, "channels": {}, "messages": defaultdict(list),
+                 "status": []}
     subs: dict[int, int] = {}
     async with ws:
         while time.monotonic() < deadline:
@@ -63,14 +64,23 @@ async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
                 op = json.loads(frame)
                 if op["op"] == "serverInfo":
                     out["server_info"] = op
+                elif op["op"] == "status":  # a warning or error from the server (a refused subscription, ...)
+                    out["status"].append(op)
                 elif op["op"] == "advertise":
                     new = []
                     for ch in op["channels"]:
+                        # one subscription per channel: a channel created while the client connects may be
+                        # advertised twice (once a suite run saw no message on soil_strength, the channel created
+                        # first, and every other channel served; not reproduced since: the server's status
+                        # messages are kept below to say why, if it comes back)
+                        if ch["id"] in out["channels"]:
+                            continue
                         out["channels"][ch["id"]] = ch
                         sid = len(subs) + 1
                         subs[sid] = ch["id"]
                         new.append({"id": sid, "channelId": ch["id"]})
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+                    if new:
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
                 continue
             # message data: opcode 0x01, subscription id (u32 LE), log time ns (u64 LE), payload
             opcode, sid, log_time = struct.unpack_from("<BIQ", frame, 0)
@@ -178,7 +188,8 @@ def test_run_foxglove_and_fleet_foxglove_serve_the_zenoh_stream(tmp_path):
         for c in chans.values():
             assert c["encoding"] == "json" and c["schemaEncoding"] == "jsonschema"
             assert json.loads(c["schema"])["type"] == "object" and c["schemaName"].startswith("soilocp.")
-        assert set(got["messages"]) == EXPECTED
+        assert set(got["messages"]) == EXPECTED, ({t: len(v) for t, v in got["messages"].items()}, got["status"],
+                                                  sorted(c["topic"] for c in got["channels"].values()))
         assert all(len(v) >= WANT_PER_CHANNEL for v in got["messages"].values()), \
             {t: len(v) for t, v in got["messages"].items()}
         assert _check_against_zenoh(got, ocp_z, raw_z) >= WANT_PER_CHANNEL // 2
