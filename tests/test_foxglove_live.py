@@ -69,18 +69,14 @@ async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
                 elif op["op"] == "advertise":
                     new = []
                     for ch in op["channels"]:
-                        # one subscription per channel: a channel created while the client connects may be
-                        # advertised twice (once a suite run saw no message on soil_strength, the channel created
-                        # first, and every other channel served; not reproduced since: the server's status
-                        # messages are kept below to say why, if it comes back)
-                        if ch["id"] in out["channels"]:
-                            continue
+                        # every advertise is subscribed, a channel advertised again too (two clean-clone runs saw
+                        # one channel serve nothing while the others served, once with this rule and once with
+                        # one subscription per channel id; the server's status messages are kept below to say why)
                         out["channels"][ch["id"]] = ch
                         sid = len(subs) + 1
                         subs[sid] = ch["id"]
                         new.append({"id": sid, "channelId": ch["id"]})
-                    if new:
-                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
                 continue
             # message data: opcode 0x01, subscription id (u32 LE), log time ns (u64 LE), payload
             opcode, sid, log_time = struct.unpack_from("<BIQ", frame, 0)
