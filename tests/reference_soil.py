@@ -17,13 +17,14 @@ import numpy as np
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import ModelConstants
 from soilocp.model.traction import curve_unchecked
-from soilocp.estimation.soil_config import SoilConfig, SoilState, Status, class_bounds
+from soilocp.estimation.soil_config import SoilConfig, Status
+from soilocp.estimation.soil_state import SoilState, class_bounds
 from soilocp.estimation.wheel_usability import describe
 from soilocp.estimation.soil_grid import LogKGrid as ProductGrid
 # the wheel gate of the paper estimator, which the core's gate must equal
 from soilocp.estimation.soil_strength import _gate
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBlocks
-from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.wheel_usability import SKID_TURN, SLIP_BEYOND_EQ1, STALL, STOPPED_UNPOWERED, UsabilityLimits
 
 UNKNOWN_SPEED = 1.0

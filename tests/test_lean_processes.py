@@ -114,6 +114,50 @@ def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
     assert NUMPY in maps["normal-force"], errs["normal-force"]
 
 
+def test_ocp_publisher_computes_a_record_without_loading_numpy():
+    """The OCP publisher needs the pipeline's settings and eqs. 7-10 of one K, not the physics: running,
+    and after it has turned a soil estimate into an OCP record (so that no lazy import on the step's
+    path is missed), it has loaded no numpy.  Its record equals the library's for that K."""
+    import json
+
+    import zenoh
+
+    from schemas import keys
+    from schemas.pipeline import OcpEstimate, SoilEstimate
+    from services.runtime.settings import zenoh_config
+    from soilocp.model.ocp import ocp_arrays
+
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
+    ocp = None
+    try:
+        _wait_listening(port, router)
+        env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
+        ocp = _start(["service", "ocp"], env)
+        _wait_alive(endpoint, "ocp")
+        soil = SoilEstimate(vehicle_id="rover1", seq=7, stamp=0.07, slip=(0.1,) * 4, informative=(True,) * 4,
+                            soil_strength=120.0, soil_strength_std=6.0, log_k_std=0.05, soil_class="sand",
+                            soil_class_confidence=0.9, status="ok", last_update_stamp=0.07, mu=(0.3,) * 4)
+        got: list[dict] = []
+        with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
+            sub = session.declare_subscriber(keys.ocp("rover1"), lambda smp: got.append(json.loads(smp.payload.to_bytes())))
+            deadline = time.monotonic() + 60
+            while not got and time.monotonic() < deadline:
+                session.put(keys.soil("rover1"), soil.model_dump_json())
+                time.sleep(0.5)
+            sub.undeclare()
+        maps = _mapped(ocp.pid)
+    finally:
+        err = _stop(ocp) if ocp is not None else ""
+        _stop(router)
+    assert got, err
+    rec = OcpEstimate.model_validate(got[0])
+    want = ocp_arrays([120.0])
+    assert (rec.mu_T, rec.S_T, rec.S_E) == (want["mu_T"][0], want["S_T"][0], want["S_E"][0])
+    assert PYDANTIC in maps and NUMPY not in maps, err
+
+
 def test_key_functions_need_no_pydantic():
     """``schemas.keys`` (the router's ACLs, every key of the pipeline) imports no pydantic model:
     the package's models are re-exported lazily, and still importable from ``schemas``."""

@@ -154,7 +154,7 @@ def test_the_blocks_and_the_messages_pack_alike():
 @given(seed=st.integers(0, 2**32 - 1))
 def test_core_soil_classes_equal_the_numpy_classes(seed):
     from reference_soil import classify_many as reference
-    from soilocp.estimation.soil_config import classify_many
+    from soilocp.estimation.soil_state import classify_many
 
     rng = np.random.default_rng(seed)
     log_k = rng.uniform(0.0, 9.5, 300)

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.traction import gross_traction
-from soilocp.estimation.soil_config import SoilConfig, SoilInputs
+from soilocp.estimation.soil_config import SoilConfig
+from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.soil_strength import SoilBank
 from tests.reference_soil import ReferenceSoilBank
 

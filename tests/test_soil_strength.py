@@ -9,7 +9,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from soilocp.model.constants import DEFAULT_CONSTANTS
-from soilocp.estimation.soil_config import SoilConfig, classify
+from soilocp.estimation.soil_config import SoilConfig
+from soilocp.estimation.soil_state import classify
 from soilocp.estimation.soil_strength import BayesSoilEstimator, PaperSoilEstimator
 from soilocp.model.traction import gross_traction, net_traction
 

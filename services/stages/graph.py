@@ -72,7 +72,7 @@ def _soil_stage(pc):
 
 
 def _ocp_stage(pc):
-    from soilocp.estimation.pipeline import OcpStage
+    from soilocp.estimation.ocp_stage import OcpStage  # no numpy: the OCP publisher loads none
 
     return OcpStage(pc)
 

@@ -27,10 +27,11 @@ from schemas.sensor import SensorSample
 from soilocp import _core
 from soilocp.model.checks import check_count
 from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks
-from soilocp.model.ocp import OCP_NAMES, ocp_arrays
+from soilocp.model.ocp import ocp_arrays
+from soilocp.model.ocp_values import OCP_NAMES
 from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
-from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.soil_strength import SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank
 
@@ -73,7 +74,6 @@ class BatchPipeline:
             blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)
             ob, inp = ObserverBlocks(*blocks), SoilInputs(*fields)
             states = self.soil.states(ix, inputs.stamp, inp, report)
-            ocp = dict(zip(OCP_NAMES, ocp))
         else:  # the map's hook runs between the gate and the update, as in SoilStage
             from soilocp.map.prior import start_from_map
 
@@ -84,10 +84,11 @@ class BatchPipeline:
             states = self.soil.update(ix, inputs.stamp, inp, scale_sigma)
             ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in states])
             self.scale.feed_soil(ix, ks, inp.slip)  # the next samples' modelled motion resistance (eq. 4) at this K
-            ocp = ocp_arrays(ks, self.config.constants)
+            arrays = ocp_arrays(ks, self.config.constants)
+            ocp = tuple(arrays[n] for n in OCP_NAMES)
         soils, ocps = [], []
         for j, (sample, st) in enumerate(zip(samples, states)):
             soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
             soils.append(soil)
-            ocps.append(ocp_message(soil, ocp, j))
+            ocps.append(ocp_message(soil, [a[j] for a in ocp]))
         return ob, soils, ocps

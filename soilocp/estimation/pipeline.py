@@ -6,77 +6,31 @@ process (:class:`VehiclePipeline`); the live services run one stage each and pas
 messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
 (:mod:`soilocp.estimation.observer_bank`, :class:`soilocp.estimation.slip_gate.SlipGate`,
 :class:`soilocp.estimation.soil_strength.SoilBank`,
-:func:`soilocp.model.ocp.ocp_arrays`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same
+:class:`soilocp.estimation.ocp_stage.OcpStage`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same
 kernels with N = many.
 """
 
 from __future__ import annotations
 
-import math
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
 
-from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants
-from soilocp.model.files import read_json
-from soilocp.model.normal_force import NormalForceSolver
-from soilocp.estimation.observer import ObserverConfig
+from soilocp.estimation.config import PipelineConfig, load_pipeline_config
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverInputs, observer_message
-from soilocp.map.place import estimate_place
-from soilocp.model.ocp import ocp_arrays
-from soilocp.model.slip import DEFAULT_DEADBAND, DEFAULT_FLOOR
+from soilocp.estimation.ocp_stage import OcpStage, ocp_message
 from soilocp.estimation.slip_gate import SlipGate, pack_message
-from soilocp.estimation.soil_config import SoilConfig, SoilInputs, SoilState
+from soilocp.estimation.soil_state import SoilInputs, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
-from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
-from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams, load_vehicle
+from soilocp.estimation.torque_scale import TorqueScaleBank
+from soilocp.map.place import estimate_place
+from soilocp.model.normal_force import NormalForceSolver
 
-__all__ = ["LIFT_OFF_FORCE", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config"]
-
-
-class PipelineConfig(BaseModel):
-    """Everything the estimation chain needs: vehicle, model constants, observer and soil settings."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    vehicle: VehicleParams = DEFAULT_VEHICLE
-    constants: ModelConstants = DEFAULT_CONSTANTS
-    observer: ObserverConfig = Field(default_factory=ObserverConfig)
-    soil: SoilConfig = Field(default_factory=SoilConfig)
-    torque_scale: TorqueScaleConfig = Field(default_factory=TorqueScaleConfig)
-    slip_deadband: float = Field(DEFAULT_DEADBAND, ge=0, description="m/s below which slip is not informative (eq. 1)")
-    slip_floor: float = Field(DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s")
-
-
-def load_pipeline_config(
-    path: str | Path | None = None,
-    *,
-    vehicle: str | Path | None = None,
-    constants: str | Path | None = None,
-) -> PipelineConfig:
-    """Read a pipeline config (JSON, shape of PipelineConfig; every key optional) and apply
-    separate vehicle / constants files on top.  Errors name the file and the field."""
-    data: dict = {}
-    if path is not None:
-        p = Path(path)
-        data = read_json(p, "config file")
-        if not isinstance(data, dict):
-            raise ValueError(f"config file {str(p)!r} must hold a JSON object")
-    try:
-        cfg = PipelineConfig.model_validate(data)
-    except ValidationError as exc:
-        raise ValueError(f"config {str(path)!r}: {exc}") from exc
-    update = {}
-    if vehicle is not None:
-        update["vehicle"] = load_vehicle(vehicle)
-    if constants is not None:
-        update["constants"] = load_constants(constants)
-    return cfg.model_copy(update=update) if update else cfg
+__all__ = ["LIFT_OFF_FORCE", "OcpStage", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config",
+           "ocp_message"]
 
 
 def _quad(a) -> tuple[float, float, float, float]:
@@ -219,37 +173,6 @@ class SoilStage:
         if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
             msg = msg.model_copy(update={"where": estimate_place(self.cfg.vehicle, obs.position, obs.geo, st.used)})
         return msg
-
-
-def ocp_message(soil: SoilEstimate, ocp: dict, j: int) -> OcpEstimate:
-    """An OcpEstimate from a soil estimate and the j-th entry of :func:`soilocp.model.ocp.ocp_arrays`."""
-    have = soil.soil_strength is not None
-    val = (lambda name: None if not have or math.isnan(ocp[name][j]) else float(ocp[name][j]))
-    return OcpEstimate(
-        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
-        soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
-        soil_class_confidence=soil.soil_class_confidence, status=soil.status, reason=soil.reason, mu=soil.mu,
-        mu_determined=soil.mu_determined, slip=soil.slip,
-        mu_T=val("mu_T"), S_T=val("S_T"), S_E=val("S_E"), te_at_S_E=val("te_at_S_E"),
-        held_for_s=soil.held_for_s, unusable=soil.unusable,
-    )
-
-
-class OcpStage:
-    """mu_T, S_T, S_E from K: eqs. 8, 7 (sign corrected), 10; TE (eq. 9) at S_E (:func:`ocp_arrays`)."""
-
-    def __init__(self, config: PipelineConfig):
-        self.constants: ModelConstants = config.constants
-        self._last: tuple[float | None, dict] | None = None  # (K, its OCPs): K is held between informative samples
-
-    def step(self, soil: SoilEstimate) -> OcpEstimate:
-        """mu_T (eq. 8), S_T (eq. 7, sign corrected, docs/method.md §5), S_E (eq. 10) and TE at S_E
-        (eq. 9) for the estimate's K (scalars; all None when K is None), with the soil estimate's
-        status, reason, slip (4,) and mu (4,) carried over."""
-        k = soil.soil_strength
-        if self._last is None or self._last[0] != k:  # the OCPs are a function of K alone
-            self._last = (k, ocp_arrays(np.array([k if k is not None else np.nan]), self.constants))
-        return ocp_message(soil, self._last[1], 0)
 
 
 class VehiclePipeline:

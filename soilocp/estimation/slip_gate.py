@@ -21,7 +21,7 @@ from schemas.pipeline import ObserverOutput
 from soilocp import _core
 from soilocp.estimation.observer_bank import (BOOL_FLAT_FIELDS, BOOL_QUAD_FIELDS, FLAT_FIELDS, LIFT_OFF_FORCE, QUAD_FIELDS,
                                              ObserverBlocks)
-from soilocp.estimation.soil_config import SoilInputs
+from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.wheel_usability import UsabilityLimits
 
 __all__ = ["GATE_FIELDS", "SlipGate", "pack_message", "pack_output"]

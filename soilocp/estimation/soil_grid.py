@@ -11,7 +11,8 @@ import numpy as np
 
 from soilocp import _core
 from soilocp.model.constants import ModelConstants
-from soilocp.estimation.soil_config import SoilConfig, class_bounds
+from soilocp.estimation.soil_config import SoilConfig
+from soilocp.estimation.soil_state import class_bounds
 
 #: m/s: the speed the terrain-change hazard assumes when a caller gives none (a typical rover's)
 UNKNOWN_SPEED = 1.0

@@ -40,8 +40,8 @@ from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
-from soilocp.estimation.soil_config import (SoilConfig, SoilInputs, SoilState, Status, classify,
-                                            classify_many)
+from soilocp.estimation.soil_config import SoilConfig, Status
+from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
 from soilocp.estimation.soil_grid import UNKNOWN_SPEED, LogKGrid
 from soilocp.estimation.wheel_usability import REASONS, describe
 

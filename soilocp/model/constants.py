@@ -27,6 +27,15 @@ REFERENCE_SOILS: dict[str, float] = {
 }
 
 
+#: g_n, m/s^2: the standard gravity (eq. 20's g, the rest specific force of eqs. 16-19)
+STANDARD_GRAVITY = 9.80665
+#: Below this speed (m/s) slip is reported but flagged as not informative (docs/method.md §6):
+#: quantised encoders and a noisy ground speed make eq. 1 meaningless when both speeds are small.
+DEFAULT_DEADBAND = 0.15
+#: Floor on eq. 1's denominator (m/s), so that standstill gives a finite slip (docs/method.md §10).
+DEFAULT_FLOOR = 0.05
+
+
 class ModelConstants(BaseModel):
     """Improved Brixius constants C1..C6 (eqs. 3-6), the S_E line (eq. 10) and model options."""
 

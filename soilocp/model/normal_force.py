@@ -24,9 +24,8 @@ import numpy as np
 
 from soilocp import _core
 from soilocp.model.checks import as_float_array, positive_scalar
+from soilocp.model.constants import STANDARD_GRAVITY  # noqa: F401 (imported from here too)
 from soilocp.model.vehicle import VehicleParams
-
-STANDARD_GRAVITY = 9.80665
 
 
 def gravity_from_attitude(roll, pitch, g: float = STANDARD_GRAVITY) -> np.ndarray:

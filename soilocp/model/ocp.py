@@ -14,9 +14,7 @@ import numpy as np
 from soilocp import _core
 from soilocp.model.checks import positive, positive_scalar
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
-
-#: the OCP arrays of the core (`ocp_bank`, `ChainCore.step`), in their order
-OCP_NAMES = ("mu_T", "S_T", "S_E", "te_at_S_E")
+from soilocp.model.ocp_values import OCP_NAMES
 
 
 def _bank(k: np.ndarray, constants: ModelConstants) -> tuple[np.ndarray, ...]:

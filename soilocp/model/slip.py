@@ -8,12 +8,7 @@ import numpy as np
 
 from soilocp import _core
 from soilocp.model.checks import as_float_array, positive_scalar
-
-#: Below this speed (m/s) slip is reported but flagged as not informative (docs/method.md §6):
-#: quantised encoders and a noisy ground speed make eq. 1 meaningless when both speeds are small.
-DEFAULT_DEADBAND = 0.15
-#: Floor on eq. 1's denominator (m/s), so that standstill gives a finite slip (docs/method.md §10).
-DEFAULT_FLOOR = 0.05
+from soilocp.model.constants import DEFAULT_DEADBAND, DEFAULT_FLOOR  # noqa: F401 (eq. 1's defaults, used from here)
 
 
 @dataclass(frozen=True)

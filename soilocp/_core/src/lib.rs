@@ -24,6 +24,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::traction::traction_value, m)?)?;
     m.add_function(wrap_pyfunction!(py::traction::tractive_efficiency, m)?)?;
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
+    m.add_function(wrap_pyfunction!(py::ocp::ocp_one, m)?)?;
     // the soil-grid update (issue 28)
     m.add_class::<py::soil::SoilGridBank>()?;
     // the slip gate, eq. 1 and the wheels' usability codes (issue 28)

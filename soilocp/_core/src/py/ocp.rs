@@ -1,4 +1,5 @@
-//! `soilocp._core.ocp_bank`: the OCPs (eqs. 7-10) of a bank of soil strengths in one call.
+//! `soilocp._core.ocp_bank`: the OCPs (eqs. 7-10) of a bank of soil strengths in one call;
+//! `ocp_one`: the same for one K, as Python floats (the OCP publisher loads no numpy).
 
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
@@ -29,4 +30,18 @@ pub fn ocp_bank<'py>(
         s_e.into_pyarray(py),
         te.into_pyarray(py),
     ))
+}
+
+/// (mu_T, S_T, S_E, TE at S_E) of one K, as [`ocp_bank`] gives them for a bank of one (the same
+/// `ocp::ocp`); NaN for NaN (no estimate).  Floats in and out: the OCP publisher's path, which
+/// loads no numpy.  ValueError for a K the model cannot evaluate.
+#[pyfunction]
+pub fn ocp_one(soil_strength: f64, constants: &Constants) -> PyResult<(f64, f64, f64, f64)> {
+    if !ocp::evaluable(soil_strength, constants) {
+        return Err(PyValueError::new_err(format!(
+            "soil_strength = {soil_strength} is not a K the model can evaluate (finite, > 0, C5 / K finite)"
+        )));
+    }
+    let o = ocp::ocp(soil_strength, constants);
+    Ok((o.mu_t, o.s_t, o.s_e, o.te_at_s_e))
 }
