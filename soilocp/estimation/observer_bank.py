@@ -7,8 +7,8 @@ stepped: the readings clock (``readings.rs``: which readings are new, docs/metho
 split and the encoder lead (``wheel_inputs.rs``, §14), the ground-speed latency (``latency.rs``, §13), the
 filter (the model below, predict, the gated update, re-anchoring, conditioning, resets, the divergence guard;
 ``bank.rs``) and the refresh pairs of slow streams (``intervals.rs``, §13), with every vehicle's state of each.
-This module checks the call's inputs, computes numpy's dt**3 and the latency fit's two exponentials (whose
-last bits the core keeps), and returns the core's output blocks with their rows named by the core
+The core keeps the observer's clock (dt, dt^3 and the latency fit's exponentials, by libm).  This module
+checks the call's inputs and returns the core's output blocks with their rows named by the core
 (:class:`ObserverBlocks`), of which :func:`observer_message` makes the ObserverOutput message.  The tests
 check it against filterpy's KalmanFilter and plain numpy references (tests/reference_observer.py), step by
 step.
@@ -220,10 +220,11 @@ class ObserverBank:
             refresh_jerk=cfg.refresh_jerk, refresh_min_interval=cfg.refresh_min_interval,
             refresh_max_interval=cfg.refresh_max_interval, speed_sigma=cfg.r_wheel_speed,
             mu_var_determined=cfg.mu_std_determined**2)
-        self.last_stamp = np.full(n, np.nan)
-        # the ground-speed latency fit's time constants (s): its low-pass and its memory (None: no fit)
-        self._latency_tau = ((ObserverCore.latency_smoothing, cfg.latency_window)
-                             if cfg.ground_speed_latency_max > 0 else None)
+
+    @property
+    def last_stamp(self) -> np.ndarray:
+        """Each vehicle's last stamp (N,), NaN before its first sample: the core's clock (a copy)."""
+        return self._core.last_stamp
 
     @property
     def x(self) -> np.ndarray:
@@ -262,38 +263,11 @@ class ObserverBank:
 
     def run(self, call, ix: np.ndarray | None, inputs: ObserverInputs):
         """``call`` (the core's ``ObserverCore.step``, or a call that steps the observer inside it:
-        ``ChainCore.step``) on the vehicles ``ix`` (:meth:`index`'s; None: all) and their inputs, with the
-        clock's dt**3 and exponentials; then the clock advances.  Returns what ``call`` returns."""
-        st = inputs.stamp
-        last = self.last_stamp if ix is None else self.last_stamp[ix]
-        if type(st) is not np.ndarray or st.dtype != np.float64 or st.shape != last.shape:
-            inputs.check()  # converts what it can, names what it cannot
-            st = inputs.stamp
-            if st.shape != last.shape:
-                raise ValueError(f"inputs hold {st.shape[0]} samples for {last.shape[0]} vehicle indices")
-        # numpy's dt**3 and exponentials, whose last bits (numpy's vector library, not libm) the core keeps
-        dt = st - last  # NaN at a vehicle's first sample (quiet NaN: no FP warning)
-        extra = ()
-        if self._latency_tau is not None:
-            neg = -np.abs(dt)  # -dt where the fit uses it (0 <= dt <= max_gap); no overflow elsewhere
-            smoothing, window = self._latency_tau
-            extra = (np.expm1(neg / smoothing), np.exp(neg / window))
+        ``ChainCore.step``) on the vehicles ``ix`` (:meth:`index`'s; None: all) and their inputs, which the
+        core reads whole (float arrays; anything else is converted, or refused naming the field, by
+        :meth:`ObserverInputs.check`).  Returns what ``call`` returns."""
         try:
-            try:
-                out = call(ix, st, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch, inputs.wheel_speed,
-                           inputs.wheel_torque, inputs.ground_speed, inputs.normal_force, dt**3, *extra)
-            except TypeError:  # not float arrays: converted (or refused, naming the field) by the check, then again
-                inputs.check()
-                out = call(ix, inputs.stamp, inputs.specific_force_x, inputs.yaw_rate, inputs.pitch,
-                           inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force,
-                           dt**3, *extra)
-        except Exception:
-            # a call can raise after the observer stepped (the chain's soil update refusing a sample): the clock
-            # follows the core's, so that the next dt**3 spans one interval, as the core's own dt does
-            self.last_stamp[:] = self._core.last_stamp
-            raise
-        if ix is None:
-            self.last_stamp[:] = st
-        else:
-            self.last_stamp[ix] = st
-        return out
+            return call(ix, inputs)
+        except TypeError:  # not float arrays: converted (or refused, naming the field) by the check, then again
+            inputs.check()
+            return call(ix, inputs)

@@ -59,7 +59,7 @@ pub struct GroundSpeedLatency {
     pub fits: Vec<Fit>,
 }
 
-/// expm1(-dt / SMOOTHING) and exp(-dt / window) by libm, for callers without numpy's (the tests).
+/// expm1(-dt / SMOOTHING) and exp(-dt / window), by libm: the fit's low-pass and memory over a step.
 pub fn exp_terms(dt: f64, window: f64) -> (f64, f64) {
     ((-dt / SMOOTHING).exp_m1(), (-dt / window).exp())
 }
@@ -78,9 +78,7 @@ impl GroundSpeedLatency {
     /// (NaN: none, which neither closes a pair nor enters the fit) and whether it is a new one.
     /// Returns the reading led by the latency, V_read + tau a.
     ///
-    /// `expm1_smoothing` and `exp_window` are expm1(-dt / [`SMOOTHING`]) and exp(-dt / window) as
-    /// the caller computed them (numpy's, whose last bit the port keeps; [`exp_terms`] gives libm's);
-    /// they are not used at a restart.
+    /// `expm1_smoothing` and `exp_window` are [`exp_terms`] of `dt`; they are not used at a restart.
     #[allow(clippy::too_many_arguments)]
     pub fn step(
         &mut self,

@@ -5,7 +5,7 @@
 
 use super::bank::{FilterBank, Sample};
 use super::intervals::{IntervalSettings, Pairs, RefreshIntervals, WheelSample};
-use super::latency::GroundSpeedLatency;
+use super::latency::{exp_terms, GroundSpeedLatency};
 use super::numeric::np_max;
 use super::readings::{ReadingClock, CHANNELS};
 use super::wheel_inputs::{encoder_lead, split_side_torque, wheel_acceleration};
@@ -29,10 +29,7 @@ pub struct Reading {
     pub mu_var_determined: f64,
 }
 
-/// One vehicle's sample as logged.  `dt_cubed`, `expm1_smoothing` and `exp_window` are numpy's
-/// dt**3, expm1(-step / SMOOTHING) and exp(-step / window) of the ground-speed latency fit (step:
-/// dt where 0 <= dt <= max_gap): numpy computes them with its own vector library (SVML on
-/// AVX-512), whose last bit differs from libm's on 2-5 % of arguments (docs/core-observer.md).
+/// One vehicle's sample as logged.
 #[derive(Clone, Copy, Debug)]
 pub struct Raw {
     pub stamp: f64,
@@ -44,9 +41,6 @@ pub struct Raw {
     /// NaN: no independent ground-speed sensor
     pub ground_speed: f64,
     pub normal_force: [f64; 4],
-    pub dt_cubed: f64,
-    pub expm1_smoothing: f64,
-    pub exp_window: f64,
 }
 
 /// The names of an [`Estimate`]'s numbers, per wheel ([`Estimate::quads`]) and per vehicle
@@ -231,21 +225,18 @@ impl ObserverBank {
         if let Some(fit) = self.latency.as_mut() {
             // a late ground speed, led by its measured latency (eq. 29's f_x plus g sin(pitch))
             let acc = r.specific_force_x + g_sin_pitch;
-            let dt_fit = if restart { f64::NAN } else { dt };
-            ground_speed_z = fit.step(
-                g,
-                dt_fit,
-                acc,
-                r.ground_speed,
-                rd.fresh[4],
-                r.expm1_smoothing,
-                r.exp_window,
-            );
+            // the fit's low-pass and memory over this step, by libm (unused at a restart)
+            let (dt_fit, (expm1_smoothing, exp_window)) = if restart {
+                (f64::NAN, (f64::NAN, f64::NAN))
+            } else {
+                (dt, exp_terms(dt, fit.window))
+            };
+            ground_speed_z = fit.step(g, dt_fit, acc, r.ground_speed, rd.fresh[4], expm1_smoothing, exp_window);
             latency = fit.fits[g].latency;
         }
         let sample = Sample {
             dt,
-            dt_cubed: r.dt_cubed,
+            dt_cubed: dt * dt * dt,
             specific_force_x: r.specific_force_x,
             yaw_rate: r.yaw_rate,
             pitch: r.pitch,

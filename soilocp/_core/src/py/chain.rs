@@ -6,11 +6,11 @@
 //! kernels their own calls run, so a stage's calls and the chain's give the same numbers; nothing
 //! crosses the boundary between the stages.
 
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::observer::{blocks, ObserverCore, StepOut};
+use super::observer::{blocks, Inputs, ObserverCore, StepOut};
 use super::soil::{gate_arrays, report_arrays, GateArrays, ReportArrays, SlipGateBank, SoilGridBank};
 use super::torque_scale::TorqueScaleCore;
 use crate::constants::Constants;
@@ -178,7 +178,7 @@ impl ChainCore {
     }
 
     /// One step of the vehicles `idx` (None: all, in order), with the observer's inputs
-    /// (`ObserverCore.step`'s, the logged torques): the torque scale steps on them and the
+    /// (`ObserverCore.step`'s ObserverInputs, the logged torques): the torque scale steps on them and the
     /// observer takes the torques times k's mean; the gate packs the observer's estimates; the soil
     /// update takes the gate's samples with k's relative 1-sigma; K goes back to the scale; the OCPs
     /// of K.  Every input is checked (ValueError naming the field) before any state changes.  An
@@ -186,41 +186,15 @@ impl ChainCore {
     /// sample the soil update refuses raises after the scale and the observer have stepped, and
     /// leaves the gate as it was (the caller re-reads the observer's clock:
     /// `ObserverCore.last_stamp`).
-    #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
-                        normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
-    #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &self,
         py: Python<'py>,
         idx: Option<PyReadonlyArray1<'py, i64>>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        specific_force_x: PyReadonlyArray1<'py, f64>,
-        yaw_rate: PyReadonlyArray1<'py, f64>,
-        pitch: PyReadonlyArray1<'py, f64>,
-        wheel_speed: PyReadonlyArray2<'py, f64>,
-        wheel_torque: PyReadonlyArray2<'py, f64>,
-        ground_speed: PyReadonlyArray1<'py, f64>,
-        normal_force: PyReadonlyArray2<'py, f64>,
-        dt_cubed: PyReadonlyArray1<'py, f64>,
-        expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
-        exp_window: Option<PyReadonlyArray1<'py, f64>>,
+        inputs: Inputs<'py>,
     ) -> PyResult<ChainOut<'py>> {
         // try_: a stage object another thread holds now is a RuntimeError, not a panic
         let mut obs = self.observer.bind(py).try_borrow_mut()?;
-        let (vehicles, raws) = obs.raws(
-            idx.as_ref(),
-            &stamp,
-            &specific_force_x,
-            &yaw_rate,
-            &pitch,
-            &wheel_speed,
-            &wheel_torque,
-            &ground_speed,
-            &normal_force,
-            &dt_cubed,
-            expm1_smoothing.as_ref(),
-            exp_window.as_ref(),
-        )?;
+        let (vehicles, raws) = obs.raws(idx.as_ref(), &inputs)?;
         let mut scale = self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?;
         let mut gate = self.gate.bind(py).try_borrow_mut()?;
         let mut soil = self.soil.bind(py).try_borrow_mut()?;

@@ -11,10 +11,25 @@ use pyo3::prelude::*;
 use super::args;
 use crate::observer::bank::{FilterBank, Settings, RESET_REASONS};
 use crate::observer::intervals::IntervalSettings;
-use crate::observer::latency::SMOOTHING;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+
+/// One step's samples of k vehicles, read by attribute from
+/// soilocp.estimation.observer_bank.ObserverInputs: (k,) stamp, specific force x, yaw rate, pitch,
+/// ground speed (NaN: none); (k, 4) wheel speeds, wheel torques (as logged) and normal forces.
+/// The observer's clock (dt, dt^3, the latency fit's exponentials) is the core's own.
+#[derive(FromPyObject)]
+pub(crate) struct Inputs<'py> {
+    stamp: PyReadonlyArray1<'py, f64>,
+    specific_force_x: PyReadonlyArray1<'py, f64>,
+    yaw_rate: PyReadonlyArray1<'py, f64>,
+    pitch: PyReadonlyArray1<'py, f64>,
+    wheel_speed: PyReadonlyArray2<'py, f64>,
+    wheel_torque: PyReadonlyArray2<'py, f64>,
+    ground_speed: PyReadonlyArray1<'py, f64>,
+    normal_force: PyReadonlyArray2<'py, f64>,
+}
 
 #[pyclass(module = "soilocp._core")]
 pub struct ObserverCore {
@@ -92,32 +107,16 @@ impl ObserverCore {
 
     /// A step's vehicles (`idx`, None: all in order; distinct, in range) and their samples, every
     /// input checked (shape, finite; ValueError naming the field) before any vehicle's state changes.
-    #[allow(clippy::too_many_arguments)]
     pub(crate) fn raws(
         &self,
         idx: Option<&PyReadonlyArray1<'_, i64>>,
-        stamp: &PyReadonlyArray1<'_, f64>,
-        specific_force_x: &PyReadonlyArray1<'_, f64>,
-        yaw_rate: &PyReadonlyArray1<'_, f64>,
-        pitch: &PyReadonlyArray1<'_, f64>,
-        wheel_speed: &PyReadonlyArray2<'_, f64>,
-        wheel_torque: &PyReadonlyArray2<'_, f64>,
-        ground_speed: &PyReadonlyArray1<'_, f64>,
-        normal_force: &PyReadonlyArray2<'_, f64>,
-        dt_cubed: &PyReadonlyArray1<'_, f64>,
-        expm1_smoothing: Option<&PyReadonlyArray1<'_, f64>>,
-        exp_window: Option<&PyReadonlyArray1<'_, f64>>,
+        inputs: &Inputs<'_>,
     ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
         let n_veh = self.inner.filter.n_vehicles;
-        let stamp = stamp.as_array();
+        let stamp = inputs.stamp.as_array();
         let k = stamp.len();
         let idx_view = idx.map(|a| a.as_array());
         let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
-        if k != m {
-            return Err(PyValueError::new_err(format!(
-                "inputs hold {k} samples for {m} vehicle indices"
-            )));
-        }
         let mut vehicles = Vec::with_capacity(k);
         if let Some(ix) = &idx_view {
             let mut seen = vec![false; n_veh];
@@ -133,37 +132,30 @@ impl ObserverCore {
         } else {
             vehicles.extend(0..n_veh);
         }
-        let (fx, yaw, pitch, gs, dt3) = (
-            specific_force_x.as_array(),
-            yaw_rate.as_array(),
-            pitch.as_array(),
-            ground_speed.as_array(),
-            dt_cubed.as_array(),
+        let (fx, yaw, pitch, gs) = (
+            inputs.specific_force_x.as_array(),
+            inputs.yaw_rate.as_array(),
+            inputs.pitch.as_array(),
+            inputs.ground_speed.as_array(),
         );
         args::check_finite_column("stamp", &stamp, k, false)?;
         args::check_finite_column("specific_force_x", &fx, k, false)?;
         args::check_finite_column("yaw_rate", &yaw, k, false)?;
         args::check_finite_column("pitch", &pitch, k, false)?;
         args::check_finite_column("ground_speed", &gs, k, true)?;
-        let (ws, tq, fz) = (wheel_speed.as_array(), wheel_torque.as_array(), normal_force.as_array());
+        let (ws, tq, fz) = (
+            inputs.wheel_speed.as_array(),
+            inputs.wheel_torque.as_array(),
+            inputs.normal_force.as_array(),
+        );
         args::check_finite_quads("wheel_speed", &ws, k)?;
         args::check_finite_quads("wheel_torque", &tq, k)?;
         args::check_finite_quads("normal_force", &fz, k)?;
-        args::check_len("dt_cubed", dt3.len(), k)?;
-        let e1 = expm1_smoothing.map(|a| a.as_array());
-        let e2 = exp_window.map(|a| a.as_array());
-        if self.inner.latency.is_some() {
-            match (&e1, &e2) {
-                (Some(a), Some(b)) => {
-                    args::check_len("expm1_smoothing", a.len(), k)?;
-                    args::check_len("exp_window", b.len(), k)?;
-                }
-                _ => {
-                    return Err(PyValueError::new_err(
-                        "expm1_smoothing and exp_window are needed: the ground-speed latency fit is on",
-                    ))
-                }
-            }
+        // after the fields, which are checked against the stamp's length: a field of another length is named
+        if k != m {
+            return Err(PyValueError::new_err(format!(
+                "inputs hold {k} samples for {m} vehicle indices"
+            )));
         }
         let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
         let raws = (0..k)
@@ -176,9 +168,6 @@ impl ObserverCore {
                 wheel_torque: row4(&tq, j),
                 ground_speed: gs[j],
                 normal_force: row4(&fz, j),
-                dt_cubed: dt3[j],
-                expm1_smoothing: e1.as_ref().map_or(f64::NAN, |a| a[j]),
-                exp_window: e2.as_ref().map_or(f64::NAN, |a| a[j]),
             })
             .collect();
         Ok((vehicles, raws))
@@ -289,47 +278,18 @@ impl ObserverCore {
     }
 
     /// One observer step of the vehicles `idx` (k,; each at most once; None: all N, in order), in
-    /// one call.  The samples: (k,) stamp, specific force x, yaw rate, pitch, ground speed (NaN:
-    /// none); (k, 4) wheel speeds, wheel torques (as logged) and normal forces; (k,) numpy's dt**3
-    /// and, with the latency fit on, expm1(-|dt| / latency_smoothing) and exp(-|dt| /
-    /// latency_window), dt the stamp less the vehicle's last (NaN at its first).
+    /// one call, on their samples `inputs` ([`Inputs`]: ObserverInputs).
     /// Returns the blocks (17, k, 4) and (4, k) of floats, (2, k, 4) and (2, k) of bools (named by
     /// quad_fields, flat_fields, bool_quad_fields, bool_flat_fields), the (k,) rejected rows and
     /// the (k,) reset codes (0: none, else reset_reasons[code - 1]).  Every input is checked (shape,
     /// finite; ValueError naming the field) before any vehicle's state changes.
-    #[pyo3(signature = (idx, stamp, specific_force_x, yaw_rate, pitch, wheel_speed, wheel_torque, ground_speed,
-                        normal_force, dt_cubed, expm1_smoothing=None, exp_window=None))]
-    #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
         idx: Option<PyReadonlyArray1<'py, i64>>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        specific_force_x: PyReadonlyArray1<'py, f64>,
-        yaw_rate: PyReadonlyArray1<'py, f64>,
-        pitch: PyReadonlyArray1<'py, f64>,
-        wheel_speed: PyReadonlyArray2<'py, f64>,
-        wheel_torque: PyReadonlyArray2<'py, f64>,
-        ground_speed: PyReadonlyArray1<'py, f64>,
-        normal_force: PyReadonlyArray2<'py, f64>,
-        dt_cubed: PyReadonlyArray1<'py, f64>,
-        expm1_smoothing: Option<PyReadonlyArray1<'py, f64>>,
-        exp_window: Option<PyReadonlyArray1<'py, f64>>,
+        inputs: Inputs<'py>,
     ) -> PyResult<StepOut<'py>> {
-        let (vehicles, raws) = self.raws(
-            idx.as_ref(),
-            &stamp,
-            &specific_force_x,
-            &yaw_rate,
-            &pitch,
-            &wheel_speed,
-            &wheel_torque,
-            &ground_speed,
-            &normal_force,
-            &dt_cubed,
-            expm1_smoothing.as_ref(),
-            exp_window.as_ref(),
-        )?;
+        let (vehicles, raws) = self.raws(idx.as_ref(), &inputs)?;
         let out: Vec<Estimate> = vehicles
             .iter()
             .zip(&raws)
@@ -405,12 +365,6 @@ impl ObserverCore {
     #[classattr]
     fn bool_flat_fields() -> Vec<&'static str> {
         BOOL_FLATS.to_vec()
-    }
-
-    /// s: the low-pass of the accelerometer in the ground-speed latency fit.
-    #[classattr]
-    fn latency_smoothing() -> f64 {
-        SMOOTHING
     }
 
     /// N: below this normal force a wheel is lifted off (its force is clamped to it).

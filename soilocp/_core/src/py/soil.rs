@@ -432,7 +432,7 @@ fn check_finite(samples: &[Sample]) -> PyResult<()> {
     Ok(())
 }
 
-/// A step's inputs, read by attribute from soilocp.estimation.soil_config.SoilInputs (its fields, as
+/// A step's inputs, read by attribute from soilocp.estimation.soil_state.SoilInputs (its fields, as
 /// float64 / bool arrays: SoilInputs.arrays): (k, 4) per wheel, (k,) per vehicle, span (k, 4) and
 /// slip_ends (k, 4, 2) or None.  Its `unusable` codes come apart, counted first by the caller.
 #[derive(FromPyObject)]
