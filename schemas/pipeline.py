@@ -102,6 +102,11 @@ class ObserverOutput(_Message):
         default=(False,) * 4, description="Per wheel: one of its speed and torque streams refreshes slowly and the other is "
         "read at every sample, so K learns at the refreshes only, not from the observer's prediction between them"
     )
+    speed_rejected: BoolQuad = Field(
+        default=(False,) * 4, description="Per wheel: a new speed reading that the innovation gate rejected (and that "
+        "did not re-anchor the wheel): the filtered speed, and the slip from it, are the prediction, not the "
+        "measurement; such a wheel informs no K (docs/method.md §18)"
+    )
     torque_scale: float = Field(
         default=1.0, gt=0, description="The common torque scale (motor constant x 1 / mass) the logged torques were "
         "multiplied by before this step: learnt online from the force balance (soilocp.estimation.torque_scale)"

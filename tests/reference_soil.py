@@ -658,8 +658,10 @@ class ReferenceSlipGate:
             observed = np.where(refresh, d1 * ob.interval_gross, observed)
             unusable = np.where(refresh & ((np.abs(s0) > 1.0) | (np.abs(s1) > 1.0)), SLIP_BEYOND_EQ1, unusable)
             var = np.where(refresh, ob.interval_gross_var * self._shared, var)
+        # a wheel whose new speed reading the observer's gate rejected has a predicted slip (docs/method.md §18);
+        # a refresh pair, made from the readings, keeps its say
         informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
-                       & (unusable == 0))
+                       & (unusable == 0) & (~ob.speed_rejected | refresh))
         # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma

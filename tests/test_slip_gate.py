@@ -56,6 +56,7 @@ def _output(rng: np.random.Generator, k: int) -> ObserverBlocks:
         interval_gross_var=quad(1e-6, 0.3), interval_rim_start=quad(-3.0, 3.0), interval_rim_end=quad(-3.0, 3.0),
         interval_ground_start=quad(-3.0, 3.0), interval_ground_end=quad(-3.0, 3.0),
         interval_rim_sigma=quad(0.0, 0.05), interval_learning=rng.random((k, 4)) < 0.3,
+        speed_rejected=rng.random((k, 4)) < 0.2,
     ), np.zeros(k, dtype=int), [""] * k)
 
 
@@ -118,14 +119,41 @@ def test_core_gate_equals_the_numpy_gate_step_by_step_on_a_drive(variant):
 def test_packed_rows_follow_the_core_layout():
     from soilocp import _core
 
-    assert len(GATE_FIELDS) == 22 and _core.SlipGateBank.columns == 17 * 4 + 5
+    assert len(GATE_FIELDS) == 23 and _core.SlipGateBank.columns == 18 * 4 + 5
     gate = SlipGate(PipelineConfig(), 2)
     with pytest.raises(ValueError, match="rows"):
-        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, 72)))
+        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, 76)))
     with pytest.raises(ValueError, match="twice"):
-        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 73)))
+        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 77)))
     with pytest.raises(ValueError, match="out of range"):
-        gate.step(np.array([2]), np.zeros(1), np.zeros((1, 73)))
+        gate.step(np.array([2]), np.zeros(1), np.zeros((1, 77)))
+
+
+def test_a_rejected_wheel_speed_informs_no_k():
+    """docs/method.md §18: a wheel whose new speed reading the observer's gate rejected has a predicted slip; it
+    is not informative, the same wheel without the flag is."""
+    cfg = PipelineConfig()
+    r = cfg.vehicle.wheel_radius
+
+    def informative(rejected):
+        ob = _blocks(dict(
+            mu=np.full((1, 4), 0.5), mu_var=np.full((1, 4), 1e-3), mu_determined=np.ones((1, 4), bool),
+            resistance=np.full((1, 4), 0.05), gross=np.full((1, 4), 0.55), gross_var=np.full((1, 4), 1e-3),
+            wheel_speed=np.full((1, 4), 1.0 / (0.8 * r)), ground_speed=np.array([1.0]), yaw_rate=np.zeros(1),
+            reset=np.zeros(1, bool), normal_force=np.full((1, 4), 150.0), speed_age=np.zeros((1, 4)),
+            torque_age=np.zeros((1, 4)), ground_speed_age=np.zeros(1), ground_speed_measured=np.ones(1, bool),
+            ground_speed_latency=np.zeros(1), interval=np.zeros((1, 4)), interval_gross=np.zeros((1, 4)),
+            interval_gross_var=np.zeros((1, 4)), interval_rim_start=np.zeros((1, 4)), interval_rim_end=np.zeros((1, 4)),
+            interval_ground_start=np.zeros((1, 4)), interval_ground_end=np.zeros((1, 4)),
+            interval_rim_sigma=np.zeros((1, 4)), interval_learning=np.zeros((1, 4), bool),
+            speed_rejected=np.array([rejected]),
+        ), [int(sum(rejected))], [""])
+        out = SlipGate(cfg, 1).step(np.zeros(1, dtype=int), np.zeros(1), ob)
+        np.testing.assert_allclose(out.slip[0], 0.2, rtol=1e-12)
+        return out.informative[0].tolist()
+
+    assert informative([False] * 4) == [True] * 4
+    assert informative([False, True, True, False]) == [True, False, False, True]
 
 
 def test_the_blocks_and_the_messages_pack_alike():
@@ -142,7 +170,7 @@ def test_the_blocks_and_the_messages_pack_alike():
             rng.uniform(3.0, 5.0, (k, 4)), rng.uniform(0.0, 8.0, (k, 4)),
             np.where(rng.random(k) < 0.3, np.nan, rng.uniform(0.5, 0.8, k)), np.full((k, 4), 150.0)))
         rows = pack_output(out)
-        assert rows.shape == (k, 73) and rows.dtype == np.float64 and rows.flags.c_contiguous
+        assert rows.shape == (k, 77) and rows.dtype == np.float64 and rows.flags.c_contiguous
         for j in range(k):
             msg = observer_message("v", n, 1.0 + 0.01 * n, out, j)
             assert list(rows[j]) == list(pack_message(msg)), (n, j)

@@ -77,6 +77,9 @@ pub struct Step {
     pub gross: [f64; 4],
     pub gross_var: [f64; 4],
     pub rejected: i64,
+    /// per wheel: a new speed reading that the innovation gate rejected (Huber-weighted) and that did
+    /// not re-anchor the wheel: its filtered speed is then the prediction, not the measurement
+    pub speed_rejected: [bool; 4],
     /// 0: no reset, else RESET_REASONS[code - 1]
     pub reset: u8,
 }
@@ -165,7 +168,8 @@ impl FilterBank {
     /// correlations none; so does a repeated reading the state has left by more than
     /// anchor_speed / 3 in rim speed.  Below anchor_speed (rim and ground) the wheel equation is
     /// stiff and the traction state poorly known: the encoder is the speed's one measurement.
-    fn anchor(&mut self, g: usize, z: &[f64; N_MEAS], keep: &[bool; N_MEAS], available: &[bool; N_MEAS]) {
+    /// Returns the wheels it re-anchored.
+    fn anchor(&mut self, g: usize, z: &[f64; N_MEAS], keep: &[bool; N_MEAS], available: &[bool; N_MEAS]) -> [bool; 4] {
         let (l, n) = (self.layout, self.layout.n());
         let (radius, speed, r) = (
             self.vehicle.wheel_radius,
@@ -194,6 +198,7 @@ impl FilterBank {
                 self.anchored += 1;
             }
         }
+        wheels
     }
 
     /// One step of vehicle `g` (see the module doc).
@@ -263,9 +268,12 @@ impl FilterBank {
                 &mut self.ws,
             );
             out.rejected = (0..N_MEAS).filter(|&i| available[i] && !gated.keep[i]).count() as i64;
-            if st.anchor_speed > 0.0 {
-                self.anchor(g, &z, &gated.keep, &available);
-            }
+            let anchored = if st.anchor_speed > 0.0 {
+                self.anchor(g, &z, &gated.keep, &available)
+            } else {
+                [false; 4]
+            };
+            out.speed_rejected = std::array::from_fn(|w| available[2 + w] && !gated.keep[2 + w] && !anchored[w]);
             let st = &self.settings;
             let x = &mut self.x[g * n..(g + 1) * n];
             let p = &mut self.p[g * n * n..(g + 1) * n * n];

@@ -79,6 +79,8 @@ pub struct Estimate {
     pub ground_speed: f64,
     pub yaw_rate: f64,
     pub rejected: i64,
+    /// per wheel: its new speed reading was rejected by the innovation gate (bank::Step::speed_rejected)
+    pub speed_rejected: [bool; 4],
     /// 0: no reset, else bank::RESET_REASONS[code - 1]
     pub reset: u8,
     /// clamped to the lift-off force
@@ -287,6 +289,7 @@ impl ObserverBank {
             ground_speed: x[l.v()],
             yaw_rate: x[l.psi()],
             rejected: f.rejected,
+            speed_rejected: f.speed_rejected,
             reset: f.reset,
             normal_force: fz,
             age: rd.age,

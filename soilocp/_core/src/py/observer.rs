@@ -43,7 +43,7 @@ fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
 
 /// The names of the step's bool blocks, in their order (the ObserverOutput message's fields; the
 /// float blocks' are the Estimate's, QUAD_NAMES and FLAT_NAMES).
-const BOOL_QUADS: [&str; 2] = ["mu_determined", "interval_learning"];
+const BOOL_QUADS: [&str; 3] = ["mu_determined", "interval_learning", "speed_rejected"];
 const BOOL_FLATS: [&str; 2] = ["reset", "ground_speed_measured"];
 
 pub(crate) type StepOut<'py> = (
@@ -83,6 +83,7 @@ pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
         for w in 0..4 {
             bquads[[0, j, w]] = o.mu_determined[w];
             bquads[[1, j, w]] = p.active[w];
+            bquads[[2, j, w]] = o.speed_rejected[w];
         }
         bflats[[0, j]] = o.reset > 0;
         bflats[[1, j]] = o.ground_speed_measured;

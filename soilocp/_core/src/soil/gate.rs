@@ -33,7 +33,9 @@ pub mod quad {
     pub const INTERVAL_RIM_SIGMA: usize = 15;
     /// bool (0 / 1)
     pub const INTERVAL_LEARNING: usize = 16;
-    pub const COUNT: usize = 17;
+    /// bool (0 / 1)
+    pub const SPEED_REJECTED: usize = 17;
+    pub const COUNT: usize = 18;
 }
 
 /// The per-vehicle fields of a packed row, one column each after the quads.
@@ -68,6 +70,7 @@ pub const QUAD_NAMES: [&str; quad::COUNT] = [
     "interval_ground_end",
     "interval_rim_sigma",
     "interval_learning",
+    "speed_rejected",
 ];
 
 /// The names of the per-vehicle fields, in [`scalar`]'s order (soilocp.estimation.slip_gate.GATE_SCALARS).
@@ -106,6 +109,7 @@ pub fn row_of(e: &Estimate) -> [f64; COLUMNS] {
         (quad::INTERVAL_GROUND_END, p.ground_end),
         (quad::INTERVAL_RIM_SIGMA, p.rim_sigma),
         (quad::INTERVAL_LEARNING, p.active.map(flag)),
+        (quad::SPEED_REJECTED, e.speed_rejected.map(flag)),
     ];
     let mut row = [0.0; COLUMNS];
     for (f, q) in quads {
@@ -293,8 +297,17 @@ impl SlipGateBank {
                 }
             }
         }
+        // a wheel whose new speed reading the observer's innovation gate rejected has a predicted slip, not
+        // a measured one (docs/method.md §18): at a torque step the prediction leads the reading and the
+        // traction state lags the slip (slip 0.56 for 0.19, gross 0.50 for 0.96), and one such pair decided a
+        // change of soil after a hold.  A refresh pair is made from the readings and keeps its say
+        let rejected = flag(quad::SPEED_REJECTED);
         let informative: [bool; 4] = std::array::from_fn(|w| {
-            scale[w] >= cfg.slip_deadband && normal_force[w] > cfg.lift_off_force && !reset && unusable[w] == 0
+            scale[w] >= cfg.slip_deadband
+                && normal_force[w] > cfg.lift_off_force
+                && !reset
+                && unusable[w] == 0
+                && (!rejected[w] || (any_refresh && refresh[w]))
         });
         // slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (§6, §9); a refresh
         // interval's mean rim speed is known only to interval_rim_sigma
@@ -397,6 +410,7 @@ mod tests {
         };
         e.pairs.active = [true, false, false, true];
         e.pairs.rim_sigma = [0.5; 4];
+        e.speed_rejected = [false, true, false, false];
         let row = row_of(&e);
         let at = |f: usize| &row[4 * f..4 * f + 4];
         assert_eq!(at(quad::MU), &e.mu);
@@ -405,6 +419,7 @@ mod tests {
         assert_eq!(at(quad::TORQUE_AGE), &[6.0, 7.0, 8.0, 9.0]);
         assert_eq!(at(quad::INTERVAL_RIM_SIGMA), &[0.5; 4]);
         assert_eq!(at(quad::INTERVAL_LEARNING), &[1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(at(quad::SPEED_REJECTED), &[0.0, 1.0, 0.0, 0.0]);
         assert_eq!(row[scalar::GROUND_SPEED], 1.5);
         assert_eq!(row[scalar::RESET], 1.0);
         assert_eq!(row[scalar::GROUND_SPEED_AGE], 5.0);
@@ -432,6 +447,7 @@ mod tests {
             (INTERVAL_GROUND_END, "interval_ground_end"),
             (INTERVAL_RIM_SIGMA, "interval_rim_sigma"),
             (INTERVAL_LEARNING, "interval_learning"),
+            (SPEED_REJECTED, "speed_rejected"),
         ];
         assert_eq!(quads.len(), COUNT);
         for (i, name) in quads {
