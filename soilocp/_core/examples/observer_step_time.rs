@@ -5,7 +5,6 @@
 //! `cargo run --release --example observer_step_time [STEPS]`.
 use _core::observer::bank::{FilterBank, Sample, Settings};
 use _core::observer::intervals::IntervalSettings;
-use _core::observer::latency::exp_terms;
 use _core::observer::layout::Layout;
 use _core::observer::model::ROVER;
 use _core::observer::vehicles::{ObserverBank, Raw, Reading};
@@ -88,7 +87,6 @@ fn main() {
         speed_sigma: 0.03,
     };
     let mut whole = ObserverBank::new(FilterBank::new(l, v, s, 1).unwrap(), reading, refresh);
-    let (e1, e2) = exp_terms(0.01, 30.0);
     let mut raw = Raw {
         stamp: 0.0,
         specific_force_x: 0.1,
@@ -98,9 +96,6 @@ fn main() {
         wheel_torque: [3.0; 4],
         ground_speed: 0.7,
         normal_force: [150.0; 4],
-        dt_cubed: 1e-6,
-        expm1_smoothing: e1,
-        exp_window: e2,
     };
     let t = std::time::Instant::now();
     for i in 0..steps {
