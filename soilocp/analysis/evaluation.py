@@ -81,9 +81,12 @@ def _segments(stamps: np.ndarray, k_true: np.ndarray) -> list[tuple[int, int]]:
 
 
 def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = TARGETS["settle_s"],
-                     reason_names: str = "") -> list[SegmentResult]:
+                     reason_names: str = "", judged_from: float = 0.0) -> list[SegmentResult]:
     """Join truth and estimates on (vehicle_id, seq) and score each terrain segment.  With
-    ``reason_names``, also count the flagged settled records whose reason names it."""
+    ``reason_names``, also count the flagged settled records whose reason names it.  K's median and p90
+    and the OCP errors judge the settled samples from the truth stamp ``judged_from`` on (a drive whose
+    first seconds cannot give K: :attr:`soilocp.sim.variants.Variant.judged_from`); coverage, the band,
+    the class and the confidently wrong records judge every settled sample."""
     est_by_key = {(e["vehicle_id"], e["seq"]): e for e in estimates}
     rows = [(t, est_by_key.get((t["vehicle_id"], t["seq"]))) for t in truth]
     if not rows:
@@ -101,6 +104,7 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         rel = np.abs(k_est - kt) / kt
         ts = stamps[i0:i1]
         settled = ts >= t0 + settle
+        judged = settled & (ts >= judged_from)
         rel_settled = rel[settled]
         n_settled = int(settled.sum())
         have = np.isfinite(rel_settled)
@@ -116,7 +120,7 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
             # order statistics, not interpolation: inf - inf would give nan
             return float(v[(len(v) - 1) // 2]), float(v[min(int(np.ceil(0.9 * len(v))) - 1, len(v) - 1)])
 
-        kmed, kp90 = med_p(rel_settled)
+        kmed, kp90 = med_p(rel[judged]) if judged.any() else (None, None)
         # convergence: first time after which the estimate stays inside the band to segment end,
         # where the end is the last sample with every wheel on this soil: the front wheels reach
         # the next soil b/V s before the CoM, and an estimate that follows them is fast, not wrong
@@ -133,7 +137,7 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
 
         def ocp_err(name):
             vals = []
-            for (t, e), ok in zip(seg, settled):
+            for (t, e), ok in zip(seg, judged):
                 if not ok:
                     continue
                 if e is None or e.get(name) is None:

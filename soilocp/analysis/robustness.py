@@ -80,7 +80,8 @@ def run_variant(name: str, seed: int = 0, duration: Optional[float] = None,
     pairs = variant.simulate(seed, duration=duration, nominal=cfg.vehicle, constants=cfg.constants)
     if variant.robot:  # the robot's own vehicle file (a skid steer): the estimator knows it
         cfg = cfg.model_copy(update={"vehicle": variant.known_vehicle(cfg.vehicle)})
-    n, rate, segs, summary = estimate_and_score(pairs, cfg, ROBUSTNESS_TARGETS["settle_s"], variant.reason_names)
+    n, rate, segs, summary = estimate_and_score(pairs, cfg, ROBUSTNESS_TARGETS["settle_s"], variant.reason_names,
+                                                variant.judged_from)
     return VariantRun(name, seed, n, rate, segs, dict(summary.statuses), len(summary.rejected))
 
 

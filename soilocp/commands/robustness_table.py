@@ -63,9 +63,12 @@ def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out
             click.echo(md(_cells(r, SHOWN_STATUSES)))
     else:
         Console(width=260).print(table)
-    described = {v.name: v.description for v in list_variants()}
+    variants = {v.name: v for v in list_variants()}
     for r in rows:
-        click.echo(f"  {r['variant']}: {described[r['variant']]}")
+        v = variants[r["variant"]]
+        judged = (f"; K and the OCPs judged from {v.judged_from:g} s, once the first swing has accelerated and braked "
+                  "(ok>30% and the band from the settle on)") if v.judged_from > 0 else ""
+        click.echo(f"  {r['variant']}: {v.description}{judged}")
     click.echo(
         f"targets: identifiable: K med <= {t['k_median_rel']:.0%}, p90 <= {t['k_p90_rel']:.0%}, within "
         f"+-{t['convergence_band']:.0%} in < {t['convergence_s']:g} s after a change, 2-std coverage >= "

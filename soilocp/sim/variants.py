@@ -240,6 +240,14 @@ class Variant:
     def rng(self, seed: int) -> np.random.Generator:
         return np.random.default_rng([int(seed), zlib.crc32(self.name.encode())])
 
+    @property
+    def judged_from(self) -> float:
+        """s into the drive from which K and the OCPs are judged (the targets' median, p90 and OCP errors):
+        the end of the first speed swing on a drive that accelerates and brakes (its slip, <= 0.02, gives no
+        K, and the torque scale is learnt once both signs were seen: issue 27's "converges to the right K
+        once it has accelerated"); 0 otherwise.  The ok>30% count and the band judge every settled record."""
+        return self.controller.speed_swing_period if self.controller.speed_swing > 0 else 0.0
+
     def known_vehicle(self, nominal: VehicleParams = DEFAULT_VEHICLE) -> VehicleParams:
         """The vehicle the estimator is configured with: the nominal one with ``robot``'s updates."""
         return nominal.model_copy(update=dict(self.robot)) if self.robot else nominal
