@@ -152,3 +152,19 @@ def test_an_ok_record_is_judged_against_the_nearest_soil_under_its_wheels():
     for rec in truth:  # without per-wheel truth: the soil under the CoM, both count
         rec.pop("wheel_soil_strength", None)
     assert evaluate_records(truth, est)[0].confident_wrong == 2
+
+
+def test_judged_from_moves_k_and_ocp_scores_but_not_the_ok_count_or_the_band():
+    """A drive whose first seconds cannot give K (the accelerate/brake rows' opening swing): K's median,
+    p90 and the OCP errors judge from ``judged_from`` on; an ``ok`` record 40 % off before it still counts."""
+    truth = [_truth(i, 100.0, float(i)) for i in range(10)]
+    est = ([_est(i, None, None, status="no_estimate") for i in range(2, 4)] + [_est(4, 140.0, 10.0)]
+           + [_est(i, 101.0, 5.0) for i in range(5, 10)])
+    (whole,) = evaluate_records(truth, est)
+    (late,) = evaluate_records(truth, est, judged_from=5.0)
+    assert whole.k_p90_rel is None and whole.k_median_rel == pytest.approx(0.01)  # 2 misses of 8: p90 is one
+    assert late.k_p90_rel == pytest.approx(0.01) and late.k_median_rel == pytest.approx(0.01)
+    assert whole.confident_wrong == late.confident_wrong == 1
+    assert (whole.band_samples, whole.coverage) == (late.band_samples, late.coverage) == (6, 0.75)
+    assert "judged from 4 s" in CliRunner().invoke(
+        main, ["accuracy", "--robustness", "--variant", "reverse-braking", "--duration", "6", "--jobs", "1"]).output
