@@ -136,6 +136,17 @@ def _top_step(sc: dict[str, Any]) -> Optional[dict[str, Any]]:
     return good[-1] if good else next((s for s in sc["steps"] if "result" in s), None)
 
 
+def cpu_per_sample_us(procs: dict[str, Any], rate_hz: float = 1000.0) -> Optional[float]:
+    """CPU µs per sample of the pipeline's processes (router + stages; not the bench nor the echo), from a
+    one-vehicle row's CPU %: what the graph costs per sample, whatever the machine's load does to latency."""
+    from services.bench.compare import NOT_PIPELINE
+
+    vals = [p.get("cpu_percent") for n, p in procs.items() if n not in NOT_PIPELINE]
+    if not vals or any(v is None for v in vals):
+        return None
+    return sum(vals) / 100.0 / rate_hz * 1e6
+
+
 def _cpu(procs: Optional[dict[str, Any]]) -> str:
     if not procs:
         return "-"
@@ -154,8 +165,8 @@ def render_floor(report: dict[str, Any], console) -> None:
     for pipe in report["pipelines"]:
         t = Table(title=f"floor of the live rows, {pipe} pipeline: real services vs relays (messages: parse + "
                         "serialise, no math; zenoh: bytes forwarded), ms", title_justify="left")
-        cols = ["variant", "100 Hz p50", "p99", "ping p99", "1 kHz p50", "p99", "drops", "vehicles passing",
-                "no drop", "ladder p99 at that count"]
+        cols = ["variant", "100 Hz p50", "p99", "ping p99", "1 kHz p50", "p99", "drops", "CPU µs/sample",
+                "vehicles passing", "no drop", "ladder p99 at that count"]
         if pipe == "standard":
             cols += ["control p50", "control p99"]
         for c in cols:
@@ -167,7 +178,8 @@ def render_floor(report: dict[str, Any], console) -> None:
             sc = report["scale"][pipe][v]
             top = _top_step(sc)
             cells = [v, _f(ra.get("p50")), _f(ra.get("p99")), _f(a["baseline"]["p99"]) if a else "-",
-                     _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")), str(sc["max_vehicles"]),
+                     _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")),
+                     _f(cpu_per_sample_us(b["processes"]) if b else None, ".0f"), str(sc["max_vehicles"]),
                      str(sc["max_vehicles_no_drop"]),
                      f"{_f(top['result']['p99'])} ({top['vehicles']})" if top and "result" in top else "-"]
             if pipe == "standard":
@@ -175,7 +187,8 @@ def render_floor(report: dict[str, Any], console) -> None:
                 cells += ["-", "-"] if "error" in cl or not cl else [_f(cl["p50"]), _f(cl["p99"])]
             t.add_row(*cells)
         console.print(t)
-        t = Table(title=f"CPU % of one core per process, {pipe} pipeline (1 kHz: % x 10 = µs per sample)",
+        t = Table(title=f"CPU % of one core per process, {pipe} pipeline (1 kHz: % x 10 = µs per sample; "
+                        "CPU µs/sample above: their sum over router and stages)",
                   title_justify="left")
         for c in ("variant", "row", "CPU % per process"):
             t.add_column(c, no_wrap=c != "CPU % per process")
