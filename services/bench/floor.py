@@ -11,9 +11,9 @@ statistics and ladder, on rigs of the same process graph and keys:
 * ``zenoh``: every stage a relay at the zenoh level (payload bytes forwarded by the worker).
 
 So ``zenoh`` is the floor of processes + hops + scheduling on this machine, ``messages - zenoh`` what
-the message handling adds and ``real - messages`` what the estimation adds.  A full run is ~3x the
-live part of ``soilocp bench`` (~15-25 min on 2 cores), hence an option of its own rather than part
-of the bench.  ``python -m services.bench.floor`` is the same command.
+the message handling adds and ``real - messages`` what the estimation adds.  A full run is three
+times the bench's live part (~14 min on 2 cores, twice the whole bench), hence an option of its own
+rather than part of the bench or of its ``--quick``.  ``python -m services.bench.floor`` is the same command.
 """
 
 from __future__ import annotations

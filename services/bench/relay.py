@@ -62,8 +62,11 @@ def record_templates(samples: Sequence[Any]) -> dict[str, str]:
         oc = pipe.ocp.step(so)
         for name, out in zip(RECORDED, (nf, ob, so, oc)):
             outs[name].append(out.model_dump_json())
-    # the first second is the observer warming up: its messages are not the steady state's
-    return {name: sorted(v[len(v) // 5:] or v, key=len)[len(v[len(v) // 5:] or v) // 2] for name, v in outs.items()}
+    picked = {}
+    for name, texts in outs.items():
+        steady = texts[len(texts) // 5:] or texts  # the start is the observer warming up, not the steady state
+        picked[name] = sorted(steady, key=len)[len(steady) // 2]
+    return picked
 
 
 def _health_plain(self, vehicle_id: str) -> dict[str, Any]:
