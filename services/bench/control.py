@@ -27,12 +27,13 @@ def control_rig(vehicle_ids: list[str]) -> Rig:
 
 
 def control_loop_latency(payloads: list[tuple[int, bytes]], rate: float, duration: float,
-                         warmup_s: float = 0.5, drain_s: float = 3.0) -> dict[str, Any]:
-    """Publish ``(seq, payload)`` at ``rate`` Hz for vehicle ``bench`` and time the set-points (ms)."""
+                         warmup_s: float = 0.5, drain_s: float = 3.0, make_rig=control_rig) -> dict[str, Any]:
+    """Publish ``(seq, payload)`` at ``rate`` Hz for vehicle ``bench`` and time the set-points (ms)
+    through ``make_rig([vid])`` (the pipeline and the controller; :mod:`services.bench.floor`'s relays)."""
     import zenoh
 
     vid = "bench"
-    rig = control_rig([vid])
+    rig = make_rig([vid])
     sent: dict[int, float] = {}
     got: dict[int, float] = {}
     lock = threading.Lock()

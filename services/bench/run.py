@@ -42,6 +42,22 @@ TARGETS = {"chain_cpu_us": 100.0, "replay_x": 100.0, "p50_ms_100hz": 1.5, "p99_m
 LADDER = (1, 2, 5, 10, 20, 50, 100, 200)
 
 
+def _standard_rig(vehicle_ids):
+    from services.bench.live import Rig
+
+    return Rig.standard(vehicle_ids)
+
+
+def _batched_rig(vehicle_ids):
+    from services.bench.live import Rig
+
+    return Rig.batched(vehicle_ids)
+
+
+#: The rig of each live pipeline: ``make_rig(vehicle_ids) -> Rig``
+RIGS = {"standard": _standard_rig, "batched": _batched_rig}
+
+
 def machine_info() -> dict[str, Any]:
     model = "?"
     try:
@@ -79,10 +95,24 @@ def batch_available() -> bool:
     return True
 
 
+def live_durations(quick: bool) -> tuple[float, float, float]:
+    """Seconds of the live rows: one vehicle at 100 Hz, at 1 kHz, and each step of the ladder."""
+    return (2.0, 1.0, 1.5) if quick else (20.0, 10.0, 8.0)
+
+
+def live_drives(quick: bool, log=print):
+    """The simulated drives the live rows publish: 100 Hz (long enough for any row) and 1 kHz."""
+    from services.bench.stages import simulate_drive
+
+    d_100, d_1k, d_scale = live_durations(quick)
+    s100 = simulate_drive("bench", max(d_100, d_scale) + 1.0)
+    log(f"bench: simulating {d_1k + 1:.1f} s at 1 kHz")
+    return s100, simulate_drive("bench", d_1k + 1.0, rate=1000.0)
+
+
 def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
               log=print) -> dict[str, Any]:
     """Run every part and return the report (a JSON-able dict)."""
-    from services.bench.live import CpuWindow, Rig, drive, open_client, ping_pong
     from services.bench.stages import batch_costs, cpu_share, replay_rate, simulate_drive, stage_costs
 
     t_start = time.monotonic()
@@ -90,8 +120,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         pipelines = ["standard", "batched"] if batch_available() else ["standard"]
     ladder = list(ladder or ((1, 2) if quick else LADDER))
     d_stage = 3.0 if quick else 30.0
-    d_100, d_1k = (2.0, 1.0) if quick else (20.0, 10.0)
-    d_scale = 1.5 if quick else 8.0
+    d_100, d_1k, d_scale = live_durations(quick)
     report: dict[str, Any] = {"quick": quick, "machine": machine_info(), "targets": TARGETS,
                               "command": "soilocp bench" + (" --quick" if quick else "")}
 
@@ -105,30 +134,13 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         counts = (1, 10) if quick else (1, 10, 50, 200)
         report["batch_stages"] = batch_costs(drive_samples, counts, steps=100 if quick else 300)
 
-    # drives for the live parts
-    n_live = max(d_100, d_scale) + 1.0
-    s100 = simulate_drive("bench", n_live)
-    log(f"bench: simulating {d_1k + 1:.1f} s at 1 kHz")
-    s1k = simulate_drive("bench", d_1k + 1.0, rate=1000.0)
+    s100, s1k = live_drives(quick, log)
     p100, p1k = _payloads(s100), _payloads(s1k)
 
     # 2 + 4. latency of one vehicle, with the ping-pong baseline, per pipeline
     report["latency"] = []
     for pipe in pipelines:
-        rig = (Rig.batched if pipe == "batched" else Rig.standard)(["lat100", "lat1k"])
-        log(f"bench: latency, {pipe} pipeline")
-        try:
-            rig.start()
-            with open_client(rig.endpoint) as session:
-                rig.wait_ready(session, 90.0)
-                for rate, dur, vid, pl in ((100.0, d_100, "lat100", p100), (1000.0, d_1k, "lat1k", p1k)):
-                    base = ping_pong(session, rate, min(dur, 1.0 if quick else 5.0))
-                    win = CpuWindow(rig.pids())
-                    res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
-                    report["latency"].append({"pipeline": pipe, "rate_hz": rate, "vehicles": 1, "result": res,
-                                              "baseline": base, "processes": win.finish()})
-        finally:
-            rig.stop()
+        report["latency"] += measure_latency(RIGS[pipe], pipe, p100, p1k, d_100, d_1k, quick, log)
 
     # 5. control loop: sample -> slip set-point (pipeline + controller service), 100 Hz
     from services.bench.control import control_loop_latency
@@ -140,44 +152,74 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         report["control_loop"] = {"error": str(exc)}
 
     # 3 + 4. scale: vehicles x 100 Hz until the first failure
-    report["scale"] = {}
-    for pipe in pipelines:
-        steps = []
-        best = 0  # most vehicles with p99 < 10 ms and no drop (the target's criterion)
-        sustained = 0  # most vehicles carried without a drop, whatever the latency (throughput)
-        for n in ladder:
-            vids = [f"v{i:03d}" for i in range(n)]
-            rig = (Rig.batched if pipe == "batched" else Rig.standard)(vids)
-            log(f"bench: scale, {pipe} pipeline, {n} vehicle(s) x 100 Hz")
-            try:
-                rig.start()
-                with open_client(rig.endpoint) as session:
-                    rig.wait_ready(session, 120.0)
-                    base = ping_pong(session, 100.0 * n, 1.0 if quick else 3.0)
-                    win = CpuWindow(rig.pids())
-                    res = drive(session, {v: _clone(p100, "bench", v) for v in vids}, 100.0, d_scale)
-                    procs = win.finish()
-            except RuntimeError as exc:
-                steps.append({"vehicles": n, "ok": False, "error": str(exc)})
-                break
-            finally:
-                rig.stop()
-            carried = (res["drops"] == 0 and res["rejections"] == 0
-                       and res["offered_per_s"] >= 0.95 * res["target_per_s"])
-            ok = carried and res["p99"] < TARGETS["scale_p99_ms"]
-            steps.append({"vehicles": n, "ok": ok, "carried": carried, "result": res, "baseline": base,
-                          "processes": procs})
-            if ok and best == sustained:
-                best = n
-            if not carried:
-                break  # on a shared machine the p99 can fail at any count: step on while nothing is lost
-            sustained = n
-        report["scale"][pipe] = {"steps": steps, "max_vehicles": best, "max_vehicles_no_drop": sustained}
+    report["scale"] = {pipe: measure_scale(RIGS[pipe], pipe, p100, ladder, d_scale, quick, log) for pipe in pipelines}
     report["machine"]["load_end"] = list(os.getloadavg())
     report["machine"]["cpu_share_end"] = cpu_share()["share"]
     report["elapsed_s"] = time.monotonic() - t_start
     report["verdict"] = verdict(report)
     return report
+
+
+def measure_latency(make_rig, label: str, p100, p1k, d_100: float, d_1k: float, quick: bool, log=print
+                    ) -> list[dict[str, Any]]:
+    """One vehicle at 100 Hz then 1 kHz through one rig (``make_rig(vehicle_ids)``), each after its
+    ping-pong baseline on the same router; rows of the report's ``latency``."""
+    from services.bench.live import CpuWindow, drive, open_client, ping_pong
+
+    rows = []
+    rig = make_rig(["lat100", "lat1k"])
+    log(f"bench: latency, {label} pipeline")
+    try:
+        rig.start()
+        with open_client(rig.endpoint) as session:
+            rig.wait_ready(session, 90.0)
+            for rate, dur, vid, pl in ((100.0, d_100, "lat100", p100), (1000.0, d_1k, "lat1k", p1k)):
+                base = ping_pong(session, rate, min(dur, 1.0 if quick else 5.0))
+                win = CpuWindow(rig.pids())
+                res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
+                rows.append({"pipeline": label, "rate_hz": rate, "vehicles": 1, "result": res, "baseline": base,
+                             "processes": win.finish()})
+    finally:
+        rig.stop()
+    return rows
+
+
+def measure_scale(make_rig, label: str, p100, ladder, d_scale: float, quick: bool, log=print) -> dict[str, Any]:
+    """Vehicles x 100 Hz through fresh rigs, up the ``ladder`` until a count is not carried; the
+    report's ``scale[label]``."""
+    from services.bench.live import CpuWindow, drive, open_client, ping_pong
+
+    steps = []
+    best = 0  # most vehicles with p99 < 10 ms and no drop (the target's criterion)
+    sustained = 0  # most vehicles carried without a drop, whatever the latency (throughput)
+    for n in ladder:
+        vids = [f"v{i:03d}" for i in range(n)]
+        rig = make_rig(vids)
+        log(f"bench: scale, {label} pipeline, {n} vehicle(s) x 100 Hz")
+        try:
+            rig.start()
+            with open_client(rig.endpoint) as session:
+                rig.wait_ready(session, 120.0)
+                base = ping_pong(session, 100.0 * n, 1.0 if quick else 3.0)
+                win = CpuWindow(rig.pids())
+                res = drive(session, {v: _clone(p100, "bench", v) for v in vids}, 100.0, d_scale)
+                procs = win.finish()
+        except RuntimeError as exc:
+            steps.append({"vehicles": n, "ok": False, "error": str(exc)})
+            break
+        finally:
+            rig.stop()
+        carried = (res["drops"] == 0 and res["rejections"] == 0
+                   and res["offered_per_s"] >= 0.95 * res["target_per_s"])
+        ok = carried and res["p99"] < TARGETS["scale_p99_ms"]
+        steps.append({"vehicles": n, "ok": ok, "carried": carried, "result": res, "baseline": base,
+                      "processes": procs})
+        if ok and best == sustained:
+            best = n
+        if not carried:
+            break  # on a shared machine the p99 can fail at any count: step on while nothing is lost
+        sustained = n
+    return {"steps": steps, "max_vehicles": best, "max_vehicles_no_drop": sustained}
 
 
 def verdict(report: dict[str, Any]) -> dict[str, Any]:
@@ -312,10 +354,24 @@ def render(report: dict[str, Any], console) -> None:
               help="Do not run: render this saved report (with --compare, compare it to the baseline).")
 @click.option("--map", "map_row", is_flag=True,
               help="Only the fleet soil map's row: updates/s one map service sustains, query p99 of a 1 km² box.")
+@click.option("--floor", "floor", is_flag=True,
+              help="Only the live rows, each for the real pipeline and for its relays without the math (messages) "
+                   "and without the messages (zenoh): the floor of this architecture (services/bench/floor.py).")
 def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int],
-          compare_to: Optional[str], saved: Optional[str], map_row: bool = False) -> None:
+          compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
+
+    if floor:  # the live rows next to their relay pipelines (services/bench/floor.py)
+        from services.bench.floor import floor_command, render_floor
+
+        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        if saved:
+            render_floor(json.loads(Path(saved).read_text()), console)
+            return
+        ladder = None if max_vehicles is None else [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
+        floor_command(quick, json_out, list(pipelines), ladder, None, console)
+        return
 
     if map_row:  # the map's own section (services/bench/map.py)
         from services.bench.map import render_map, run_map_bench

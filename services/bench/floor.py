@@ -1,0 +1,242 @@
+"""``soilocp bench --floor``: the floor of the live rows, measured in one run next to the real pipeline.
+
+The live rows of ``soilocp bench`` (one vehicle at 100 Hz and 1 kHz, the control loop, the
+vehicles x 100 Hz ladder) are measured three times, with the same code (``measure_latency``,
+``control_loop_latency``, ``measure_scale`` of :mod:`services.bench.run`), the same rates, drives,
+statistics and ladder, on rigs of the same process graph and keys:
+
+* ``real``: the deployed services (``Rig.standard`` / ``Rig.batched`` / ``control_rig``);
+* ``messages``: every stage a relay of :mod:`services.bench.relay` at the messages level (the
+  services' message handling: parse, join, store, serialise a real-sized output; no estimation);
+* ``zenoh``: every stage a relay at the zenoh level (payload bytes forwarded by the worker).
+
+So ``zenoh`` is the floor of processes + hops + scheduling on this machine, ``messages - zenoh`` what
+the message handling adds and ``real - messages`` what the estimation adds.  A full run is three
+times the bench's live part (~14 min on 2 cores, twice the whole bench), hence an option of its own
+rather than part of the bench or of its ``--quick``.  ``python -m services.bench.floor`` is the same command.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import click
+
+from services.bench.run import (LADDER, RIGS, TARGETS, _clone, _f, _payloads, json_safe, live_drives, live_durations,
+                                machine_info, measure_latency, measure_scale)
+
+VARIANTS = ("real", "messages", "zenoh")
+PIPELINE_ROWS = {"standard": None, "batched": ("gateway", "batch")}  # None: every row of the graph
+
+
+def relay_rig(pipeline: str, level: str, templates: Path, controller: bool = False):
+    """``make_rig(vehicle_ids)`` of the relay pipeline: the graph of ``pipeline`` (+ the controller),
+    every process ``python -m services.bench.relay NAME --level LEVEL``."""
+    from services.bench.live import Rig
+    from services.stages.graph import PIPELINE_SERVICES
+
+    names = list(PIPELINE_ROWS[pipeline] or PIPELINE_SERVICES) + (["controller"] if controller else [])
+
+    def make_rig(vehicle_ids):
+        return Rig(list(vehicle_ids), [(n, "services.bench.relay", [n, "--level", level, "--templates", str(templates)])
+                                       for n in names])
+
+    return make_rig
+
+
+def _rig(pipeline: str, variant: str, templates: Path):
+    return RIGS[pipeline] if variant == "real" else relay_rig(pipeline, variant, templates)
+
+
+def _control_rig(variant: str, templates: Path):
+    from services.bench.control import control_rig
+
+    return control_rig if variant == "real" else relay_rig("standard", variant, templates, controller=True)
+
+
+def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
+              variants: Optional[list[str]] = None, log=print) -> dict[str, Any]:
+    """Every live row for every pipeline and variant; the report (a JSON-able dict)."""
+    from services.bench.control import control_loop_latency
+    from services.bench.relay import record_templates
+    from services.bench.stages import cpu_share
+
+    t_start = time.monotonic()
+    pipelines = list(pipelines or ["standard", "batched"])
+    variants = list(variants or VARIANTS)
+    ladder = list(ladder or ((1, 2) if quick else LADDER))
+    d_100, d_1k, d_scale = live_durations(quick)
+    report: dict[str, Any] = {"kind": "floor", "quick": quick, "machine": machine_info(), "targets": TARGETS,
+                              "pipelines": pipelines, "variants": variants,
+                              "command": "soilocp bench --floor" + (" --quick" if quick else "")}
+    report["machine"]["cpu_share_start"] = cpu_share()["share"]
+    s100, s1k = live_drives(quick, log)
+    p100, p1k = _payloads(s100), _payloads(s1k)
+    work = Path(tempfile.mkdtemp(prefix="soilocp-floor-"))
+    templates = work / "templates.json"
+    recorded = record_templates(s100)
+    templates.write_text(json.dumps(recorded))
+    report["message_bytes"] = {"raw sample": len(p100[len(p100) // 2][1]),
+                               **{name: len(text) for name, text in recorded.items()}}
+
+    # variants one after the other within each row, so that they see the same machine
+    report["latency"] = []
+    for pipe in pipelines:
+        for v in variants:
+            for row in measure_latency(_rig(pipe, v, templates), f"{pipe}/{v}", p100, p1k, d_100, d_1k, quick, log):
+                report["latency"].append({**row, "pipeline": pipe, "variant": v})
+    report["control_loop"] = {}
+    for v in variants:
+        log(f"bench: control loop latency, {v}")
+        try:
+            report["control_loop"][v] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100,
+                                                             make_rig=_control_rig(v, templates))
+        except RuntimeError as exc:
+            report["control_loop"][v] = {"error": str(exc)}
+    report["scale"] = {pipe: {v: measure_scale(_rig(pipe, v, templates), f"{pipe}/{v}", p100, ladder, d_scale, quick,
+                                               log) for v in variants} for pipe in pipelines}
+    report["machine"]["load_end"] = list(os.getloadavg())
+    report["machine"]["cpu_share_end"] = cpu_share()["share"]
+    report["elapsed_s"] = time.monotonic() - t_start
+    report["targets_met"] = targets_met(report)
+    return report
+
+
+def targets_met(report: dict[str, Any]) -> dict[str, dict[str, bool]]:
+    """Per pipeline and variant: which of the live targets of issue 28 the run meets."""
+    out: dict[str, dict[str, bool]] = {}
+    for row in report["latency"]:
+        r, key = row["result"], f"{row['pipeline']}/{row['variant']}"
+        met = out.setdefault(key, {})
+        if row["rate_hz"] == 100.0:
+            met["p99_100hz"] = r["p99"] <= TARGETS["p99_ms_100hz"]
+        else:
+            met["1khz"] = r["drops"] == 0 and r["rejections"] == 0 and r["p99"] <= TARGETS["p99_ms_1khz"]
+    for pipe, by_variant in report["scale"].items():
+        need = 20 if pipe == "standard" else TARGETS["vehicles_100hz"]  # issue 28: >= 20 / >= 100
+        for v, sc in by_variant.items():
+            out.setdefault(f"{pipe}/{v}", {})["vehicles"] = sc["max_vehicles"] >= need
+    for v, cl in report.get("control_loop", {}).items():
+        out.setdefault(f"standard/{v}", {})["control_p99"] = "error" not in cl and cl["p99"] <= TARGETS["p99_ms_100hz"]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# output
+# ----------------------------------------------------------------------------------------------
+def _top_step(sc: dict[str, Any]) -> Optional[dict[str, Any]]:
+    """The ladder's largest count measured without a drop (else its first step)."""
+    good = [s for s in sc["steps"] if s.get("carried")]
+    return good[-1] if good else next((s for s in sc["steps"] if "result" in s), None)
+
+
+def cpu_per_sample_us(procs: dict[str, Any], rate_hz: float = 1000.0) -> Optional[float]:
+    """CPU µs per sample of the pipeline's processes (router + stages; not the bench nor the echo), from a
+    one-vehicle row's CPU %: what the graph costs per sample, whatever the machine's load does to latency."""
+    from services.bench.compare import NOT_PIPELINE
+
+    vals = [p.get("cpu_percent") for n, p in procs.items() if n not in NOT_PIPELINE]
+    if not vals or any(v is None for v in vals):
+        return None
+    return sum(vals) / 100.0 / rate_hz * 1e6
+
+
+def _cpu(procs: Optional[dict[str, Any]]) -> str:
+    if not procs:
+        return "-"
+    return " ".join(f"{n}={_f(p.get('cpu_percent'), '.0f')}" for n, p in procs.items() if n != "echo")
+
+
+def render_floor(report: dict[str, Any], console) -> None:
+    from rich.table import Table
+
+    m = report["machine"]
+    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} "
+                  f"-> {_f(m.get('load_end', [float('nan')])[0])}; a busy thread got {_f(m.get('cpu_share_start'))} "
+                  f"of a core at the start, {_f(m.get('cpu_share_end'))} at the end")
+    console.print("message sizes, bytes: " + ", ".join(f"{k} {v}" for k, v in report.get("message_bytes", {}).items()))
+    lat = {(r["pipeline"], r["variant"], r["rate_hz"]): r for r in report["latency"]}
+    for pipe in report["pipelines"]:
+        t = Table(title=f"floor of the live rows, {pipe} pipeline: real services vs relays (messages: parse + "
+                        "serialise, no math; zenoh: bytes forwarded), ms", title_justify="left")
+        cols = ["variant", "100 Hz p50", "p99", "ping p99", "1 kHz p50", "p99", "drops", "CPU µs/sample",
+                "vehicles passing", "no drop", "ladder p99 at that count"]
+        if pipe == "standard":
+            cols += ["control p50", "control p99"]
+        for c in cols:
+            t.add_column(c, justify="left" if c == "variant" else "right", no_wrap=True)
+        for v in report["variants"]:
+            a, b = lat.get((pipe, v, 100.0)), lat.get((pipe, v, 1000.0))
+            ra = a["result"] if a else {}
+            rb = b["result"] if b else {}
+            sc = report["scale"][pipe][v]
+            top = _top_step(sc)
+            cells = [v, _f(ra.get("p50")), _f(ra.get("p99")), _f(a["baseline"]["p99"]) if a else "-",
+                     _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")),
+                     _f(cpu_per_sample_us(b["processes"]) if b else None, ".0f"), str(sc["max_vehicles"]),
+                     str(sc["max_vehicles_no_drop"]),
+                     f"{_f(top['result']['p99'])} ({top['vehicles']})" if top and "result" in top else "-"]
+            if pipe == "standard":
+                cl = report["control_loop"].get(v, {})
+                cells += ["-", "-"] if "error" in cl or not cl else [_f(cl["p50"]), _f(cl["p99"])]
+            t.add_row(*cells)
+        console.print(t)
+        t = Table(title=f"CPU % of one core per process, {pipe} pipeline (1 kHz: % x 10 = µs per sample; "
+                        "CPU µs/sample above: their sum over router and stages)",
+                  title_justify="left")
+        for c in ("variant", "row", "CPU % per process"):
+            t.add_column(c, no_wrap=c != "CPU % per process")
+        for v in report["variants"]:
+            for rate in (100.0, 1000.0):
+                row = lat.get((pipe, v, rate))
+                t.add_row(v, f"1 vehicle, {rate:.0f} Hz", _cpu(row and row["processes"]))
+            top = _top_step(report["scale"][pipe][v])
+            if top and "result" in top:
+                t.add_row(v, f"{top['vehicles']} vehicles x 100 Hz", _cpu(top["processes"]))
+        console.print(t)
+    tm = report.get("targets_met", {})
+    console.print("targets (issue 28) met: " + "; ".join(
+        f"{k}: " + ", ".join(f"{n}={'yes' if ok else 'NO'}" for n, ok in met.items()) for k, met in tm.items()))
+    console.print(f"floor run took {_f(report.get('elapsed_s'), '.0f')} s")
+
+
+def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], ladder: Optional[list[int]],
+                  variants: Optional[list[str]], console) -> dict[str, Any]:
+    """``soilocp bench --floor``: run, print the tables, write the JSON."""
+    report = run_floor(quick, pipelines or None, ladder, variants, log=lambda msg: console.print(msg, style="dim"))
+    render_floor(report, console)
+    if json_out:
+        Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
+        console.print(f"report written to {json_out}")
+    return report
+
+
+@click.command("floor")
+@click.option("--quick", is_flag=True, help="Short rows, ladder 1-2 vehicles.")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the report as JSON here.")
+@click.option("--pipeline", "pipelines", multiple=True, type=click.Choice(["standard", "batched"]))
+@click.option("--variant", "variants", multiple=True, type=click.Choice(VARIANTS))
+@click.option("--max-vehicles", type=int, help="Stop the ladder at this many vehicles.")
+@click.option("--report", "saved", type=click.Path(dir_okay=False, exists=True), help="Render a saved report.")
+def floor_cmd(quick, json_out, pipelines, variants, max_vehicles, saved) -> None:
+    """The floor of the live rows: the real pipeline next to its relays (no math; no messages)."""
+    from rich.console import Console
+
+    console = Console(width=200) if not sys.stdout.isatty() else Console()
+    if saved:
+        render_floor(json.loads(Path(saved).read_text()), console)
+        return
+    ladder = None
+    if max_vehicles is not None:
+        ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
+    floor_command(quick, json_out, list(pipelines), ladder, list(variants) or None, console)
+
+
+if __name__ == "__main__":
+    floor_cmd(prog_name="python -m services.bench.floor")

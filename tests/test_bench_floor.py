@@ -1,0 +1,82 @@
+"""``soilocp bench --floor``: the relay pipelines (services/bench/relay.py) carry every sample through the
+real process graph and keys, and the report has its rows.  Real processes on an ephemeral loopback
+port (the bench's Rig: explicit endpoints, no multicast scouting); no assertion on the timings."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from services.bench.relay import LEVELS, RECORDED, RelayStep, record_templates, relay_class
+from services.bench.stages import simulate_drive
+from services.stages.graph import BY_NAME, PIPELINE_SERVICES
+from services.stages.registry import SPECIAL, stage_service
+from services.stages.stage_service import StageService
+
+GRAPH_PROCS = {"standard": {"router", *PIPELINE_SERVICES}, "batched": {"router", "gateway", "batch"}}
+
+
+@pytest.fixture(scope="module")
+def templates():
+    return record_templates(simulate_drive("bench", 2.0))
+
+
+def test_recorded_outputs_are_real_messages(templates):
+    assert set(templates) == set(RECORDED)
+    for name, text in templates.items():
+        BY_NAME[name].output_model.model_validate_json(text)  # a valid message of the row's output model
+
+
+def test_relay_step_takes_vehicle_seq_and_stamp_from_its_input(templates):
+    sample = simulate_drive("v7", 0.5)[-1]
+    out = RelayStep(BY_NAME["ocp"].output_model.model_validate_json(templates["ocp"])).step(sample)
+    assert (out.vehicle_id, out.seq, out.stamp) == ("v7", sample.seq, sample.stamp)
+    assert len(out.model_dump_json()) == pytest.approx(len(templates["ocp"]), abs=20)
+
+
+def test_relays_are_the_real_services_without_physics(templates):
+    for level in LEVELS:
+        for name in PIPELINE_SERVICES:
+            cls = relay_class(name, level, templates)
+            real = SPECIAL.get(name)  # the row's own class, or the generic one made for its spec
+            assert issubclass(cls, real) if real else cls.__mro__[1].spec is BY_NAME[name]
+            assert issubclass(cls, StageService) and cls.name == name  # same tokens, keys, health
+            assert cls.spec.stage is None and cls.spec.output is BY_NAME[name].output
+    assert relay_class("gateway", "messages", templates) is stage_service("gateway")
+    with pytest.raises(ValueError, match="--templates"):
+        relay_class("observer", "messages", None)
+    with pytest.raises(ValueError, match="level"):
+        relay_class("observer", "bytes", templates)
+
+
+@pytest.mark.timeout(600)
+def test_quick_floor_carries_every_sample(tmp_path):
+    out = tmp_path / "floor.json"
+    r = subprocess.run([sys.executable, "-m", "services.bench.floor", "--quick", "--max-vehicles", "1",
+                        "--variant", "messages", "--variant", "zenoh", "--json", str(out)],
+                       capture_output=True, text=True, timeout=580, cwd=tmp_path)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "floor of the live rows, standard pipeline" in r.stdout and "batched pipeline" in r.stdout
+    rep = json.loads(out.read_text())
+    assert rep["kind"] == "floor" and rep["variants"] == ["messages", "zenoh"]
+    assert {"raw sample", *RECORDED} <= set(rep["message_bytes"])
+    rows = {(row["pipeline"], row["variant"], row["rate_hz"]): row for row in rep["latency"]}
+    assert set(rows) == {(p, v, rate) for p in ("standard", "batched") for v in ("messages", "zenoh")
+                         for rate in (100.0, 1000.0)}
+    for (pipe, _v, _rate), row in rows.items():
+        res = row["result"]
+        assert res["sent"] > 0 and res["received"] == res["sent"] and res["drops"] == 0, row
+        assert res["rejections"] == 0
+        assert GRAPH_PROCS[pipe] <= set(row["processes"])
+    for v, cl in rep["control_loop"].items():
+        assert "error" not in cl, (v, cl)
+        assert cl["sent"] > 0 and cl["drops"] == 0, (v, cl)
+    for pipe, by_variant in rep["scale"].items():
+        for v, sc in by_variant.items():
+            (step,) = sc["steps"]
+            assert step["vehicles"] == 1 and step["result"]["drops"] == 0, (pipe, v, step)
+            assert GRAPH_PROCS[pipe] <= set(step["processes"])
+    assert set(rep["targets_met"]) == {f"{p}/{v}" for p in ("standard", "batched") for v in ("messages", "zenoh")}
