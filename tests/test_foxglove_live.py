@@ -69,9 +69,9 @@ async def _watch(port: int, deadline: float, on_first_sensors=None) -> dict:
                 elif op["op"] == "advertise":
                     new = []
                     for ch in op["channels"]:
-                        # every advertise is subscribed, a channel advertised again too (two clean-clone runs saw
-                        # one channel serve nothing while the others served, once with this rule and once with
-                        # one subscription per channel id; the server's status messages are kept below to say why)
+                        # every advertise is subscribed, a channel advertised again too, as Foxglove does: the
+                        # fleet server advertises a channel again when foxglove-sdk refused its subscription
+                        # (test_a_subscription_refused_by_the_sdk_...); the status messages say which were
                         out["channels"][ch["id"]] = ch
                         sid = len(subs) + 1
                         subs[sid] = ch["id"]
@@ -211,3 +211,87 @@ def test_a_taken_port_or_a_bad_address_is_a_clear_error_before_anything_starts(t
             r = subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=60)
             assert r.returncode == 2 and says in r.stderr + r.stdout, r.stderr + r.stdout
     assert not (tmp_path / "run" / "router.log").exists()  # nothing was started
+
+
+def _sensor_sample(seq: int) -> bytes:
+    return json.dumps({"vehicle_id": VID, "seq": seq, "stamp": float(seq), "specific_force": [0, 0, 9.81], "roll": 0,
+                       "pitch": 0, "yaw_rate": 0, "wheel_speed": [0] * 4, "wheel_torque": [0] * 4,
+                       "ground_speed": 0}).encode()
+
+
+def test_a_subscription_refused_by_the_sdk_gets_the_channel_advertised_again_then_served():
+    """foxglove-sdk sends a new channel's advertise before it records the channel for that client, so
+    a client that answers fast enough (a loaded machine) has its subscribe refused as "Unknown channel
+    ID" and is never told of the channel again. The fleet server (channels made as vehicles appear)
+    sees the refusal in the SDK's log and advertises that channel afresh. The SDK's own refusal is real
+    here (an id the client was never told); the refusal of one of our channels, which needs the race,
+    is the same log record."""
+    import io
+    import logging
+
+    from websockets.sync.client import connect
+
+    from services.io.foxglove_live import FoxgloveLive, _RefusedSubscriptions
+    from services.runtime.log import JsonLog
+
+    log = io.StringIO()
+    live = FoxgloveLive("127.0.0.1", 0, (), log=JsonLog("foxglove", stream=log))
+    try:
+        live._worker.start()  # as attach() does, without a Zenoh session: samples are offered directly
+        with connect(live.url, subprotocols=[SUBPROTOCOL], max_size=None) as ws:
+
+            def next_op(op: str) -> dict:
+                while True:
+                    frame = ws.recv(timeout=30)
+                    if isinstance(frame, str) and json.loads(frame)["op"] == op:
+                        return json.loads(frame)
+
+            next_op("serverInfo")
+            # the SDK logs a refusal before it answers the client, so the id is known once the status is in
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": 999_999}]}))
+            assert "Unknown channel ID: 999999" in next_op("status")["message"]
+            assert 999_999 in live._refused.ids
+
+            live._worker.offer(("sensors", keys.raw(VID), _sensor_sample(0)))  # a vehicle appears
+            (first,) = next_op("advertise")["channels"]
+            assert first["topic"] == f"/soilocp/{VID}/sensors"
+            # the client's subscribe to it lost the race: refused, as the SDK logs it
+            logging.getLogger(_RefusedSubscriptions.LOGGER).error(
+                "Client 127.0.0.1:1 attempted to subscribe to unknown channel: %d", first["id"])
+
+            live._worker.offer(("sensors", keys.raw(VID), _sensor_sample(1)))
+            assert next_op("unadvertise")["channelIds"] == [first["id"]]
+            (again,) = next_op("advertise")["channels"]
+            assert again["topic"] == first["topic"] and again["id"] != first["id"]
+            # then as a Foxglove client: subscribe to every advertise (on a loaded machine the SDK can
+            # refuse this one too, and the channel comes again) while the vehicle's samples go on
+            subs = {}
+            deadline = time.monotonic() + 60
+            seq, frame = 2, None
+            while frame is None and time.monotonic() < deadline:
+                if again is not None:
+                    sid = len(subs) + 2  # 1 went to the unknown id above
+                    subs[sid] = again["topic"]
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": sid, "channelId": again["id"]}]}))
+                    again = None
+                live._worker.offer(("sensors", keys.raw(VID), _sensor_sample(seq)))
+                seq += 1
+                try:
+                    got = ws.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(got, bytes):
+                    frame = got
+                elif json.loads(got)["op"] == "advertise":
+                    (again,) = json.loads(got)["channels"]
+            assert frame is not None, "no message on the channel advertised again"
+            opcode, sid, log_time = struct.unpack_from("<BIQ", frame, 0)
+            m = json.loads(frame[13:])
+            assert (opcode, subs[sid], m["vehicle_id"], log_time) == (
+                0x01, f"/soilocp/{VID}/sensors", VID, round(m["stamp"] * 1e9))
+        # the id that is not ours was dropped; ours was advertised again (more than once if the race
+        # came back), and the vehicle still has one sensors channel
+        assert list(live._channels) == [(VID, "sensors")] and 999_999 not in live._refused.ids
+        assert log.getvalue().count("subscription_refused_readvertised") >= 1, log.getvalue()
+    finally:
+        live.close()

@@ -16,6 +16,8 @@ client session (see :func:`services.supervisor.run.run_system`).
 
 from __future__ import annotations
 
+import logging
+import re
 import threading
 import time
 from typing import Any, Optional
@@ -33,6 +35,39 @@ QUEUE_MAX = 10_000  # samples; ~50 s of one vehicle's sensors and OCPs at 100 Hz
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
 DEFAULT_ADDRESS = f"{DEFAULT_HOST}:{DEFAULT_PORT}"
+
+
+class _RefusedSubscriptions(logging.Handler):
+    """The channel ids whose subscription foxglove-sdk refused as unknown to the client.
+
+    foxglove-sdk (since its PR #523; still so in 0.30.3), websocket/connected_client.rs
+    ``advertise_channels``, sends a new channel's advertise to each connected client *before* it
+    records the channel as advertised to that client. A client that answers within that gap (a
+    loaded machine: the thread making the channel is preempted by the woken server and client
+    threads) has its subscribe refused as "Unknown channel ID" and is never told of the channel
+    again: its panel stays empty. The SDK logs each refusal through Python ``logging``
+    (``pyo3-log``, its default), the only place the server side can see it; the worker then
+    advertises that channel afresh (:meth:`FoxgloveLive._readvertise_refused`)."""
+
+    LOGGER = "foxglove.websocket.connected_client"
+    _REFUSED = re.compile(r"attempted to subscribe to unknown channel: (\d+)")
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.ids: set[int] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        # runs on a server thread that holds the client's channel map: record the id, touch nothing
+        # of the SDK's (the worker does, on its own thread)
+        m = self._REFUSED.search(record.getMessage())
+        if m:
+            with self.lock:
+                self.ids.add(int(m.group(1)))
+
+    def take(self) -> set[int]:
+        with self.lock:
+            ids, self.ids = self.ids, set()
+        return ids
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -81,12 +116,14 @@ class FoxgloveLive:
         if self.maps:
             self.counts.update(map_updates=0, grids=0)
         self._lock = threading.Lock()  # channels are made on the worker and read by close()
+        self._refused = _RefusedSubscriptions()
+        logging.getLogger(_RefusedSubscriptions.LOGGER).addHandler(self._refused)
         for vid in self.vehicle_ids:
             for suffix in CHANNEL_SCHEMAS:
                 self._channel(vid, suffix)
         # the grids of the frames asked for exist before the server starts, so a client finds them in
-        # its first advertise (a grid channel made later, on a loaded machine, was once refused on
-        # subscribe as "unknown channel")
+        # its first advertise (a channel made later can have its subscription refused, see
+        # _RefusedSubscriptions, and is then advertised again)
         for m in self.maps:
             for frame in self.map_frames:
                 self._grid_channel(m, frame)
@@ -108,27 +145,47 @@ class FoxgloveLive:
         return f"ws://{host}:{self.port}"
 
     def _channel(self, vid: str, suffix: str):
-        ch = self._channels.get((vid, suffix))
-        if ch is None:
-            name, schema = CHANNEL_SCHEMAS[suffix]
-            with self._lock:
-                ch = self._channels[(vid, suffix)] = self._foxglove.Channel(
-                    topic(vid, suffix), message_encoding="json", context=self._ctx,
-                    schema=self._foxglove.Schema(name=name, encoding="jsonschema", data=encode(schema)))
-        return ch
+        return self._get((vid, suffix))
 
     def _grid_channel(self, map_id: str, frame: str):
-        key = ("@map", map_grid_topic(map_id, frame))  # '@': no vehicle id has it
+        return self._get(("@map", map_grid_topic(map_id, frame)))  # '@': no vehicle id has it
+
+    def _get(self, key: tuple[str, str]):
         ch = self._channels.get(key)
         if ch is None:
+            with self._lock:
+                ch = self._channels[key] = self._new_channel(key)
+        return ch
+
+    def _new_channel(self, key: tuple[str, str]):
+        fg = self._foxglove
+        if key[0] == "@map":
             from foxglove.messages import Grid
 
             sch = Grid.get_schema()
+            return fg.Channel(key[1], message_encoding="protobuf", context=self._ctx,
+                              schema=fg.Schema(name=sch.name, encoding=sch.encoding, data=sch.data))
+        name, schema = CHANNEL_SCHEMAS[key[1]]
+        return fg.Channel(topic(*key), message_encoding="json", context=self._ctx,
+                          schema=fg.Schema(name=name, encoding="jsonschema", data=encode(schema)))
+
+    def _readvertise_refused(self) -> None:
+        """Close and make again each of our channels whose subscription the SDK refused (see
+        :class:`_RefusedSubscriptions`): every client gets an unadvertise and a new advertise, and
+        subscribes again as a Foxglove client does; a refused id that is not ours is ignored."""
+        ids = self._refused.take()
+        for key, ch in list(self._channels.items()):
+            if ch.id() not in ids:
+                continue
+            # close() holds the GIL (the SDK does not release it there) while it waits for each
+            # client's channel map, and a server thread logging a refusal holds that map while it waits
+            # for the GIL. The race's refusals only come while a channel is being made: this thread's
+            # own work, in Channel(), which releases the GIL; so never during this close()
             with self._lock:
-                ch = self._channels[key] = self._foxglove.Channel(
-                    key[1], message_encoding="protobuf", context=self._ctx,
-                    schema=self._foxglove.Schema(name=sch.name, encoding=sch.encoding, data=sch.data))
-        return ch
+                ch.close()
+                new = self._channels[key] = self._new_channel(key)
+            self.log.warning("subscription_refused_readvertised", topic=new.topic(), channel_id=ch.id(),
+                             new_channel_id=new.id())
 
     def attach(self, session) -> list[str]:
         """Subscribe on ``session`` and start the worker; returns the key expressions subscribed."""
@@ -194,6 +251,8 @@ class FoxgloveLive:
         return on_sample
 
     def _handle(self, item: tuple[str, str, bytes]) -> None:
+        if self._refused.ids:  # on the worker: the only thread that makes channels once serving
+            self._readvertise_refused()
         kind, key, payload = item
         if kind in ("map", "map_reply", "tick"):
             self._handle_map(kind, key, payload)
@@ -236,6 +295,7 @@ class FoxgloveLive:
                 pass
         self._subs.clear()
         self._worker.stop()
+        logging.getLogger(_RefusedSubscriptions.LOGGER).removeHandler(self._refused)
         self.server.stop()
         with self._lock:
             for ch in self._channels.values():
