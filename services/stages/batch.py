@@ -32,7 +32,7 @@ import numpy as np
 from schemas import keys
 from schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
-from soilocp.model.normal_force import normal_forces
+from soilocp.model.normal_force import NormalForceSolver
 
 from services.runtime.worker import WorkItem
 from services.stages.config import pipeline_config
@@ -63,6 +63,7 @@ class BatchOcpService(OcpService):
         self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)
         self.last_seq: dict[str, int] = {}
         self.vehicle = pc.vehicle
+        self.solve = NormalForceSolver(pc.vehicle)  # the core's solver, built once (not per sample)
         self.steps = 0
 
     def declare(self, session, vehicle_id: str) -> None:
@@ -99,7 +100,7 @@ class BatchOcpService(OcpService):
             self.n_pending -= len(samples)
             idx = np.array([self.index[v] for v in vids])
             # normal forces of every stepped vehicle in one call (zero-warp solution, eqs. 21-25)
-            fz = normal_forces(self.vehicle, np.array([s.specific_force for s in samples], dtype=float))
+            fz = self.solve(np.array([s.specific_force for s in samples], dtype=float))
             if self.feed is not None:
                 before = [self.feed.priors[v].entered for v in vids]
                 for vid, s in zip(vids, samples):

@@ -81,8 +81,16 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) ->
         stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
         wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
-        normal_force=np.array([np.asarray(f, dtype=float) for f in normal_forces]),
+        normal_force=_forces(normal_forces),
     )
+
+
+def _forces(normal_forces) -> np.ndarray:
+    """The normal-force quads as a new (k, 4) float array: a solver's (k, 4) block is copied whole (the
+    batched service's), anything else stacked quad by quad."""
+    if type(normal_forces) is np.ndarray and normal_forces.ndim == 2 and normal_forces.dtype == np.float64:
+        return np.array(normal_forces, dtype=float, order="C")
+    return np.array([np.asarray(f, dtype=float) for f in normal_forces])
 
 
 class ObserverStage:
