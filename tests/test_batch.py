@@ -205,24 +205,30 @@ def test_batch_service_stream_equals_offline_estimate():
             _same_record(a, b, (v, a["seq"]))
 
 
-def test_a_chain_step_that_raises_after_the_observer_leaves_its_clock_with_the_core(drives):
+def test_a_chain_step_that_raises_after_the_observer_leaves_one_clock_the_core_s(drives):
     """ChainCore.step can raise after the scale and the observer stepped (the soil update refusing a sample):
-    the bank's clock (whose dt**3 the next call passes) then follows the core's, one interval per step."""
-    cfg = PipelineConfig()
-    bank = BatchPipeline(cfg, 2)
+    the observer's clock is the core's alone, so the next step spans one interval: its output equals that of
+    an observer that stepped the same samples without the refusal."""
+    from soilocp.estimation.pipeline import observer_inputs
+
     s = next(iter(drives.values()))[:3]
     fz = [np.full(4, 150.0)] * 3
-    bank.step_all(np.array([0]), s[:1], fz[:1])
+    refused, plain = BatchPipeline(PipelineConfig(), 2), BatchPipeline(PipelineConfig(), 2)
+    for bank in (refused, plain):
+        bank.step_all(np.array([0]), s[:1], fz[:1])
 
     def stepped_then_refused(*args):
-        bank.observer._core.step(*args)  # the observer moves on, then something after it raises
+        refused.observer._core.step(*args)  # the observer moves on, then something after it raises
         raise ValueError("refused after the observer")
 
-    from soilocp.estimation.pipeline import observer_inputs
     with pytest.raises(ValueError, match="after the observer"):
-        bank.observer.run(stepped_then_refused, np.array([0]), observer_inputs(s[1:2], fz[1:2]))
-    assert bank.observer.last_stamp[0] == s[1].stamp and np.isnan(bank.observer.last_stamp[1])
-    assert np.array_equal(bank.observer.last_stamp, bank.observer._core.last_stamp, equal_nan=True)
+        refused.observer.run(stepped_then_refused, np.array([0]), observer_inputs(s[1:2], fz[1:2]))
+    plain.observer.step(np.array([0]), observer_inputs(s[1:2], fz[1:2]))
+    assert refused.observer.last_stamp[0] == s[1].stamp and np.isnan(refused.observer.last_stamp[1])
+    a = refused.observer.step(np.array([0]), observer_inputs(s[2:3], fz[2:3]))
+    b = plain.observer.step(np.array([0]), observer_inputs(s[2:3], fz[2:3]))
+    for name, x in a._asdict().items():
+        assert np.array_equal(x, getattr(b, name), equal_nan=True), name
 
 
 def test_the_chain_refuses_stages_of_different_banks_and_a_soil_bank_without_records():

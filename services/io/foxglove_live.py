@@ -69,6 +69,12 @@ class _RefusedSubscriptions(logging.Handler):
             ids, self.ids = self.ids, set()
         return ids
 
+    def give_back(self, ids: set[int]) -> None:
+        """Ids taken and not repaired yet (repairs go one at a time)."""
+        if ids:
+            with self.lock:
+                self.ids |= ids
+
 
 def parse_address(text: str) -> tuple[str, int]:
     """``HOST:PORT``, ``[IPv6]:PORT``, ``:PORT`` or ``PORT`` (these two on 127.0.0.1) -> (host, port);
@@ -117,7 +123,6 @@ class FoxgloveLive:
             self.counts.update(map_updates=0, grids=0)
         self._lock = threading.Lock()  # channels are made on the worker and read by close()
         self._refused = _RefusedSubscriptions()
-        logging.getLogger(_RefusedSubscriptions.LOGGER).addHandler(self._refused)
         for vid in self.vehicle_ids:
             for suffix in CHANNEL_SCHEMAS:
                 self._channel(vid, suffix)
@@ -131,6 +136,8 @@ class FoxgloveLive:
             self.server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx)
         except RuntimeError as exc:  # FoxgloveError: port taken, unknown host
             raise ValueError(f"Foxglove server on {host}:{port}: {exc}") from None
+        # attached once the server runs: a server that failed to start leaves no handler on the SDK's logger
+        logging.getLogger(_RefusedSubscriptions.LOGGER).addHandler(self._refused)
         self.host = host
         self._worker = BoundedWorker("foxglove", self._handle, queue_max, self._dropped, self._failed)
         self._subs: list[Any] = []
@@ -170,20 +177,30 @@ class FoxgloveLive:
                           schema=fg.Schema(name=name, encoding="jsonschema", data=encode(schema)))
 
     def _readvertise_refused(self) -> None:
-        """Close and make again each of our channels whose subscription the SDK refused (see
+        """Close and make again one of our channels whose subscription the SDK refused (see
         :class:`_RefusedSubscriptions`): every client gets an unadvertise and a new advertise, and
-        subscribes again as a Foxglove client does; a refused id that is not ours is ignored."""
+        subscribes again as a Foxglove client does; a refused id that is not ours is ignored.  One per
+        call: the worker returns to its queue between two (below); the others stay in ``_refused``."""
         ids = self._refused.take()
-        for key, ch in list(self._channels.items()):
-            if ch.id() not in ids:
-                continue
-            # close() holds the GIL (the SDK does not release it there) while it waits for each
-            # client's channel map, and a server thread logging a refusal holds that map while it waits
-            # for the GIL. The race's refusals only come while a channel is being made: this thread's
-            # own work, in Channel(), which releases the GIL; so never during this close()
+        pending = [(key, ch) for key, ch in self._channels.items() if ch.id() in ids]
+        self._refused.give_back({ch.id() for _key, ch in pending[1:]})
+        for key, ch in pending[:1]:
+            # close() holds the GIL (the SDK does not release it there) while it takes each client's
+            # channel map, and a server thread that logs a refusal holds that client's map while it waits for
+            # the GIL.  Refusals of the advertise race come while a channel is made (Channel() releases the
+            # GIL), not during close(); a client's subscribe to an id it does not have (a bogus id, or one this
+            # close() has just removed) can come at any time: the sleep lets such a pending log take the GIL
+            # first, and one repair per worker item keeps two close() calls from following each other.  The
+            # risk is narrowed, not removed; the lasting fix is the SDK's (record the channel before
+            # advertising it, as before its PR #523)
+            time.sleep(0.001)
             with self._lock:
                 ch.close()
-                new = self._channels[key] = self._new_channel(key)
+                try:
+                    new = self._channels[key] = self._new_channel(key)
+                except Exception:
+                    del self._channels[key]  # made again, with a fresh advertise, at its next sample
+                    raise
             self.log.warning("subscription_refused_readvertised", topic=new.topic(), channel_id=ch.id(),
                              new_channel_id=new.id())
 

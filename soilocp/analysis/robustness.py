@@ -176,6 +176,7 @@ def summarize(runs: list[VariantRun]) -> list[dict]:
             "description": v.description,
             "identifiable": v.identifiable,
             "why_limited": v.why_limited,
+            "judged_from": v.judged_from,  # s: K and the OCPs judged from here (Variant.judged_from)
             "seeds": [r.seed for r in vruns],
             "samples": sum(r.samples for r in vruns),
             "rejected": sum(r.rejected for r in vruns),

@@ -63,9 +63,9 @@ def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out
             click.echo(md(_cells(r, SHOWN_STATUSES)))
     else:
         Console(width=260).print(table)
-    variants = {v.name: v for v in list_variants()}
+    known = {v.name: v for v in list_variants()}
     for r in rows:
-        v = variants[r["variant"]]
+        v = known[r["variant"]]
         judged = (f"; K and the OCPs judged from {v.judged_from:g} s, once the first swing has accelerated and braked "
                   "(ok>30% and the band from the settle on)") if v.judged_from > 0 else ""
         click.echo(f"  {r['variant']}: {v.description}{judged}")

@@ -184,8 +184,7 @@ impl ChainCore {
     /// of K.  Every input is checked (ValueError naming the field) before any state changes.  An
     /// observer output that is not finite (which the stages' ObserverOutput message refuses) or a
     /// sample the soil update refuses raises after the scale and the observer have stepped, and
-    /// leaves the gate as it was (the caller re-reads the observer's clock:
-    /// `ObserverCore.last_stamp`).
+    /// leaves the gate as it was (the observer's clock is the core's: `ObserverCore.last_stamp`).
     fn step<'py>(
         &self,
         py: Python<'py>,

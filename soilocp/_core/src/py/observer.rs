@@ -280,7 +280,7 @@ impl ObserverCore {
 
     /// One observer step of the vehicles `idx` (k,; each at most once; None: all N, in order), in
     /// one call, on their samples `inputs` ([`Inputs`]: ObserverInputs).
-    /// Returns the blocks (17, k, 4) and (4, k) of floats, (2, k, 4) and (2, k) of bools (named by
+    /// Returns the blocks (17, k, 4) and (4, k) of floats, (3, k, 4) and (2, k) of bools (named by
     /// quad_fields, flat_fields, bool_quad_fields, bool_flat_fields), the (k,) rejected rows and
     /// the (k,) reset codes (0: none, else reset_reasons[code - 1]).  Every input is checked (shape,
     /// finite; ValueError naming the field) before any vehicle's state changes.

@@ -40,7 +40,7 @@ type StepArrays<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
-/// What the slip gate returns, a tuple of soilocp.estimation.soil_config.SoilInputs' fields in order:
+/// What the slip gate returns, a tuple of soilocp.estimation.soil_state.SoilInputs' fields in order:
 /// slip, informative, observed, variance, slip_sigma, gate_slip, gate_sigma, held (k, 4);
 /// ground_stale, identifiable, speed (k,); span (k, 4) and slip_ends (k, 4, 2) where any vehicle of
 /// the step refreshes a wheel, else None; unusable codes (k, 4).

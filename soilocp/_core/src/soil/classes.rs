@@ -1,6 +1,6 @@
 //! The soil class of a belief ln K ~ N(ln K, sigma^2) (docs/method.md §9, the record's class and
 //! its probability): the Gaussian's mass between the class boundaries in ln K, which the Python
-//! side makes from the soil table (soilocp.estimation.soil_config.class_bounds) with the names.
+//! side makes from the soil table (soilocp.estimation.soil_state.class_bounds) with the names.
 
 extern "C" {
     /// The C library's erf: the one CPython's math.erf calls, which the numpy classification used.
