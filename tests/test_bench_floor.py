@@ -5,6 +5,7 @@ port (the bench's Rig: explicit endpoints, no multicast scouting); no assertion 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -55,10 +56,14 @@ def test_relays_are_the_real_services_without_physics(templates):
 @pytest.mark.timeout(600)
 def test_quick_floor_carries_every_sample(tmp_path):
     out = tmp_path / "floor.json"
+    scratch = tmp_path / "tmp"  # the run's temporary files (the relays' recorded outputs): removed at its end
+    scratch.mkdir()
     r = subprocess.run([sys.executable, "-m", "services.bench.floor", "--quick", "--max-vehicles", "1",
                         "--variant", "messages", "--variant", "zenoh", "--json", str(out)],
-                       capture_output=True, text=True, timeout=580, cwd=tmp_path)
+                       capture_output=True, text=True, timeout=580, cwd=tmp_path,
+                       env={**os.environ, "TMPDIR": str(scratch)})
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert not [p for p in scratch.iterdir() if p.name.startswith("soilocp-floor-")]
     assert "floor of the live rows, standard pipeline" in r.stdout and "batched pipeline" in r.stdout
     rep = json.loads(out.read_text())
     assert rep["kind"] == "floor" and rep["variants"] == ["messages", "zenoh"]
@@ -82,3 +87,13 @@ def test_quick_floor_carries_every_sample(tmp_path):
             assert step["vehicles"] == 1 and 0 <= step["result"]["drops"] < step["result"]["sent"], (pipe, v, step)
             assert GRAPH_PROCS[pipe] <= set(step["processes"])
     assert set(rep["targets_met"]) == {f"{p}/{v}" for p in ("standard", "batched") for v in ("messages", "zenoh")}
+
+
+def test_floor_refuses_compare_and_map():
+    from click.testing import CliRunner
+
+    from services.bench.run import bench
+
+    for extra in (["--compare", "base.json"], ["--map"]):
+        r = CliRunner().invoke(bench, ["--floor", *extra])
+        assert r.exit_code == 2 and "takes neither --compare nor --map" in r.output, r.output

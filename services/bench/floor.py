@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -79,28 +80,31 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     s100, s1k = live_drives(quick, log)
     p100, p1k = _payloads(s100), _payloads(s1k)
     work = Path(tempfile.mkdtemp(prefix="soilocp-floor-"))
-    templates = work / "templates.json"
-    recorded = record_templates(s100)
-    templates.write_text(json.dumps(recorded))
-    report["message_bytes"] = {"raw sample": len(p100[len(p100) // 2][1]),
-                               **{name: len(text) for name, text in recorded.items()}}
+    try:  # the relays read their recorded outputs from here; removed when the rows are done
+        templates = work / "templates.json"
+        recorded = record_templates(s100)
+        templates.write_text(json.dumps(recorded))
+        report["message_bytes"] = {"raw sample": len(p100[len(p100) // 2][1]),
+                                   **{name: len(text) for name, text in recorded.items()}}
 
-    # variants one after the other within each row, so that they see the same machine
-    report["latency"] = []
-    for pipe in pipelines:
+        # variants one after the other within each row, so that they see the same machine
+        report["latency"] = []
+        for pipe in pipelines:
+            for v in variants:
+                for row in measure_latency(_rig(pipe, v, templates), f"{pipe}/{v}", p100, p1k, d_100, d_1k, quick, log):
+                    report["latency"].append({**row, "pipeline": pipe, "variant": v})
+        report["control_loop"] = {}
         for v in variants:
-            for row in measure_latency(_rig(pipe, v, templates), f"{pipe}/{v}", p100, p1k, d_100, d_1k, quick, log):
-                report["latency"].append({**row, "pipeline": pipe, "variant": v})
-    report["control_loop"] = {}
-    for v in variants:
-        log(f"bench: control loop latency, {v}")
-        try:
-            report["control_loop"][v] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100,
-                                                             make_rig=_control_rig(v, templates))
-        except RuntimeError as exc:
-            report["control_loop"][v] = {"error": str(exc)}
-    report["scale"] = {pipe: {v: measure_scale(_rig(pipe, v, templates), f"{pipe}/{v}", p100, ladder, d_scale, quick,
-                                               log) for v in variants} for pipe in pipelines}
+            log(f"bench: control loop latency, {v}")
+            try:
+                report["control_loop"][v] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100,
+                                                                 make_rig=_control_rig(v, templates))
+            except RuntimeError as exc:
+                report["control_loop"][v] = {"error": str(exc)}
+        report["scale"] = {pipe: {v: measure_scale(_rig(pipe, v, templates), f"{pipe}/{v}", p100, ladder, d_scale, quick,
+                                                   log) for v in variants} for pipe in pipelines}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     report["machine"]["load_end"] = list(os.getloadavg())
     report["machine"]["cpu_share_end"] = cpu_share()["share"]
     report["elapsed_s"] = time.monotonic() - t_start

@@ -365,6 +365,10 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
     if floor:  # the live rows next to their relay pipelines (services/bench/floor.py)
         from services.bench.floor import floor_command, render_floor
 
+        if compare_to or map_row:
+            raise click.UsageError("--floor compares the real pipeline with its relays in one run: it takes neither "
+                                   "--compare nor --map (run those without --floor)")
+
         console = Console(width=200) if not sys.stdout.isatty() else Console()
         if saved:
             render_floor(json.loads(Path(saved).read_text()), console)
