@@ -35,7 +35,7 @@ class _PlainFlush(BatchOcpService):
             samples = [self.pending[vid].popleft() for vid in vids]
             self.n_pending -= len(samples)
             idx = np.array([self.index[v] for v in vids])
-            fz = normal_forces(self.vehicle, np.array([s.specific_force for s in samples], dtype=float))
+            fz = normal_forces(self.batch.config.vehicle, np.array([s.specific_force for s in samples], dtype=float))
             out = self.batch.step(idx, samples, [np.asarray(f).tolist() for f in fz])
             self.steps += 1
             for vid, est in zip(vids, out):

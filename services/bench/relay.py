@@ -56,11 +56,7 @@ def record_templates(samples: Sequence[Any]) -> dict[str, str]:
     pipe = VehiclePipeline(PipelineConfig())
     outs: dict[str, list[str]] = {name: [] for name in RECORDED}
     for s in samples:
-        nf = pipe.normal.step(s)
-        ob = pipe.observer.step(s, nf)
-        so = pipe.soil.step(ob)
-        oc = pipe.ocp.step(so)
-        for name, out in zip(RECORDED, (nf, ob, so, oc)):
+        for name, out in zip(RECORDED, pipe.process_all(s)):  # the four stages' messages, in order
             outs[name].append(out.model_dump_json())
     picked = {}
     for name, texts in outs.items():

@@ -62,7 +62,6 @@ class BatchOcpService(OcpService):
         self.n_pending = 0
         self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)
         self.last_seq: dict[str, int] = {}
-        self.vehicle = pc.vehicle
         self.solve = NormalForceSolver(pc.vehicle)  # the core's solver, built once (not per sample)
         self.steps = 0
 
