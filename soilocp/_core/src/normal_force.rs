@@ -45,8 +45,10 @@ pub fn gravity_from_attitude(roll: f64, pitch: f64, g: f64) -> [f64; 3] {
 /// * f_y: -m h / (2 W) h2 (to the right side under a leftward one),
 /// * f_z: m / 4 h0 - m (c - d) / (4 W) h2 - m (a - b) / (4 L) h3 (the static split).
 ///
-/// Equal to LAPACK's SVD pseudo-inverse (numpy.linalg.pinv) within a few ulp, not to the bit (the
-/// tests below; the two-step equivalence in docs/performance.md).  `Err` names a length or mass
+/// Equal to LAPACK's SVD pseudo-inverse (numpy.linalg.pinv, which computed M before) within
+/// LAPACK's own error, not to the bit: a few ulp for the rover (the tests below), growing with
+/// (L + W) / min(L, W) (tests/test_normal_force.py); this closed form is exact to its rounding.  The
+/// two-step equivalence of the change is in docs/performance.md.  `Err` names a length or mass
 /// that is not finite and > 0.
 pub fn zero_warp_map(a: f64, b: f64, c: f64, d: f64, h: f64, mass: f64) -> Result<[[f64; 4]; 3], String> {
     for (name, v) in [("a", a), ("b", b), ("c", c), ("d", d), ("h", h)] {
