@@ -137,10 +137,12 @@ def test_core_refuses_what_the_checks_name():
         ocp_mod.ocp_arrays(np.array([50.0, -1.0]))
     with pytest.raises(ValueError, match="model can evaluate"):
         ocp_mod.ocp_arrays(np.array([1e-320]))
-    with pytest.raises(ValueError, match="finite"):
-        _core.NormalForceSolver(np.full((3, 4), np.nan))
-    with pytest.raises(ValueError, match=r"\(3, 4\)"):
-        _core.NormalForceSolver(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="geometry c must be a finite length > 0, got NaN"):
+        _core.NormalForceSolver(0.27, 0.23, np.nan, 0.25, 0.3, 60.0)
+    with pytest.raises(ValueError, match="mass must be finite and > 0, got -1"):
+        _core.NormalForceSolver(0.27, 0.23, 0.25, 0.25, 0.3, -1.0)
+    with pytest.raises(ValueError, match=r"specific_force must be finite, got \(1\.0, inf, 9\.8\)"):
+        _core.NormalForceSolver(0.27, 0.23, 0.25, 0.25, 0.3, 60.0).solve_one(1.0, np.inf, 9.8)
 
 
 def test_constants_kernel_follows_model_copy():

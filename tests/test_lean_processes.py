@@ -94,7 +94,7 @@ def test_router_process_maps_neither_pydantic_nor_numpy():
 
 def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
     """The gateway, running and connected, has loaded no numpy (docs/services.md: it carries no
-    physics); the normal-force service, which runs the physics, has (the check can fail)."""
+    physics); the observer service, whose kernels still take numpy arrays, has (the check can fail)."""
     port = _free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
@@ -102,7 +102,7 @@ def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
     try:
         _wait_listening(port, router)
         env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
-        for name in ("gateway", "normal-force"):
+        for name in ("gateway", "observer"):
             procs[name] = _start(["service", name], env)
         for name in procs:
             _wait_alive(endpoint, name)
@@ -111,7 +111,7 @@ def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
         errs = {name: _stop(p) for name, p in procs.items()}
         _stop(router)
     assert PYDANTIC in maps["gateway"] and NUMPY not in maps["gateway"], errs["gateway"]
-    assert NUMPY in maps["normal-force"], errs["normal-force"]
+    assert NUMPY in maps["observer"], errs["observer"]
 
 
 def test_ocp_publisher_computes_a_record_without_loading_numpy():
@@ -155,6 +155,50 @@ def test_ocp_publisher_computes_a_record_without_loading_numpy():
     rec = OcpEstimate.model_validate(got[0])
     want = ocp_arrays([120.0])
     assert (rec.mu_T, rec.S_T, rec.S_E, rec.te_at_S_E) == tuple(want[n][0] for n in ("mu_T", "S_T", "S_E", "te_at_S_E"))
+    assert PYDANTIC in maps and NUMPY not in maps, err
+
+
+def test_normal_force_service_computes_a_record_without_loading_numpy():
+    """The normal-force service needs the vehicle and eqs. 16-25 of one specific force: running, and
+    after it has turned a sensor sample into a NormalForces record (so that no lazy import on the
+    step's path is missed), it has loaded no numpy.  Its record equals the library's (the bank's
+    solver, numpy arrays) to the bit."""
+    import zenoh
+
+    from schemas import keys
+    from schemas.pipeline import NormalForces
+    from schemas.sensor import SensorSample
+    from services.runtime.settings import zenoh_config
+    from soilocp.model.normal_force import normal_forces
+    from soilocp.model.vehicle import DEFAULT_VEHICLE
+
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
+    nf = None
+    try:
+        _wait_listening(port, router)
+        env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
+        nf = _start(["service", "normal-force"], env)
+        _wait_alive(endpoint, "normal-force")
+        sample = SensorSample(vehicle_id="rover1", seq=3, stamp=0.03, wheel_speed=(2.0,) * 4, wheel_torque=(1.5,) * 4,
+                              specific_force=(1.3, -0.4, 9.7), yaw_rate=0.1, pitch=-0.05, roll=0.02, ground_speed=None)
+        got: list[bytes] = []
+        with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
+            sub = session.declare_subscriber(keys.normal_forces("rover1"), lambda smp: got.append(smp.payload.to_bytes()))
+            deadline = time.monotonic() + 60
+            while not got and time.monotonic() < deadline:
+                session.put(keys.clean("rover1"), sample.model_dump_json())
+                time.sleep(0.5)
+            sub.undeclare()
+        maps = _mapped(nf.pid)
+    finally:
+        err = _stop(nf) if nf is not None else ""
+        _stop(router)
+    assert got, err
+    rec = NormalForces.model_validate_json(got[0])
+    assert rec.seq == 3 and rec.normal_force == tuple(normal_forces(DEFAULT_VEHICLE, [1.3, -0.4, 9.7]).tolist())
+    assert "soilocp/_core" in maps, err  # the check sees the service's extensions at all
     assert PYDANTIC in maps and NUMPY not in maps, err
 
 

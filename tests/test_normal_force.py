@@ -158,3 +158,71 @@ def test_non_finite_specific_force(f):
 def test_bad_attitude(roll, pitch, name):
     with pytest.raises(ValueError, match=name):
         gravity_from_attitude(roll, pitch)
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    st.builds(VehicleParams, mass=st.floats(0.5, 5000.0), a=st.floats(0.01, 5.0), b=st.floats(0.01, 5.0),
+              c=st.floats(0.01, 5.0), d=st.floats(0.01, 5.0), h=st.floats(0.01, 3.0)),
+)
+def test_closed_form_map_equals_numpys_pseudo_inverse(v):
+    """The core computes M = C (A^+)^T from A's Hadamard eigenvectors (closed form, no SVD).  It equals
+    M by numpy's LAPACK pseudo-inverse (as the product computed M before) within LAPACK's own error,
+    which grows with A's condition on its range, (L + W) / min(L, W): 64 ulp of each row's largest
+    entry times it (measured: ≤ 28; the rover's rows: ≤ 4 ulp, the core's test).  And it is exact to
+    its rounding: M A = C and M (1, -1, 1, -1)^T = 0 (what defines C A^+, C's rows being orthogonal
+    to the warp mode) hold in exact rational arithmetic within a few ulp (docs/method.md §2)."""
+    from fractions import Fraction
+
+    from soilocp.model.normal_force_map import core_solver
+
+    want = load_vector(v, np.eye(3)) @ np.linalg.pinv(system_matrix(v)).T  # row i: f = e_i
+    got = core_solver(v).map
+    L, W = v.a + v.b, v.c + v.d
+    big = np.abs(want).max(axis=1, keepdims=True)
+    assert np.all(np.abs(got - want) <= 64 * (L + W) / min(L, W) * np.spacing(big))
+    # exact: A and C of the float inputs, M as the core rounded it
+    Lq, Wq = Fraction(v.a) + Fraction(v.b), Fraction(v.c) + Fraction(v.d)
+    A = [[0, Lq, Lq + Wq, Wq], [Lq, 0, Wq, Lq + Wq], [Lq + Wq, Wq, 0, Lq], [Wq, Lq + Wq, Lq, 0]]
+    a, b, c, d, h, m = (Fraction(x) for x in (v.a, v.b, v.c, v.d, v.h, v.mass))
+    C = [[-m * h, m * h, m * h, -m * h], [m * h, m * h, -m * h, -m * h], [m * (a + c), m * (b + c), m * (b + d), m * (a + d)]]
+    for i in range(3):
+        Mi = [Fraction(x) for x in got[i]]
+        scale = max(abs(x) for x in Mi) * (Lq + Wq)
+        for j in range(4):
+            resid = sum(Mi[k] * A[k][j] for k in range(4)) - C[i][j]
+            assert abs(resid) <= 8 * np.finfo(float).eps * scale, (i, j, float(resid), float(scale))
+        assert abs(Mi[0] - Mi[1] + Mi[2] - Mi[3]) <= 8 * np.finfo(float).eps * max(abs(x) for x in Mi)
+
+
+def test_closed_form_pseudo_inverse_of_a():
+    """The closed form the core uses: A^+ = h0 h0^T / (8 (L + W)) - h2 h2^T / (8 W) - h3 h3^T / (8 L)
+    (A's Hadamard eigenvectors; (1, -1, 1, -1) spans its null space), against numpy's pinv."""
+    rng = np.random.default_rng(28)
+    h0, h2, h3 = np.ones(4), np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
+    for _ in range(200):
+        a, b, c, d = rng.uniform(0.01, 3.0, 4)
+        v = VehicleParams(a=a, b=b, c=c, d=d)
+        L, W = a + b, c + d
+        closed = np.outer(h0, h0) / (8 * (L + W)) - np.outer(h2, h2) / (8 * W) - np.outer(h3, h3) / (8 * L)
+        pinv = np.linalg.pinv(system_matrix(v))
+        np.testing.assert_allclose(closed, pinv, rtol=0, atol=1e-13 * np.abs(pinv).max())
+
+
+def test_the_services_one_sample_call_equals_the_bank():
+    """The normal-force service's numpy-free call (floats) and the bank's (arrays) are one map and one
+    product: equal to the bit; a bad specific force is named with its value."""
+    from soilocp.model.normal_force import NormalForceSolver
+    from soilocp.model.normal_force_map import core_solver, solve_one
+
+    rng = np.random.default_rng(5)
+    v = VehicleParams(mass=100.0, a=0.4, b=0.2, c=0.3, d=0.1, h=0.25)
+    fs = rng.normal(0.0, 5.0, (50, 3)) + [0.0, 0.0, G]
+    bank = NormalForceSolver(v)(fs)
+    for f, want in zip(fs, bank):
+        assert solve_one(core_solver(v), tuple(f.tolist())) == tuple(want.tolist())
+    for bad in [(float("nan"), 0.0, G), (0.0, 0.0), "up", (1.0, "x", G)]:
+        with pytest.raises(ValueError, match=r"specific_force must be three finite numbers, got"):
+            solve_one(core_solver(v), bad)
+    with pytest.raises(ValueError, match=r"got \(nan, 0\.0, 9\.80665\)"):
+        solve_one(core_solver(v), (float("nan"), 0.0, G))

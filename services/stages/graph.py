@@ -54,7 +54,7 @@ class StageSpec:
 
 
 def _normal_force_stage(pc):
-    from soilocp.estimation.pipeline import NormalForceStage
+    from soilocp.estimation.normal_force_stage import NormalForceStage  # no numpy: the service loads none
 
     return NormalForceStage(pc)
 

@@ -4,7 +4,8 @@ Each stage is a small deterministic object with a ``step`` method that takes and
 message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
 process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
 messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
-(:mod:`soilocp.estimation.observer_bank`, :class:`soilocp.estimation.slip_gate.SlipGate`,
+(:class:`soilocp.estimation.normal_force_stage.NormalForceStage`,
+:mod:`soilocp.estimation.observer_bank`, :class:`soilocp.estimation.slip_gate.SlipGate`,
 :class:`soilocp.estimation.soil_strength.SoilBank`,
 :class:`soilocp.estimation.ocp_stage.OcpStage`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same
 kernels with N = many.
@@ -20,6 +21,7 @@ from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEsti
 from schemas.sensor import SensorSample
 
 from soilocp.estimation.config import PipelineConfig, load_pipeline_config
+from soilocp.estimation.normal_force_stage import NormalForceStage
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE, ObserverBank, ObserverInputs, observer_message
 from soilocp.estimation.ocp_stage import OcpStage, ocp_message
 from soilocp.estimation.slip_gate import SlipGate, pack_message
@@ -27,38 +29,15 @@ from soilocp.estimation.soil_state import SoilInputs, SoilState
 from soilocp.estimation.soil_strength import PaperSoilEstimator, SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank
 from soilocp.map.place import estimate_place
-from soilocp.model.normal_force import NormalForceSolver
 
-__all__ = ["LIFT_OFF_FORCE", "OcpStage", "PipelineConfig", "VehiclePipeline", "SlipGate", "load_pipeline_config",
-           "ocp_message"]
+__all__ = ["LIFT_OFF_FORCE", "NormalForceStage", "OcpStage", "PipelineConfig", "VehiclePipeline", "SlipGate",
+           "load_pipeline_config", "ocp_message"]
 
 
 def _quad(a) -> tuple[float, float, float, float]:
     if type(a) is not np.ndarray or a.dtype != np.float64:
         a = np.asarray(a, dtype=float)
     return tuple(a.tolist())  # type: ignore[return-value]
-
-
-class NormalForceStage:
-    """Normal forces from the measured specific force (eqs. 16-25, zero-warp, docs/method.md §2-3)."""
-
-    def __init__(self, config: PipelineConfig):
-        self.vehicle = config.vehicle
-        self._solve = NormalForceSolver(config.vehicle)
-
-    def step(self, sample: SensorSample) -> NormalForces:
-        """One sample's normal forces.
-
-        Parameters: ``sample.specific_force`` (3,), m/s^2, body frame (x forward, y left, z up).
-        Returns F_z per wheel (4,), N, wheels 1 LR, 2 LF, 3 RF, 4 RR (eqs. 21-25, the zero-warp
-        solution; not clipped: <= 0 is a lifted wheel, docs/method.md §2-3)."""
-        fz = self._solve(sample.specific_force)
-        return NormalForces(
-            vehicle_id=sample.vehicle_id,
-            seq=sample.seq,
-            stamp=sample.stamp,
-            normal_force=_quad(fz),
-        )
 
 
 _ZERO = np.zeros(1, dtype=int)

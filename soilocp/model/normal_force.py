@@ -1,7 +1,9 @@
-"""Normal forces on the four wheels from the measured specific force, eqs. 16-25.  The per-vehicle
-matrix is prepared here (A of eq. 23, B's coefficients of eq. 24, LAPACK's SVD pseudo-inverse, once
-per vehicle); the per-sample product F = f M runs in the compiled core
-(``soilocp/_core/src/normal_force.rs``), for one vehicle or a bank.
+"""Normal forces on the four wheels from the measured specific force, eqs. 16-25, for one specific
+force or a bank (numpy arrays).  The per-vehicle matrix M = C (A^+)^T (A of eq. 23, C of eq. 24's
+load vector, A^+ in closed form) and the per-sample product F = f M are the compiled core's
+(``soilocp/_core/src/normal_force.rs``), one solver per vehicle from
+:func:`soilocp.model.normal_force_map.core_solver` (whose numpy-free N = 1 call the normal-force
+service runs).
 
 Corrections (docs/method.md §2-3):
 
@@ -18,13 +20,12 @@ Corrections (docs/method.md §2-3):
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
 from soilocp import _core
 from soilocp.model.checks import as_float_array, positive_scalar
 from soilocp.model.constants import STANDARD_GRAVITY  # noqa: F401 (imported from here too)
+from soilocp.model.normal_force_map import core_solver
 from soilocp.model.vehicle import VehicleParams
 
 
@@ -41,35 +42,6 @@ def gravity_from_attitude(roll, pitch, g: float = STANDARD_GRAVITY) -> np.ndarra
     g = positive_scalar("g", g)
     al, th = np.broadcast_arrays(al, th)
     return _core.gravity_from_attitude(al, th, g)
-
-
-def _geometry(v: VehicleParams) -> tuple[float, float, float, float, float]:
-    vals = {name: getattr(v, name) for name in ("a", "b", "c", "d", "h")}
-    for name, val in vals.items():
-        if not np.isfinite(val) or val <= 0:
-            raise ValueError(f"vehicle geometry {name} must be a finite length > 0, got {val!r}")
-    return vals["a"], vals["b"], vals["c"], vals["d"], vals["h"]
-
-
-def system_matrix(vehicle: VehicleParams) -> np.ndarray:
-    """A of eq. 23 (symmetric, rank 3: A (1,-1,1,-1)^T = 0)."""
-    a, b, c, d, _ = _geometry(vehicle)
-    L, W = a + b, c + d
-    return np.array([[0.0, L, L + W, W], [L, 0.0, W, L + W], [L + W, W, 0.0, L], [W, L + W, L, 0.0]])
-
-
-def load_coefficients(vehicle: VehicleParams) -> np.ndarray:
-    """C (3 x 4) with B = f C: eq. 24's load vector, (V_dot + g) replaced by the measured specific
-    force f (docs/method.md §3)."""
-    a, b, c, d, h = _geometry(vehicle)
-    return vehicle.mass * np.array([[-h, h, h, -h], [h, h, -h, -h], [a + c, b + c, b + d, a + d]])
-
-
-@lru_cache(maxsize=64)
-def _core_solver(vehicle: VehicleParams) -> _core.NormalForceSolver:
-    """The core's solver of one vehicle: F = f M with M = C (A^+)^T (eqs. 21-25, zero warp).  The
-    pseudo-inverse is LAPACK's (numpy's SVD), computed once per vehicle."""
-    return _core.NormalForceSolver(load_coefficients(vehicle) @ np.linalg.pinv(system_matrix(vehicle)).T)
 
 
 def normal_forces(vehicle: VehicleParams, specific_force) -> np.ndarray:
@@ -89,7 +61,7 @@ class NormalForceSolver:
     bank (N, 3)."""
 
     def __init__(self, vehicle: VehicleParams):
-        self._core = _core_solver(vehicle)
+        self._core = core_solver(vehicle)
 
     def __call__(self, specific_force) -> np.ndarray:
         try:

@@ -1,40 +1,57 @@
 //! `soilocp._core.NormalForceSolver`: the zero-warp normal forces (eqs. 16-25, docs/method.md
-//! §2-3) of one vehicle for a bank of specific forces in one call; `gravity_from_attitude`: eq. 20
-//! over arrays of roll and pitch.
+//! §2-3) of one vehicle, its map built from the geometry, for one specific force (floats) or a bank
+//! in one call; `gravity_from_attitude`: eq. 20 over arrays of roll and pitch.
 
 use numpy::ndarray::{ArrayD, Axis, IxDyn};
-use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray2, PyReadonlyArrayDyn};
+use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
 use crate::normal_force::{self, NormalForceMap};
 
-/// The solver of one vehicle: F = f M, M (3 x 4) prepared by the caller once per vehicle.
+/// (a, b, c, d, h, mass): what rebuilds a solver.
+type Geometry = (f64, f64, f64, f64, f64, f64);
+
+/// The solver of one vehicle: F = f M, M (3 x 4) computed once from its geometry and mass
+/// ([`normal_force::zero_warp_map`], the one definition of M).
 #[pyclass(frozen, module = "soilocp._core")]
 pub struct NormalForceSolver {
     inner: NormalForceMap,
+    /// (a, b, c, d, h, mass), for pickling
+    geometry: [f64; 6],
 }
 
 #[pymethods]
 impl NormalForceSolver {
+    /// From the vehicle's a, b, c, d, h (m) and mass (kg); ValueError naming a value that is not
+    /// finite and > 0.
     #[new]
-    fn py_new(map: PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
-        let m = map.as_array();
-        if m.shape() != [3, 4] {
-            return Err(PyValueError::new_err(format!(
-                "map must have shape (3, 4), got {:?}",
-                m.shape()
-            )));
-        }
-        let rows: [[f64; 4]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| m[[i, j]]));
-        let inner = NormalForceMap::new(rows).map_err(PyValueError::new_err)?;
-        Ok(NormalForceSolver { inner })
+    fn py_new(a: f64, b: f64, c: f64, d: f64, h: f64, mass: f64) -> PyResult<Self> {
+        let inner = NormalForceMap::for_vehicle(a, b, c, d, h, mass).map_err(PyValueError::new_err)?;
+        Ok(NormalForceSolver {
+            inner,
+            geometry: [a, b, c, d, h, mass],
+        })
     }
 
     /// Pickle / deepcopy support (a stage travels to a worker process with its solver).
-    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, PyType>, (Bound<'py, PyArray2<f64>>,)) {
-        (slf.get_type(), (Self::map(slf.get(), slf.py()),))
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, PyType>, Geometry) {
+        let [a, b, c, d, h, m] = slf.get().geometry;
+        (slf.get_type(), (a, b, c, d, h, m))
+    }
+
+    /// F_z per wheel (N; wheels 1 LR, 2 LF, 3 RF, 4 RR) for one specific force (f_x, f_y, f_z) in
+    /// m/s^2, as four floats: the N = 1 call of a stage service, no numpy.  ValueError naming
+    /// specific_force and its value if one is not finite.
+    fn solve_one(&self, fx: f64, fy: f64, fz: f64) -> PyResult<(f64, f64, f64, f64)> {
+        if !(fx.is_finite() && fy.is_finite() && fz.is_finite()) {
+            return Err(PyValueError::new_err(format!(
+                "specific_force must be finite, got ({fx:?}, {fy:?}, {fz:?})"
+            )));
+        }
+        let [f1, f2, f3, f4] = self.inner.solve([fx, fy, fz]);
+        Ok((f1, f2, f3, f4))
     }
 
     /// F_z per wheel (N; wheels 1 LR, 2 LF, 3 RF, 4 RR) for specific forces of shape (..., 3)
