@@ -10,7 +10,11 @@ Since the port, one change of the kernel's model is mirrored here: a window whos
 ``resistance_jump`` of its sigmas is a jump of F_MR, which informs F_MR alone (only once windows of both
 acceleration signs have been fitted since F_MR was last reset), and k moves only once windows of both signs
 have been fitted since then (a shadow posterior, which they all inform, becomes the state then)
-(docs/robustness.md, "The accelerate/brake rows: a jump of the resistance").
+(docs/robustness.md, "The accelerate/brake rows: a jump of the resistance").  And (docs/method.md §15, "A
+jump is a mixed window" and "The wheels' inertia under an unknown payload"): a jump's shadow restarts from the
+reset state, without the jump window's b; a jump whose window adjoins the previous fitted window takes that
+one back (the state before it, predicted over both spans, then the jump); the wheel-inertia term of eq. TC
+carries 1 / rho = k^w, w = 1 - prior_sigma^2 / state_sigma^2, at the shadow's k before the window.
 """
 
 from __future__ import annotations
@@ -31,11 +35,12 @@ def gravity_from_attitude(roll, pitch, g: float = G) -> np.ndarray:
     return np.stack([-g * np.sin(th), g * np.sin(al) * np.cos(th), g * np.cos(al) * np.cos(th)], axis=-1)
 
 
-def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams, resistance=None):
-    """Eq. TC: (x, y) = (sum T_log / R, m f_x + I_w sum omega_dot / R + F_MR,model)."""
+def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams, resistance=None, inertia_scale=1.0):
+    """Eq. TC: (x, y) = (sum T_log / R, m f_x + (1 / rho) I_w sum omega_dot / R + F_MR,model)."""
     r = vehicle.wheel_radius
     x = np.asarray(torque_sum, dtype=float) / r
-    y = vehicle.mass * np.asarray(f_x, dtype=float) + vehicle.wheel_inertia * np.asarray(omega_dot_sum, dtype=float) / r
+    y = vehicle.mass * np.asarray(f_x, dtype=float) + np.asarray(inertia_scale, dtype=float) * (
+        vehicle.wheel_inertia * np.asarray(omega_dot_sum, dtype=float) / r)
     if resistance is not None:
         y = y + np.asarray(resistance, dtype=float)
     return x, y
@@ -67,12 +72,17 @@ class ReferenceTorqueScale:
         self.shadow_theta = self.theta.copy()  # as if every accelerating or braking window informed k
         self.shadow_P = self.P.copy()
         self.jumps = np.zeros(n, dtype=int)  # windows taken as a jump of F_MR, per vehicle (for the tests)
+        self.taken_back = np.zeros(n, dtype=int)  # of which the previous window was taken back (for the tests)
         self.t0 = np.full(n, np.nan)
         self.t_prev = np.full(n, np.nan)
         self.prev = np.zeros((n, 4))
         self.area = np.zeros((n, 4))
         self.w0 = np.zeros(n)
         self.slow = np.zeros(n, dtype=bool)
+        # the state before the last fitted window (theta, P, signs, shadow theta, shadow P), its span and last stamp
+        self.before = (self.theta.copy(), self.P.copy(), self.signs.copy(), self.shadow_theta.copy(), self.shadow_P.copy())
+        self.last_span = np.full(n, np.nan)
+        self.last_end = np.full(n, np.nan)
 
     def apply_arrays(self, ix, stamp, f_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed, normal_force):
         """(torques x k's mean, k's relative 1-sigma for K's band), or (the torques, None) while never learnt."""
@@ -133,12 +143,20 @@ class ReferenceTorqueScale:
             j = np.flatnonzero(full)
             means = area[j] / span[j, None]
             omega_dot = (w_sum[j] - self.w0[ix[j]]) / span[j]
-            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3])
+            sk = self.shadow_theta[ix[j], 0]
+            w = 1.0 - self.prior_sigma**2 / self.state_sigma**2 if self.state_sigma**2 > self.prior_sigma**2 else 0.0
+            ok = np.isfinite(sk) & (sk > 0) & (w != 0.0)
+            alpha = np.where(ok, np.where(ok, sk, 1.0) ** w, 1.0)
+            x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3], alpha)
             valid = ~slow[j]
             if valid.any():
                 jj = j[valid]
                 a = means[valid, 0] - means[valid, 1]
-                self._update(ix[jj], span[jj], x[valid], y[valid], a)
+                adjoins = self.t0[ix[jj]] == self.last_end[ix[jj]]
+                self._update(ix[jj], span[jj], x[valid], y[valid], a, adjoins)
+                self.last_span[ix[jj]] = span[jj]
+                self.last_end[ix[jj]] = stamp[jj]
+            self.last_end[ix[j[~valid]]] = np.nan
         restart = ~cont | full
         self.t0[ix] = np.where(restart, stamp, self.t0[ix])
         self.w0[ix] = np.where(restart, w_sum, self.w0[ix])
@@ -148,13 +166,14 @@ class ReferenceTorqueScale:
         self.t_prev[ix] = stamp
         return self.scale(ix)
 
-    def _update(self, iv, span, x, y, a) -> None:
+    def _update(self, iv, span, x, y, a, adjoins) -> None:
         cfg = self.cfg
         accel = np.abs(a) >= cfg.min_accel
         sign = np.where(accel, np.where(a > 0, 1, 2), 0)
         signs = self.signs[iv]
         th, P = self.theta[iv], self.P[iv]
         sth, sP = self.shadow_theta[iv], self.shadow_P[iv]
+        before = tuple(b[iv].copy() for b in (self.theta, self.P, self.signs, self.shadow_theta, self.shadow_P))
         for M in (P, sP):
             M[:, 0, 0] += cfg.scale_walk**2 * span * accel
             M[:, 1, 1] += cfg.resistance_walk**2 * span
@@ -167,9 +186,18 @@ class ReferenceTorqueScale:
         jump_var = cfg.resistance_jump**2
         jump = (jump_var > 0) & (signs == 3) & (innov * innov > jump_var * S)
         self.jumps[iv] += jump
+        # a jump whose window adjoins the previous fitted one: from the state before that one, over both spans
+        back = jump & adjoins
+        self.taken_back[iv] += back
+        if back.any():
+            th[back], P[back] = self.before[0][iv[back]], self.before[1][iv[back]]
+            P[back, 0, 0] += cfg.scale_walk**2 * (self.last_span[iv[back]] + span[back]) * accel[back]
+            P[back, 1, 1] += cfg.resistance_walk**2 * (self.last_span[iv[back]] + span[back])
+            innov[back] = y[back] - np.einsum("mi,mi->m", H[back], th[back])
         P[jump, 0, 1] = 0.0
         P[jump, 1, 0] = 0.0
         P[jump, 1, 1] = cfg.resistance_sigma**2
+        reset_th, reset_P = th.copy(), P.copy()  # a jump's shadow restarts here, without the window's b
         signs = np.where(jump, sign, signs | sign)
         # the shadow: every accelerating or braking window informs k; the state: once both signs are fitted
         s_innov = y - np.einsum("mi,mi->m", H, sth)
@@ -178,10 +206,12 @@ class ReferenceTorqueScale:
         both = ~jump & (signs == 3)
         th = np.where(both[:, None], sth, th)
         P = np.where(both[:, None, None], sP, P)
-        sth = np.where(jump[:, None], th, sth)
-        sP = np.where(jump[:, None, None], P, sP)
+        sth = np.where(jump[:, None], reset_th, sth)
+        sP = np.where(jump[:, None, None], reset_P, sP)
         self.theta[iv], self.P[iv], self.signs[iv] = th, P, signs
         self.shadow_theta[iv], self.shadow_P[iv] = sth, sP
+        for b, v in zip(self.before, before):
+            b[iv] = v
 
     def _correct(self, th, P, H, innov, informs):
         """The update with these innovations; k's gain 0 where not ``informs`` (the Schmidt update)."""

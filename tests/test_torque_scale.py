@@ -78,7 +78,9 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
 def test_a_start_under_a_draft_that_grows_with_speed_leaves_k_until_it_brakes():
     """From 0.3 m/s, 0.6 m/s^2 for 3 s against a draft of 20 + 40 v N (docs/control.md: the closed loop read k
     0.9745 for 1.00 from such a start): windows of one sign inform F_MR alone; the braking that follows makes
-    the shadow, which they informed, the state: k moves then, and only then."""
+    the shadow, which they informed, the state: k moves then, and only then.  The next braking window is a jump
+    of F_MR (the draft has fallen with the speed) that adjoins it, and takes it back (docs/method.md §15, "A
+    jump is a mixed window"): k returns to its prior, and so does its band."""
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 6.0, 0.01)
     a = np.where(t < 3.0, 0.6, -0.6)
@@ -89,9 +91,13 @@ def test_a_start_under_a_draft_that_grows_with_speed_leaves_k_until_it_brakes():
     est = _run((t, a + rng.normal(0, 0.02, t.size), omega, logged, v), TorqueScaleConfig())
     assert np.all(est[t < 3.01, 0] == 1.0)  # three accelerating windows: k has not moved
     # then it moves, and not to the truth: a draft that grows with speed is no scale and no constant F_MR, and
-    # the windows of the two signs at their different speeds read part of it as k (measured 0.868 for 1.00, the
-    # limit docs/robustness.md states); a change of the model that fixes or worsens this shows here
-    assert 0.85 < est[-1, 0] < 0.89
+    # the windows of the two signs at their different speeds read part of it as k (measured 0.823 for 1.00, the
+    # limit docs/robustness.md states; 0.868 before the inertia term carried the payload's share of k, at the
+    # shadow's k that the one-sign windows moved); a change of the model that fixes or worsens this shows here
+    first = (t >= 4.0) & (t < 5.0)
+    assert np.all((0.80 < est[first, 0]) & (est[first, 0] < 0.85))
+    # the second braking window, a jump, takes the first back: the prior, k 1.00 +- 0.10 (the state's)
+    assert est[-1, 0] == 1.0 and est[-1, 1] == pytest.approx(0.10, abs=1e-3)
 
 
 def test_disabled_it_is_the_prior():

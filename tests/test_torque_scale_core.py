@@ -112,12 +112,14 @@ def test_the_core_is_the_numpy_kernel_on_random_drives(seed, n, k_true, accel, p
 
 def test_the_random_drives_exercise_learning():
     """The property above is not vacuous: its drives close windows that inform k, and some are taken as jumps of
-    F_MR (the fed-back K moves the modelled resistance)."""
+    F_MR (the fed-back K moves the modelled resistance), some of them adjoining the previous window, which is then
+    taken back (docs/method.md §15, "A jump is a mixed window"), while k is not 1 (the inertia term's 1 / rho)."""
     rng = np.random.default_rng(1)
     learnt, numpy_ = _run_both([_drive(rng, 1500, 0.8, 0.8, 0.002, False)], TorqueScaleConfig(model_resistance=True),
                                0.05, rng, feed=True, with_ref=True)
     assert learnt > 500
     assert numpy_.jumps.sum() > 0
+    assert numpy_.taken_back.sum() > 0
 
 
 class _Checked(TorqueScaleBank):

@@ -14,7 +14,11 @@ straight, every wheel's slip within ``max_slip``, finite):
   of ``resistance_walk`` N per sqrt(s), and a jump where the soil under the wheels changes: a window whose
   innovation is beyond ``resistance_jump`` of its sigmas returns b's variance to its prior and informs b alone
   (a wrong k shifts the balance with the acceleration's sign, a jump of b does not, so a jump is taken only
-  once windows of both signs have been fitted since b was last reset).  With ``model_resistance`` the
+  once windows of both signs have been fitted since b was last reset).  A jump's window is a mixed one (the
+  axles cross the change one after the other): its b starts no contrast, and the adjoining window before it,
+  which holds the change's first part, is taken back (docs/method.md §15, "A jump is a mixed window").
+  The wheel-inertia term of the balance carries the payload's share of k, k^w, w = 1 - gross_scale_sigma^2 /
+  prior_sigma^2 (docs/method.md §15, "The wheels' inertia under an unknown payload").  With ``model_resistance`` the
   resistance itself is modelled, not a state: eq. 4 at each sample's slips (eq. 1 from the readings),
   normal forces and the soil's K as the soil stage last reported it (:meth:`TorqueScaleBank.feed_soil`,
   the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,

@@ -56,9 +56,30 @@ pub fn longitudinal_balance(
     resistance: Option<f64>,
     body: &Body,
 ) -> (f64, f64) {
+    longitudinal_balance_split(f_x, omega_dot_sum, torque_sum, resistance, 1.0, body)
+}
+
+/// Eq. TC with the scale split between the torque constant and the mass (docs/method.md §15, "The
+/// wheels' inertia under an unknown payload").  With T = c T_log and a true mass m' = rho m, eq. TC
+/// divided by rho reads
+///
+///   m f_x + (1 / rho) (I_w / R) sum_i omega_dot_i  =  k sum_i T_log,i / R  -  F_MR / rho,   k = c / rho:
+///
+/// the wheels spin with the motor's torque, not with the payload, so the inertia term carries
+/// 1 / rho = k / c, not k.  `inertia_scale` is that 1 / rho (1: the scale is the torque constant's
+/// alone, [`longitudinal_balance`]).  Returns (x, y) as [`longitudinal_balance`].
+#[inline]
+pub fn longitudinal_balance_split(
+    f_x: f64,
+    omega_dot_sum: f64,
+    torque_sum: f64,
+    resistance: Option<f64>,
+    inertia_scale: f64,
+    body: &Body,
+) -> (f64, f64) {
     let r = body.wheel_radius;
     let x = torque_sum / r;
-    let y = body.mass * f_x + body.wheel_inertia * omega_dot_sum / r;
+    let y = body.mass * f_x + inertia_scale * (body.wheel_inertia * omega_dot_sum / r);
     (x, resistance.map_or(y, |f| y + f))
 }
 
@@ -116,6 +137,23 @@ mod tests {
         assert_eq!(modelled_resistance(&[0.1, -0.1, 0.3, -0.3], 120.0, &fz, -1.0, &c), -fwd);
         // no slip: the bridge takes eq. 4 to zero (docs/method.md §8)
         assert_eq!(modelled_resistance(&[0.0; 4], 120.0, &fz, 1.0, &c), 0.0);
+    }
+
+    /// A payload (true mass rho m, the wheels' inertia unchanged, the torque constant right): eq. TC
+    /// with the inertia term scaled by 1 / rho gives y = k x - b exactly with k = 1 / rho, b = F_MR /
+    /// rho; read as the torque constant's (inertia_scale 1) it does not.
+    #[test]
+    fn the_split_balance_holds_under_a_payload() {
+        let (rho, f_mr, a, od) = (1.25, 25.0, 0.7, 11.2);
+        let torque = (rho * BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
+        let (x, y) = longitudinal_balance_split(a, od, torque, None, 1.0 / rho, &BODY);
+        assert!((x / rho - f_mr / rho - y).abs() < 1e-12);
+        let (x, y) = longitudinal_balance(a, od, torque, None, &BODY);
+        assert!((x / rho - f_mr / rho - y).abs() > 0.1);
+        assert_eq!(
+            longitudinal_balance_split(a, od, torque, Some(3.0), 1.0, &BODY),
+            longitudinal_balance(a, od, torque, Some(3.0), &BODY)
+        );
     }
 
     #[test]

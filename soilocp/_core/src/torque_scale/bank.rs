@@ -12,7 +12,7 @@ use crate::normal_force::{gravity_from_attitude, STANDARD_GRAVITY};
 use crate::observer::numeric::np_max;
 use crate::pairwise::pairwise_sum;
 use crate::slip;
-use crate::torque_scale::balance::{longitudinal_balance, modelled_resistance, Body};
+use crate::torque_scale::balance::{longitudinal_balance_split, modelled_resistance, Body};
 use crate::torque_scale::kalman::ScaleState;
 use crate::torque_scale::params::Params;
 use crate::torque_scale::window::{Terms, Window};
@@ -45,6 +45,10 @@ pub struct TorqueScaleBank {
     /// the soil stage's slip per wheel (eq. 1 on the observer's filtered speeds); NaN: none yet,
     /// the readings' slip is used
     soil_slip: Vec<[f64; 4]>,
+    /// the state before the last fitted window, that window's span and its last stamp (NaN: none)
+    before_last: Vec<ScaleState>,
+    last_span: Vec<f64>,
+    last_end: Vec<f64>,
 }
 
 impl TorqueScaleBank {
@@ -58,6 +62,9 @@ impl TorqueScaleBank {
             window: vec![Window::default(); n_vehicles],
             soil_k: vec![params.k_default; n_vehicles],
             soil_slip: vec![[f64::NAN; 4]; n_vehicles],
+            before_last: vec![ScaleState::prior(&params); n_vehicles],
+            last_span: vec![f64::NAN; n_vehicles],
+            last_end: vec![f64::NAN; n_vehicles],
             params,
             body,
             constants,
@@ -141,12 +148,54 @@ impl TorqueScaleBank {
             || !slips.iter().all(|v| v.abs() <= p.max_slip);
         if let Some(c) = self.window[i].add(s.stamp, &cur, w_sum, unusable, p) {
             if c.usable {
-                let (x, y) =
-                    longitudinal_balance(c.means[0], c.omega_dot_sum, c.means[2], Some(c.means[3]), &self.body);
-                self.state[i].update(c.span, x, y, c.means[0] - c.means[1], p);
+                let alpha = self.inertia_scale(i);
+                let (x, y) = longitudinal_balance_split(
+                    c.means[0],
+                    c.omega_dot_sum,
+                    c.means[2],
+                    Some(c.means[3]),
+                    alpha,
+                    &self.body,
+                );
+                let before = self.state[i];
+                let accel = c.means[0] - c.means[1];
+                // a jump whose window adjoins the previous fitted one takes that one back (ScaleState::jump_after)
+                if self.state[i].update(c.span, x, y, accel, p) && c.start == self.last_end[i] {
+                    let mut st = self.before_last[i];
+                    st.jump_after(self.last_span[i] + c.span, x, y, accel, p);
+                    self.state[i] = st;
+                }
+                self.before_last[i] = before;
+                self.last_span[i] = c.span;
+                self.last_end[i] = s.stamp;
+            } else {
+                self.last_end[i] = f64::NAN;
             }
         }
         self.scale(i)
+    }
+
+    /// 1 / rho, the payload's share of the scale that eq. TC's wheel-inertia term carries
+    /// ([`longitudinal_balance_split`]): k = c / rho is learnt whole, and which of the torque
+    /// constant c and the mass ratio rho made it is not in the balance (f_x and the wheels' omega_dot
+    /// move together).  Their priors split it: ln c ~ N(0, prior_sigma^2) (the torque constant's)
+    /// and ln rho with the rest of k's prior variance, state_var - prior_var, so that
+    /// E[ln(1 / rho) | ln k] = w ln k with w = 1 - prior_var / state_var, at k's estimate from
+    /// every accelerating window before this one (the shadow's; the state's, which waits for both
+    /// signs, read payload+25-accel-brake's K 11.2 % off for 8.7 %, seed 0).  w = 0 where k's prior
+    /// is the torque constant's alone (the balance as the offline fit reads it).  docs/method.md §15.
+    pub fn inertia_scale(&self, i: usize) -> f64 {
+        let p = &self.params;
+        let w = if p.state_var > p.prior_var {
+            1.0 - p.prior_var / p.state_var
+        } else {
+            0.0
+        };
+        let k = self.state[i].shadow_theta[0];
+        if w == 0.0 || !(k.is_finite() && k > 0.0) {
+            return 1.0;
+        }
+        k.powf(w)
     }
 
     /// k's 1-sigma for K's band from its posterior 1-sigma `sd`: the windows' information about k
@@ -211,6 +260,19 @@ mod tests {
     }
 
     fn drive(bank: &mut TorqueScaleBank, k_true: f64, accel: f64, seconds: f64) -> (f64, f64) {
+        drive_of(bank, k_true, 1.0, accel, seconds, |_| 25.0)
+    }
+
+    /// The drive above with a torque constant c (true torque = c x logged), a true mass rho x the
+    /// vehicle's (the wheels' inertia unchanged) and F_MR(t): k = c / rho.
+    fn drive_of(
+        bank: &mut TorqueScaleBank,
+        c: f64,
+        rho: f64,
+        accel: f64,
+        seconds: f64,
+        f_mr: impl Fn(f64) -> f64,
+    ) -> (f64, f64) {
         let w = 2.0 * std::f64::consts::PI / 4.0;
         let mut out = (f64::NAN, f64::NAN);
         for i in 0..(seconds * 100.0) as usize {
@@ -219,8 +281,8 @@ mod tests {
             let v = 1.0 + accel / w * (1.0 - (w * t).cos());
             let omega = v / BODY.wheel_radius;
             let od = 4.0 * a / BODY.wheel_radius;
-            let torque = (BODY.mass * a + 25.0) * BODY.wheel_radius + BODY.wheel_inertia * od;
-            out = bank.step(0, &straight(t, a, omega, torque / k_true, v, None));
+            let torque = (rho * BODY.mass * a + f_mr(t)) * BODY.wheel_radius + BODY.wheel_inertia * od;
+            out = bank.step(0, &straight(t, a, omega, torque / c, v, None));
         }
         out
     }
@@ -237,12 +299,71 @@ mod tests {
     #[test]
     fn it_converges_where_the_robot_accelerates_and_brakes() {
         // 0.05: a payload of +25 % is 4 sigma of the prior, and its innovations must not be taken for
-        // jumps of b one after another
-        for (k_true, prior) in [(1.08, 0.10), (0.8, 0.10), (0.8, 0.05)] {
+        // jumps of b one after another.  (c, rho, prior): a torque constant 8 % high, a payload of
+        // +25 %, a torque constant 20 % low; with the prior 0.05 k is the torque constant's alone
+        for (c, rho, prior) in [(1.08, 1.0, 0.10), (1.0, 1.25, 0.10), (0.8, 1.0, 0.05)] {
+            let k_true = c / rho;
             let mut b = bank(prior);
-            let (m, sd) = drive(&mut b, k_true, 0.8, 40.0);
-            assert!((m - k_true).abs() < 0.01 * k_true, "k {m} for {k_true}");
+            let (m, sd) = drive_of(&mut b, c, rho, 0.8, 40.0, |_| 25.0);
+            assert!((m - k_true).abs() < 0.006 * k_true, "k {m} for {k_true}");
             assert!(sd < 0.02 && !b.at_prior(m, sd));
+        }
+    }
+
+    /// The wheels' inertia under a payload (docs/method.md §15): with the split of the priors
+    /// (w = 0.75 at 0.10 / 0.05) the payload's k is read 0.8041 for 0.80 (+0.5 %) and the torque
+    /// constant's 1.0843 for 1.08 (+0.4 %); read as the torque constant's alone (w = 0, the prior
+    /// 0.05), 0.8146 (+1.8 %: the inertia term, 5 N per m/s^2 here, scaled by k instead of 1 / rho)
+    /// and 1.0781 (-0.2 %).
+    #[test]
+    fn the_inertia_term_carries_the_payloads_share_of_the_scale() {
+        let mut b = bank(0.10);
+        assert_eq!(b.inertia_scale(0), 1.0);
+        b.state[0].shadow_theta[0] = 0.8;
+        assert!((b.inertia_scale(0) - 0.8f64.powf(0.75)).abs() < 1e-15);
+        assert_eq!(bank(0.05).inertia_scale(0), 1.0);
+        let mut b = bank(0.10);
+        let (m, _) = drive_of(&mut b, 1.0, 1.25, 0.8, 40.0, |_| 25.0);
+        assert!((m / 0.8 - 1.0).abs() < 0.006, "payload: k {m} for 0.8");
+        let mut b = bank(0.10);
+        let (m, _) = drive_of(&mut b, 1.08, 1.0, 0.8, 40.0, |_| 25.0);
+        assert!((m / 1.08 - 1.0).abs() < 0.006, "torque constant: k {m} for 1.08");
+    }
+
+    /// A soil change whose resistance ramps over 0.5 s (the axles one after the other) across a
+    /// window boundary, on the drive of `soilocp accuracy --robustness`'s accelerate/brake rows: 4 s
+    /// of speed swing, then 4 s of a traction test (slip 0.3: no window fits).  The window with the
+    /// change's first part adjoins the jump's and is taken back, and the jump window's b does not
+    /// enter the next swing's contrast, so k stays the truth's (0.9998 on the first; the kernel before
+    /// read 1.0047, and 1.0055 with the shadow's restart alone) (docs/method.md §15, "A jump is a
+    /// mixed window").
+    #[test]
+    fn a_soil_change_across_two_windows_does_not_move_k() {
+        for (t_change, step) in [(10.6, 20.0), (10.6, -20.0), (26.6, 15.0)] {
+            let mut b = bank(0.10);
+            let w = 2.0 * std::f64::consts::PI / 4.0;
+            let mut m = f64::NAN;
+            for i in 0..4000 {
+                let t = i as f64 * 0.01;
+                let phase = t % 8.0;
+                let swing = phase < 4.0;
+                let a = if swing { 0.8 * (w * phase).sin() } else { 0.0 };
+                let v = if swing {
+                    1.0 + 0.8 / w * (1.0 - (w * phase).cos())
+                } else {
+                    1.0
+                };
+                let slip = if swing { 0.0 } else { (0.6 * (phase - 4.0)).min(0.3) };
+                let omega = v / (1.0 - slip) / BODY.wheel_radius;
+                let od = 4.0 * a / BODY.wheel_radius;
+                let f_mr = 25.0 + step * ((t - t_change) / 0.5).clamp(0.0, 1.0);
+                let torque = (BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
+                m = b.step(0, &straight(t, a, omega, torque, v, None)).0;
+            }
+            assert!(
+                (m - 1.0).abs() < 0.002,
+                "k {m} for 1.00 (change at {t_change} s by {step} N)"
+            );
         }
     }
 

@@ -63,15 +63,7 @@ impl ScaleState {
     /// learnt from that contrast, not taken for jump after jump.  Returns whether it was one.
     pub fn update(&mut self, span: f64, x: f64, y: f64, accel: f64, p: &Params) -> bool {
         // a NaN acceleration is none (the reference's |a| >= min_accel is False for it)
-        let sign: u8 = if accel.abs() >= p.min_accel {
-            if accel > 0.0 {
-                1
-            } else {
-                2
-            }
-        } else {
-            0
-        };
+        let sign = accel_sign(accel, p);
         let accel = sign != 0;
         predict(&mut self.p, span, accel, p);
         predict(&mut self.shadow_p, span, accel, p);
@@ -80,11 +72,7 @@ impl ScaleState {
         let s = gain_terms(&self.p, h, p).1;
         let jump = p.jump_var > 0.0 && self.signs == 3 && innov * innov > p.jump_var * s;
         if jump {
-            self.p[0][1] = 0.0;
-            self.p[1][0] = 0.0;
-            self.p[1][1] = p.resistance_var;
-            correct(&mut self.theta, &mut self.p, h, innov, false, p);
-            (self.signs, self.shadow_theta, self.shadow_p) = (sign, self.theta, self.p);
+            self.jump(h, y, sign, p);
             return true;
         }
         self.signs |= sign;
@@ -98,6 +86,50 @@ impl ScaleState {
             correct(&mut self.theta, &mut self.p, h, innov, false, p);
         }
         false
+    }
+}
+
+impl ScaleState {
+    /// A jump of F_MR at a window of eq. TC's H = h and balance y, its span predicted
+    /// (docs/method.md §15, "A jump is a mixed window"): b's variance returns to its prior,
+    /// uncorrelated with k, and the window informs b alone.  The window is a mixed one: the soil
+    /// under the wheels changed within it, one axle after the other, so its mean F_MR is neither
+    /// the old soil's nor the new one's.  Its sign still counts (the jump test stays on), but the
+    /// shadow restarts from the reset state, without the window's b: carried into the contrast with
+    /// the next window of the other sign, that b was read as k (reverse-braking: k 0.993 -> 0.986
+    /// for 1.00 on the simulator's exact data).
+    pub fn jump(&mut self, h: [f64; 2], y: f64, sign: u8, p: &Params) {
+        self.p[0][1] = 0.0;
+        self.p[1][0] = 0.0;
+        self.p[1][1] = p.resistance_var;
+        (self.signs, self.shadow_theta, self.shadow_p) = (sign, self.theta, self.p);
+        let innov = y - (h[0] * self.theta[0] + h[1] * self.theta[1]);
+        correct(&mut self.theta, &mut self.p, h, innov, false, p);
+    }
+
+    /// A jump of F_MR whose window adjoins the previous fitted one, from the state before that one
+    /// (self) over both windows' `span`: the previous window is taken back.  The wheels cross a soil
+    /// change one axle after the other ((a + b) / V, 0.5 s at 1 m/s), so the change's first part,
+    /// below the jump test, fell into the window before the jump and was read as k
+    /// (docs/method.md §15, "A jump is a mixed window").  `accel`: this window's mean acceleration.
+    pub fn jump_after(&mut self, span: f64, x: f64, y: f64, accel: f64, p: &Params) {
+        let sign = accel_sign(accel, p);
+        predict(&mut self.p, span, sign != 0, p);
+        predict(&mut self.shadow_p, span, sign != 0, p);
+        self.jump([x, -1.0], y, sign, p);
+    }
+}
+
+/// The sign of a window's mean acceleration: 1 accelerating, 2 braking, 0 below `min_accel` (or NaN).
+fn accel_sign(accel: f64, p: &Params) -> u8 {
+    if accel.abs() >= p.min_accel {
+        if accel > 0.0 {
+            1
+        } else {
+            2
+        }
+    } else {
+        0
     }
 }
 

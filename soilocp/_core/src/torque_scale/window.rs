@@ -14,6 +14,8 @@ pub type Terms = [f64; 4];
 /// changes per second (rad/s^2) and whether every sample of it was usable.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Closed {
+    /// the window's first stamp (s)
+    pub start: f64,
     pub span: f64,
     pub means: Terms,
     pub omega_dot_sum: f64,
@@ -64,6 +66,7 @@ impl Window {
         let span = stamp - self.t0;
         let full = cont && span >= p.window - 1e-9;
         let closed = full.then(|| Closed {
+            start: self.t0,
             span,
             means: std::array::from_fn(|j| area[j] / span),
             omega_dot_sum: (w_sum - self.w0) / span,
