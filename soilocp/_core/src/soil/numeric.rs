@@ -50,6 +50,53 @@ pub fn row_max(a: &[f64]) -> f64 {
     m
 }
 
+/// The largest value of a row, NaN if any is NaN: [`row_max`]'s value, found in four independent
+/// lanes (vector registers) instead of one chain.  Only the sign of a zero maximum can differ
+/// from [`row_max`]'s (which keeps the first of equal values): callers that only subtract it from
+/// the row before `exp` (x - 0.0 and x - (-0.0) are equal but for x = +-0, where exp gives 1
+/// either way) get the same numbers.
+pub fn row_top(a: &[f64]) -> f64 {
+    let mut lanes = [f64::NEG_INFINITY; 4];
+    let mut nan = false;
+    let mut chunks = a.chunks_exact(4);
+    for c in &mut chunks {
+        for (m, &x) in lanes.iter_mut().zip(c) {
+            nan |= x.is_nan();
+            *m = if x > *m { x } else { *m };
+        }
+    }
+    for &x in chunks.remainder() {
+        nan |= x.is_nan();
+        lanes[0] = if x > lanes[0] { x } else { lanes[0] };
+    }
+    if nan {
+        return f64::NAN;
+    }
+    let m01 = if lanes[1] > lanes[0] { lanes[1] } else { lanes[0] };
+    let m23 = if lanes[3] > lanes[2] { lanes[3] } else { lanes[2] };
+    if m23 > m01 {
+        m23
+    } else {
+        m01
+    }
+}
+
+/// The least non-NaN value of a row (`fold(INFINITY, f64::min)`: +inf if none), in four lanes;
+/// only the sign of a zero minimum can differ from the fold's.
+pub fn row_min_ignoring_nan(a: &[f64]) -> f64 {
+    let mut lanes = [f64::INFINITY; 4];
+    let mut chunks = a.chunks_exact(4);
+    for c in &mut chunks {
+        for (m, &x) in lanes.iter_mut().zip(c) {
+            *m = m.min(x);
+        }
+    }
+    for &x in chunks.remainder() {
+        lanes[0] = lanes[0].min(x);
+    }
+    lanes[0].min(lanes[1]).min(lanes[2].min(lanes[3]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,6 +124,33 @@ mod tests {
         assert_eq!(interp(0.5, &xp, &fp), 5.0);
         assert_eq!(interp(1.0, &xp, &fp), 20.0); // the last node at x
         assert_eq!(interp(1.5, &xp, &fp), 25.0);
+    }
+
+    /// The lane-wise extremes are the chained ones (NaN rules included).
+    #[test]
+    fn lane_extremes_are_the_chains() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        for n in [1usize, 3, 4, 7, 25, 241] {
+            for _ in 0..50 {
+                let row: Vec<f64> = (0..n)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 7;
+                        x ^= x << 17;
+                        (x >> 11) as f64 / (1u64 << 53) as f64 * 20.0 - 15.0
+                    })
+                    .collect();
+                assert_eq!(row_top(&row).to_bits(), row_max(&row).to_bits());
+                let fold = row.iter().copied().fold(f64::INFINITY, f64::min);
+                assert_eq!(row_min_ignoring_nan(&row).to_bits(), fold.to_bits());
+                let mut with_nan = row.clone();
+                with_nan[n / 2] = f64::NAN;
+                assert!(row_top(&with_nan).is_nan() && row_max(&with_nan).is_nan());
+                let fold = with_nan.iter().copied().fold(f64::INFINITY, f64::min);
+                assert_eq!(row_min_ignoring_nan(&with_nan).to_bits(), fold.to_bits());
+            }
+        }
+        assert_eq!(row_min_ignoring_nan(&[f64::NAN; 5]), f64::INFINITY);
     }
 
     #[test]
