@@ -4,7 +4,7 @@
 //! which they disagree by more than `axle_mismatch_z` of their combined spread.
 
 use crate::soil::grid::Grid;
-use crate::soil::numeric::{pairwise_sum, row_top};
+use crate::soil::numeric::{grid_sum, row_top};
 use crate::soil::params::Params;
 
 /// Per wheel (paper order: left-rear, left-front, right-front, right-rear): 0 front axle, 1 rear.
@@ -50,6 +50,7 @@ impl AxleCheck {
     }
 
     /// [`AxleCheck::update`] with the caller's scratch rows `acc`, `post` (G each).
+    #[inline(always)]
     pub fn update_with<L: AsRef<[f64]>>(
         &mut self,
         stamp: f64,
@@ -80,7 +81,7 @@ impl AxleCheck {
                 // no wheel: every acc is 0.0, its top 0.0 and exp(0.0 - 0.0) exactly 1: p x 1 = p
                 post.copy_from_slice(&self.p[axle]);
             }
-            let total = pairwise_sum(post);
+            let total = grid_sum(post);
             if total > 0.0 && total.is_finite() {
                 for (p, v) in self.p[axle].iter_mut().zip(post.iter()) {
                     *p = v / total;
@@ -102,6 +103,7 @@ impl AxleCheck {
     }
 
     /// [`AxleCheck::judge`] with the caller's scratch row `cdf` (G).
+    #[inline(always)]
     pub fn judge_with(
         &mut self,
         grid: &Grid,

@@ -7,7 +7,7 @@
 use crate::observer::numeric::np_sign as sign;
 use crate::soil::axles::{AxleCheck, AxleVerdict};
 use crate::soil::grid::Grid;
-use crate::soil::numeric::{pairwise_sum, row_top};
+use crate::soil::numeric::{grid_sum, row_top};
 use crate::soil::params::Params;
 use crate::soil::scale::{scale_shift_with, ScaleNodes, ScaleScratch};
 
@@ -271,7 +271,27 @@ impl SoilGridBank {
             .collect())
     }
 
+    /// One vehicle's update.  Its loops over the grid run in vector registers; where the CPU has
+    /// AVX2 the whole update is compiled a second time for it (four f64 lanes instead of two),
+    /// chosen at run time.  Both copies do the same IEEE operations in the same order (no FMA:
+    /// Rust does not contract a x b + c), so they give the same numbers to the bit.
     fn step_one(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above)
+            return unsafe { self.step_one_avx2(s, wheel, bridged) };
+        }
+        self.step_one_body(s, wheel, bridged)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn step_one_avx2(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
+        self.step_one_body(s, wheel, bridged)
+    }
+
+    #[inline(always)]
+    fn step_one_body(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
         let grid = &self.grid;
         let cfg = &self.cfg;
         let g = grid.len();
@@ -301,7 +321,7 @@ impl SoilGridBank {
                     let x = v.max(1e-300);
                     *q = if x == 1e-300 { floor } else { x.powf(a) };
                 }
-                let total = pairwise_sum(&w.q);
+                let total = grid_sum(&w.q);
                 for (p, v) in b.p_stay.iter_mut().zip(&w.q) {
                     *p = v / total;
                 }
@@ -403,7 +423,7 @@ impl SoilGridBank {
                 *post = p * l;
                 *post_stay = p_stay * l;
             }
-            let (total, total_stay) = (pairwise_sum(&w.post), pairwise_sum(&w.post_stay));
+            let (total, total_stay) = (grid_sum(&w.post), grid_sum(&w.post_stay));
             if total > 0.0 && total.is_finite() {
                 for (p, v) in b.p.iter_mut().zip(&w.post) {
                     *p = v / total;
@@ -488,12 +508,13 @@ impl SoilGridBank {
 /// drive) take ln(op) x exponent, computed once, without their exp and ln.  The cut is
 /// conservative: e^x < B = op sigma 2^-55 for every x < ln B - 1 (libm's exp and ln are within
 /// an ulp), then (1 - op) e^x / sigma < op 2^-54 after rounding, below half an ulp of op.
+#[inline(always)]
 fn tempered_loglike(r2: &[f64], sig2: f64, op: f64, exponent: f64, out: &mut [f64]) {
     let root = sig2.sqrt();
     let like = |r2: f64| (1.0 - op) * (-0.5 * r2).exp() / root + op;
     // op and sigma in a range where every bound below is a normal number (else: no cut)
     let cut = if op > 1e-250 && op < 1.0 && root > 1e-30 && root < 1e30 {
-        (op * root * (2f64).powi(-55)).ln() - 1.0
+        (op * root * (f64::EPSILON / 8.0)).ln() - 1.0 // EPSILON / 8 = 2^-55
     } else {
         f64::NEG_INFINITY
     };
@@ -527,6 +548,7 @@ pub fn likelihood_exponent(cfg: &Params, dt: f64) -> f64 {
 /// hypothesis (w < 1/2) and the recent data favour it (stay_llr < 0); then the no-change belief
 /// restarts from the pooled one, whose median is reported.  change_evidence 0: always the pooled
 /// median, no change taken.
+#[inline(always)]
 fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64], scratch: &mut [f64]) -> (f64, bool) {
     let (changed, taken) = if cfg.change_evidence > 0.0 {
         let t = b.w_stay < 0.5 && b.stay_llr < 0.0;
@@ -550,6 +572,7 @@ fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64], scratch
 /// Accumulate the window's NIS at the posterior median, the systematic budget's sums and the
 /// scale profile's per-node sums, weighted as the belief weighs the samples (exponent /
 /// variance); a refresh interval's pair stands for its interval.
+#[inline(always)]
 fn window_stats(
     grid: &Grid,
     b: &mut Belief,

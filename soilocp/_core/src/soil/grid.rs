@@ -90,6 +90,7 @@ impl Grid {
     /// batch lies inside the zero-slip bridge (§8): the whole batch is evaluated by the law itself
     /// (as the reference does); otherwise the curve factorises into grid constants and one exp:
     /// h = sign amp (1 - e^{-C3 |S|}) + offset_side + slope_side |S|.
+    #[inline(always)]
     pub fn curve(&self, s: f64, bridged: bool, h: &mut [f64], d: &mut [f64]) {
         if bridged {
             for ((hv, dv), &k) in h.iter_mut().zip(d.iter_mut()).zip(&self.k) {
@@ -129,6 +130,7 @@ impl Grid {
     }
 
     /// [`Grid::predict`] with a scratch row `q` (G) of the caller's: no allocation per step.
+    #[inline(always)]
     pub fn predict_with(
         &self,
         p: &mut [f64],
@@ -172,12 +174,14 @@ impl Grid {
     }
 
     /// The node index of a mid-point CDF's median: the number of nodes below 1/2, within [lo, hi].
+    #[inline(always)]
     pub fn median_node(cdf: &[f64], lo: usize, hi: usize) -> usize {
         cdf.iter().filter(|&&c| c < 0.5).count().max(lo).min(hi)
     }
 
     /// ln K at a belief's median from its mid-point CDF: `np.interp(0.5, cdf, theta)`, beyond the
     /// CDF's ends the end node.
+    #[inline(always)]
     pub fn median(&self, cdf: &[f64]) -> f64 {
         let i = Self::median_node(cdf, 1, self.len() - 1);
         let (c0, c1) = (cdf[i - 1], cdf[i]);
@@ -187,6 +191,7 @@ impl Grid {
 
     /// (ln K at 16 %, 50 %, 84 %) of a belief from its mid-point CDF: the band is half the 16-84 %
     /// interval (moments would be dominated by the small uniform change mass over K = 5..5000).
+    #[inline(always)]
     pub fn quantiles(&self, cdf: &[f64]) -> [f64; 3] {
         [0.15865, 0.5, 0.84135].map(|x| interp(x, cdf, &self.theta))
     }
@@ -199,6 +204,7 @@ impl Grid {
     }
 
     /// The mid-point CDF of `p` into the caller's row `c` (G): no allocation per step.
+    #[inline(always)]
     pub fn cdf_into<'a>(p: &[f64], c: &'a mut [f64]) -> &'a [f64] {
         let c = &mut c[..p.len()];
         midpoint_cdf(p, c);

@@ -2,7 +2,7 @@
 //! (the torque constant; docs/method.md §9, "The band"): the scale profile over the window's
 //! samples, minimised over ln K for each c on nodes over +-4 sigma, and c's posterior.
 
-use crate::soil::numeric::{pairwise_sum, row_min_ignoring_nan, row_top};
+use crate::soil::numeric::{grid_sum, row_min_ignoring_nan, row_top};
 
 /// The nodes of c in units of its 1-sigma (`np.linspace(-4, 4, 25)` from the Python side) and
 /// their log prior N(0, 1) in those units.
@@ -18,8 +18,14 @@ pub struct ScaleNodes {
 /// where the curve saturates (K >~ 1000, §9) a scaled profile is flat to 1e-14, and a plain argmin
 /// would pick a node of that plateau by rounding.
 pub fn profile_argmin(f: &[f64], theta: &[f64], dtheta: f64) -> (f64, f64) {
+    profile_argmin_from(f, row_min_ignoring_nan(f), theta, dtheta)
+}
+
+/// [`profile_argmin`] given the row's least non-NaN value `low` (the fold of f64::min; a zero's
+/// sign aside, which the tie below does not see: low + 1e-9 |low| is +0 for either).
+#[inline(always)]
+fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64, f64) {
     let g = f.len();
-    let low = row_min_ignoring_nan(f); // the fold of f64::min, in lanes
     let tie = low + 1e-9 * low.abs();
     let least = f.iter().position(|&v| v <= tie).unwrap_or(0);
     let i = least.clamp(1, g - 2);
@@ -65,8 +71,18 @@ pub struct ScaleScratch {
     pc2: Vec<f64>,
 }
 
+/// A scale c's misfit row c (c S_hh - 2 S_oh) into `row`, and its least non-NaN value.
+#[inline(always)]
+fn misfit_row(cv: f64, s_hh: &[f64], two_oh: &[f64], row: &mut [f64]) -> f64 {
+    for ((r, &hh), &oh2) in row.iter_mut().zip(s_hh).zip(two_oh) {
+        *r = cv * (cv * hh - oh2);
+    }
+    row_min_ignoring_nan(row)
+}
+
 /// [`scale_shift`] with the caller's scratch rows.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 pub fn scale_shift_with(
     s_oh: &[f64],
     s_hh: &[f64],
@@ -99,10 +115,8 @@ pub fn scale_shift_with(
     w.two_oh.clear();
     w.two_oh.extend(s_oh.iter().map(|&oh| 2.0 * oh));
     for (ci, &cv) in w.c.iter().enumerate() {
-        for ((r, &hh), &oh2) in w.row.iter_mut().zip(s_hh).zip(&w.two_oh) {
-            *r = cv * (cv * hh - oh2);
-        }
-        let (t, m) = profile_argmin(&w.row, theta, dtheta);
+        let low = misfit_row(cv, s_hh, &w.two_oh, &mut w.row);
+        let (t, m) = profile_argmin_from(&w.row, low, theta, dtheta);
         w.th[ci] = t;
         w.post[ci] = nodes.log_prior[ci] - 0.5 * m;
     }
@@ -110,7 +124,7 @@ pub fn scale_shift_with(
     for v in w.post.iter_mut() {
         *v = (*v - top).exp();
     }
-    let total = pairwise_sum(&w.post);
+    let total = grid_sum(&w.post);
     for v in w.post.iter_mut() {
         *v /= total;
     }
@@ -129,10 +143,10 @@ pub fn scale_shift_with(
             w.pc2.iter().fold(0.0, |a, &b| a + b),
         )
     } else {
-        (pairwise_sum(&w.pc), pairwise_sum(&w.pc2))
+        (grid_sum(&w.pc), grid_sum(&w.pc2))
     };
     [
-        pairwise_sum(&w.shift2).sqrt(),
+        grid_sum(&w.shift2).sqrt(),
         c_mean,
         (c2 - c_mean * c_mean).max(0.0).sqrt(),
     ]
