@@ -315,11 +315,19 @@ impl SoilGridBank {
             if cfg.stay_forgetting > 0.0 {
                 // the no-change belief's memory (report_median)
                 let a = 1.0 - cfg.stay_forgetting * hz;
-                // nodes at the 1e-300 floor all take the same power: one pow for them
-                let floor = 1e-300f64.powf(a);
+                // nodes at the 1e-300 floor all take the same power: one pow for them, made at
+                // the first such node (most steps have none)
+                let mut floor = f64::NAN;
                 for (q, &v) in w.q.iter_mut().zip(&b.p_stay) {
                     let x = v.max(1e-300);
-                    *q = if x == 1e-300 { floor } else { x.powf(a) };
+                    *q = if x == 1e-300 {
+                        if floor.is_nan() {
+                            floor = x.powf(a);
+                        }
+                        floor
+                    } else {
+                        x.powf(a)
+                    };
                 }
                 let total = grid_sum(&w.q);
                 for (p, v) in b.p_stay.iter_mut().zip(&w.q) {
