@@ -114,6 +114,16 @@ unsafe fn matvec_fma(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
 
 #[inline(always)]
 fn matmul_body(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
+    // the row widths of the filter's products (N_MEAS = 7; the state sizes of the layouts: 12, 13,
+    // 14, 19) with the row in registers through the l loop: the same fused multiply-adds per entry
+    match p {
+        7 => return matmul_rows::<7>(a, b, c, m, q),
+        12 => return matmul_rows::<12>(a, b, c, m, q),
+        13 => return matmul_rows::<13>(a, b, c, m, q),
+        14 => return matmul_rows::<14>(a, b, c, m, q),
+        19 => return matmul_rows::<19>(a, b, c, m, q),
+        _ => {}
+    }
     // the p entries of a row are independent chains, run side by side in vector registers
     for i in 0..m {
         let row = &mut c[i * p..(i + 1) * p];
@@ -127,6 +137,27 @@ fn matmul_body(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize
                 *cj = ail.mul_add(blj, *cj);
             }
         }
+    }
+}
+
+/// [`matmul_body`] for rows of a width `P` known when compiled: each entry of C's row i is the
+/// chain of fused multiply-adds a_il b_lj over l = 0..q from 0.0, a term with a_il = 0 skipped, as
+/// in the general loop; the row stays in registers and its loop is unrolled.
+#[inline(always)]
+fn matmul_rows<const P: usize>(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize) {
+    for i in 0..m {
+        let mut row = [0.0f64; P];
+        for l in 0..q {
+            let ail = a[i * q + l];
+            if ail == 0.0 {
+                continue;
+            }
+            let bl = &b[l * P..(l + 1) * P];
+            for (cj, &blj) in row.iter_mut().zip(bl) {
+                *cj = ail.mul_add(blj, *cj);
+            }
+        }
+        c[i * P..(i + 1) * P].copy_from_slice(&row);
     }
 }
 
@@ -158,6 +189,43 @@ fn matvec_body(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The fixed-width products (matmul_rows) give every entry of the plain loop's, to the bit:
+    /// the fused multiply-adds a_il b_lj in l order from 0.0, zeros of A skipped.
+    #[test]
+    fn fixed_width_products_are_the_plain_loop() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut draw = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let v = (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            if x % 3 == 0 {
+                0.0
+            } else {
+                v * 10f64.powi((x % 9) as i32 - 4)
+            }
+        };
+        for p in [7usize, 12, 13, 14, 19, 5] {
+            for (m, q) in [(7usize, 14usize), (14, 14), (14, 7), (4, 19)] {
+                let a: Vec<f64> = (0..m * q).map(|_| draw()).collect();
+                let b: Vec<f64> = (0..q * p).map(|_| draw()).collect();
+                let mut c = vec![f64::NAN; m * p];
+                matmul(&a, &b, &mut c, m, q, p);
+                for i in 0..m {
+                    for j in 0..p {
+                        let mut want = 0.0f64;
+                        for l in 0..q {
+                            if a[i * q + l] != 0.0 {
+                                want = a[i * q + l].mul_add(b[l * p + j], want);
+                            }
+                        }
+                        assert_eq!(c[i * p + j].to_bits(), want.to_bits(), "p {p} m {m} q {q} ({i}, {j})");
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn min_max_propagate_nan() {

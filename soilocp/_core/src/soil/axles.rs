@@ -4,7 +4,7 @@
 //! which they disagree by more than `axle_mismatch_z` of their combined spread.
 
 use crate::soil::grid::Grid;
-use crate::soil::numeric::{pairwise_sum, row_max};
+use crate::soil::numeric::{grid_sum, row_top};
 use crate::soil::params::Params;
 
 /// Per wheel (paper order: left-rear, left-front, right-front, right-rear): 0 front axle, 1 rear.
@@ -43,28 +43,47 @@ impl AxleCheck {
 
     /// Fuse the used wheels' tempered log-likelihoods: `loglike[j]` (G) of wheel `wheels[j]`.
     /// Both axles' beliefs are renormalised (an axle without a wheel gets a factor 1).
-    pub fn update(&mut self, stamp: f64, wheels: &[usize], loglike: &[Vec<f64>]) {
+    pub fn update<L: AsRef<[f64]>>(&mut self, stamp: f64, wheels: &[usize], loglike: &[L]) {
         let g = self.p[0].len();
+        let (mut acc, mut post) = (vec![0.0; g], vec![0.0; g]);
+        self.update_with(stamp, wheels, loglike, &mut acc, &mut post);
+    }
+
+    /// [`AxleCheck::update`] with the caller's scratch rows `acc`, `post` (G each).
+    #[inline(always)]
+    pub fn update_with<L: AsRef<[f64]>>(
+        &mut self,
+        stamp: f64,
+        wheels: &[usize],
+        loglike: &[L],
+        acc: &mut [f64],
+        post: &mut [f64],
+    ) {
+        let g = self.p[0].len();
+        let (acc, post) = (&mut acc[..g], &mut post[..g]);
         for axle in 0..2 {
-            let mut acc = vec![0.0; g];
+            acc.fill(0.0);
             let mut hit = false;
             for (j, &w) in wheels.iter().enumerate() {
                 if AXLE_OF_WHEEL[w] == axle {
                     hit = true;
-                    for (a, &l) in acc.iter_mut().zip(&loglike[j]) {
+                    for (a, &l) in acc.iter_mut().zip(loglike[j].as_ref()) {
                         *a += l;
                     }
                 }
             }
-            let top = row_max(&acc);
-            let post: Vec<f64> = self.p[axle]
-                .iter()
-                .zip(&acc)
-                .map(|(&p, &a)| p * (a - top).exp())
-                .collect();
-            let total = pairwise_sum(&post);
+            if hit {
+                let top = row_top(acc);
+                for ((v, &p), &a) in post.iter_mut().zip(&self.p[axle]).zip(acc.iter()) {
+                    *v = p * (a - top).exp();
+                }
+            } else {
+                // no wheel: every acc is 0.0, its top 0.0 and exp(0.0 - 0.0) exactly 1: p x 1 = p
+                post.copy_from_slice(&self.p[axle]);
+            }
+            let total = grid_sum(post);
             if total > 0.0 && total.is_finite() {
-                for (p, v) in self.p[axle].iter_mut().zip(&post) {
+                for (p, v) in self.p[axle].iter_mut().zip(post.iter()) {
                     *p = v / total;
                 }
             }
@@ -79,6 +98,21 @@ impl AxleCheck {
     /// informed their belief within `hold_after` s; a mismatch needs `mismatch_min_evidence` s of
     /// judged samples in the window, z above `axle_mismatch_z` for more than half of them, and now.
     pub fn judge(&mut self, grid: &Grid, cfg: &Params, stamp: f64, dt: f64, tolerance: f64) -> AxleVerdict {
+        let mut cdf = vec![0.0; self.p[0].len()];
+        self.judge_with(grid, cfg, stamp, dt, tolerance, &mut cdf)
+    }
+
+    /// [`AxleCheck::judge`] with the caller's scratch row `cdf` (G).
+    #[inline(always)]
+    pub fn judge_with(
+        &mut self,
+        grid: &Grid,
+        cfg: &Params,
+        stamp: f64,
+        dt: f64,
+        tolerance: f64,
+        cdf: &mut [f64],
+    ) -> AxleVerdict {
         let decay = if dt.is_finite() {
             (-dt.max(0.0) / cfg.evidence_window).exp()
         } else {
@@ -95,8 +129,8 @@ impl AxleCheck {
                 theta_rear: f64::NAN,
             };
         }
-        let [f16, f50, f84] = grid.quantiles(&Grid::cdf(&self.p[0]));
-        let [r16, r50, r84] = grid.quantiles(&Grid::cdf(&self.p[1]));
+        let [f16, f50, f84] = grid.quantiles(Grid::cdf_into(&self.p[0], cdf));
+        let [r16, r50, r84] = grid.quantiles(Grid::cdf_into(&self.p[1], cdf));
         // ln of the reported K (the reference's exp then log)
         let (tf, tr) = (f50.exp().ln(), r50.exp().ln());
         let (sf, sr) = ((f84 - f16) / 2.0, (r84 - r16) / 2.0);

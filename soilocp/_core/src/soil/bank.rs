@@ -7,9 +7,9 @@
 use crate::observer::numeric::np_sign as sign;
 use crate::soil::axles::{AxleCheck, AxleVerdict};
 use crate::soil::grid::Grid;
-use crate::soil::numeric::{pairwise_sum, row_max};
+use crate::soil::numeric::{grid_sum, row_top};
 use crate::soil::params::Params;
-use crate::soil::scale::{scale_shift, ScaleNodes};
+use crate::soil::scale::{scale_shift_with, ScaleNodes, ScaleScratch};
 
 /// Per-wheel flags of a step's result (`Step::wheel`).
 pub const USED: u8 = 1;
@@ -109,20 +109,69 @@ pub struct SoilGridBank {
     /// the first node at or above the weakest fitted soil's K / 2
     pub floor_idx: usize,
     pub vehicles: Vec<Belief>,
+    /// the rows a step works in, kept between steps (a step allocates nothing)
+    scratch: Scratch,
 }
 
-/// A used wheel's pair within one step: its curve on the grid and its likelihood's pieces.
+/// A used wheel's pair within one step: its likelihood's pieces; its rows (the curve h, dh/dS,
+/// r^2 and the tempered log-likelihood on the grid) are row `j` of [`Scratch`]'s, j its index
+/// among the step's pairs.
+#[derive(Clone, Copy, Debug, Default)]
 struct Pair {
     wheel: usize,
     slip: f64,
     observed: f64,
-    h: Vec<f64>,
-    d: Vec<f64>,
     sig2: f64,
-    r2: Vec<f64>,
     exponent: f64,
     span: Option<f64>,
-    loglike: Vec<f64>,
+}
+
+/// The grid rows of one step (G each): up to four pairs' rows, the refresh interval's end
+/// curves, the beliefs' products and the window's sums.  Sized on the first step.
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    h: [Vec<f64>; 4],
+    d: [Vec<f64>; 4],
+    r2: [Vec<f64>; 4],
+    loglike: [Vec<f64>; 4],
+    ends: [Vec<f64>; 4],
+    /// the pairs' summed log-likelihood, then the likelihood relative to its top
+    like: Vec<f64>,
+    post: Vec<f64>,
+    post_stay: Vec<f64>,
+    cdf: Vec<f64>,
+    /// the prediction's kernel row, the no-change belief's forgetting
+    q: Vec<f64>,
+    axle_acc: Vec<f64>,
+    axle_post: Vec<f64>,
+    oh: Vec<f64>,
+    hh: Vec<f64>,
+    scale: ScaleScratch,
+}
+
+impl Scratch {
+    fn size(&mut self, g: usize) {
+        if self.like.len() == g {
+            return;
+        }
+        let rows = self.h.iter_mut().chain(&mut self.d).chain(&mut self.r2);
+        let rows = rows.chain(&mut self.loglike).chain(&mut self.ends);
+        let more = [
+            &mut self.like,
+            &mut self.post,
+            &mut self.post_stay,
+            &mut self.cdf,
+            &mut self.q,
+            &mut self.axle_acc,
+            &mut self.axle_post,
+            &mut self.oh,
+            &mut self.hh,
+        ];
+        for v in rows.chain(more) {
+            v.clear();
+            v.resize(g, 0.0);
+        }
+    }
 }
 
 impl SoilGridBank {
@@ -139,6 +188,7 @@ impl SoilGridBank {
             nodes,
             floor_idx,
             vehicles,
+            scratch: Scratch::default(),
         })
     }
 
@@ -221,30 +271,66 @@ impl SoilGridBank {
             .collect())
     }
 
+    /// One vehicle's update.  Its loops over the grid run in vector registers; where the CPU has
+    /// AVX2 the whole update is compiled a second time for it (four f64 lanes instead of two),
+    /// chosen at run time.  Both copies do the same IEEE operations in the same order (no FMA:
+    /// Rust does not contract a x b + c), so they give the same numbers to the bit.
     fn step_one(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above)
+            return unsafe { self.step_one_avx2(s, wheel, bridged) };
+        }
+        self.step_one_body(s, wheel, bridged)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn step_one_avx2(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
+        self.step_one_body(s, wheel, bridged)
+    }
+
+    #[inline(always)]
+    fn step_one_body(&mut self, s: &Sample, wheel: [u8; 4], bridged: [bool; 3]) -> Step {
         let grid = &self.grid;
         let cfg = &self.cfg;
         let g = grid.len();
+        let w = &mut self.scratch;
+        w.size(g);
         let b = &mut self.vehicles[s.vehicle];
         let dt = s.stamp - b.last_stamp;
         let pred = !b.last_stamp.is_nan() && dt > 0.0;
         if pred {
             let v = if s.speed.is_nan() { cfg.unknown_speed } else { s.speed }.abs();
             let dist = v * dt;
-            grid.predict(&mut b.p, dt, dist, cfg.q_log_k, cfg.change_per_metre);
+            let (q_log_k, per_metre) = (cfg.q_log_k, cfg.change_per_metre);
+            grid.predict_with(&mut b.p, dt, dist, q_log_k, per_metre, &mut w.q);
             // the no-change belief diffuses without the change prior: no distance
-            grid.predict(&mut b.p_stay, dt, 0.0, cfg.q_log_k, cfg.change_per_metre);
+            grid.predict_with(&mut b.p_stay, dt, 0.0, q_log_k, per_metre, &mut w.q);
             for axle in b.axles.p.iter_mut() {
-                grid.predict(axle, dt, dist, cfg.q_log_k, cfg.change_per_metre);
+                grid.predict_with(axle, dt, dist, q_log_k, per_metre, &mut w.q);
             }
             let hz = (cfg.change_per_metre * dist).min(1.0);
             b.w_stay *= 1.0 - hz; // P(no change over this step)
             if cfg.stay_forgetting > 0.0 {
                 // the no-change belief's memory (report_median)
                 let a = 1.0 - cfg.stay_forgetting * hz;
-                let q: Vec<f64> = b.p_stay.iter().map(|&v| v.max(1e-300).powf(a)).collect();
-                let total = pairwise_sum(&q);
-                for (p, v) in b.p_stay.iter_mut().zip(&q) {
+                // nodes at the 1e-300 floor all take the same power: one pow for them, made at
+                // the first such node (most steps have none)
+                let mut floor = f64::NAN;
+                for (q, &v) in w.q.iter_mut().zip(&b.p_stay) {
+                    let x = v.max(1e-300);
+                    *q = if x == 1e-300 {
+                        if floor.is_nan() {
+                            floor = x.powf(a);
+                        }
+                        floor
+                    } else {
+                        x.powf(a)
+                    };
+                }
+                let total = grid_sum(&w.q);
+                for (p, v) in b.p_stay.iter_mut().zip(&w.q) {
                     *p = v / total;
                 }
             }
@@ -261,80 +347,95 @@ impl SoilGridBank {
         }
         let exponent = likelihood_exponent(cfg, if pred { dt } else { f64::NAN });
         let mut informed = false;
-        let mut pairs: Vec<Pair> = Vec::new();
-        if wheel.iter().any(|f| f & USED != 0) {
-            pairs = (0..4)
-                .filter(|&w| wheel[w] & USED != 0)
-                .map(|w| {
-                    let (mut h, mut d) = (vec![0.0; g], vec![0.0; g]);
-                    grid.curve(s.slip[w], bridged[0], &mut h, &mut d);
-                    let span = s.span.map(|sp| sp[w]);
-                    if let (Some(ends), Some(sp)) = (s.slip_ends, span) {
-                        // a refresh interval's pair: its mean gross traction against the curve
-                        // averaged over the interval's slip path (Simpson's rule)
-                        if sp > 0.0 && ends[w].iter().all(|v| v.is_finite()) {
-                            let (mut h0, mut d0, mut h1, mut d1) =
-                                (vec![0.0; g], vec![0.0; g], vec![0.0; g], vec![0.0; g]);
-                            grid.curve(ends[w][0], bridged[1], &mut h0, &mut d0);
-                            grid.curve(ends[w][1], bridged[2], &mut h1, &mut d1);
-                            for i in 0..g {
-                                h[i] = (h0[i] + 4.0 * h[i] + h1[i]) / 6.0;
-                                d[i] = (d0[i] + 4.0 * d[i] + d1[i]) / 6.0;
-                            }
-                        }
+        let mut pairs = [Pair::default(); 4];
+        let mut n_pairs = 0;
+        for wh in (0..4).filter(|&wh| wheel[wh] & USED != 0) {
+            let j = n_pairs;
+            n_pairs += 1;
+            let (h, d) = (&mut w.h[j], &mut w.d[j]);
+            grid.curve(s.slip[wh], bridged[0], h, d);
+            let span = s.span.map(|sp| sp[wh]);
+            if let (Some(ends), Some(sp)) = (s.slip_ends, span) {
+                // a refresh interval's pair: its mean gross traction against the curve
+                // averaged over the interval's slip path (Simpson's rule)
+                if sp > 0.0 && ends[wh].iter().all(|v| v.is_finite()) {
+                    let [h0, d0, h1, d1] = &mut w.ends;
+                    grid.curve(ends[wh][0], bridged[1], h0, d0);
+                    grid.curve(ends[wh][1], bridged[2], h1, d1);
+                    for i in 0..g {
+                        h[i] = (h0[i] + 4.0 * h[i] + h1[i]) / 6.0;
+                        d[i] = (d0[i] + 4.0 * d[i] + d1[i]) / 6.0;
                     }
-                    Pair {
-                        wheel: w,
-                        slip: s.slip[w],
-                        observed: s.observed[w],
-                        h,
-                        d,
-                        sig2: 0.0,
-                        r2: Vec::new(),
-                        exponent,
-                        span,
-                        loglike: Vec::new(),
-                    }
-                })
-                .collect();
+                }
+            }
+            pairs[j] = Pair {
+                wheel: wh,
+                slip: s.slip[wh],
+                observed: s.observed[wh],
+                sig2: 0.0,
+                exponent,
+                span,
+            };
+        }
+        let pairs = &mut pairs[..n_pairs];
+        if !pairs.is_empty() {
             // the slip term of the variance at the prior belief's median, the same for every K
             // (docs/method.md §9, quasi-likelihood): per K it would pull K to the flattest curve
-            let reference = Grid::median_node(&Grid::cdf(&b.p), 0, g - 1);
+            let reference = Grid::median_node(Grid::cdf_into(&b.p, &mut w.cdf), 0, g - 1);
             let ms2 = cfg.model_sigma * cfg.model_sigma;
-            for pr in pairs.iter_mut() {
-                let w = pr.wheel;
-                let dh = pr.d[reference] * s.slip_sigma[w];
-                pr.sig2 = s.variance[w] + ms2 + dh * dh;
-                pr.r2 =
-                    pr.h.iter()
-                        .map(|&h| (pr.observed - h) * (pr.observed - h) / pr.sig2)
-                        .collect();
-                let root = pr.sig2.sqrt();
-                let like = |r2: f64| (1.0 - cfg.outlier_prob) * (-0.5 * r2).exp() / root + cfg.outlier_prob;
+            for (j, pr) in pairs.iter_mut().enumerate() {
+                let wh = pr.wheel;
+                let dh = w.d[j][reference] * s.slip_sigma[wh];
+                pr.sig2 = s.variance[wh] + ms2 + dh * dh;
+                let (obs, sig2) = (pr.observed, pr.sig2);
+                for (r2, &h) in w.r2[j].iter_mut().zip(&w.h[j]) {
+                    *r2 = (obs - h) * (obs - h) / sig2;
+                }
                 // one pair is one observation: a refresh interval's pair weighs its own interval, at most 1
                 if let Some(sp) = pr.span {
                     if sp > 0.0 {
                         pr.exponent = (cfg.temper * sp / cfg.temper_interval).min(1.0);
                     }
                 }
-                pr.loglike = pr.r2.iter().map(|&r2| like(r2).ln() * pr.exponent).collect();
+                tempered_loglike(&w.r2[j], sig2, cfg.outlier_prob, pr.exponent, &mut w.loglike[j]);
             }
-            let mut loglike = pairs[0].loglike.clone();
-            for pr in &pairs[1..] {
-                for (a, &l) in loglike.iter_mut().zip(&pr.loglike) {
+            // the pairs' sum in their order, the first row copied (as loglike[0].clone() += ...)
+            w.like.copy_from_slice(&w.loglike[0]);
+            for ll in &w.loglike[1..pairs.len()] {
+                for (a, &l) in w.like.iter_mut().zip(ll) {
                     *a += l;
                 }
             }
-            let wheels: Vec<usize> = pairs.iter().map(|p| p.wheel).collect();
-            let lls: Vec<Vec<f64>> = pairs.iter().map(|p| p.loglike.clone()).collect();
-            b.axles.update(s.stamp, &wheels, &lls);
-            let top = row_max(&loglike);
-            let like: Vec<f64> = loglike.iter().map(|&l| (l - top).exp()).collect();
-            let post: Vec<f64> = b.p.iter().zip(&like).map(|(p, l)| p * l).collect();
-            let post_stay: Vec<f64> = b.p_stay.iter().zip(&like).map(|(p, l)| p * l).collect();
-            let (total, total_stay) = (pairwise_sum(&post), pairwise_sum(&post_stay));
+            let mut wheels = [0usize; 4];
+            for (wv, pr) in wheels.iter_mut().zip(pairs.iter()) {
+                *wv = pr.wheel;
+            }
+            b.axles.update_with(
+                s.stamp,
+                &wheels[..pairs.len()],
+                &w.loglike[..pairs.len()],
+                &mut w.axle_acc,
+                &mut w.axle_post,
+            );
+            let top = row_top(&w.like);
+            for l in w.like.iter_mut() {
+                *l = (*l - top).exp();
+            }
+            for (((post, post_stay), &l), (&p, &p_stay)) in w
+                .post
+                .iter_mut()
+                .zip(w.post_stay.iter_mut())
+                .zip(&w.like)
+                .zip(b.p.iter().zip(&b.p_stay))
+            {
+                *post = p * l;
+                *post_stay = p_stay * l;
+            }
+            let (total, total_stay) = (grid_sum(&w.post), grid_sum(&w.post_stay));
             if total > 0.0 && total.is_finite() {
-                b.p = post.iter().map(|v| v / total).collect();
+                for (p, v) in b.p.iter_mut().zip(&w.post) {
+                    *p = v / total;
+                }
                 // Bayes on the two hypotheses: P(no change | data) = P(no change) Z_stay / Z_pooled
                 b.w_stay = (b.w_stay * total_stay / total).clamp(0.0, 1.0);
                 if cfg.change_evidence > 0.0 {
@@ -343,20 +444,29 @@ impl SoilGridBank {
                     b.stay_llr = b.stay_llr * fade + (total_stay.max(1e-300) / total).ln();
                 }
                 if total_stay > 0.0 {
-                    b.p_stay = post_stay.iter().map(|v| v / total_stay).collect();
+                    for (p, v) in b.p_stay.iter_mut().zip(&w.post_stay) {
+                        *p = v / total_stay;
+                    }
                 }
                 informed = true;
             }
         }
-        let cdf = Grid::cdf(&b.p);
-        let (k_report, taken) = report_median(grid, cfg, b, &cdf);
+        let cdf = Grid::cdf_into(&b.p, &mut w.cdf);
+        let (k_report, taken) = report_median(grid, cfg, b, cdf, &mut w.q);
         if taken {
             // the window's statistics were gathered on the old soil
             b.stats = [0.0; 5];
-            b.profile = [vec![0.0; g], vec![0.0; g]];
+            for row in b.profile.iter_mut() {
+                row.fill(0.0);
+            }
         }
         if !pairs.is_empty() {
-            window_stats(grid, b, &pairs, &cdf, dt);
+            let rows = Rows {
+                h: &w.h,
+                d: &w.d,
+                r2: &w.r2,
+            };
+            window_stats(grid, b, pairs, &rows, cdf, dt, [&mut w.oh, &mut w.hh]);
         }
         if let Some(sigma) = s.scale_sigma {
             b.scale_prior = sigma;
@@ -366,7 +476,7 @@ impl SoilGridBank {
                 Some(_) => (b.scale_prior, false),
                 None => (cfg.gross_scale_sigma, true),
             };
-            b.scale_sys = scale_shift(
+            b.scale_sys = scale_shift_with(
                 &b.profile[0],
                 &b.profile[1],
                 sigma,
@@ -374,12 +484,15 @@ impl SoilGridBank {
                 &grid.theta,
                 grid.dtheta,
                 one_prior,
+                &mut w.scale,
             );
         }
-        let [q16, _, q84] = grid.quantiles(&cdf);
+        let [q16, _, q84] = grid.quantiles(cdf);
+        let floor_cdf = cdf[self.floor_idx.min(g - 1)];
         let [s_kk, s_kh] = [b.stats[2], b.stats[3]];
         let sens = if s_kk > 0.0 { s_kh.abs() / s_kk } else { 0.0 }; // d ln K per relative scale
-        let axle = b.axles.judge(grid, cfg, s.stamp, dt, cfg.axle_scale_sigma * sens);
+        let tolerance = cfg.axle_scale_sigma * sens;
+        let axle = b.axles.judge_with(grid, cfg, s.stamp, dt, tolerance, &mut w.q);
         Step {
             wheel,
             dt,
@@ -390,9 +503,44 @@ impl SoilGridBank {
             stats: b.stats,
             scale: b.scale_sys,
             axle,
-            floor_cdf: cdf[self.floor_idx.min(g - 1)],
+            floor_cdf,
         }
     }
+}
+
+/// A pair's tempered log-likelihood on the grid, `exponent` x ln((1 - op) e^{-r2/2} / sigma + op)
+/// from its r^2 row, sigma^2 = `sig2`, the outlier weight op (docs/method.md §9).
+///
+/// Where e^{-r2/2} is so small that the first term is below a quarter of op's last bit, the sum
+/// rounds to op exactly, and its logarithm is ln(op): such nodes (a fifth of them on the bench's
+/// drive) take ln(op) x exponent, computed once, without their exp and ln.  The cut is
+/// conservative: e^x < B = op sigma 2^-55 for every x < ln B - 1 (libm's exp and ln are within
+/// an ulp), then (1 - op) e^x / sigma < op 2^-54 after rounding, below half an ulp of op.
+#[inline(always)]
+fn tempered_loglike(r2: &[f64], sig2: f64, op: f64, exponent: f64, out: &mut [f64]) {
+    let root = sig2.sqrt();
+    let like = |r2: f64| (1.0 - op) * (-0.5 * r2).exp() / root + op;
+    // op and sigma in a range where every bound below is a normal number (else: no cut)
+    let cut = if op > 1e-250 && op < 1.0 && root > 1e-30 && root < 1e30 {
+        (op * root * (f64::EPSILON / 8.0)).ln() - 1.0 // EPSILON / 8 = 2^-55
+    } else {
+        f64::NEG_INFINITY
+    };
+    let floor = op.ln() * exponent;
+    for (o, &r2) in out.iter_mut().zip(r2) {
+        *o = if -0.5 * r2 < cut {
+            floor
+        } else {
+            like(r2).ln() * exponent
+        };
+    }
+}
+
+/// The pairs' grid rows a step's window statistics read (row j: pair j).
+struct Rows<'a> {
+    h: &'a [Vec<f64>; 4],
+    d: &'a [Vec<f64>; 4],
+    r2: &'a [Vec<f64>; 4],
 }
 
 /// A sample's likelihood exponent `dt` s after the vehicle's previous one (NaN: no interval
@@ -408,7 +556,8 @@ pub fn likelihood_exponent(cfg: &Params, dt: f64) -> f64 {
 /// hypothesis (w < 1/2) and the recent data favour it (stay_llr < 0); then the no-change belief
 /// restarts from the pooled one, whose median is reported.  change_evidence 0: always the pooled
 /// median, no change taken.
-fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64]) -> (f64, bool) {
+#[inline(always)]
+fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64], scratch: &mut [f64]) -> (f64, bool) {
     let (changed, taken) = if cfg.change_evidence > 0.0 {
         let t = b.w_stay < 0.5 && b.stay_llr < 0.0;
         (t, t)
@@ -423,7 +572,7 @@ fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64]) -> (f64
     let theta = if changed {
         grid.median(cdf)
     } else {
-        grid.median(&Grid::cdf(&b.p_stay))
+        grid.median(Grid::cdf_into(&b.p_stay, scratch))
     };
     (theta.exp(), taken)
 }
@@ -431,7 +580,16 @@ fn report_median(grid: &Grid, cfg: &Params, b: &mut Belief, cdf: &[f64]) -> (f64
 /// Accumulate the window's NIS at the posterior median, the systematic budget's sums and the
 /// scale profile's per-node sums, weighted as the belief weighs the samples (exponent /
 /// variance); a refresh interval's pair stands for its interval.
-fn window_stats(grid: &Grid, b: &mut Belief, pairs: &[Pair], cdf: &[f64], dt: f64) {
+#[inline(always)]
+fn window_stats(
+    grid: &Grid,
+    b: &mut Belief,
+    pairs: &[Pair],
+    rows: &Rows,
+    cdf: &[f64],
+    dt: f64,
+    [oh, hh]: [&mut Vec<f64>; 2],
+) {
     let g = grid.len();
     let j = Grid::median_node(cdf, 1, g - 2); // the posterior median's node (central differences)
     let step = if dt.is_nan() || dt <= 0.0 { 0.0 } else { dt.min(1.0) };
@@ -439,20 +597,21 @@ fn window_stats(grid: &Grid, b: &mut Belief, pairs: &[Pair], cdf: &[f64], dt: f6
     let mut sums = [0.0; 4];
     let mut step_row = f64::NAN;
     for (i, pr) in pairs.iter().enumerate() {
+        let (h, d) = (&rows.h[i], &rows.d[i]);
         let step_w = match pr.span {
             Some(sp) if sp > 0.0 => sp.min(1.0),
             _ => step,
         };
         step_row = if i == 0 { step_w } else { step_row.max(step_w) };
-        let nis = pr.r2[j];
-        let h_k = (pr.h[j + 1] - pr.h[j - 1]) / (2.0 * grid.dtheta); // dh/dlnK at the median
+        let nis = rows.r2[i][j];
+        let h_k = (h[j + 1] - h[j - 1]) / (2.0 * grid.dtheta); // dh/dlnK at the median
         let wt = 1.0 / pr.sig2;
         let ds = 1.0 - pr.slip.abs().min(1.0); // dS/dlnR_w (eq. 1, both slip signs)
         let terms = [
             step_w * nis / n_used,
             step_w * wt * (h_k * h_k),
-            step_w * wt * h_k * pr.h[j],
-            step_w * wt * h_k * pr.d[j] * ds,
+            step_w * wt * h_k * h[j],
+            step_w * wt * h_k * d[j] * ds,
         ];
         for (s, t) in sums.iter_mut().zip(terms) {
             *s = if i == 0 { t } else { *s + t };
@@ -465,24 +624,30 @@ fn window_stats(grid: &Grid, b: &mut Belief, pairs: &[Pair], cdf: &[f64], dt: f6
     for (st, s) in b.stats[1..].iter_mut().zip(sums) {
         *st += s;
     }
-    let mut oh = vec![0.0; g];
-    let mut hh = vec![0.0; g];
+    // the scale profile's sums over the pairs: the first pair's terms, then the others' added
+    // in order (one loop per pair, without a branch per node)
     for (i, pr) in pairs.iter().enumerate() {
         let wt = pr.exponent / pr.sig2;
-        for k in 0..g {
-            let wh = wt * pr.h[k];
-            let (a, c) = (wh * pr.observed, wh * pr.h[k]);
-            if i == 0 {
-                oh[k] = a;
-                hh[k] = c;
-            } else {
-                oh[k] += a;
-                hh[k] += c;
+        let obs = pr.observed;
+        let rows = oh.iter_mut().zip(hh.iter_mut()).zip(&rows.h[i]);
+        if i == 0 {
+            for ((o, q), &h) in rows {
+                let wh = wt * h;
+                *o = wh * obs;
+                *q = wh * h;
+            }
+        } else {
+            for ((o, q), &h) in rows {
+                let wh = wt * h;
+                *o += wh * obs;
+                *q += wh * h;
             }
         }
     }
-    for k in 0..g {
-        b.profile[0][k] += oh[k];
-        b.profile[1][k] += hh[k];
+    for (p, &v) in b.profile[0].iter_mut().zip(oh.iter()) {
+        *p += v;
+    }
+    for (p, &v) in b.profile[1].iter_mut().zip(hh.iter()) {
+        *p += v;
     }
 }

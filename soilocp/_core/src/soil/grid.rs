@@ -17,6 +17,8 @@ pub struct Grid {
     pub c: Constants,
     /// C1 (1 - e^{-C2 K}), eq. 3's soil-strength factor
     amp: Vec<f64>,
+    /// amp x C3, the first product of dh/dS (`amp * c3 * e` rounds amp x C3 first): made once here
+    amp_c3: Vec<f64>,
     /// per side of S = 0 (0: S >= 0, 1: S < 0): the offset and the |S| slope of the curve
     offset: [Vec<f64>; 2],
     slope: [Vec<f64>; 2],
@@ -60,6 +62,7 @@ impl Grid {
             ),
             Kind::Resistance => return Err("grid: the soil estimator compares gross or net traction".into()),
         };
+        let amp_c3 = amp.iter().map(|&a| a * c.c3).collect();
         Ok(Grid {
             dtheta: theta[1] - theta[0],
             span: theta[g - 1] - theta[0],
@@ -68,6 +71,7 @@ impl Grid {
             kind,
             c,
             amp,
+            amp_c3,
             offset,
             slope,
         })
@@ -86,6 +90,7 @@ impl Grid {
     /// batch lies inside the zero-slip bridge (§8): the whole batch is evaluated by the law itself
     /// (as the reference does); otherwise the curve factorises into grid constants and one exp:
     /// h = sign amp (1 - e^{-C3 |S|}) + offset_side + slope_side |S|.
+    #[inline(always)]
     pub fn curve(&self, s: f64, bridged: bool, h: &mut [f64], d: &mut [f64]) {
         if bridged {
             for ((hv, dv), &k) in h.iter_mut().zip(d.iter_mut()).zip(&self.k) {
@@ -100,10 +105,14 @@ impl Grid {
         let side = usize::from(s < 0.0);
         let sign = if side == 1 { -1.0 } else { 1.0 };
         let (off, sl) = (&self.offset[side], &self.slope[side]);
-        for g in 0..self.len() {
-            let rise = self.amp[g] * (1.0 - e);
-            h[g] = sign * rise + off[g] + sl[g] * a;
-            d[g] = self.amp[g] * self.c.c3 * e + sl[g] * sign;
+        let one_e = 1.0 - e;
+        // the same operations per node as amp (1 - e) x sign + off + sl |S| and amp C3 e + sl sign,
+        // over zipped rows (no bounds checks: the loop runs in vector registers)
+        let rows = self.amp.iter().zip(&self.amp_c3).zip(off.iter().zip(sl));
+        for ((hv, dv), ((&amp, &amp_c3), (&o, &slope))) in h.iter_mut().zip(d.iter_mut()).zip(rows) {
+            let rise = amp * one_e;
+            *hv = sign * rise + o + slope * a;
+            *dv = amp_c3 * e + slope * sign;
         }
     }
 
@@ -116,6 +125,21 @@ impl Grid {
     /// q_log_k per sqrt(s)) by a reflecting 3-tap kernel, then mixing with the uniform change prior
     /// with the hazard change_per_metre x distance; after a long gap or a long way, uniform at once.
     pub fn predict(&self, p: &mut [f64], dt: f64, distance: f64, q_log_k: f64, change_per_metre: f64) {
+        let mut q = vec![0.0; p.len()];
+        self.predict_with(p, dt, distance, q_log_k, change_per_metre, &mut q);
+    }
+
+    /// [`Grid::predict`] with a scratch row `q` (G) of the caller's: no allocation per step.
+    #[inline(always)]
+    pub fn predict_with(
+        &self,
+        p: &mut [f64],
+        dt: f64,
+        distance: f64,
+        q_log_k: f64,
+        change_per_metre: f64,
+        q: &mut [f64],
+    ) {
         let g = p.len();
         let h = change_per_metre * distance;
         let q2 = q_log_k * q_log_k;
@@ -126,23 +150,20 @@ impl Grid {
         } else {
             q2 * dt / (2.0 * (self.dtheta * self.dtheta))
         };
-        let mut q = vec![0.0; g];
+        let q = &mut q[..g];
         while eps > 0.0 {
             let e = eps.min(0.25); // the 3-tap kernel is a valid step for eps <= 1/4
             let w = 1.0 - 2.0 * e;
-            for i in 0..g {
-                let mut v = w * p[i];
-                if i > 0 {
-                    v += e * p[i - 1];
-                }
-                if i + 1 < g {
-                    v += e * p[i + 1];
-                }
-                q[i] = v;
+            // per node (w p_i + e p_{i-1}) + e p_{i+1}, the neighbour missing at an end; the ends'
+            // nodes out of the loop, which then has no branch (g >= 3: Grid::new)
+            q[0] = w * p[0] + e * p[1];
+            for (qi, win) in q[1..g - 1].iter_mut().zip(p.windows(3)) {
+                *qi = w * win[1] + e * win[0] + e * win[2];
             }
+            q[g - 1] = w * p[g - 1] + e * p[g - 2];
             q[0] += e * p[0]; // reflecting ends keep the mass
             q[g - 1] += e * p[g - 1];
-            p.copy_from_slice(&q);
+            p.copy_from_slice(q);
             eps -= e;
         }
         let h = h.min(1.0);
@@ -153,12 +174,14 @@ impl Grid {
     }
 
     /// The node index of a mid-point CDF's median: the number of nodes below 1/2, within [lo, hi].
+    #[inline(always)]
     pub fn median_node(cdf: &[f64], lo: usize, hi: usize) -> usize {
         cdf.iter().filter(|&&c| c < 0.5).count().max(lo).min(hi)
     }
 
     /// ln K at a belief's median from its mid-point CDF: `np.interp(0.5, cdf, theta)`, beyond the
     /// CDF's ends the end node.
+    #[inline(always)]
     pub fn median(&self, cdf: &[f64]) -> f64 {
         let i = Self::median_node(cdf, 1, self.len() - 1);
         let (c0, c1) = (cdf[i - 1], cdf[i]);
@@ -168,6 +191,7 @@ impl Grid {
 
     /// (ln K at 16 %, 50 %, 84 %) of a belief from its mid-point CDF: the band is half the 16-84 %
     /// interval (moments would be dominated by the small uniform change mass over K = 5..5000).
+    #[inline(always)]
     pub fn quantiles(&self, cdf: &[f64]) -> [f64; 3] {
         [0.15865, 0.5, 0.84135].map(|x| interp(x, cdf, &self.theta))
     }
@@ -176,6 +200,14 @@ impl Grid {
     pub fn cdf(p: &[f64]) -> Vec<f64> {
         let mut c = vec![0.0; p.len()];
         midpoint_cdf(p, &mut c);
+        c
+    }
+
+    /// The mid-point CDF of `p` into the caller's row `c` (G): no allocation per step.
+    #[inline(always)]
+    pub fn cdf_into<'a>(p: &[f64], c: &'a mut [f64]) -> &'a [f64] {
+        let c = &mut c[..p.len()];
+        midpoint_cdf(p, c);
         c
     }
 }

@@ -5,6 +5,7 @@
 pub use crate::pairwise::pairwise_sum;
 
 /// The mid-point CDF of a belief, `np.cumsum(p) - 0.5 * p`, into `out`.
+#[inline(always)]
 pub fn midpoint_cdf(p: &[f64], out: &mut [f64]) {
     let mut acc = 0.0;
     for (o, &x) in out.iter_mut().zip(p) {
@@ -15,6 +16,7 @@ pub fn midpoint_cdf(p: &[f64], out: &mut [f64]) {
 
 /// `np.interp(x, xp, fp)` for one x (xp non-decreasing): beyond the ends the end values; between
 /// nodes the line from the last node at or below x.
+#[inline(always)]
 pub fn interp(x: f64, xp: &[f64], fp: &[f64]) -> f64 {
     let n = xp.len();
     if x > xp[n - 1] {
@@ -50,6 +52,98 @@ pub fn row_max(a: &[f64]) -> f64 {
     m
 }
 
+/// [`pairwise_sum`] without its recursion for a row of up to 256 values whose two halves are
+/// one block each (numpy's split: the first half a multiple of 8, both at most 128; the grid's
+/// 241 nodes are 120 + 121): the same additions in the same order, in a function that inlines
+/// into the soil step's AVX2 copy (bank.rs).  Other lengths: [`pairwise_sum`] itself.
+#[inline(always)]
+pub fn grid_sum(a: &[f64]) -> f64 {
+    let n = a.len();
+    if n <= 128 {
+        return pairwise_block(a);
+    }
+    let n2 = n / 2 - (n / 2) % 8;
+    if n - n2 > 128 {
+        return pairwise_sum(a);
+    }
+    pairwise_block(&a[..n2]) + pairwise_block(&a[n2..])
+}
+
+/// numpy's pairwise sum of at most 128 values (`pairwise_sum`'s two lower branches).
+#[inline(always)]
+fn pairwise_block(a: &[f64]) -> f64 {
+    let n = a.len();
+    if n < 8 {
+        let mut r = -0.0;
+        for &x in a {
+            r += x;
+        }
+        return r;
+    }
+    let mut r: [f64; 8] = std::array::from_fn(|j| a[j]);
+    let whole = n - n % 8;
+    for c in a[8..whole].chunks_exact(8) {
+        for (rj, &x) in r.iter_mut().zip(c) {
+            *rj += x;
+        }
+    }
+    let mut res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    for &x in &a[whole..] {
+        res += x;
+    }
+    res
+}
+
+/// The largest value of a row, NaN if any is NaN: [`row_max`]'s value, found in four independent
+/// lanes (vector registers) instead of one chain.  Only the sign of a zero maximum can differ
+/// from [`row_max`]'s (which keeps the first of equal values): callers that only subtract it from
+/// the row before `exp` (x - 0.0 and x - (-0.0) are equal but for x = +-0, where exp gives 1
+/// either way) get the same numbers.
+#[inline(always)]
+pub fn row_top(a: &[f64]) -> f64 {
+    let mut lanes = [f64::NEG_INFINITY; 4];
+    let mut nan = false;
+    let mut chunks = a.chunks_exact(4);
+    for c in &mut chunks {
+        for (m, &x) in lanes.iter_mut().zip(c) {
+            nan |= x.is_nan();
+            *m = if x > *m { x } else { *m };
+        }
+    }
+    for &x in chunks.remainder() {
+        nan |= x.is_nan();
+        lanes[0] = if x > lanes[0] { x } else { lanes[0] };
+    }
+    if nan {
+        return f64::NAN;
+    }
+    let m01 = if lanes[1] > lanes[0] { lanes[1] } else { lanes[0] };
+    let m23 = if lanes[3] > lanes[2] { lanes[3] } else { lanes[2] };
+    if m23 > m01 {
+        m23
+    } else {
+        m01
+    }
+}
+
+/// The least non-NaN value of a row (`fold(INFINITY, f64::min)`: +inf if none), in four lanes;
+/// only the sign of a zero minimum can differ from the fold's.
+#[inline(always)]
+pub fn row_min_ignoring_nan(a: &[f64]) -> f64 {
+    // a lane is never NaN: x < m is false for a NaN x, which the lane then skips (f64::min's rule)
+    let mut lanes = [f64::INFINITY; 4];
+    let mut chunks = a.chunks_exact(4);
+    for c in &mut chunks {
+        for (m, &x) in lanes.iter_mut().zip(c) {
+            *m = if x < *m { x } else { *m };
+        }
+    }
+    for &x in chunks.remainder() {
+        lanes[0] = if x < lanes[0] { x } else { lanes[0] };
+    }
+    lanes[0].min(lanes[1]).min(lanes[2].min(lanes[3]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,6 +171,54 @@ mod tests {
         assert_eq!(interp(0.5, &xp, &fp), 5.0);
         assert_eq!(interp(1.0, &xp, &fp), 20.0); // the last node at x
         assert_eq!(interp(1.5, &xp, &fp), 25.0);
+    }
+
+    /// The lane-wise extremes are the chained ones (NaN rules included).
+    #[test]
+    fn lane_extremes_are_the_chains() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        for n in [1usize, 3, 4, 7, 25, 241] {
+            for _ in 0..50 {
+                let row: Vec<f64> = (0..n)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 7;
+                        x ^= x << 17;
+                        (x >> 11) as f64 / (1u64 << 53) as f64 * 20.0 - 15.0
+                    })
+                    .collect();
+                assert_eq!(row_top(&row).to_bits(), row_max(&row).to_bits());
+                let fold = row.iter().copied().fold(f64::INFINITY, f64::min);
+                assert_eq!(row_min_ignoring_nan(&row).to_bits(), fold.to_bits());
+                let mut with_nan = row.clone();
+                with_nan[n / 2] = f64::NAN;
+                assert!(row_top(&with_nan).is_nan() && row_max(&with_nan).is_nan());
+                let fold = with_nan.iter().copied().fold(f64::INFINITY, f64::min);
+                assert_eq!(row_min_ignoring_nan(&with_nan).to_bits(), fold.to_bits());
+            }
+        }
+        assert_eq!(row_min_ignoring_nan(&[f64::NAN; 5]), f64::INFINITY);
+    }
+
+    /// grid_sum adds as pairwise_sum at every length (inlined halves up to 256, else the recursion).
+    #[test]
+    fn grid_sum_is_pairwise_sum() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let row: Vec<f64> = (0..600)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.3) * 10f64.powi((x % 30) as i32 - 15)
+            })
+            .collect();
+        for n in 0..600 {
+            assert_eq!(
+                grid_sum(&row[..n]).to_bits(),
+                pairwise_sum(&row[..n]).to_bits(),
+                "n = {n}"
+            );
+        }
     }
 
     #[test]

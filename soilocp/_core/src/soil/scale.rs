@@ -2,7 +2,7 @@
 //! (the torque constant; docs/method.md §9, "The band"): the scale profile over the window's
 //! samples, minimised over ln K for each c on nodes over +-4 sigma, and c's posterior.
 
-use crate::soil::numeric::{pairwise_sum, row_max};
+use crate::soil::numeric::{grid_sum, row_min_ignoring_nan, row_top};
 
 /// The nodes of c in units of its 1-sigma (`np.linspace(-4, 4, 25)` from the Python side) and
 /// their log prior N(0, 1) in those units.
@@ -18,8 +18,14 @@ pub struct ScaleNodes {
 /// where the curve saturates (K >~ 1000, §9) a scaled profile is flat to 1e-14, and a plain argmin
 /// would pick a node of that plateau by rounding.
 pub fn profile_argmin(f: &[f64], theta: &[f64], dtheta: f64) -> (f64, f64) {
+    profile_argmin_from(f, row_min_ignoring_nan(f), theta, dtheta)
+}
+
+/// [`profile_argmin`] given the row's least non-NaN value `low` (the fold of f64::min; a zero's
+/// sign aside, which the tie below does not see: low + 1e-9 |low| is +0 for either).
+#[inline(always)]
+fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64, f64) {
     let g = f.len();
-    let low = f.iter().copied().fold(f64::INFINITY, f64::min);
     let tie = low + 1e-9 * low.abs();
     let least = f.iter().position(|&v| v <= tie).unwrap_or(0);
     let i = least.clamp(1, g - 2);
@@ -48,6 +54,45 @@ pub fn scale_shift(
     dtheta: f64,
     matmul_means: bool,
 ) -> [f64; 3] {
+    let mut scratch = ScaleScratch::default();
+    scale_shift_with(s_oh, s_hh, sigma, nodes, theta, dtheta, matmul_means, &mut scratch)
+}
+
+/// [`scale_shift`]'s rows, kept by the caller between steps: no allocation per step.
+#[derive(Clone, Debug, Default)]
+pub struct ScaleScratch {
+    row: Vec<f64>,
+    two_oh: Vec<f64>,
+    c: Vec<f64>,
+    th: Vec<f64>,
+    post: Vec<f64>,
+    shift2: Vec<f64>,
+    pc: Vec<f64>,
+    pc2: Vec<f64>,
+}
+
+/// A scale c's misfit row c (c S_hh - 2 S_oh) into `row`, and its least non-NaN value.
+#[inline(always)]
+fn misfit_row(cv: f64, s_hh: &[f64], two_oh: &[f64], row: &mut [f64]) -> f64 {
+    for ((r, &hh), &oh2) in row.iter_mut().zip(s_hh).zip(two_oh) {
+        *r = cv * (cv * hh - oh2);
+    }
+    row_min_ignoring_nan(row)
+}
+
+/// [`scale_shift`] with the caller's scratch rows.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn scale_shift_with(
+    s_oh: &[f64],
+    s_hh: &[f64],
+    sigma: f64,
+    nodes: &ScaleNodes,
+    theta: &[f64],
+    dtheta: f64,
+    matmul_means: bool,
+    w: &mut ScaleScratch,
+) -> [f64; 3] {
     if sigma <= 0.0 {
         return [0.0, 1.0, 0.0];
     }
@@ -56,39 +101,52 @@ pub fn scale_shift(
         return [0.0, 1.0, sigma];
     }
     let nc = nodes.z.len();
-    let c: Vec<f64> = nodes.z.iter().map(|&z| 1.0 + sigma * z).collect();
-    let mut row = vec![0.0; s_hh.len()];
-    let mut th = vec![0.0; nc];
-    let mut log_post = vec![0.0; nc];
-    for (ci, &cv) in c.iter().enumerate() {
-        for ((r, &hh), &oh) in row.iter_mut().zip(s_hh).zip(s_oh) {
-            *r = cv * (cv * hh - 2.0 * oh);
-        }
-        let (t, m) = profile_argmin(&row, theta, dtheta);
-        th[ci] = t;
-        log_post[ci] = nodes.log_prior[ci] - 0.5 * m;
+    let g = s_hh.len();
+    let fill = |v: &mut Vec<f64>, n: usize| {
+        v.clear();
+        v.resize(n, 0.0);
+    };
+    w.c.clear();
+    w.c.extend(nodes.z.iter().map(|&z| 1.0 + sigma * z));
+    fill(&mut w.row, g);
+    fill(&mut w.th, nc);
+    fill(&mut w.post, nc); // first ln of c's posterior, then the posterior
+                           // 2 S_oh, the same product for every c: made once
+    w.two_oh.clear();
+    w.two_oh.extend(s_oh.iter().map(|&oh| 2.0 * oh));
+    for (ci, &cv) in w.c.iter().enumerate() {
+        let low = misfit_row(cv, s_hh, &w.two_oh, &mut w.row);
+        let (t, m) = profile_argmin_from(&w.row, low, theta, dtheta);
+        w.th[ci] = t;
+        w.post[ci] = nodes.log_prior[ci] - 0.5 * m;
     }
-    let top = row_max(&log_post);
-    let mut post: Vec<f64> = log_post.iter().map(|&v| (v - top).exp()).collect();
-    let total = pairwise_sum(&post);
-    for v in post.iter_mut() {
+    let top = row_top(&w.post);
+    for v in w.post.iter_mut() {
+        *v = (*v - top).exp();
+    }
+    let total = grid_sum(&w.post);
+    for v in w.post.iter_mut() {
         *v /= total;
     }
+    let (post, th, c) = (&w.post, &w.th, &w.c);
     let mid = th[nc / 2];
-    let shift2: Vec<f64> = post
-        .iter()
-        .zip(&th)
-        .map(|(&p, &t)| p * ((t - mid) * (t - mid)))
-        .collect();
-    let pc: Vec<f64> = post.iter().zip(&c).map(|(&p, &cv)| p * cv).collect();
-    let pc2: Vec<f64> = post.iter().zip(&c).map(|(&p, &cv)| p * (cv * cv)).collect();
+    w.shift2.clear();
+    w.shift2
+        .extend(post.iter().zip(th).map(|(&p, &t)| p * ((t - mid) * (t - mid))));
+    w.pc.clear();
+    w.pc.extend(post.iter().zip(c).map(|(&p, &cv)| p * cv));
+    w.pc2.clear();
+    w.pc2.extend(post.iter().zip(c).map(|(&p, &cv)| p * (cv * cv)));
     let (c_mean, c2) = if matmul_means {
-        (pc.iter().fold(0.0, |a, &b| a + b), pc2.iter().fold(0.0, |a, &b| a + b))
+        (
+            w.pc.iter().fold(0.0, |a, &b| a + b),
+            w.pc2.iter().fold(0.0, |a, &b| a + b),
+        )
     } else {
-        (pairwise_sum(&pc), pairwise_sum(&pc2))
+        (grid_sum(&w.pc), grid_sum(&w.pc2))
     };
     [
-        pairwise_sum(&shift2).sqrt(),
+        grid_sum(&w.shift2).sqrt(),
         c_mean,
         (c2 - c_mean * c_mean).max(0.0).sqrt(),
     ]
