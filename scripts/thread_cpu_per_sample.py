@@ -4,9 +4,9 @@ drives it at a given rate (docs/performance.md, "The standard 1 kHz row, thread 
     .venv/bin/python scripts/thread_cpu_per_sample.py [--rate 1000] [--duration 10] [--runs 1]
 
 Each thread's CPU time (utime + stime from /proc/PID/task/TID/stat) over the drive, divided by the
-samples sent.  Zenoh's Rust threads carry their own names (rx-N, tx-N, acc-N, app-N); every thread
-Python or zenoh-python starts is named ``python`` by the kernel, so those are told apart by thread
-id: ``py<TID>``, the busiest one being the service's worker.  The rig, the drive and the latency
+samples sent (a thread that ends during the drive is not counted).  Zenoh's Rust threads carry their
+own names (rx-N, tx-N, acc-N, app-N); every thread Python or zenoh-python starts keeps the process's
+name, so those are told apart by thread id: ``py<TID>``, the busiest one being the service's worker.  The rig, the drive and the latency
 figures are the bench's own (``services.bench.live``).
 """
 
@@ -16,15 +16,22 @@ import argparse
 import os
 
 
+def _read(path: str) -> str:
+    with open(path) as fh:
+        return fh.read()
+
+
 def _threads(pid: int) -> dict[str, tuple[str, int]]:
+    """tid -> (name, CPU ticks), a thread named as its process being ``python``."""
+    own = _read(f"/proc/{pid}/comm").strip()
     out = {}
     for tid in os.listdir(f"/proc/{pid}/task"):
         try:
-            comm = open(f"/proc/{pid}/task/{tid}/comm").read().strip()
-            fields = open(f"/proc/{pid}/task/{tid}/stat").read().rsplit(")", 1)[1].split()
+            comm = _read(f"/proc/{pid}/task/{tid}/comm").strip()
+            fields = _read(f"/proc/{pid}/task/{tid}/stat").rsplit(")", 1)[1].split()
         except OSError:  # the thread ended between the listing and the read
             continue
-        out[tid] = (comm, int(fields[11]) + int(fields[12]))
+        out[tid] = ("python" if comm == own else comm, int(fields[11]) + int(fields[12]))
     return out
 
 

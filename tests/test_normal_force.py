@@ -195,9 +195,10 @@ def test_closed_form_map_equals_numpys_pseudo_inverse(v):
         assert abs(Mi[0] - Mi[1] + Mi[2] - Mi[3]) <= 8 * np.finfo(float).eps * max(abs(x) for x in Mi)
 
 
-def test_closed_form_pseudo_inverse_of_a():
-    """The closed form the core uses: A^+ = h0 h0^T / (8 (L + W)) - h2 h2^T / (8 W) - h3 h3^T / (8 L)
-    (A's Hadamard eigenvectors; (1, -1, 1, -1) spans its null space), against numpy's pinv."""
+def test_the_derivation_of_the_closed_form():
+    """The derivation the core's closed form rests on (docs/method.md §2), checked apart from the core:
+    A^+ = h0 h0^T / (8 (L + W)) - h2 h2^T / (8 W) - h3 h3^T / (8 L) (A's Hadamard eigenvectors;
+    (1, -1, 1, -1) spans its null space), in numpy, against numpy's pinv."""
     rng = np.random.default_rng(28)
     h0, h2, h3 = np.ones(4), np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
     for _ in range(200):
@@ -226,3 +227,17 @@ def test_the_services_one_sample_call_equals_the_bank():
             solve_one(core_solver(v), bad)
     with pytest.raises(ValueError, match=r"got \(nan, 0\.0, 9\.80665\)"):
         solve_one(core_solver(v), (float("nan"), 0.0, G))
+
+
+def test_a_solver_pickles_to_the_same_map():
+    """A stage travels to a worker process with its solver: the pickled solver (rebuilt from the
+    geometry and mass) has the same map to the bit, and solves alike."""
+    import pickle
+
+    from soilocp.model.normal_force_map import core_solver
+
+    v = VehicleParams(mass=100.0, a=0.4, b=0.2, c=0.3, d=0.1, h=0.25)
+    s = core_solver(v)
+    t = pickle.loads(pickle.dumps(s))
+    assert np.array_equal(np.asarray(t.map), np.asarray(s.map))
+    assert t.solve_one(0.3, -0.2, G) == s.solve_one(0.3, -0.2, G)

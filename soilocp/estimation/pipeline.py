@@ -3,8 +3,9 @@
 Each stage is a small deterministic object with a ``step`` method that takes and returns the
 message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
 process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
-messages over Zenoh.  Same code, same numbers.  Every stage runs the array kernels with N = 1
-(:class:`soilocp.estimation.normal_force_stage.NormalForceStage`,
+messages over Zenoh.  Same code, same numbers.  Every stage runs the core's kernels with N = 1 (the normal forces
+and the OCPs through their float-only calls, so that their services load no numpy:
+:class:`soilocp.estimation.normal_force_stage.NormalForceStage`,
 :mod:`soilocp.estimation.observer_bank`, :class:`soilocp.estimation.slip_gate.SlipGate`,
 :class:`soilocp.estimation.soil_strength.SoilBank`,
 :class:`soilocp.estimation.ocp_stage.OcpStage`): the batched service (:mod:`soilocp.estimation.batch`) runs the very same

@@ -4,7 +4,7 @@ mass), a slow state, from the longitudinal force balance whenever the robot acce
 
 Eq. TC (:func:`soilocp.model.force_balance.longitudinal_balance`, the function ``soilocp
 calibrate-torque`` fits offline) holds for the means over a window: y = k x - F_MR with
-x = sum T_log / R and y = m f_x + I_w sum omega_dot / R.  Per vehicle the state is (k, F_MR), a
+x = sum T_log / R and y = m f_x + k^w I_w sum omega_dot / R (the inertia term's factor below).  Per vehicle the state is (k, F_MR), a
 Kalman filter stepped once per window (``window`` s of samples, trapezoid means as the offline
 fit's, cut at stamp gaps), where the balance holds with a slow F_MR (moving at >= ``min_speed``,
 straight, every wheel's slip within ``max_slip``, finite):
@@ -17,8 +17,8 @@ straight, every wheel's slip within ``max_slip``, finite):
   once windows of both signs have been fitted since b was last reset).  A jump's window is a mixed one (the
   axles cross the change one after the other): its b starts no contrast, and the adjoining window before it,
   which holds the change's first part, is taken back (docs/method.md §15, "A jump is a mixed window").
-  The wheel-inertia term of the balance carries the payload's share of k, k^w, w = 1 - gross_scale_sigma^2 /
-  prior_sigma^2 (docs/method.md §15, "The wheels' inertia under an unknown payload").  With ``model_resistance`` the
+  The wheel-inertia term of the balance carries the payload's share of k, k^w, w = 1 - ``SoilConfig.gross_scale_sigma``^2 /
+  ``TorqueScaleConfig.prior_sigma``^2 (docs/method.md §15, "The wheels' inertia under an unknown payload").  With ``model_resistance`` the
   resistance itself is modelled, not a state: eq. 4 at each sample's slips (eq. 1 from the readings),
   normal forces and the soil's K as the soil stage last reported it (:meth:`TorqueScaleBank.feed_soil`,
   the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,

@@ -37,7 +37,8 @@ def longitudinal_balance(f_x, omega_dot_sum, torque_sum, vehicle: VehicleParams,
     ``resistance``: F_MR,model in N (:func:`modelled_resistance`, eq. 4 at the wheels' slips and a K);
     None: 0, b is the whole F_MR (``soilocp calibrate-torque``, which knows no soil, fits it as a constant).
     m is the vehicle file's mass: a payload it does not know (true mass m') reads as k m / m' (the common
-    scale of gross traction, motor constant x 1 / mass).  Arguments broadcast (window means or samples)."""
+    scale of gross traction, motor constant x 1 / mass), up to the wheel-inertia term, which does not
+    carry the payload (docs/method.md §15, "The wheels' inertia under an unknown payload").  Arguments broadcast (window means or samples)."""
     arrays = dict(f_x=f_x, omega_dot_sum=omega_dot_sum, torque_sum=torque_sum)
     if resistance is not None:
         arrays["resistance"] = resistance

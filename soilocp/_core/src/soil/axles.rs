@@ -41,6 +41,7 @@ impl AxleCheck {
         }
     }
 
+    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
     /// Fuse the used wheels' tempered log-likelihoods: `loglike[j]` (G) of wheel `wheels[j]`.
     /// Both axles' beliefs are renormalised (an axle without a wheel gets a factor 1).
     pub fn update<L: AsRef<[f64]>>(&mut self, stamp: f64, wheels: &[usize], loglike: &[L]) {
@@ -93,6 +94,7 @@ impl AxleCheck {
         }
     }
 
+    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
     /// The verdict after this sample's update, `dt` s after the vehicle's previous sample (NaN:
     /// none), with the ordinary model error `tolerance` in ln K.  Judged only while both axles
     /// informed their belief within `hold_after` s; a mismatch needs `mismatch_min_evidence` s of

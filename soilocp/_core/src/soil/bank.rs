@@ -511,7 +511,7 @@ impl SoilGridBank {
 /// A pair's tempered log-likelihood on the grid, `exponent` x ln((1 - op) e^{-r2/2} / sigma + op)
 /// from its r^2 row, sigma^2 = `sig2`, the outlier weight op (docs/method.md §9).
 ///
-/// Where e^{-r2/2} is so small that the first term is below a quarter of op's last bit, the sum
+/// Where e^{-r2/2} is so small that the first term is below half an ulp of op, the sum
 /// rounds to op exactly, and its logarithm is ln(op): such nodes (a fifth of them on the bench's
 /// drive) take ln(op) x exponent, computed once, without their exp and ln.  The cut is
 /// conservative: e^x < B = op sigma 2^-55 for every x < ln B - 1 (libm's exp and ln are within
@@ -649,5 +649,94 @@ fn window_stats(
     }
     for (p, &v) in b.profile[1].iter_mut().zip(hh.iter()) {
         *p += v;
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use crate::constants::Constants;
+    use crate::traction::{self, Kind};
+
+    fn bank() -> SoilGridBank {
+        let g = 241;
+        let (a, b) = (5f64.ln(), 5000f64.ln());
+        let theta: Vec<f64> = (0..g).map(|i| a + (b - a) * i as f64 / (g - 1) as f64).collect();
+        let k = theta.iter().map(|t| t.exp()).collect();
+        let grid = Grid::new(theta, k, None, Kind::Gross, Constants::PAPER).unwrap();
+        // soil_config.SoilConfig's defaults
+        let values = [
+            0.04, 0.95, 3.0, 0.4, 0.1, 0.5, 1.0, 0.5, 0.03, 0.02, 0.15, 0.01, 0.3, 3.0, 0.05, 0.5, 2.5, 0.03, 1.0, 1.0,
+        ];
+        let map = Params::NAMES
+            .iter()
+            .zip(values)
+            .map(|(n, v)| (n.to_string(), v))
+            .collect();
+        let cfg = Params::from_map(&map).unwrap();
+        let z: Vec<f64> = (0..25).map(|i| -4.0 + 8.0 * i as f64 / 24.0).collect();
+        let nodes = ScaleNodes {
+            log_prior: z.iter().map(|z| -0.5 * z * z).collect(),
+            z,
+        };
+        SoilGridBank::new(grid, cfg, nodes, 20.0, 1).unwrap()
+    }
+
+    fn sample(i: usize) -> Sample {
+        // a traction test on K = 100 with a deterministic wobble of the readings
+        let t = i as f64 * 0.01;
+        let s = 0.02 + 0.3 * (0.5 + 0.5 * (t * 1.3).sin());
+        let slip = [s, s * 0.9, -0.3 * s, -0.25 * s];
+        let observed = slip.map(|s| {
+            traction::curve(Kind::Gross, s, 100.0, &Constants::PAPER).value * (1.0 + 0.02 * (t * 7.0 + s).sin())
+        });
+        Sample {
+            vehicle: 0,
+            stamp: t,
+            slip,
+            observed,
+            variance: [1e-4; 4],
+            slip_sigma: [0.005; 4],
+            gate_slip: slip,
+            gate_sigma: [0.005; 4],
+            informative: [true; 4],
+            held: [false; 4],
+            ground_stale: false,
+            identifiable: true,
+            speed: 1.0,
+            span: None,
+            slip_ends: None,
+            unusable: [0; 4],
+            scale_sigma: None,
+        }
+    }
+
+    /// The AVX2 copy of the update and the plain one give the same numbers to the bit (what
+    /// `step_one` relies on when it picks one at run time).
+    #[test]
+    fn avx2_copy_equals_the_plain_update_to_the_bit() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let (mut plain, mut wide) = (bank(), bank());
+        let mut informed = 0;
+        for i in 0..400 {
+            let s = sample(i);
+            // the wheels' flags and the bridge as `step` makes them
+            let flags = plain.wheel_flags(&s);
+            let bridged = [
+                (0..4).any(|w| flags[w] & USED != 0 && plain.grid.in_bridge(s.slip[w])),
+                false,
+                false,
+            ];
+            let a = plain.step_one_body(&s, flags, bridged);
+            // SAFETY: the CPU has AVX2 (checked above)
+            let b = unsafe { wide.step_one_avx2(&s, flags, bridged) };
+            assert_eq!(format!("{a:?}"), format!("{b:?}"), "sample {i}");
+            informed += usize::from(a.informed);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&plain.vehicles[0].p), bits(&wide.vehicles[0].p), "sample {i}");
+        }
+        assert!(informed > 300, "the drive must inform the belief ({informed} of 400)");
     }
 }

@@ -121,6 +121,7 @@ impl Grid {
         s.abs() < self.c.bridge_slip
     }
 
+    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
     /// A belief `p` (G) after `dt` > 0 s over `distance` m: diffusion of ln K (random walk in time,
     /// q_log_k per sqrt(s)) by a reflecting 3-tap kernel, then mixing with the uniform change prior
     /// with the hazard change_per_metre x distance; after a long gap or a long way, uniform at once.
@@ -196,6 +197,7 @@ impl Grid {
         [0.15865, 0.5, 0.84135].map(|x| interp(x, cdf, &self.theta))
     }
 
+    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
     /// The mid-point CDF of `p` (a fresh vector).
     pub fn cdf(p: &[f64]) -> Vec<f64> {
         let mut c = vec![0.0; p.len()];

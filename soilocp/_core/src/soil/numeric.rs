@@ -41,6 +41,7 @@ pub fn interp(x: f64, xp: &[f64], fp: &[f64]) -> f64 {
     r
 }
 
+#[cfg(test)] // the reference the tests hold the `_with` / fast form to
 /// The largest value of a row (`np.max`; NaN propagates).
 pub fn row_max(a: &[f64]) -> f64 {
     let mut m = a[0];

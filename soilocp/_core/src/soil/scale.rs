@@ -36,6 +36,7 @@ fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64,
     (theta[i] + off * dtheta, y1 - 0.25 * (y0 - y2) * off)
 }
 
+#[cfg(test)] // the reference the tests hold the `_with` / fast form to
 /// (systematic 1-sigma of ln K, c's posterior mean, c's posterior 1-sigma) from the window's
 /// per-node sums `s_oh` = sum w obs h(theta), `s_hh` = sum w h(theta)^2 (G each), for a scale
 /// 1-sigma `sigma`.  The misfit of obs = c h(theta), less sum w obs^2 (the same for every c), is

@@ -159,7 +159,8 @@ impl TorqueScaleBank {
                 );
                 let before = self.state[i];
                 let accel = c.means[0] - c.means[1];
-                // a jump whose window adjoins the previous fitted one takes that one back (ScaleState::jump_after)
+                // a jump whose window adjoins the previous fitted one takes that one back (ScaleState::jump_after);
+                // x and y keep the inertia factor of the shadow k that the taken-back window had moved (as the reference)
                 if self.state[i].update(c.span, x, y, accel, p) && c.start == self.last_end[i] {
                     let mut st = self.before_last[i];
                     st.jump_after(self.last_span[i] + c.span, x, y, accel, p);
