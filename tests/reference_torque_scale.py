@@ -19,6 +19,8 @@ carries 1 / rho = k^w, w = 1 - prior_sigma^2 / state_sigma^2, at the shadow's k 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
@@ -146,7 +148,8 @@ class ReferenceTorqueScale:
             sk = self.shadow_theta[ix[j], 0]
             w = 1.0 - self.prior_sigma**2 / self.state_sigma**2 if self.state_sigma**2 > self.prior_sigma**2 else 0.0
             ok = np.isfinite(sk) & (sk > 0) & (w != 0.0)
-            alpha = np.where(ok, np.where(ok, sk, 1.0) ** w, 1.0)
+            # libm's pow, as the core's powf: numpy's vector pow differs in the last bit on ~5 % of arguments
+            alpha = np.array([math.pow(k, w) if good else 1.0 for k, good in zip(sk.tolist(), ok.tolist())])
             x, y = longitudinal_balance(means[:, 0], omega_dot, means[:, 2], v, means[:, 3], alpha)
             valid = ~slow[j]
             if valid.any():
