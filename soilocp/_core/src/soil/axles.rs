@@ -41,16 +41,18 @@ impl AxleCheck {
         }
     }
 
-    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
-    /// Fuse the used wheels' tempered log-likelihoods: `loglike[j]` (G) of wheel `wheels[j]`.
-    /// Both axles' beliefs are renormalised (an axle without a wheel gets a factor 1).
+    #[cfg(test)] // the allocating form, for the tests
+    /// [`Self::update_with`] with its own scratch rows.
     pub fn update<L: AsRef<[f64]>>(&mut self, stamp: f64, wheels: &[usize], loglike: &[L]) {
         let g = self.p[0].len();
         let (mut acc, mut post) = (vec![0.0; g], vec![0.0; g]);
         self.update_with(stamp, wheels, loglike, &mut acc, &mut post);
     }
 
-    /// [`AxleCheck::update`] with the caller's scratch rows `acc`, `post` (G each).
+    /// Fuse the used wheels' tempered log-likelihoods: `loglike[j]` (G) of wheel `wheels[j]`.
+    /// Both axles' beliefs are renormalised (an axle without a wheel gets a factor 1).
+    ///
+    /// With the caller's scratch rows `acc`, `post` (G each).
     #[inline(always)]
     pub fn update_with<L: AsRef<[f64]>>(
         &mut self,
@@ -94,17 +96,19 @@ impl AxleCheck {
         }
     }
 
-    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
-    /// The verdict after this sample's update, `dt` s after the vehicle's previous sample (NaN:
-    /// none), with the ordinary model error `tolerance` in ln K.  Judged only while both axles
-    /// informed their belief within `hold_after` s; a mismatch needs `mismatch_min_evidence` s of
-    /// judged samples in the window, z above `axle_mismatch_z` for more than half of them, and now.
+    #[cfg(test)] // the allocating form, for the tests
+    /// [`Self::judge_with`] with its own scratch row.
     pub fn judge(&mut self, grid: &Grid, cfg: &Params, stamp: f64, dt: f64, tolerance: f64) -> AxleVerdict {
         let mut cdf = vec![0.0; self.p[0].len()];
         self.judge_with(grid, cfg, stamp, dt, tolerance, &mut cdf)
     }
 
-    /// [`AxleCheck::judge`] with the caller's scratch row `cdf` (G).
+    /// The verdict after this sample's update, `dt` s after the vehicle's previous sample (NaN:
+    /// none), with the ordinary model error `tolerance` in ln K.  Judged only while both axles
+    /// informed their belief within `hold_after` s; a mismatch needs `mismatch_min_evidence` s of
+    /// judged samples in the window, z above `axle_mismatch_z` for more than half of them, and now.
+    ///
+    /// With the caller's scratch row `cdf` (G).
     #[inline(always)]
     pub fn judge_with(
         &mut self,

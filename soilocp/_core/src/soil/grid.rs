@@ -121,16 +121,18 @@ impl Grid {
         s.abs() < self.c.bridge_slip
     }
 
-    #[cfg(test)] // the reference the tests hold the `_with` / fast form to
-    /// A belief `p` (G) after `dt` > 0 s over `distance` m: diffusion of ln K (random walk in time,
-    /// q_log_k per sqrt(s)) by a reflecting 3-tap kernel, then mixing with the uniform change prior
-    /// with the hazard change_per_metre x distance; after a long gap or a long way, uniform at once.
+    #[cfg(test)] // the allocating form, for the tests
+    /// [`Self::predict_with`] with its own scratch row.
     pub fn predict(&self, p: &mut [f64], dt: f64, distance: f64, q_log_k: f64, change_per_metre: f64) {
         let mut q = vec![0.0; p.len()];
         self.predict_with(p, dt, distance, q_log_k, change_per_metre, &mut q);
     }
 
-    /// [`Grid::predict`] with a scratch row `q` (G) of the caller's: no allocation per step.
+    /// A belief `p` (G) after `dt` > 0 s over `distance` m: diffusion of ln K (random walk in time,
+    /// q_log_k per sqrt(s)) by a reflecting 3-tap kernel, then mixing with the uniform change prior
+    /// with the hazard change_per_metre x distance; after a long gap or a long way, uniform at once.
+    ///
+    /// With a scratch row `q` (G) of the caller's: no allocation per step.
     #[inline(always)]
     pub fn predict_with(
         &self,

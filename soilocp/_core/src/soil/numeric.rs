@@ -95,9 +95,9 @@ fn pairwise_block(a: &[f64]) -> f64 {
     res
 }
 
-/// The largest value of a row, NaN if any is NaN: [`row_max`]'s value, found in four independent
-/// lanes (vector registers) instead of one chain.  Only the sign of a zero maximum can differ
-/// from [`row_max`]'s (which keeps the first of equal values): callers that only subtract it from
+/// The largest value of a row, NaN if any is NaN: `np.max`'s value (the tests hold it to
+/// `row_max`), found in four independent lanes (vector registers) instead of one chain.  Only the sign of a zero maximum can differ
+/// from `row_max`'s (which keeps the first of equal values): callers that only subtract it from
 /// the row before `exp` (x - 0.0 and x - (-0.0) are equal but for x = +-0, where exp gives 1
 /// either way) get the same numbers.
 #[inline(always)]

@@ -36,16 +36,8 @@ fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64,
     (theta[i] + off * dtheta, y1 - 0.25 * (y0 - y2) * off)
 }
 
-#[cfg(test)] // the reference the tests hold the `_with` / fast form to
-/// (systematic 1-sigma of ln K, c's posterior mean, c's posterior 1-sigma) from the window's
-/// per-node sums `s_oh` = sum w obs h(theta), `s_hh` = sum w h(theta)^2 (G each), for a scale
-/// 1-sigma `sigma`.  The misfit of obs = c h(theta), less sum w obs^2 (the same for every c), is
-/// M(c) = min_theta c (c S_hh - 2 S_oh); c's posterior is its prior times exp(-M / 2), and the
-/// systematic 1-sigma the root mean square of theta*(c) - theta*(1) under it.
-///
-/// `matmul_means`: c's moments as the reference computes them with a single prior 1-sigma for
-/// all vehicles (`post @ c`, BLAS, added here in order) rather than per vehicle (`np.sum`,
-/// pairwise): the two orders differ by rounding only.
+#[cfg(test)] // the allocating form, for the tests
+/// [`scale_shift_with`] with its own scratch rows.
 pub fn scale_shift(
     s_oh: &[f64],
     s_hh: &[f64],
@@ -59,7 +51,7 @@ pub fn scale_shift(
     scale_shift_with(s_oh, s_hh, sigma, nodes, theta, dtheta, matmul_means, &mut scratch)
 }
 
-/// [`scale_shift`]'s rows, kept by the caller between steps: no allocation per step.
+/// [`scale_shift_with`]'s rows, kept by the caller between steps: no allocation per step.
 #[derive(Clone, Debug, Default)]
 pub struct ScaleScratch {
     row: Vec<f64>,
@@ -81,7 +73,17 @@ fn misfit_row(cv: f64, s_hh: &[f64], two_oh: &[f64], row: &mut [f64]) -> f64 {
     row_min_ignoring_nan(row)
 }
 
-/// [`scale_shift`] with the caller's scratch rows.
+/// (systematic 1-sigma of ln K, c's posterior mean, c's posterior 1-sigma) from the window's
+/// per-node sums `s_oh` = sum w obs h(theta), `s_hh` = sum w h(theta)^2 (G each), for a scale
+/// 1-sigma `sigma`.  The misfit of obs = c h(theta), less sum w obs^2 (the same for every c), is
+/// M(c) = min_theta c (c S_hh - 2 S_oh); c's posterior is its prior times exp(-M / 2), and the
+/// systematic 1-sigma the root mean square of theta*(c) - theta*(1) under it.
+///
+/// `matmul_means`: c's moments as the reference computes them with a single prior 1-sigma for
+/// all vehicles (`post @ c`, BLAS, added here in order) rather than per vehicle (`np.sum`,
+/// pairwise): the two orders differ by rounding only.
+///
+/// `w`: the caller's scratch rows (no allocation per step).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn scale_shift_with(
