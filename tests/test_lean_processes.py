@@ -114,45 +114,52 @@ def test_gateway_process_maps_no_numpy_and_a_stage_service_does():
     assert NUMPY in maps["observer"], errs["observer"]
 
 
-def test_ocp_publisher_computes_a_record_without_loading_numpy():
-    """The OCP publisher needs the pipeline's settings and eqs. 7-10 of one K, not the physics: running,
-    and after it has turned a soil estimate into an OCP record (so that no lazy import on the step's
-    path is missed), it has loaded no numpy.  Its record equals the library's for that K."""
-    import json
-
+def _one_record(service: str, in_key: str, payload: str, out_key: str) -> tuple[list[bytes], str, str]:
+    """Start a router and ``service`` (vehicle rover1), put ``payload`` on ``in_key`` until a record
+    comes on ``out_key``; the records got, the service's ``/proc/PID/maps`` after it, and its stderr."""
     import zenoh
 
-    from schemas import keys
-    from schemas.pipeline import OcpEstimate, SoilEstimate
     from services.runtime.settings import zenoh_config
-    from soilocp.model.ocp import ocp_arrays
 
     port = _free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
-    ocp = None
+    proc = None
+    maps = ""
     try:
         _wait_listening(port, router)
         env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
-        ocp = _start(["service", "ocp"], env)
-        _wait_alive(endpoint, "ocp")
-        soil = SoilEstimate(vehicle_id="rover1", seq=7, stamp=0.07, slip=(0.1,) * 4, informative=(True,) * 4,
-                            soil_strength=120.0, soil_strength_std=6.0, log_k_std=0.05, soil_class="sand",
-                            soil_class_confidence=0.9, status="ok", last_update_stamp=0.07, mu=(0.3,) * 4)
-        got: list[dict] = []
+        proc = _start(["service", service], env)
+        _wait_alive(endpoint, service)
+        got: list[bytes] = []
         with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
-            sub = session.declare_subscriber(keys.ocp("rover1"), lambda smp: got.append(json.loads(smp.payload.to_bytes())))
+            sub = session.declare_subscriber(out_key, lambda smp: got.append(smp.payload.to_bytes()))
             deadline = time.monotonic() + 60
             while not got and time.monotonic() < deadline:
-                session.put(keys.soil("rover1"), soil.model_dump_json())
+                session.put(in_key, payload)
                 time.sleep(0.5)
             sub.undeclare()
-        maps = _mapped(ocp.pid)
+        maps = _mapped(proc.pid)
     finally:
-        err = _stop(ocp) if ocp is not None else ""
+        err = _stop(proc) if proc is not None else ""
         _stop(router)
+    return got, maps, err
+
+
+def test_ocp_publisher_computes_a_record_without_loading_numpy():
+    """The OCP publisher needs the pipeline's settings and eqs. 7-10 of one K, not the physics: running,
+    and after it has turned a soil estimate into an OCP record (so that no lazy import on the step's
+    path is missed), it has loaded no numpy.  Its record equals the library's for that K."""
+    from schemas import keys
+    from schemas.pipeline import OcpEstimate, SoilEstimate
+    from soilocp.model.ocp import ocp_arrays
+
+    soil = SoilEstimate(vehicle_id="rover1", seq=7, stamp=0.07, slip=(0.1,) * 4, informative=(True,) * 4,
+                        soil_strength=120.0, soil_strength_std=6.0, log_k_std=0.05, soil_class="sand",
+                        soil_class_confidence=0.9, status="ok", last_update_stamp=0.07, mu=(0.3,) * 4)
+    got, maps, err = _one_record("ocp", keys.soil("rover1"), soil.model_dump_json(), keys.ocp("rover1"))
     assert got, err
-    rec = OcpEstimate.model_validate(got[0])
+    rec = OcpEstimate.model_validate_json(got[0])
     want = ocp_arrays([120.0])
     assert (rec.mu_T, rec.S_T, rec.S_E, rec.te_at_S_E) == tuple(want[n][0] for n in ("mu_T", "S_T", "S_E", "te_at_S_E"))
     assert PYDANTIC in maps and NUMPY not in maps, err
@@ -163,38 +170,16 @@ def test_normal_force_service_computes_a_record_without_loading_numpy():
     after it has turned a sensor sample into a NormalForces record (so that no lazy import on the
     step's path is missed), it has loaded no numpy.  Its record equals the library's (the bank's
     solver, numpy arrays) to the bit."""
-    import zenoh
-
     from schemas import keys
     from schemas.pipeline import NormalForces
     from schemas.sensor import SensorSample
-    from services.runtime.settings import zenoh_config
     from soilocp.model.normal_force import normal_forces
     from soilocp.model.vehicle import DEFAULT_VEHICLE
 
-    port = _free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    router = _start(["router", "--listen", endpoint], {"SOILOCP_LOG_LEVEL": "warning"})
-    nf = None
-    try:
-        _wait_listening(port, router)
-        env = {"SOILOCP_CONNECT": endpoint, "SOILOCP_LOG_LEVEL": "warning", "SOILOCP_VEHICLE_ID": "rover1"}
-        nf = _start(["service", "normal-force"], env)
-        _wait_alive(endpoint, "normal-force")
-        sample = SensorSample(vehicle_id="rover1", seq=3, stamp=0.03, wheel_speed=(2.0,) * 4, wheel_torque=(1.5,) * 4,
-                              specific_force=(1.3, -0.4, 9.7), yaw_rate=0.1, pitch=-0.05, roll=0.02, ground_speed=None)
-        got: list[bytes] = []
-        with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
-            sub = session.declare_subscriber(keys.normal_forces("rover1"), lambda smp: got.append(smp.payload.to_bytes()))
-            deadline = time.monotonic() + 60
-            while not got and time.monotonic() < deadline:
-                session.put(keys.clean("rover1"), sample.model_dump_json())
-                time.sleep(0.5)
-            sub.undeclare()
-        maps = _mapped(nf.pid)
-    finally:
-        err = _stop(nf) if nf is not None else ""
-        _stop(router)
+    sample = SensorSample(vehicle_id="rover1", seq=3, stamp=0.03, wheel_speed=(2.0,) * 4, wheel_torque=(1.5,) * 4,
+                          specific_force=(1.3, -0.4, 9.7), yaw_rate=0.1, pitch=-0.05, roll=0.02, ground_speed=None)
+    got, maps, err = _one_record("normal-force", keys.clean("rover1"), sample.model_dump_json(),
+                                 keys.normal_forces("rover1"))
     assert got, err
     rec = NormalForces.model_validate_json(got[0])
     assert rec.seq == 3 and rec.normal_force == tuple(normal_forces(DEFAULT_VEHICLE, [1.3, -0.4, 9.7]).tolist())
