@@ -4,6 +4,7 @@ its router."""
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -18,7 +19,14 @@ def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, 
     """SIGINT/SIGTERM set ``stop``; a second signal, or a shutdown hanging past ``grace_s``, exits at once.
 
     SIGTERM is handled explicitly: as PID 1 in a container the default action is ignored.
+
+    The watchdog is a Python thread, so a native call that holds the GIL (the class of
+    zenoh-python undeclare/close deadlocks, eclipse-zenoh/zenoh-python#434) would stop it too.
+    faulthandler's own watchdog needs no GIL: ``native_grace_s`` after the signal it writes every
+    thread's stack to stderr (the service's log) and exits with status 1, before a supervisor's
+    SIGKILL, so that such a hang is both bounded and located.
     """
+    native_grace_s = grace_s + 1.5
 
     def _force_exit_later() -> None:
         time.sleep(grace_s)
@@ -29,6 +37,7 @@ def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, 
     def _handler(signum, _frame) -> None:
         if stop.is_set():
             os._exit(130 if signum == signal.SIGINT else 143)
+        faulthandler.dump_traceback_later(native_grace_s, exit=True)
         if log:
             log.info("signal", signal=signal.Signals(signum).name)
         stop.set()

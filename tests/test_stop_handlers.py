@@ -1,0 +1,65 @@
+"""The stop handlers of every long-running process (services.runtime.process.install_stop_handlers):
+a SIGTERM stops the process cleanly, and a shutdown that hangs is bounded even when the hang holds
+the GIL, where the Python watchdog thread cannot run.  Real OS processes and real signals."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from services.supervisor.processes import STOP_TIMEOUT_S
+
+# ``hang`` selects what the child does after its stop event is set: return at once, block in
+# Python (the GIL free: the Python watchdog answers), or block in a native call that holds the
+# GIL (ctypes.PyDLL keeps it across the call, as a native extension that forgets to release it).
+CHILD = textwrap.dedent("""
+    import ctypes, sys, threading
+    from services.runtime.process import install_stop_handlers
+    from services.runtime.log import JsonLog
+    hang = sys.argv[1]
+    stop = threading.Event()
+    install_stop_handlers(stop, JsonLog("stop-test", "info"))
+    print("ready", flush=True)
+    stop.wait()
+    if hang == "python":
+        threading.Event().wait(60)
+    elif hang == "native":
+        ctypes.PyDLL(None).sleep(60)
+    sys.exit(0)
+""")
+
+
+def _run(hang: str) -> tuple[int, str, float]:
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, hang], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(STOP_TIMEOUT_S)  # within what a supervisor allows before SIGKILL
+        took = time.monotonic() - t0
+        return proc.returncode, proc.stderr.read() + proc.stdout.read(), took
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.parametrize("hang, code, evidence", [
+    ("none", 0, '"signal"'),
+    ("python", 0, '"forced_exit"'),
+    ("native", 1, "Timeout"),  # faulthandler's header, then every thread's stack
+])
+def test_a_hung_shutdown_ends_before_the_supervisors_kill_and_says_where(hang, code, evidence):
+    returncode, output, took = _run(hang)
+    assert returncode == code, output
+    assert evidence in output, output
+    if hang == "native":
+        assert "sleep" in output or "<module>" in output, output  # the stack names where it hung
+        assert '"forced_exit"' not in output  # the Python watchdog could not run: faulthandler ended it
+    assert took < STOP_TIMEOUT_S
