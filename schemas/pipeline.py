@@ -104,7 +104,8 @@ class ObserverOutput(_Message):
     )
     speed_rejected: BoolQuad = Field(
         default=(False,) * 4, description="Per wheel: a new speed reading that the innovation gate rejected (and that "
-        "did not re-anchor the wheel): the filtered speed, and the slip from it, are the prediction, not the "
+        "did not re-anchor the wheel), or a held reading that the filtered speed has left by more than the gate's "
+        "multiple of the encoder noise: the filtered speed, and the slip from it, are the prediction, not the "
         "measurement; such a wheel informs no K (docs/method.md §18)"
     )
     torque_scale: float = Field(

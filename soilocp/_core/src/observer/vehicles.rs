@@ -79,7 +79,7 @@ pub struct Estimate {
     pub ground_speed: f64,
     pub yaw_rate: f64,
     pub rejected: i64,
-    /// per wheel: its new speed reading was rejected by the innovation gate (bank::Step::speed_rejected)
+    /// per wheel: its filtered speed is the prediction, not the reading (bank::Step::speed_rejected)
     pub speed_rejected: [bool; 4],
     /// 0: no reset, else bank::RESET_REASONS[code - 1]
     pub reset: u8,
