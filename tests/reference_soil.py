@@ -660,8 +660,11 @@ class ReferenceSlipGate:
             var = np.where(refresh, ob.interval_gross_var * self._shared, var)
         # a wheel whose new speed reading the observer's gate rejected has a predicted slip (docs/method.md §18);
         # a refresh pair, made from the readings, keeps its say
+        # (a held wheel informs no K anyway, and keeps its own reason: the readings are held)
+        held = np.where(ob.interval_learning, ~refresh,
+                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
         informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
-                       & (unusable == 0) & (~ob.speed_rejected | refresh))
+                       & (unusable == 0) & (~ob.speed_rejected | refresh | held))
         # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
         s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
         if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
@@ -691,9 +694,7 @@ class ReferenceSlipGate:
         # from samples within fresh_age of a new reading, and where the interval's own pair is served
         # (interval_learning) at the refresh only.  A slow torque stream likewise: between its refreshes the
         # gross traction rests on a held torque (the Warthog's currents, refreshed once a second, were paired
-        # with four wheel-speed refreshes each)
-        held = np.where(ob.interval_learning, ~refresh,
-                        (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
+        # with four wheel-speed refreshes each): `held`, above
         measured = ob.ground_speed_measured
         loaded = ob.normal_force >= cfg.soil.min_load_fraction * self._static_load
         # the codes judge measured speeds and torques: between a slow stream's refreshes the filtered speed is

@@ -301,13 +301,27 @@ impl SlipGateBank {
         // a measured one (docs/method.md §18): at a torque step the prediction leads the reading and the
         // traction state lags the slip (slip 0.56 for 0.19, gross 0.50 for 0.96), and one such pair decided a
         // change of soil after a hold.  A refresh pair is made from the readings and keeps its say
+        // between the refreshes of a slow stream the filtered speed is a prediction and the samples
+        // repeat one measurement: K learns from samples within fresh_age of a new reading, and where
+        // the interval's own pair is served (interval_learning) at the refresh only
+        let (learning, speed_age, torque_age) =
+            (flag(quad::INTERVAL_LEARNING), q(quad::SPEED_AGE), q(quad::TORQUE_AGE));
+        let held: [bool; 4] = std::array::from_fn(|w| {
+            if learning[w] {
+                !refresh[w]
+            } else {
+                speed_age[w] > cfg.fresh_age || torque_age[w] > cfg.fresh_age
+            }
+        });
+        // a held wheel informs no K anyway, and says so by its own reason (the readings are held), which a
+        // rejected prediction would hide
         let rejected = flag(quad::SPEED_REJECTED);
         let informative: [bool; 4] = std::array::from_fn(|w| {
             scale[w] >= cfg.slip_deadband
                 && normal_force[w] > cfg.lift_off_force
                 && !reset
                 && unusable[w] == 0
-                && (!rejected[w] || (any_refresh && refresh[w]))
+                && (!rejected[w] || (any_refresh && refresh[w]) || held[w])
         });
         // slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (§6, §9); a refresh
         // interval's mean rim speed is known only to interval_rim_sigma
@@ -354,18 +368,6 @@ impl SlipGateBank {
                 gate_sigma[w] = slip_sigma[w];
             }
         }
-        // between the refreshes of a slow stream the filtered speed is a prediction and the samples
-        // repeat one measurement: K learns from samples within fresh_age of a new reading, and where
-        // the interval's own pair is served (interval_learning) at the refresh only
-        let (learning, speed_age, torque_age) =
-            (flag(quad::INTERVAL_LEARNING), q(quad::SPEED_AGE), q(quad::TORQUE_AGE));
-        let held: [bool; 4] = std::array::from_fn(|w| {
-            if learning[w] {
-                !refresh[w]
-            } else {
-                speed_age[w] > cfg.fresh_age || torque_age[w] > cfg.fresh_age
-            }
-        });
         let min_load = cfg.min_load_fraction * cfg.static_load;
         // the codes judge measured speeds and torques: between a slow stream's refreshes the filtered
         // speed is a prediction, and a held wheel informs no K anyway
