@@ -135,12 +135,12 @@ def test_a_rejected_wheel_speed_informs_no_k():
     cfg = PipelineConfig()
     r = cfg.vehicle.wheel_radius
 
-    def informative(rejected):
+    def gated(rejected, speed_age=0.0):
         ob = _blocks(dict(
             mu=np.full((1, 4), 0.5), mu_var=np.full((1, 4), 1e-3), mu_determined=np.ones((1, 4), bool),
             resistance=np.full((1, 4), 0.05), gross=np.full((1, 4), 0.55), gross_var=np.full((1, 4), 1e-3),
             wheel_speed=np.full((1, 4), 1.0 / (0.8 * r)), ground_speed=np.array([1.0]), yaw_rate=np.zeros(1),
-            reset=np.zeros(1, bool), normal_force=np.full((1, 4), 150.0), speed_age=np.zeros((1, 4)),
+            reset=np.zeros(1, bool), normal_force=np.full((1, 4), 150.0), speed_age=np.full((1, 4), speed_age),
             torque_age=np.zeros((1, 4)), ground_speed_age=np.zeros(1), ground_speed_measured=np.ones(1, bool),
             ground_speed_latency=np.zeros(1), interval=np.zeros((1, 4)), interval_gross=np.zeros((1, 4)),
             interval_gross_var=np.zeros((1, 4)), interval_rim_start=np.zeros((1, 4)), interval_rim_end=np.zeros((1, 4)),
@@ -150,10 +150,14 @@ def test_a_rejected_wheel_speed_informs_no_k():
         ), [int(sum(rejected))], [""])
         out = SlipGate(cfg, 1).step(np.zeros(1, dtype=int), np.zeros(1), ob)
         np.testing.assert_allclose(out.slip[0], 0.2, rtol=1e-12)
-        return out.informative[0].tolist()
+        return out.informative[0].tolist(), out.held[0].tolist()
 
-    assert informative([False] * 4) == [True] * 4
-    assert informative([False, True, True, False]) == [True, False, False, True]
+    assert gated([False] * 4) == ([True] * 4, [False] * 4)
+    assert gated([False, True, True, False]) == ([True, False, False, True], [False] * 4)
+    # a held wheel (its speed reading older than soil.fresh_age) informs no K by being held, and keeps that
+    # reason whether or not its prediction left the reading: informative, held, as without the flag
+    age = 2 * cfg.soil.fresh_age
+    assert gated([False] * 4, age) == gated([True] * 4, age) == ([True] * 4, [True] * 4)
 
 
 def test_the_blocks_and_the_messages_pack_alike():

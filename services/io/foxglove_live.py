@@ -27,6 +27,7 @@ import click
 from schemas import keys
 from services.io.streams import STREAMS, decode, selectors
 from services.runtime.log import JsonLog
+from services.runtime.process import exit_now
 from services.runtime.worker import BoundedWorker
 from soilocp.export.channels import (CHANNEL_SCHEMAS, encode, log_time_ns, map_grid_message, map_grid_topic,
                                      split_estimate, split_sensor, topic)
@@ -386,7 +387,9 @@ def foxglove_cmd(vehicle_ids, connect, host, port, duration, maps, map_frames) -
     except (ValueError, ConfigError) as exc:
         click.echo(f"soilocp foxglove: error: {exc}", err=True)
         sys.exit(2)
-    sys.exit(code)
+    # the session and the server are closed: leave without interpreter finalisation, which can hang in Zenoh's
+    # native runtime (services.runtime.process.exit_now) while the stop handlers' native watchdog is armed
+    exit_now(code)
 
 
 COMMANDS = [foxglove_cmd]

@@ -57,6 +57,7 @@ def watch_parent(stop: threading.Event, log: Optional[JsonLog] = None, *, period
     def _watch() -> None:
         while not stop.wait(period_s):
             if os.getppid() != parent:
+                faulthandler.dump_traceback_later(1.8 + 1.5, exit=True)  # as install_stop_handlers
                 if log:
                     log.warning("parent_gone", parent_pid=parent)
                 stop.set()

@@ -34,6 +34,7 @@ from schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.model.normal_force import NormalForceSolver
 
+from services.runtime.process import exit_now
 from services.runtime.worker import WorkItem
 from services.stages.config import pipeline_config
 from services.stages.graph import BATCHED_STAGES, BY_NAME
@@ -150,4 +151,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    exit_now(main())  # as `soilocp service`: no interpreter finalisation after an orderly shutdown

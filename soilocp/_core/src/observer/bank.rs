@@ -87,23 +87,23 @@ pub struct Step {
 
 /// docs/method.md §18, "A repeated reading the prediction has left": per wheel, a reading that is no
 /// measurement now (a repeat the reading clock judged held, `available` false) that the filtered speed
-/// has left by more than `gate_sigma` of the encoder's own noise (|z − ω| > gate_sigma sqrt(R)). The
+/// has left by more than `gate_sigma` of the encoder's own noise (|z − ω| > gate_sigma sqrt(R), R the
+/// wheel's row of the measurement noise: r_wheel_speed², twice that for a side's shared encoder). The
 /// prediction's variance is not in the test: a free-running wheel equation on a poorly known traction
 /// state has a P_ωω that excuses any departure, while the slip made of it informs K as a measured one.
-/// Between a quantised encoder's changes at a steady speed (stall-draft, seed 2: readings 3.336 rad/s)
-/// its flicker drives the traction state and the prediction ran to 3.78 in 0.09 s (slip 0.12 for 0).
-/// A missing reading (NaN) says nothing.
+/// Between a quantised encoder's changes at a steady speed its flicker drives the traction state, and
+/// the prediction runs off the reading (the stall-draft drive of §18). A missing reading (NaN) says nothing.
 pub fn left_its_reading(
     l: &Layout,
     x: &[f64],
     z: &[f64; N_MEAS],
     available: &[bool; N_MEAS],
-    r: f64,
+    r: &[f64; N_MEAS],
     gate_sigma: f64,
 ) -> [bool; 4] {
     std::array::from_fn(|w| {
         let nu = z[2 + w] - x[l.omega() + w];
-        !available[2 + w] && nu * nu > gate_sigma * gate_sigma * r
+        !available[2 + w] && nu * nu > gate_sigma * gate_sigma * r[2 + w]
     })
 }
 
@@ -299,7 +299,7 @@ impl FilterBank {
             let st = &self.settings;
             let x = &mut self.x[g * n..(g + 1) * n];
             let p = &mut self.p[g * n * n..(g + 1) * n * n];
-            let left = left_its_reading(&l, x, &z, &available, st.r[2], st.gate_sigma);
+            let left = left_its_reading(&l, x, &z, &available, &st.r, st.gate_sigma);
             out.speed_rejected =
                 std::array::from_fn(|w| !anchored[w] && ((available[2 + w] && !gated.keep[2 + w]) || left[w]));
             condition(x, p, &st.lower, &st.upper, st.variance_floor, st.variance_ceiling, n);
@@ -365,19 +365,19 @@ mod tests {
         x[l.omega()..l.v()].copy_from_slice(&[3.336, 3.50, 3.70, f64::NAN]);
         let mut z = [0.0; N_MEAS];
         z[2..6].copy_from_slice(&[3.336, 3.336, 3.336, 3.336]);
-        let (r, gate) = (0.03f64 * 0.03, 5.0);
+        let (r, gate) = ([0.03f64 * 0.03; N_MEAS], 5.0);
         let mut available = [false; N_MEAS];
         // held readings: on the reading; 0.164 rad/s off (5.5 sigma of R); 0.364 off; a NaN state says nothing
         assert_eq!(
-            left_its_reading(&l, &x, &z, &available, r, gate),
+            left_its_reading(&l, &x, &z, &available, &r, gate),
             [false, true, true, false]
         );
         // a new reading is the innovation gate's to judge, not this rule's
         available[2..6].fill(true);
-        assert_eq!(left_its_reading(&l, &x, &z, &available, r, gate), [false; 4]);
+        assert_eq!(left_its_reading(&l, &x, &z, &available, &r, gate), [false; 4]);
         // a missing reading says nothing
         available[2..6].fill(false);
         z[3] = f64::NAN;
-        assert!(!left_its_reading(&l, &x, &z, &available, r, gate)[1]);
+        assert!(!left_its_reading(&l, &x, &z, &available, &r, gate)[1]);
     }
 }
