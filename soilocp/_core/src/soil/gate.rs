@@ -297,10 +297,6 @@ impl SlipGateBank {
                 }
             }
         }
-        // a wheel whose new speed reading the observer's innovation gate rejected has a predicted slip, not
-        // a measured one (docs/method.md §18): at a torque step the prediction leads the reading and the
-        // traction state lags the slip (slip 0.56 for 0.19, gross 0.50 for 0.96), and one such pair decided a
-        // change of soil after a hold.  A refresh pair is made from the readings and keeps its say
         // between the refreshes of a slow stream the filtered speed is a prediction and the samples
         // repeat one measurement: K learns from samples within fresh_age of a new reading, and where
         // the interval's own pair is served (interval_learning) at the refresh only
@@ -313,8 +309,12 @@ impl SlipGateBank {
                 speed_age[w] > cfg.fresh_age || torque_age[w] > cfg.fresh_age
             }
         });
-        // a held wheel informs no K anyway, and says so by its own reason (the readings are held), which a
-        // rejected prediction would hide
+        // a wheel whose new speed reading the observer's innovation gate rejected, or whose held reading its
+        // prediction left, has a predicted slip, not a measured one (docs/method.md §18): at a torque step the
+        // prediction leads the reading and the traction state lags the slip (slip 0.56 for 0.19, gross 0.50
+        // for 0.96), and one such pair decided a change of soil after a hold.  A refresh pair is made from the
+        // readings and keeps its say; a held wheel informs no K anyway, and keeps its own reason (the readings
+        // are held), which the flag would hide
         let rejected = flag(quad::SPEED_REJECTED);
         let informative: [bool; 4] = std::array::from_fn(|w| {
             scale[w] >= cfg.slip_deadband

@@ -36,21 +36,6 @@ fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64,
     (theta[i] + off * dtheta, y1 - 0.25 * (y0 - y2) * off)
 }
 
-#[cfg(test)] // the allocating form, for the tests
-/// [`scale_shift_with`] with its own scratch rows.
-pub fn scale_shift(
-    s_oh: &[f64],
-    s_hh: &[f64],
-    sigma: f64,
-    nodes: &ScaleNodes,
-    theta: &[f64],
-    dtheta: f64,
-    matmul_means: bool,
-) -> [f64; 3] {
-    let mut scratch = ScaleScratch::default();
-    scale_shift_with(s_oh, s_hh, sigma, nodes, theta, dtheta, matmul_means, &mut scratch)
-}
-
 /// [`scale_shift_with`]'s rows, kept by the caller between steps: no allocation per step.
 #[derive(Clone, Debug, Default)]
 pub struct ScaleScratch {
@@ -205,11 +190,29 @@ mod tests {
     fn empty_window_and_no_scale_error() {
         let theta = [0.0, 1.0, 2.0];
         assert_eq!(
-            scale_shift(&[0.0; 3], &[0.0; 3], 0.05, &nodes(), &theta, 1.0, true),
+            scale_shift_with(
+                &[0.0; 3],
+                &[0.0; 3],
+                0.05,
+                &nodes(),
+                &theta,
+                1.0,
+                true,
+                &mut ScaleScratch::default()
+            ),
             [0.0, 1.0, 0.05]
         );
         assert_eq!(
-            scale_shift(&[1.0; 3], &[1.0; 3], 0.0, &nodes(), &theta, 1.0, true),
+            scale_shift_with(
+                &[1.0; 3],
+                &[1.0; 3],
+                0.0,
+                &nodes(),
+                &theta,
+                1.0,
+                true,
+                &mut ScaleScratch::default()
+            ),
             [0.0, 1.0, 0.0]
         );
     }
@@ -221,7 +224,16 @@ mod tests {
         // h(theta) = theta, obs = 2: S_oh = w obs h, S_hh = w h^2 with w = 100
         let s_oh: Vec<f64> = theta.iter().map(|t| 100.0 * 2.0 * t).collect();
         let s_hh: Vec<f64> = theta.iter().map(|t| 100.0 * t * t).collect();
-        let [sys, mean, sd] = scale_shift(&s_oh, &s_hh, 0.05, &nodes(), &theta, 0.1, false);
+        let [sys, mean, sd] = scale_shift_with(
+            &s_oh,
+            &s_hh,
+            0.05,
+            &nodes(),
+            &theta,
+            0.1,
+            false,
+            &mut ScaleScratch::default(),
+        );
         assert!((mean - 1.0).abs() < 0.02 && sd < 0.06 && sys > 0.0, "{sys} {mean} {sd}");
     }
 }
