@@ -20,6 +20,14 @@ Quad = tuple[float, float, float, float]
 BoolQuad = tuple[bool, bool, bool, bool]
 
 #: Status of a soil / OCP record (see soilocp.estimation.soil_strength); ``stale`` is set by the live publisher.
+#: Where an OCP record's mu_T and S_T come from (soilocp.estimation.wheel_curve).
+OcpCurve = Literal["model", "learnt", "unchecked"]
+_CURVE_DOC = (
+    "Where mu_T and S_T come from. model: K and the configured constants, whose curve was checked for this wheel "
+    "(the paper's testbed wheel, or a calibration file). learnt: the curve this drive showed on the current soil "
+    "(a traction sweep), with its band in mu_T_std and S_T_std. unchecked: K and the paper's constants, which nobody "
+    "checked for this wheel: such OCPs are never served as ok (the status says uncertain, the reason why)"
+)
 EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
 _STATUS_DOC = (
     "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
@@ -167,8 +175,12 @@ class OcpEstimate(_Message):
     soil_class_confidence: Optional[float] = None
     mu_T: Optional[float] = Field(description="Maximum net traction coefficient (eq. 8)")
     S_T: Optional[float] = Field(description="Slip of maximum traction (eq. 7, sign corrected)")
-    S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10)")
+    S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10; null when the OCPs are "
+                                             "the wheel's learnt curve's, whose efficiency line nobody fitted)")
     te_at_S_E: Optional[float] = Field(default=None, description="Tractive efficiency (eq. 9) at S_E, when defined")
+    curve: OcpCurve = Field(default="model", description=_CURVE_DOC)
+    mu_T_std: Optional[float] = Field(default=None, description="1-sigma of mu_T when the curve is learnt")
+    S_T_std: Optional[float] = Field(default=None, description="1-sigma of S_T when the curve is learnt")
     status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
     mu: Quad = Field(description="Observed net traction per wheel")

@@ -10,7 +10,8 @@ from soilocp.sim.variants import VARIANTS
 
 def _row(**kw):
     row = dict(k_median_rel=0.5, k_p90_rel=0.9, band_coverage=0.95, std_rel_median=0.3, change_convergence_s=None,
-               terrain_changes=3, mu_T_err=0.1, S_T_err=0.1, S_E_err=0.1, confident_wrong=0, reason_named_share=0.8)
+               terrain_changes=3, mu_T_err=0.1, S_T_err=0.1, S_E_err=0.1, confident_wrong=0, reason_named_share=0.8,
+               ok_ocp_off=0, mu_T_p90=0.2, S_T_p90=0.2)
     row.update(kw)
     return row
 

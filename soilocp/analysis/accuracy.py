@@ -22,7 +22,7 @@ DEFAULT_SCENARIOS = ("sand", "gravel", "grass", "firm", "sandy-slope", "mixed")
 
 
 def estimate_and_score(pairs, cfg: PipelineConfig, settle: float = TARGETS["settle_s"], reason_names: str = "",
-                       judged_from: float = 0.0):
+                       judged_from: float = 0.0, ocp_after: float = 0.0):
     """The offline chain on simulated ``(SensorSample, TruthRecord)`` pairs, scored against their
     truth: (samples, estimates per second, per-segment results, the estimate summary).  One path
     for ``soilocp accuracy`` and its ``--robustness`` variants."""
@@ -34,7 +34,7 @@ def estimate_and_score(pairs, cfg: PipelineConfig, settle: float = TARGETS["sett
     t0 = time.perf_counter()
     estimates = list(estimate_lines(lines, cfg, summary=summary))
     rate = len(estimates) / max(time.perf_counter() - t0, 1e-9)
-    return len(lines), rate, evaluate_records(truth, estimates, settle, reason_names, judged_from), summary
+    return len(lines), rate, evaluate_records(truth, estimates, settle, reason_names, judged_from, ocp_after), summary
 
 
 @dataclass

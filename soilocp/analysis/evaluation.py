@@ -28,6 +28,10 @@ TARGETS = {
 #: 30 % off").
 UNFLAGGED_ERROR_REL = 0.30
 
+#: OCP errors beyond which an OCP served with status "ok" counts as confidently wrong: a controller acts
+#: on an ok record's mu_T and S_T (|mu_T| or |S_T| error against the true curve's peak)
+UNFLAGGED_OCP_ERROR = {"mu_T": 0.10, "S_T": 0.05}
+
 
 @dataclass
 class SegmentResult:
@@ -45,6 +49,11 @@ class SegmentResult:
     S_T_median_abs: Optional[float]
     S_E_median_abs: Optional[float]
     class_accuracy: Optional[float]
+    #: 90th percentiles of the same OCP errors (a record without the OCP counts as a miss)
+    mu_T_p90_abs: Optional[float] = None
+    S_T_p90_abs: Optional[float] = None
+    #: settled samples with status "ok" whose mu_T or S_T is off by more than UNFLAGGED_OCP_ERROR
+    ok_ocp_off: int = 0
     statuses: dict = field(default_factory=dict)
     #: settled samples that report K and its std; share of them with |K - K_true| <= 2 std
     band_samples: int = 0
@@ -81,12 +90,14 @@ def _segments(stamps: np.ndarray, k_true: np.ndarray) -> list[tuple[int, int]]:
 
 
 def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = TARGETS["settle_s"],
-                     reason_names: str = "", judged_from: float = 0.0) -> list[SegmentResult]:
+                     reason_names: str = "", judged_from: float = 0.0, ocp_after: float = 0.0) -> list[SegmentResult]:
     """Join truth and estimates on (vehicle_id, seq) and score each terrain segment.  With
     ``reason_names``, also count the flagged settled records whose reason names it.  K's median and p90
     and the OCP errors judge the settled samples from the truth stamp ``judged_from`` on (a drive whose
     first seconds cannot give K: :attr:`soilocp.sim.variants.Variant.judged_from`); coverage, the band,
-    the class and the confidently wrong records judge every settled sample."""
+    the class and the confidently wrong records judge every settled sample.  ``ocp_after`` s more after the
+    settle the OCP errors' median and p90 start (another tyre's curve is learnt from one sweep of the new soil;
+    the ok records whose OCPs are off count from the settle on)."""
     est_by_key = {(e["vehicle_id"], e["seq"]): e for e in estimates}
     rows = [(t, est_by_key.get((t["vehicle_id"], t["seq"]))) for t in truth]
     if not rows:
@@ -105,6 +116,7 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         ts = stamps[i0:i1]
         settled = ts >= t0 + settle
         judged = settled & (ts >= judged_from)
+        ocp_judged = judged & (ts >= t0 + settle + ocp_after)
         rel_settled = rel[settled]
         n_settled = int(settled.sum())
         have = np.isfinite(rel_settled)
@@ -135,16 +147,17 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
             first_ok = 0 if outside.size == 0 else int(outside[-1]) + 1
             conv = float(ts[first_ok] - t0)
 
+        def ocp_errs(name, pick):
+            return [np.inf if e is None or e.get(name) is None else abs(e[name] - t[name])
+                    for (t, e), ok in zip(seg, pick) if ok]
+
         def ocp_err(name):
-            vals = []
-            for (t, e), ok in zip(seg, judged):
-                if not ok:
-                    continue
-                if e is None or e.get(name) is None:
-                    vals.append(np.inf)
-                else:
-                    vals.append(abs(e[name] - t[name]))
+            vals = ocp_errs(name, ocp_judged)
             return float(np.median(vals)) if vals else None
+
+        def ocp_p90(name):
+            vals = np.sort(ocp_errs(name, ocp_judged))
+            return float(vals[min(int(np.ceil(0.9 * len(vals))) - 1, len(vals) - 1)]) if len(vals) else None
 
         # the reported band: 2 std around K, over the settled samples that report both
         k_std = np.array([e["soil_strength_std"] if e and e.get("soil_strength_std") is not None else np.nan
@@ -159,6 +172,10 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
         rel_wheels = np.array([min(abs(k - w) / w for w in t.get("wheel_soil_strength", (kt,))) if np.isfinite(k)
                                else np.nan for (t, _), k in zip(seg, k_est)])[settled]
         confident_wrong = int(np.sum(status_ok & np.isfinite(rel_wheels) & (rel_wheels > UNFLAGGED_ERROR_REL)))
+        ok_ocp_off = sum(
+            1 for (t, e), ok in zip(seg, settled)
+            if ok and e and e["status"] == "ok" and any(
+                e.get(n) is not None and abs(e[n] - t[n]) > lim for n, lim in UNFLAGGED_OCP_ERROR.items()))
         flagged_recs = [e for (_, e), ok in zip(seg, settled)
                         if ok and e and e["status"] != "ok" and e.get("soil_strength") is not None]
         named = sum(reason_names.lower() in str(e.get("reason", "")).lower() for e in flagged_recs) if reason_names else 0
@@ -180,6 +197,9 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
                 S_T_median_abs=_fin(ocp_err("S_T")),
                 S_E_median_abs=_fin(ocp_err("S_E")),
                 class_accuracy=float(np.mean(cls_ok)) if cls_ok else None,
+                mu_T_p90_abs=_fin(ocp_p90("mu_T")),
+                S_T_p90_abs=_fin(ocp_p90("S_T")),
+                ok_ocp_off=int(ok_ocp_off),
                 statuses=statuses,
                 band_samples=int(banded.sum()),
                 band_coverage=float(band_hits.mean()) if band_hits.size else None,

@@ -34,7 +34,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from soilocp.analysis.accuracy import RunResult, estimate_and_score
-from soilocp.analysis.evaluation import TARGETS, UNFLAGGED_ERROR_REL, SegmentResult
+from soilocp.analysis.evaluation import TARGETS, UNFLAGGED_ERROR_REL, UNFLAGGED_OCP_ERROR, SegmentResult
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.variants import get_variant, list_variants
 
@@ -48,6 +48,11 @@ ROBUSTNESS_TARGETS = {
     "std_rel_median": 0.15,
     "ocp_median_abs": TARGETS["ocp_median_abs"],
     "unflagged_error_rel": UNFLAGGED_ERROR_REL,
+    # another tyre (Variant.tyre): the OCPs against the true curve's peak once a sweep has shown it
+    "tyre_mu_T_p90_abs": 0.05,
+    "tyre_S_T_p90_abs": 0.03,
+    "unflagged_ocp_error": UNFLAGGED_OCP_ERROR,
+    "ok_ocp_off_count": 0,
     "confident_wrong_share": 0.05,  # issue 10's rule, superseded by issue 27's count (kept in the JSON)
     "confident_wrong_count": 0,
     "reason_named_share": 0.5,
@@ -81,7 +86,7 @@ def run_variant(name: str, seed: int = 0, duration: Optional[float] = None,
     if variant.robot:  # the robot's own vehicle file (a skid steer): the estimator knows it
         cfg = cfg.model_copy(update={"vehicle": variant.known_vehicle(cfg.vehicle)})
     n, rate, segs, summary = estimate_and_score(pairs, cfg, ROBUSTNESS_TARGETS["settle_s"], variant.reason_names,
-                                                variant.judged_from)
+                                                variant.judged_from, variant.ocp_after)
     return VariantRun(name, seed, n, rate, segs, dict(summary.statuses), len(summary.rejected))
 
 
@@ -126,6 +131,9 @@ def _one_row(run: VariantRun) -> dict:
         "mu_T_err": _worst([s.mu_T_median_abs for s in segs]),
         "S_T_err": _worst([s.S_T_median_abs for s in segs]),
         "S_E_err": _worst([s.S_E_median_abs for s in segs]),
+        "mu_T_p90": _worst([s.mu_T_p90_abs for s in segs]),
+        "S_T_p90": _worst([s.S_T_p90_abs for s in segs]),
+        "ok_ocp_off": sum(s.ok_ocp_off for s in segs),
         "confident_wrong_share": sum(s.confident_wrong for s in segs) / max(settled, 1),
         "confident_wrong": sum(s.confident_wrong for s in segs),
         "flagged": sum(s.flagged for s in segs),
@@ -135,13 +143,24 @@ def _one_row(run: VariantRun) -> dict:
     }
 
 
-def _verdict(identifiable: str, row: dict, reason_names: str = "") -> tuple[bool, list[str]]:
+def _verdict(identifiable: str, row: dict, reason_names: str = "", tyre: bool = False,
+             curve_shown: bool = True) -> tuple[bool, list[str]]:
+    """The row's checks by the targets (module doc); ``tyre``: the true wheel is not the estimator's
+    (Variant.tyre), so K is on that wheel's own scale (docs/method.md §14: a soil's K and the wheel's constants
+    are not separable) and the row is judged by its OCPs against the true curve's peak instead of by K, where the
+    drive shows that peak (``curve_shown``), by its honesty alone where it does not."""
     t = ROBUSTNESS_TARGETS
 
     def le(v, lim):
         return v is not None and v <= lim
 
-    checks = {"ok>30%": row["confident_wrong"] <= t["confident_wrong_count"]}
+    checks = {"okOCP": row["ok_ocp_off"] <= t["ok_ocp_off_count"]}
+    if tyre:
+        if curve_shown:
+            checks["OCP p90"] = le(row["mu_T_p90"], t["tyre_mu_T_p90_abs"]) and le(row["S_T_p90"], t["tyre_S_T_p90_abs"])
+        missed = [k for k, ok in checks.items() if not ok]
+        return not missed, missed
+    checks["ok>30%"] = row["confident_wrong"] <= t["confident_wrong_count"]
     if identifiable in ("yes", "limited"):
         checks["2std"] = row["band_coverage"] is not None and row["band_coverage"] >= t["band_coverage"]
     elif row["band_coverage"] is not None:  # "no": a band it serves must hold the truth all the same
@@ -183,7 +202,7 @@ def summarize(runs: list[VariantRun]) -> list[dict]:
             "estimate_rate": min(r.estimate_rate for r in vruns),
         }
         for key in ("k_median_rel", "k_p90_rel", "std_rel_median", "change_convergence_s", "mu_T_err", "S_T_err", "S_E_err",
-                    "confident_wrong_share", "confident_wrong"):
+                    "confident_wrong_share", "confident_wrong", "mu_T_p90", "S_T_p90", "ok_ocp_off"):
             row[key] = _worst([p[key] for p in per])
         row["band_coverage"] = _worst([p["band_coverage"] for p in per], pick=min)
         row["reason_names"] = v.reason_names
@@ -191,7 +210,9 @@ def summarize(runs: list[VariantRun]) -> list[dict]:
         row["terrain_changes"] = min(p["terrain_changes"] for p in per)
         names = sorted({k for p in per for k in p["status_shares"]})
         row["status_shares"] = {k: sum(p["status_shares"].get(k, 0.0) for p in per) / len(per) for k in names}
-        row["pass"], row["missed"] = _verdict(v.identifiable, row, v.reason_names)
+        row["tyre"] = v.tyre is not None
+        row["curve_shown"] = v.curve_shown
+        row["pass"], row["missed"] = _verdict(v.identifiable, row, v.reason_names, row["tyre"], v.curve_shown)
         rows.append(row)
     return rows
 
@@ -203,6 +224,7 @@ def rows_json(rows: list[dict], runs: list[VariantRun]) -> str:
                        "k_p90_rel": s.k_p90_rel, "convergence_s": s.convergence_s, "band_coverage": s.band_coverage,
                        "std_rel_median": s.std_rel_median, "confident_wrong": s.confident_wrong,
                        "mu_T_err": s.mu_T_median_abs, "S_T_err": s.S_T_median_abs, "S_E_err": s.S_E_median_abs,
+                       "mu_T_p90": s.mu_T_p90_abs, "S_T_p90": s.S_T_p90_abs, "ok_ocp_off": s.ok_ocp_off,
                        "flagged": s.flagged, "flagged_named": s.flagged_named,
                        "statuses": s.statuses} for s in r.segments]}
         for r in runs

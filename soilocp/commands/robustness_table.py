@@ -11,7 +11,8 @@ from rich.console import Console
 from rich.table import Table
 
 COLUMNS = ("variant", "identifiable", "K med err", "K p90 err", "2-std cov", "std/K med", "conv. change",
-           "|mu_T| err", "|S_T| err", "|S_E| err", "no_estimate", "not_observable", "model_mismatch", "ok>30%", "verdict")
+           "|mu_T| err", "|S_T| err", "|S_E| err", "mu_T p90", "S_T p90", "no_estimate", "not_observable",
+           "model_mismatch", "ok>30%", "ok OCP off", "verdict")
 
 
 def _fmt(v, spec):
@@ -26,7 +27,8 @@ def _cells(r, shown) -> list[str]:
     return [
         r["variant"], ident, _fmt(r["k_median_rel"], ".1%"), _fmt(r["k_p90_rel"], ".1%"), _fmt(r["band_coverage"], ".1%"),
         _fmt(r["std_rel_median"], ".3f"), conv, _fmt(r["mu_T_err"], ".3f"), _fmt(r["S_T_err"], ".3f"),
-        _fmt(r["S_E_err"], ".3f"), *shares, str(r["confident_wrong"]), verdict,
+        _fmt(r["S_E_err"], ".3f"), _fmt(r["mu_T_p90"], ".3f"), _fmt(r["S_T_p90"], ".3f"), *shares,
+        "—" if r["tyre"] else str(r["confident_wrong"]), str(r["ok_ocp_off"]), verdict,
     ]  # fmt: skip
 
 
@@ -75,7 +77,10 @@ def run_and_print(variants, seed: int, seeds: int, duration, jobs: int, json_out
         f"{t['band_coverage']:.0%}, std/K <= {t['std_rel_median']:g}, OCP errors <= {t['ocp_median_abs']:g}; limited "
         f"and no: judged by the band and the reason, not by K: 2-std coverage where a band is served, and >= "
         f"{t['reason_named_share']:.0%} of the flagged records name what limits K ('reason'); all: no settled record "
-        f"with status 'ok' and K > {t['unflagged_error_rel']:.0%} off ('ok>30%', the count, worst seed)"
+        f"with status 'ok' and K > {t['unflagged_error_rel']:.0%} off ('ok>30%', the count, worst seed), and none with "
+        f"status 'ok' and mu_T > {t['unflagged_ocp_error']['mu_T']:g} or S_T > {t['unflagged_ocp_error']['S_T']:g} off "
+        f"('ok OCP off'); another tyre (tyre-*): judged by its OCPs, mu_T p90 <= {t['tyre_mu_T_p90_abs']:g} and S_T p90 <= "
+        f"{t['tyre_S_T_p90_abs']:g} off the true curve's peak ('OCP p90'), not by K (on that tyre's own scale)"
     )
     rates = [r["estimate_rate"] for r in rows]
     click.echo(f"estimate rate >= {min(rates):.0f} samples/s; {len(runs)} runs in {time.perf_counter() - t0:.0f} s")

@@ -29,11 +29,12 @@ from soilocp.model.checks import check_count
 from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.ocp_values import OCP_NAMES
-from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
+from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
 from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.soil_strength import SoilBank
 from soilocp.estimation.torque_scale import TorqueScaleBank
+from soilocp.estimation.wheel_curve import WheelCurve
 
 
 class BatchPipeline:
@@ -54,6 +55,7 @@ class BatchPipeline:
         self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
         self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles,
                                      cfg.constants)
+        self.curve = WheelCurve(cfg, self.n_vehicles)  # the wheel's learnt curve and the OCP records' rule
         # the whole chain in one core call per step, over the banks above (their state); the map prior's
         # hook runs between the gate and the update, so with priors the stages are called one by one
         self.chain = None if self.priors is not None else _core.ChainCore(
@@ -90,5 +92,5 @@ class BatchPipeline:
         for j, (sample, st) in enumerate(zip(samples, states)):
             soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
             soils.append(soil)
-            ocps.append(ocp_message(soil, [a[j] for a in ocp]))
+            ocps.append(self.curve.record(int(ix[j]), soil, [a[j] for a in ocp]))
         return ob, soils, ocps

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from soilocp.model.files import read_json
+
+
+#: ``traction_curve`` of a wheel that is the paper's testbed wheel (the constants it was fitted on)
+PAPER_WHEEL = "paper"
 
 
 class VehicleParams(BaseModel):
@@ -47,6 +51,19 @@ class VehicleParams(BaseModel):
         ),
     )
 
+    traction_curve: Optional[str] = Field(
+        PAPER_WHEEL,
+        description=(
+            "Whose traction curve the wheels follow (the constants C1..C6 of eqs. 3-6). 'paper': the paper's "
+            "testbed wheel, checked by its authors (the built-in rover, which the simulator drives on that "
+            "wheel). A path: a calibration file (soilocp calibrate --from-drive, soilocp calibrate-drive) "
+            "whose constants the estimator then uses; relative to the vehicle file. null: nobody has checked "
+            "the curve for this wheel, so the OCPs rest on the paper's curve and are not served as ok until "
+            "the drive itself has shown the curve (a traction sweep). A vehicle file that leaves the key out "
+            "means null: the file describes another robot than the built-in one"
+        ),
+    )
+
     @model_validator(mode="after")
     def _finite(self):
         for name, v in self.model_dump().items():
@@ -68,12 +85,32 @@ class VehicleParams(BaseModel):
 DEFAULT_VEHICLE = VehicleParams()
 
 
+def curve_checked(vehicle: VehicleParams) -> bool:
+    """Whether someone has checked the traction curve of this vehicle's wheels (the paper's testbed
+    wheel, or a calibration file): the OCPs of a curve nobody checked are never served as ``ok``."""
+    return vehicle.traction_curve is not None
+
+
+def user_vehicle_data(data: dict, base: Path | None = None) -> dict:
+    """A vehicle description written by a user (a vehicle file, a config's ``vehicle``), ready for
+    :class:`VehicleParams`: ``traction_curve`` left out means unchecked (None), not the built-in
+    rover's wheel, and a calibration file's relative path is taken from ``base`` (the vehicle file's
+    folder)."""
+    if not isinstance(data, dict):
+        return data
+    out = dict(data)
+    curve = out.setdefault("traction_curve", None)
+    if isinstance(curve, str) and curve != PAPER_WHEEL and base is not None and not Path(curve).is_absolute():
+        out["traction_curve"] = str((base / curve).resolve())
+    return out
+
+
 def load_vehicle(path: str | Path | None) -> VehicleParams:
     """Read a vehicle JSON file ``{"mass","yaw_inertia","wheel_inertia","wheel_radius","a","b","c","d","h"}``."""
     if path is None:
         return DEFAULT_VEHICLE
     p = Path(path)
-    data = read_json(p, "vehicle file")
+    data = user_vehicle_data(read_json(p, "vehicle file"), p.parent)
     try:
         return VehicleParams.model_validate(data)
     except ValidationError as exc:

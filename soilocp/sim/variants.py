@@ -131,6 +131,8 @@ class HeldChannel:
     channel: Literal["wheel_speed", "wheel_torque", "ground_speed"]
     refresh: float
     lag: float = 0.0
+    #: 1-sigma of white noise added to each refresh (a GNSS fix's speed error), in the channel's unit
+    noise: float = 0.0
 
     def bind(self, rng: np.random.Generator) -> SampleMap:
         history: deque[tuple[float, np.ndarray]] = deque()
@@ -156,6 +158,8 @@ class HeldChannel:
             if k != state["k"]:
                 state["k"] = k
                 state["held"] = value_at(k / self.refresh - self.lag)
+                if self.noise > 0:
+                    state["held"] = state["held"] + rng.normal(0.0, self.noise, state["held"].shape)
             held = state["held"]
             new = float(held[0]) if self.channel == "ground_speed" else tuple(float(q) for q in held)
             return s.model_copy(update={self.channel: new})
@@ -163,7 +167,59 @@ class HeldChannel:
         return apply
 
 
-StreamTransform = EpochStamps | TorqueScale | ImuBias | HeldChannel
+@dataclass(frozen=True)
+class LostRows:
+    """A logger that loses rows and stamps late: each sample is dropped with probability ``lost``,
+    repeated once with probability ``duplicated``, and its stamp moved by uniform jitter of up to
+    ``jitter`` s (kept after the previous stamp, so that time still runs forward)."""
+
+    lost: float = 0.05
+    duplicated: float = 0.01
+    jitter: float = 0.003
+
+    def bind(self, rng: np.random.Generator):
+        state = {"last": -math.inf}
+
+        def apply(s: SensorSample):
+            if rng.random() < self.lost:
+                return None
+            stamp = max(s.stamp + rng.uniform(-self.jitter, self.jitter), state["last"] + 1e-4)
+            state["last"] = stamp
+            out = s.model_copy(update={"stamp": stamp})
+            return (out, out) if rng.random() < self.duplicated else out
+
+        return apply
+
+
+StreamTransform = EpochStamps | TorqueScale | ImuBias | HeldChannel | LostRows
+
+
+#: Tyres that are not the paper's testbed wheel (their true eq. 6 constants; docs/method.md §14).  A slower
+#: rise (S_T 0.37 / 0.51 on K = 50 / 100 where the paper's curve says 0.26 / 0.38), a grippier one (S_T 0.29-0.40,
+#: mu_T 0.80-1.41 on K = 80-300), and method.md's test-vector tyre (S_T 0.41 / 0.53 on K = 80 / 200).
+TYRE_SLOW = ModelConstants(C1=1.2, C2=0.015, C3=5.2, C5=-3.0, C6=3.4)
+TYRE_GRIPPY = ModelConstants(C1=1.6, C2=0.012, C3=9.5, C5=-4.0, C6=5.5)
+TYRE_VECTOR = ModelConstants(C1=1.2, C2=0.015, C3=6.4, C5=-3.0, C6=3.5)
+#: A robot whose vehicle file names no traction curve (its wheel is not known to be the paper's)
+UNCHECKED_CURVE = (("traction_curve", None),)
+
+TYRE_TWO_SOILS = Scenario("tyre-sand-loam", "sand (K=50) -> loam (K=100), 12 m each at 1 m/s, traction test",
+                          (Segment("sand", REFERENCE_SOILS["sand"], length=12.0), Segment("loam", 100.0)), duration=25.0)
+TYRE_SOFT_FIRM_SOFT = Scenario(
+    "tyre-soft-firm-soft", "gravel (K=80) -> K=160 -> firm (K=300) -> gravel (K=80), 10 m each at 1 m/s, traction test",
+    (Segment("gravel", REFERENCE_SOILS["gravel"], length=10.0), Segment("loam", 160.0, length=10.0),
+     Segment("firm", REFERENCE_SOILS["firm"], length=10.0), Segment("gravel", REFERENCE_SOILS["gravel"])),
+    duration=42.0)
+GRAVEL_GRASS = Scenario("gravel-grass", "gravel (K=80) -> grass (K=200), 12 m each at 1 m/s, traction test",
+                        (Segment("gravel", REFERENCE_SOILS["gravel"], length=12.0), Segment("grass", REFERENCE_SOILS["grass"])),
+                        duration=25.0)
+GRAVEL_FIRMER = Scenario("gravel-k160", "gravel (K=80) -> twice as firm (K=160), 16 m each at 1 m/s, traction test",
+                         (Segment("gravel", REFERENCE_SOILS["gravel"], length=16.0), Segment("loam", 160.0)), duration=33.0)
+#: GNSS-grade ground speed: fixes at ``refresh`` Hz, ``lag`` s late, a few cm/s of noise, held between fixes
+def gnss(refresh: float = 10.0, lag: float = 0.1, noise: float = 0.03) -> HeldChannel:
+    return HeldChannel("ground_speed", refresh, lag=lag, noise=noise)
+
+
 
 
 @dataclass(frozen=True)
@@ -232,6 +288,12 @@ class Variant:
     #: vehicle, e.g. SKID_STEER.  The VehicleChange is the unknown on top of it.
     robot: tuple[tuple[str, str], ...] = ()
     draft: Optional[Draft] = None
+    #: The true wheels' traction constants (eqs. 3-6), when they are not the ones the estimator is
+    #: configured with: another tyre, whose curve nobody gave the estimator (None: the estimator's)
+    tyre: Optional[ModelConstants] = None
+    #: Whether the drive shows the tyre's curve (slips past its peak): where it does not, no estimator can
+    #: know the OCPs, and the row is judged by its honesty alone (no ok record with the OCPs off)
+    curve_shown: bool = True
     sim: SimParams = DEFAULT_SIM  #: the simulator's settings (a skid steer's lateral resistance, eq. 12)
     #: What a flagged record's reason must name where K is limited or not identifiable (the table
     #: checks it on the settled samples); "" = not checked.
@@ -247,6 +309,15 @@ class Variant:
         K, and the torque scale is learnt once both signs were seen: issue 27's "converges to the right K
         once it has accelerated"); 0 otherwise.  The ok>30% count and the band judge every settled record."""
         return self.controller.speed_swing_period if self.controller.speed_swing > 0 else 0.0
+
+    @property
+    def ocp_after(self) -> float:
+        """s after each segment's settle from which another tyre's OCPs are judged: one traction-sweep cycle, the
+        first that can show the new soil's curve (0 for the estimator's own tyre)."""
+        if self.tyre is None:
+            return 0.0
+        sweep = self.sweep or SweepParams()
+        return sweep.period + sweep.dwell
 
     def known_vehicle(self, nominal: VehicleParams = DEFAULT_VEHICLE) -> VehicleParams:
         """The vehicle the estimator is configured with: the nominal one with ``robot``'s updates."""
@@ -268,6 +339,7 @@ class Variant:
         rng = self.rng(seed)
         maps = [t.bind(rng) for t in self.transforms]
         true = self.true_vehicle(nominal)
+        constants = self.tyre or constants
         draft = self.draft and self.draft.load(true, self.scenario.segments[0].soil_strength, constants)
         pairs = simulate(
             self.scenario, duration=duration, rate=self.rate, seed=seed, vehicle=true,
@@ -275,9 +347,15 @@ class Variant:
             params=self.sim,
         )  # fmt: skip
         for sample, truth in pairs:
-            for m in maps:
-                sample = m(sample)
-            yield sample, truth
+            out = [sample]
+            for m in maps:  # a transform returns one sample, None (a lost row) or a tuple (duplicates)
+                out = [q for s in out for q in _as_rows(m(s))]
+            for s in out:
+                yield s, truth
+
+
+def _as_rows(result) -> tuple:
+    return () if result is None else result if isinstance(result, tuple) else (result,)
 
 
 def _sweep(period: float, peak: float) -> Variant:
@@ -286,6 +364,12 @@ def _sweep(period: float, peak: float) -> Variant:
         f"traction test sweeping 0.02..{peak:g} slip in {period:g} s (+{period / 4:g} s dwell)",
         sweep=SweepParams(s_min=0.02, s_max=peak, period=period, dwell=period / 4),
     )
+
+
+def _tyre(name: str, description: str, tyre: ModelConstants, robot: tuple = (), **kw) -> Variant:
+    """A robot on another tyre whose vehicle file names no traction curve: the OCPs must come from
+    the curve the drive shows, or be flagged."""
+    return Variant(name, description, tyre=tyre, robot=robot + UNCHECKED_CURVE, **kw)
 
 
 def _limited(name: str, description: str, why: str, **kw) -> Variant:
@@ -356,6 +440,28 @@ VARIANTS: dict[str, Variant] = {
                  "torque scale", transforms=(TorqueScale(1.0 / 1.08),), reason_names="torque scale"),
         Variant("slope-cruise-12", "cruise down a 12 deg slope over the four soils: only the grade's braking slip", "no",
                 scenario=SLOPE_DRIVE),
+        # another tyre, a payload with other swings, GNSS-grade ground speed: the estimator is not told
+        _tyre("tyre-slow", "a tyre whose curve rises more slowly (S_T 0.37 / 0.51), sand -> loam, sweep 0.05..0.7 in 1.6 s",
+              TYRE_SLOW, scenario=TYRE_TWO_SOILS, sweep=SweepParams(s_min=0.05, s_max=0.7, period=1.6, dwell=0.4)),
+        _tyre("tyre-grippy", "a grippier tyre (S_T 0.29-0.40, mu_T 0.80-1.41), gravel -> K=160 -> firm -> gravel; the "
+              "rear axle brakes at about -S while the front drives at S (a held speed cannot brake the grippy front's "
+              "pull past its peak)", TYRE_GRIPPY, scenario=TYRE_SOFT_FIRM_SOFT, controller=ControllerParams(rear_mirror=1.0)),
+        _tyre("tyre-grippy-skid", "the grippier tyre on a 120 kg skid steer (one motor per side: no axle sweeps, and "
+              "its 40 N m motors cannot reach the peak; slips within +-0.15), gravel -> K=160 -> firm -> gravel: the drive "
+              "never shows the peak", TYRE_GRIPPY,
+              scenario=TYRE_SOFT_FIRM_SOFT, sim=SKID_SIM, robot=SKID_STEER + (("mass", 120.0), ("yaw_inertia", 7.0)),
+              curve_shown=False),
+        _tyre("tyre-gnss-50hz", "method.md's test tyre (S_T 0.41 / 0.53) at 50 Hz, GNSS speed (10 Hz, 0.1 s late, "
+              "0.03 m/s), 5 % lost rows with jitter and duplicates, gravel -> grass, sweep 0.05..0.7 in 2 s", TYRE_VECTOR,
+              scenario=GRAVEL_GRASS, rate=50.0, sweep=SweepParams(s_min=0.05, s_max=0.7, period=2.0, dwell=0.5),
+              transforms=(gnss(), LostRows())),
+        Variant("payload+25-swing30-sweep", "true mass +25 % (unknown payload), speed set-point swinging +-30 % every "
+                "6 s between traction tests, gravel (K=80) -> K=160", vehicle=VehicleChange(mass=1.25),
+                scenario=GRAVEL_FIRMER, controller=ControllerParams(speed_swing=0.3, speed_swing_period=6.0)),
+        Variant("gnss-5hz-lost", "traction test with GNSS speed at 5 Hz, 0.15 s late, 0.03 m/s noise; 5 % lost rows "
+                "with jitter and duplicates", transforms=(gnss(5.0, 0.15), LostRows())),
+        Variant("gnss-cruise", "constant speed with GNSS speed (10 Hz, 0.1 s late, 0.03 m/s noise, held): slip ~0, "
+                "K not identifiable", "no", mode="cruise", transforms=(gnss(),)),
         Variant("stall-draft", "firm soil (K=300) at 0.5 m/s towing a draft that rises to 1.3 x mu_T x weight: "
                 "the robot stalls (V < 0.1 m/s) with its wheels spinning", "no", scenario=DRAFT_DRIVE, draft=Draft()),
     )

@@ -4,6 +4,7 @@
 //! Nothing here imports the Python package above it.
 
 pub mod constants;
+pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
@@ -42,5 +43,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::normal_force::gravity_from_attitude, m)?)?;
     // the whole chain of a bank in one call per step (issue 28): the offline path, the batched service
     m.add_class::<py::chain::ChainCore>()?;
+    // the wheel's own traction curve, learnt where the drive shows it
+    m.add_class::<py::curve::CurveBank>()?;
+    m.add_class::<py::curve::CurveFit>()?;
     Ok(())
 }

@@ -3,6 +3,7 @@
 
 pub mod args;
 pub mod chain;
+pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;

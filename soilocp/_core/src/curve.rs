@@ -1,0 +1,608 @@
+//! The wheel's own traction curve, learnt where the drive shows it (docs/method.md §14, §19).
+//!
+//! On one soil, eq. 6 for S > 0 is mu(S) = A (1 - e^(-C3 S)) - c - b S with A = C1 (1 - e^(-C2 K)),
+//! b = C6 / sqrt(K) and c = C5 / K.  The OCPs need that shape, not K: dmu/dS = 0 gives
+//! S_T = ln(A C3 / b) / C3 and mu_T = mu(S_T).  A drive whose slips spread over the bend (a traction
+//! sweep, hard accelerations and brakes) shows the shape, whatever the wheel's constants.
+//!
+//! [`CurveLearner`] keeps the wheels' recent (slip, net traction) pairs and fits the shape to those
+//! of the current soil (a change of soil shows as recent pairs that leave the fitted curve): for each
+//! C3 on a grid the fit is linear in (A, b, c), so the least-squares problem is a one-dimensional
+//! search.  Eq. 6 is odd in S, so a braking wheel's pair
+//! (S < 0, mu < 0) is the driving pair (-S, -mu).  The band of (S_T, mu_T) is the delta method on
+//! the fit's covariance, with the residual variance inflated for the residuals' correlation in time
+//! (consecutive samples of one wheel are not independent).  A peak beyond the slips the window holds
+//! is an extrapolation: the fit then says `shown = false`.
+
+use std::collections::VecDeque;
+
+/// The learner's settings (`soilocp.estimation.curve_config.CurveConfig` documents each).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Params {
+    /// s: pairs older than this are dropped
+    pub window: f64,
+    /// s: the recent pairs whose mean residual tells a change of soil
+    pub change_window: f64,
+    /// mean residual of the recent pairs (traction coefficient) beyond which the soil changed
+    pub change_shift: f64,
+    /// recent pairs needed to judge a change
+    pub change_pairs: usize,
+    /// |S| below this is not used (the zero-slip bridge, eq. 1's noise)
+    pub slip_min: f64,
+    /// |S| above this is not used (a spinning or locked wheel)
+    pub slip_max: f64,
+    /// pairs of the current soil needed before a fit
+    pub min_pairs: usize,
+    /// pairs on each side of the fitted S_T, within `peak_span` of it, for the peak to count as shown
+    pub min_beyond: usize,
+    /// slip distance from S_T within which `min_beyond` pairs on each side show the bend
+    pub peak_span: f64,
+    /// s between two fits
+    pub interval: f64,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            window: 8.0,
+            change_window: 0.5,
+            change_shift: 0.04,
+            change_pairs: 20,
+            slip_min: 0.02,
+            slip_max: 0.95,
+            min_pairs: 200,
+            min_beyond: 40,
+            peak_span: 0.1,
+            interval: 0.5,
+        }
+    }
+}
+
+/// One (slip, net traction) pair of one wheel, folded onto the driving branch.
+#[derive(Clone, Copy, Debug)]
+struct Pair {
+    t: f64,
+    wheel: u8,
+    s: f64,
+    mu: f64,
+}
+
+/// The fitted shape on the current soil and the OCPs that follow from it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fit {
+    pub a: f64,
+    pub c3: f64,
+    pub b: f64,
+    pub c: f64,
+    /// slip of maximum net traction and its 1-sigma
+    pub s_t: f64,
+    pub s_t_std: f64,
+    /// maximum net traction coefficient and its 1-sigma
+    pub mu_t: f64,
+    pub mu_t_std: f64,
+    /// pairs fitted, pairs within `peak_span` below and above S_T, the largest |S| fitted
+    pub pairs: usize,
+    pub below: usize,
+    pub beyond: usize,
+    pub slip_top: f64,
+    /// rms of the residuals
+    pub rms: f64,
+    /// the fitted slips surround the peak (`below` and `beyond` >= `min_beyond`): not an extrapolation,
+    /// nor an interpolation over a gap
+    pub shown: bool,
+    /// stamp of the fit
+    pub stamp: f64,
+}
+
+/// Net traction mu(S) = A (1 - e^(-C3 S)) - c - b S on one soil (eq. 6, S > 0).
+pub fn shape(s: f64, a: f64, c3: f64, b: f64, c: f64) -> f64 {
+    a * (1.0 - (-c3 * s).exp()) - c - b * s
+}
+
+/// S_T and mu_T of a shape: the slip where dmu/dS = 0 (eq. 7's form) and mu there (eq. 8's); None
+/// when the shape has no interior peak (b <= 0 or A C3 <= b: the curve falls from S = 0 on).
+pub fn peak(a: f64, c3: f64, b: f64, c: f64) -> Option<(f64, f64)> {
+    if !(a > 0.0 && c3 > 0.0 && b > 0.0) || a * c3 <= b {
+        return None;
+    }
+    let s_t = (a * c3 / b).ln() / c3;
+    Some((s_t, shape(s_t, a, c3, b, c)))
+}
+
+/// The learner of one vehicle.
+#[derive(Clone, Debug)]
+pub struct CurveLearner {
+    params: Params,
+    pairs: VecDeque<Pair>,
+    last_fit: f64,
+    fit: Option<Fit>,
+}
+
+impl CurveLearner {
+    pub fn new(params: Params) -> Self {
+        CurveLearner {
+            params,
+            pairs: VecDeque::new(),
+            last_fit: f64::NEG_INFINITY,
+            fit: None,
+        }
+    }
+
+    /// Forget every pair and fit (a restarted vehicle).
+    pub fn reset(&mut self) {
+        self.pairs.clear();
+        self.last_fit = f64::NEG_INFINITY;
+        self.fit = None;
+    }
+
+    /// One sample: the wheels' slips and net traction coefficients (4,) and which of them inform
+    /// (`used`).  Returns the current soil's fit (refitted at most every `interval` s), or None while
+    /// the current soil has too few pairs or shows no peak.
+    ///
+    /// A change of soil is read from the fit itself: when the pairs of the last `change_window` s
+    /// leave a fitted curve that shows its peak by more than `change_shift` on average, the ground
+    /// under the wheels is another, and only those pairs are kept.  The soil strength that a curve nobody checked reads
+    /// is no guide here: on another tyre it swings by factors on one soil.
+    pub fn step(&mut self, stamp: f64, slip: &[f64; 4], mu: &[f64; 4], used: &[bool; 4]) -> Option<Fit> {
+        let p = self.params;
+        if stamp < self.last_fit {
+            self.reset(); // time ran backwards: another run
+        }
+        for w in 0..4 {
+            let (s, m) = (slip[w], mu[w]);
+            if used[w] && s.is_finite() && m.is_finite() && s.abs() >= p.slip_min && s.abs() <= p.slip_max {
+                let sign = s.signum();
+                self.pairs.push_back(Pair {
+                    t: stamp,
+                    wheel: w as u8,
+                    s: s * sign,
+                    mu: m * sign,
+                });
+            }
+        }
+        while self.pairs.front().is_some_and(|q| q.t < stamp - p.window) {
+            self.pairs.pop_front();
+        }
+        let mut changed = false;
+        // judged against a curve that shows its peak only: a fit of a few pairs on one flank, made just
+        // after a change, would read the next flank's pairs as another change
+        if let Some(f) = self.fit.filter(|f| f.shown) {
+            let since = stamp - p.change_window;
+            let recent: Vec<f64> = self
+                .pairs
+                .iter()
+                .rev()
+                .take_while(|q| q.t > since)
+                .map(|q| q.mu - shape(q.s, f.a, f.c3, f.b, f.c))
+                .collect();
+            let n = recent.len();
+            // a shift beyond the noise the fit leaves, and beyond change_shift
+            let shift = p.change_shift.max(CHANGE_RMS * f.rms);
+            if n >= p.change_pairs && (recent.iter().sum::<f64>() / n as f64).abs() > shift {
+                // the change's moment: the split of the recent residuals (newest first) whose two means differ
+                // the most, weighted by their counts; the pairs before it are the old soil's
+                let total: f64 = recent.iter().sum();
+                let (mut head, mut best, mut keep) = (0.0, 0.0, n);
+                for (k, r) in recent.iter().enumerate().take(n - 1) {
+                    head += r;
+                    let (na, nb) = ((k + 1) as f64, (n - k - 1) as f64);
+                    let gap = head / na - (total - head) / nb;
+                    let score = na * nb / (na + nb) * gap * gap;
+                    if score > best {
+                        best = score;
+                        keep = k + 1;
+                    }
+                }
+                let drop = self.pairs.len() - keep;
+                self.pairs.drain(..drop);
+                changed = true;
+            }
+        }
+        if changed || stamp - self.last_fit >= p.interval {
+            self.last_fit = stamp;
+            self.fit = fit_pairs(self.pairs.make_contiguous(), &p, stamp);
+        }
+        self.fit
+    }
+}
+
+/// Weighted pairs summed by slip bin: the fit's normal equations for any C3 from one pass over the
+/// bins, not the pairs (the exponential of a bin's mean slip stands for its pairs': within a bin of
+/// `BIN` the first-order terms cancel and the rest is below 1e-6).
+struct Bins {
+    /// per occupied bin: (sum w, sum w S, sum w mu, sum w S mu)
+    sums: Vec<[f64; 4]>,
+    /// sum w mu^2 over every pair
+    mu2: f64,
+}
+
+/// Slip bin width of [`Bins`].
+const BIN: f64 = 0.0025;
+
+impl Bins {
+    fn of(pairs: &[Pair], weights: &[f64]) -> Bins {
+        let mut by_bin: Vec<(i64, [f64; 4])> = Vec::new();
+        let mut mu2 = 0.0;
+        let mut order: Vec<usize> = (0..pairs.len()).filter(|&k| weights[k] > 0.0).collect();
+        order.sort_unstable_by_key(|&k| (pairs[k].s / BIN) as i64);
+        for k in order {
+            let (q, w) = (pairs[k], weights[k]);
+            let bin = (q.s / BIN) as i64;
+            if by_bin.last().map_or(true, |(b, _)| *b != bin) {
+                by_bin.push((bin, [0.0; 4]));
+            }
+            let acc = &mut by_bin.last_mut().expect("pushed above").1;
+            acc[0] += w;
+            acc[1] += w * q.s;
+            acc[2] += w * q.mu;
+            acc[3] += w * q.s * q.mu;
+            mu2 += w * q.mu * q.mu;
+        }
+        Bins {
+            sums: by_bin.into_iter().map(|(_, a)| a).collect(),
+            mu2,
+        }
+    }
+
+    /// Weighted least squares of (A, b, c) for a fixed C3: (A, b, c, weighted residual sum of
+    /// squares), or None when the normal equations are singular (all slips alike).
+    fn linear_fit(&self, c3: f64) -> Option<(f64, f64, f64, f64)> {
+        // columns: f1 = 1 - e^(-C3 S) (A), f2 = -S (b), f3 = -1 (c), at each bin's mean slip
+        let mut m = [[0.0f64; 3]; 3];
+        let mut v = [0.0f64; 3];
+        for &[w, ws, wmu, wsmu] in &self.sums {
+            let s = ws / w;
+            let f1 = 1.0 - (-c3 * s).exp();
+            // sum w f f^T and sum w f mu, with sum w S^2 taken as w s^2 (the bin's spread is below BIN^2)
+            let (a11, a12, a13, a22, a23, a33) = (w * f1 * f1, -f1 * ws, -w * f1, ws * s, ws, w);
+            m[0][0] += a11;
+            m[0][1] += a12;
+            m[0][2] += a13;
+            m[1][1] += a22;
+            m[1][2] += a23;
+            m[2][2] += a33;
+            v[0] += f1 * wmu;
+            v[1] -= wsmu;
+            v[2] -= wmu;
+        }
+        m[1][0] = m[0][1];
+        m[2][0] = m[0][2];
+        m[2][1] = m[1][2];
+        let x = solve3(m, v)?;
+        // sum w r^2 = sum w mu^2 - 2 x.v + x^T M x
+        let xv: f64 = (0..3).map(|i| x[i] * v[i]).sum();
+        let xmx: f64 = (0..3).map(|i| (0..3).map(|j| x[i] * m[i][j] * x[j]).sum::<f64>()).sum();
+        Some((x[0], x[1], x[2], (self.mu2 - 2.0 * xv + xmx).max(0.0)))
+    }
+
+    /// The C3 of least weighted residual: the grid's best node (all of `C3_GRID`, or the nodes within
+    /// one step of `near`), refined by golden section between its neighbours; with its (A, b, c, rss).
+    fn search(&self, near: Option<f64>) -> Option<(f64, (f64, f64, f64, f64))> {
+        let (lo, hi, n) = C3_GRID;
+        let step = (hi / lo).ln() / (n - 1) as f64;
+        let (from, to) = match near {
+            Some(c3) => {
+                let i = ((c3 / lo).ln() / step).round() as i64;
+                ((i - 1).max(0) as usize, ((i + 1).max(0) as usize).min(n - 1))
+            }
+            None => (0, n - 1),
+        };
+        let mut best: Option<(f64, f64)> = None;
+        for i in from..=to {
+            let c3 = lo * (step * i as f64).exp();
+            if let Some(f) = self.linear_fit(c3) {
+                if best.map_or(true, |(_, r)| f.3 < r) {
+                    best = Some((c3, f.3));
+                }
+            }
+        }
+        let (c3_node, _) = best?;
+        let (mut a, mut b) = (c3_node.ln() - step, c3_node.ln() + step);
+        let g = 0.5 * (5.0f64.sqrt() - 1.0);
+        let rss = |lc3: f64| self.linear_fit(lc3.exp()).map_or(f64::INFINITY, |f| f.3);
+        let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+        let (mut f1, mut f2) = (rss(x1), rss(x2));
+        for _ in 0..24 {
+            if f1 < f2 {
+                b = x2;
+                x2 = x1;
+                f2 = f1;
+                x1 = b - g * (b - a);
+                f1 = rss(x1);
+            } else {
+                a = x1;
+                x1 = x2;
+                f1 = f2;
+                x2 = a + g * (b - a);
+                f2 = rss(x2);
+            }
+        }
+        let c3 = (0.5 * (a + b)).exp();
+        Some((c3, self.linear_fit(c3)?))
+    }
+}
+
+/// x with m x = v (3 x 3, Gaussian elimination with partial pivoting); None if singular.
+fn solve3(mut m: [[f64; 3]; 3], mut v: [f64; 3]) -> Option<[f64; 3]> {
+    let scale = m.iter().flatten().fold(0.0f64, |acc, x| acc.max(x.abs()));
+    for col in 0..3 {
+        let piv = (col..3).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
+        if m[piv][col].abs() <= 1e-12 * scale.max(f64::MIN_POSITIVE) {
+            return None;
+        }
+        m.swap(col, piv);
+        v.swap(col, piv);
+        let pivot = m[col];
+        for row in col + 1..3 {
+            let f = m[row][col] / pivot[col];
+            for (x, p) in m[row].iter_mut().zip(pivot.iter()).skip(col) {
+                *x -= f * p;
+            }
+            v[row] -= f * v[col];
+        }
+    }
+    let mut x = [0.0f64; 3];
+    for row in (0..3).rev() {
+        let tail: f64 = (row + 1..3).map(|k| m[row][k] * x[k]).sum();
+        x[row] = (v[row] - tail) / m[row][row];
+    }
+    Some(x)
+}
+
+/// Inverse of a symmetric positive definite 4 x 4 matrix (Gauss-Jordan); None if singular.
+fn invert4(mut a: [[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
+    let mut inv = [[0.0f64; 4]; 4];
+    for (i, row) in inv.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    let scale = a.iter().flatten().fold(0.0f64, |acc, x| acc.max(x.abs()));
+    for col in 0..4 {
+        let piv = (col..4).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        if a[piv][col].abs() <= 1e-14 * scale.max(f64::MIN_POSITIVE) {
+            return None;
+        }
+        a.swap(col, piv);
+        inv.swap(col, piv);
+        let d = a[col][col];
+        for k in 0..4 {
+            a[col][k] /= d;
+            inv[col][k] /= d;
+        }
+        for row in 0..4 {
+            if row != col {
+                let f = a[row][col];
+                for k in 0..4 {
+                    a[row][k] -= f * a[col][k];
+                    inv[row][k] -= f * inv[col][k];
+                }
+            }
+        }
+    }
+    Some(inv)
+}
+
+/// The lag-1 autocorrelation of the residuals of each wheel's consecutive pairs, pooled; in [0, 0.99].
+fn residual_correlation(pairs: &[Pair], res: &[f64]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for w in 0..4u8 {
+        let mut prev: Option<f64> = None;
+        for (q, r) in pairs.iter().zip(res) {
+            if q.wheel != w {
+                continue;
+            }
+            if let Some(p) = prev {
+                num += p * r;
+            }
+            den += r * r;
+            prev = Some(*r);
+        }
+    }
+    if den > 0.0 {
+        (num / den).clamp(0.0, 0.99)
+    } else {
+        0.0
+    }
+}
+
+/// The C3 search grid: geometric from 1 to 40 (a curve that reaches 63 % of its rise by S = 1 ... 0.025).
+const C3_GRID: (f64, f64, usize) = (1.0, 40.0, 40);
+
+/// A change of soil shifts the recent pairs' mean residual by more than this many of the fit's rms
+/// residuals (noisy slips, a GNSS ground speed, leave wider residuals on one soil).
+const CHANGE_RMS: f64 = 1.5;
+
+/// Tukey's biweight tuning constant (95 % efficiency for Gaussian residuals).
+const TUKEY: f64 = 4.685;
+/// Reweighting passes of the robust fit.
+const PASSES: usize = 3;
+
+/// Fit the shape to the current soil's pairs, robustly: Tukey's biweight on the residuals (scale by
+/// their median absolute deviation), so that the few pairs of a soil the wheels just left (a rear
+/// axle still on it) weigh nothing.  None when there are too few pairs or the fit has no peak.
+fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
+    if pairs.len() < p.min_pairs.max(5) {
+        return None;
+    }
+    let mut weights = vec![1.0; pairs.len()];
+    let mut near = None;
+    let mut fitted = None;
+    for pass in 0..=PASSES {
+        let (c3, (amp, slope, offset, _)) = Bins::of(pairs, &weights).search(near)?;
+        near = Some(c3);
+        fitted = Some((c3, amp, slope, offset));
+        if pass == PASSES {
+            break;
+        }
+        let res: Vec<f64> = pairs
+            .iter()
+            .map(|q| q.mu - shape(q.s, amp, c3, slope, offset))
+            .collect();
+        let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+        let mid = abs.len() / 2;
+        let mad = *abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+        let cut = TUKEY * 1.4826 * mad.max(1e-6);
+        for (w, r) in weights.iter_mut().zip(&res) {
+            let u = r / cut;
+            *w = if u.abs() < 1.0 { (1.0 - u * u).powi(2) } else { 0.0 };
+        }
+    }
+    let (c3, amp, slope, offset) = fitted?;
+    let (s_t, mu_t) = peak(amp, c3, slope, offset)?;
+
+    // the band: delta method on the weighted covariance of (A, C3, b, c), over the pairs that weigh
+    let inliers: Vec<(Pair, f64)> = pairs
+        .iter()
+        .zip(&weights)
+        .filter(|(_, &w)| w > 0.0)
+        .map(|(q, &w)| (*q, w))
+        .collect();
+    let kept: Vec<Pair> = inliers.iter().map(|(q, _)| *q).collect();
+    let res: Vec<f64> = kept.iter().map(|q| q.mu - shape(q.s, amp, c3, slope, offset)).collect();
+    let sum_w: f64 = inliers.iter().map(|(_, w)| w).sum();
+    let wrss: f64 = inliers.iter().zip(&res).map(|((_, w), r)| w * r * r).sum();
+    let rho = residual_correlation(&kept, &res);
+    let inflation = (1.0 + rho) / (1.0 - rho);
+    let sigma2 = wrss / (sum_w - 4.0).max(1.0) * inflation;
+    let mut jtj = [[0.0f64; 4]; 4];
+    for (q, w) in &inliers {
+        let e = (-c3 * q.s).exp();
+        let j = [1.0 - e, amp * q.s * e, -q.s, -1.0];
+        for r in 0..4 {
+            for c in 0..4 {
+                jtj[r][c] += w * j[r] * j[c];
+            }
+        }
+    }
+    let cov = invert4(jtj)?;
+    let e_t = (-c3 * s_t).exp();
+    // dS_T/d(A, C3, b, c) and dmu_T/d(A, C3, b, c) (the envelope theorem: dmu/dS = 0 at S_T)
+    let ln_arg = (amp * c3 / slope).ln();
+    let g_s = [1.0 / (amp * c3), (1.0 - ln_arg) / (c3 * c3), -1.0 / (slope * c3), 0.0];
+    let g_m = [1.0 - e_t, amp * s_t * e_t, -s_t, -1.0];
+    let quad = |g: &[f64; 4]| -> f64 {
+        let mut acc = 0.0;
+        for r in 0..4 {
+            for c in 0..4 {
+                acc += g[r] * cov[r][c] * g[c];
+            }
+        }
+        (acc * sigma2).max(0.0).sqrt()
+    };
+    let beyond = kept.iter().filter(|q| q.s > s_t && q.s <= s_t + p.peak_span).count();
+    let below = kept.iter().filter(|q| q.s <= s_t && q.s > s_t - p.peak_span).count();
+    let slip_top = kept.iter().fold(0.0f64, |acc, q| acc.max(q.s));
+    Some(Fit {
+        a: amp,
+        c3,
+        b: slope,
+        c: offset,
+        s_t,
+        s_t_std: quad(&g_s),
+        mu_t,
+        mu_t_std: quad(&g_m),
+        pairs: kept.len(),
+        below,
+        beyond,
+        slip_top,
+        rms: (wrss / sum_w.max(1e-12)).sqrt(),
+        shown: below >= p.min_beyond && beyond >= p.min_beyond,
+        stamp,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(got: f64, want: f64, tol: f64) {
+        assert!((got - want).abs() <= tol, "got {got}, want {want} +- {tol}");
+    }
+
+    /// eq. 6's shape of method.md §14's test tyre (C1 1.2, C2 0.015, C3 6.4, C5 -3, C6 3.5) at K = 100.
+    fn tyre_shape() -> (f64, f64, f64, f64) {
+        let k: f64 = 100.0;
+        (1.2 * (1.0 - (-0.015 * k).exp()), 6.4, 3.5 / k.sqrt(), -3.0 / k)
+    }
+
+    #[test]
+    fn peak_of_method_md_test_vector() {
+        let (a, c3, b, c) = tyre_shape();
+        let (s_t, mu_t) = peak(a, c3, b, c).unwrap();
+        close(s_t, 0.4431, 5e-5);
+        close(mu_t, 0.7525, 5e-5);
+        // the paper's constants at the same K
+        let k: f64 = 100.0;
+        let (s_p, mu_p) = peak(1.3 * (1.0 - (-0.01 * k).exp()), 7.058, 4.0 / k.sqrt(), -5.0 / k).unwrap();
+        close(s_p, 0.3789, 5e-5);
+        close(mu_p, 0.6635, 5e-5);
+        assert!(peak(a, c3, -0.1, c).is_none());
+    }
+
+    /// A sweep of four wheels over 0.02..0.7, braking pairs mirrored, with deterministic noise.
+    fn drive(learner: &mut CurveLearner, from: f64, secs: f64, noise: f64) -> Option<Fit> {
+        let (a, c3, b, c) = tyre_shape();
+        let mut out = None;
+        let steps = (secs * 100.0) as usize;
+        for i in 0..steps {
+            let t = from + i as f64 / 100.0;
+            let phase = (t % 1.6) / 1.6;
+            let s_front = 0.02 + 0.68 * (1.0 - (2.0 * phase - 1.0).abs());
+            let s_rear = -0.03 - 0.05 * phase;
+            let slip = [s_rear, s_front, s_front, s_rear];
+            let mut mu = [0.0; 4];
+            for w in 0..4 {
+                let s = slip[w];
+                let jitter = noise * ((i * 7 + w * 13) as f64 * 0.618).sin();
+                mu[w] = s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
+            }
+            out = learner.step(t, &slip, &mu, &[true; 4]);
+        }
+        out
+    }
+
+    #[test]
+    fn learns_the_peak_of_a_sweep() {
+        let mut l = CurveLearner::new(Params::default());
+        let f = drive(&mut l, 0.0, 6.0, 0.01).expect("a fit");
+        assert!(f.shown, "{f:?}");
+        close(f.s_t, 0.4431, 0.01);
+        close(f.mu_t, 0.7525, 0.01);
+        assert!(f.s_t_std > 0.0 && f.s_t_std < 0.03, "{f:?}");
+        assert!(f.mu_t_std > 0.0 && f.mu_t_std < 0.02, "{f:?}");
+    }
+
+    #[test]
+    fn a_peak_beyond_the_slips_is_not_shown() {
+        let mut l = CurveLearner::new(Params {
+            slip_max: 0.3,
+            ..Params::default()
+        });
+        let f = drive(&mut l, 0.0, 6.0, 0.01);
+        assert!(f.map_or(true, |f| !f.shown), "{f:?}");
+    }
+
+    #[test]
+    fn another_soil_starts_anew() {
+        let mut l = CurveLearner::new(Params::default());
+        assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some());
+        // the same sweep on ground whose traction is 0.3 higher at every slip: the old pairs go at once
+        let (a, c3, b, c) = tyre_shape();
+        let mut fit = None;
+        for i in 0..60 {
+            let t = 6.0 + i as f64 / 100.0;
+            let s = 0.1 + 0.005 * i as f64;
+            fit = l.step(t, &[s; 4], &[shape(s, a, c3, b, c) + 0.3; 4], &[true; 4]);
+            if fit.is_none() {
+                break;
+            }
+        }
+        assert!(fit.is_none(), "{fit:?}");
+        assert!(l.pairs.iter().all(|q| q.t >= 6.0), "older pairs kept");
+    }
+
+    #[test]
+    fn too_few_pairs_give_no_fit() {
+        let mut l = CurveLearner::new(Params::default());
+        assert!(drive(&mut l, 0.0, 0.3, 0.0).is_none());
+    }
+}
