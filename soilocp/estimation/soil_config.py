@@ -19,7 +19,8 @@ class SoilConfig(BaseModel):
     slip_max: float = Field(0.95, gt=0, le=1, description="|S| above this is wheel spin / lock")
     k_min: float = Field(5.0, gt=0, description="Lower end of the K grid")
     k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
-    grid_points: int = Field(241, ge=20, le=5000)
+    grid_points: int = Field(241, ge=20, le=5000, description="Nodes of the K grid, evenly spaced in ln K "
+                             "from k_min to k_max")
     q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
     change_per_metre: float = Field(
         0.5, ge=0, description="Hazard of an abrupt terrain change per metre travelled (mixing the belief with the "
