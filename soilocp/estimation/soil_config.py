@@ -62,8 +62,8 @@ class SoilConfig(BaseModel):
         "outputs are correlated (lag-one r ~0.4 at 20 Hz), so a sample carries less than its interval's share"
     )
     uncertain_log_sigma: float = Field(
-        0.13, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain': 'ok' promises K within +-30 % "
-        "(issue 27), which a band can only vouch for where its 2-sigma, 2 x 0.13 = ln 1.30, lies inside it"
+        0.13, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain': 'ok' promises K within +-30 %, "
+        "which a band can only vouch for where its 2-sigma, 2 x 0.13 = ln 1.30, lies inside it"
     )
     hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
     expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")
