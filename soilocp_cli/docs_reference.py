@@ -572,9 +572,10 @@ def main(out_dir: str, check: bool) -> None:
         click.echo(f"{out}: up to date")
         return
     out.mkdir(parents=True, exist_ok=True)
-    for name, text in pages().items():
+    written = pages()
+    for name, text in written.items():
         (out / name).write_text(text, encoding="utf-8")
-        click.echo(f"wrote {out / name}")
+    click.echo("wrote " + ", ".join(str(out / name) for name in written))
 
 
 if __name__ == "__main__":  # pragma: no cover
