@@ -155,12 +155,14 @@ def _ros_domain(value) -> int:
 @click.option("--map", "map_path", type=click.Path(exists=True, dir_okay=False),
               help="--replay is a ROS 2 bag: its map file (soilocp import); the map's vehicle_id is used.")
 @click.option("--speed", type=float, default=1.0, show_default=True, help="Replay speed factor (0 = as fast as possible).")
-@click.option("--vehicle-id", default="rover1", show_default=True)
+@click.option("--vehicle-id", default="rover1", show_default=True,
+              help="Vehicle id the services serve (and the synthetic vehicle publishes as).")
 @click.option("--duration", type=float, help="Stop after this many seconds of driving (default: when the source ends).")
 @click.option("--listen", multiple=True, help="Router endpoint(s); default tcp/127.0.0.1:7447.")
 @click.option("--pipeline-config", type=click.Path(exists=True, dir_okay=False), help="Physics PipelineConfig file.")
-@click.option("--stale-timeout", type=float, default=0.5, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--stale-timeout", type=float, default=0.5, show_default=True,
+              help="OCP publisher: stale after this many seconds without input.")
+@click.option("--seed", type=int, default=0, show_default=True, help="--synthetic: seed of the sensor noise.")
 @click.option("--log-dir", type=click.Path(file_okay=False), help="Where each process's log goes (default: a new temp dir).")
 @click.option("--plain", is_flag=True, help="Periodic plain lines instead of the live table (automatic without a TTY).")
 @click.option("--control", metavar="CONTROLLER",

@@ -42,8 +42,8 @@ def test_mkdocs_strict_build_passes(site):
     assert "WARNING" not in log, log
     assert (out / "index.html").is_file()
     # Files that are not pages are published as they are, so pages can link to them.
-    for f in ("maps/ros2-robot.yaml", "maps/skid-steer-rover.json", "bench-final-2026-11-28.json",
-              "bench-final-2026-11-28.txt", "dashboard.png"):
+    for f in ("maps/ros2-robot.yaml", "maps/skid-steer-rover.json", "foxglove/soilocp-layout.json",
+              "dashboard.png"):
         assert (out / f).read_bytes() == (ROOT / "docs" / f).read_bytes(), f
 
 

@@ -4,7 +4,7 @@ A report (the JSON of ``soilocp bench --json``) is flattened into named figures,
 direction that is better (lower latency, higher replay rate ...).  The comparison gives base,
 now, the ratio now / base and the gain (> 1 is better whatever the direction), so every
 optimisation is shown as a ratio measured by one command against a report kept in the repository
-(``docs/bench-baseline-*.json``).  Figures missing on either side are listed with "-".
+(``scripts/baselines/bench-full.json``).  Figures missing on either side are listed with "-".
 """
 
 from __future__ import annotations

@@ -167,7 +167,7 @@ def fleet_status_cmd(connect, timeout, watch, as_json) -> None:
 
 
 @click.command("dashboard")
-@click.option("--port", type=click.IntRange(0, 65535), default=8050, show_default=True)
+@click.option("--port", type=click.IntRange(0, 65535), default=8050, show_default=True, help="TCP port of the web page.")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to serve on.")
 @click.option("--connect", multiple=True, help="Router endpoint (repeatable); env SOILOCP_CONNECT; default tcp/127.0.0.1:7447.")
 @click.option("--constants", "constants_path", type=click.Path(exists=True, dir_okay=False),

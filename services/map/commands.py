@@ -94,7 +94,7 @@ def _cells(store_url, connect, map_id, frame, bbox, timeout):
 _common = [
     click.option("--store", "store_url", help="Read this database directly: sqlite:PATH or postgresql://..."),
     click.option("--connect", multiple=True, help="Else ask the map service through this router (repeatable)."),
-    click.option("--map-id", default="fleet", show_default=True),
+    click.option("--map-id", default="fleet", show_default=True, help="The map service's id (keys soilmap/<map_id>/...)."),
     click.option("--frame", help="wgs84 (H3 cells, bbox in lon/lat) or a local frame's name (bbox in m)."),
     click.option("--bbox", help="xmin,ymin,xmax,ymax"),
     click.option("--timeout", type=float, default=5.0, show_default=True, help="Zenoh: seconds to wait."),

@@ -49,16 +49,22 @@ class ServiceConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    vehicle_ids: list[VehicleId] = Field(default_factory=lambda: ["rover1"], min_length=1)
-    mode: Literal["client", "peer"] = "client"
-    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
-    listen: Endpoints = Field(default_factory=list)
+    vehicle_ids: list[VehicleId] = Field(default_factory=lambda: ["rover1"], min_length=1,
+                                        description="Vehicle ids this process serves")
+    mode: Literal["client", "peer"] = Field("client", description="Zenoh mode: client (every link through the "
+                                         "router) or peer (direct links between the processes; the router "
+                                         "introduces them)")
+    connect: Endpoints = Field(default_factory=lambda: [DEFAULT_ENDPOINT],
+                               description="Zenoh endpoints to connect to, proto/address")
+    listen: Endpoints = Field(default_factory=list, description="Zenoh endpoints to listen on, proto/address "
+                              "(peer mode)")
     multicast: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
     express: bool = Field(False, description="Zenoh: pipeline publishers send each message at once, never "
                           "batched with others (docs/performance.md, 'Zenoh settings, chosen')")
     batching: bool = Field(True, description="Zenoh: the links may batch messages queued together "
                            "(transport/link/tx/queue/batching; docs/performance.md)")
-    log_level: Literal["debug", "info", "warning", "error"] = "info"
+    log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level of the "
+                                                                   "messages the process logs")
     stale_timeout_s: float = Field(0.5, gt=0, le=3600, description="OCP publisher: stale after this much silence")
     queue_size: int = Field(4096, ge=1, le=1_000_000, description="Worker queue bound; beyond it inputs are dropped")
     join_buffer: int = Field(256, ge=1, le=100_000, description="Observer: samples waiting for their normal forces")

@@ -49,7 +49,7 @@ def certs_init(directory, vehicles, fleet_hosts, tools, days, force, if_missing)
 @click.argument("directory", type=click.Path(file_okay=False, exists=True))
 @click.argument("name")
 @click.option("--host", "hosts", multiple=True, help="Extra DNS name or IP address for the certificate (repeatable).")
-@click.option("--days", type=click.IntRange(1, 3650), default=825, show_default=True)
+@click.option("--days", type=click.IntRange(1, 3650), default=825, show_default=True, help="Validity of the certificate, days.")
 def certs_issue(directory, name, hosts, days) -> None:
     """One more certificate (a new vehicle or tool) signed by the development CA in DIRECTORY."""
     from services.security.certs import issue

@@ -134,7 +134,7 @@ COMMANDS = [estimate, evaluate, plot]
 @click.option("--compensation/--no-compensation", "compensation", default=None,
               help="Only with / without motion-resistance compensation (default: both)")
 @click.option("--duration", type=float, help="Override every scenario's duration, s")
-@click.option("--seed", default=0, show_default=True)
+@click.option("--seed", default=0, show_default=True, help="Seed of the simulated sensor noise (with --seeds N, the first of N)")
 @click.option("--jobs", default=2, show_default=True, help="Parallel processes")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the full results as JSON")
 @click.option("--robustness", is_flag=True, help="Instead: the variants the estimator was not tuned to (soilocp.sim.variants)")

@@ -39,10 +39,11 @@ class ObserverConfig(BaseModel):
     r_wheel_speed: float = Field(0.03, gt=0, description="Encoder speed noise incl. quantisation, rad/s")
     r_ground_speed: float = Field(0.02, gt=0, description="GNSS / visual-odometry speed noise, m/s")
     # initial covariance (1-sigma)
-    p0_mu: float = Field(0.5, gt=0)
-    p0_resistance: float = Field(0.2, gt=0)
-    p0_lateral: float = Field(0.5, gt=0)
-    p0_speed: float = Field(0.1, gt=0)
+    p0_mu: float = Field(0.5, gt=0, description="Initial 1-sigma of mu_i (net traction coefficient)")
+    p0_resistance: float = Field(0.2, gt=0, description="Initial 1-sigma of mu_xR (or its constant part)")
+    p0_lateral: float = Field(0.5, gt=0, description="Initial 1-sigma of mu_yR")
+    p0_speed: float = Field(0.1, gt=0, description="Initial 1-sigma of the ground-speed state, m/s (the wheel speeds and the "
+                            "yaw rate start from their sensors' noise)")
     # robustness
     gate_sigma: float = Field(5.0, gt=0, description="Reject a measurement row whose innovation exceeds this many sigma")
     gate_patience: int = Field(
@@ -81,9 +82,12 @@ class ObserverConfig(BaseModel):
         1.0, gt=0, description="s: the longest refresh interval of a slow wheel-speed stream whose gross traction is "
         "taken from the readings (a longer one says little of the speed's course between them)"
     )
-    variance_floor: float = Field(1e-10, gt=0)
-    variance_ceiling: float = Field(1e4, gt=0)
-    gravity: float = Field(STANDARD_GRAVITY, gt=0)
+    variance_floor: float = Field(1e-10, gt=0, description="Smallest variance a state keeps after each step "
+                                  "(its unit squared): the covariance stays positive definite")
+    variance_ceiling: float = Field(1e4, gt=0, description="Largest variance a state keeps after each step "
+                                    "(its unit squared)")
+    gravity: float = Field(STANDARD_GRAVITY, gt=0, description="g, m/s^2: the speed equation's slope term "
+                           "g sin(pitch) and the static wheel load m g / 4")
     # physics bounds and what the data determine (docs/method.md §11-12)
     mu_bound: float = Field(1.5, gt=0, description="|mu_i| (net traction coefficient) is kept <= this: no soil gives more")
     resistance_bound: float = Field(1.0, gt=0, description="|r0| and |mu_xR| shared constant part kept <= this")

@@ -19,7 +19,8 @@ class SoilConfig(BaseModel):
     slip_max: float = Field(0.95, gt=0, le=1, description="|S| above this is wheel spin / lock")
     k_min: float = Field(5.0, gt=0, description="Lower end of the K grid")
     k_max: float = Field(5000.0, gt=0, description="Upper end of the K grid")
-    grid_points: int = Field(241, ge=20, le=5000)
+    grid_points: int = Field(241, ge=20, le=5000, description="Nodes of the K grid, evenly spaced in ln K "
+                             "from k_min to k_max")
     q_log_k: float = Field(0.1, ge=0, description="Random walk of ln K, 1/sqrt(s)")
     change_per_metre: float = Field(
         0.5, ge=0, description="Hazard of an abrupt terrain change per metre travelled (mixing the belief with the "
@@ -61,8 +62,8 @@ class SoilConfig(BaseModel):
         "outputs are correlated (lag-one r ~0.4 at 20 Hz), so a sample carries less than its interval's share"
     )
     uncertain_log_sigma: float = Field(
-        0.13, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain': 'ok' promises K within +-30 % "
-        "(issue 27), which a band can only vouch for where its 2-sigma, 2 x 0.13 = ln 1.30, lies inside it"
+        0.13, gt=0, description="ln K 1-sigma above which the estimate is 'uncertain': 'ok' promises K within +-30 %, "
+        "which a band can only vouch for where its 2-sigma, 2 x 0.13 = ln 1.30, lies inside it"
     )
     hold_after: float = Field(0.5, gt=0, description="s without an informative update before status 'holding'")
     expire_after: float = Field(10.0, gt=0, description="s of 'holding' after which the estimate is withdrawn")

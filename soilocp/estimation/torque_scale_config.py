@@ -34,16 +34,15 @@ class TorqueScaleConfig(BaseModel):
         3.0, ge=0, description="A window whose innovation is beyond this many of its own sigmas is a jump of F_MR (the "
         "soil under the wheels changed, a draft was hooked on), not a change of k: F_MR's variance returns to "
         "resistance_sigma and the window informs F_MR alone (0: never).  A soil change moves F_MR by 10-25 N at the "
-        "swing's small slips, which at 0.5 m/s^2 on 60 kg the random walk read as a 5-8 % change of k "
-        "(docs/robustness.md)")
+        "swing's small slips, which at 0.5 m/s^2 on 60 kg the random walk read as a 5-8 % change of k")
     model_resistance: bool = Field(
         False, description="Subtract eq. 4's motion resistance at the soil stage's K and slips from the balance "
         "(modelled_resistance), leaving b the unmodelled rest; False: b is the whole F_MR, a random walk.  Off by "
-        "default: measured worse on the accelerate/brake drives (docs/robustness.md, 'ok means ok').  The K is fed "
+        "default: measured worse on the accelerate/brake drives (its slips and K are estimates).  The K is fed "
         "back in the offline and batched paths only: the live observer service runs before the soil service and "
         "models the resistance at the median reference soil and the readings' slips")
     prior_sigma: Optional[float] = Field(
         0.10, gt=0, description="Prior 1-sigma of k (motor constant x 1 / mass) for the online state (None: "
         "soil.gross_scale_sigma, the torque constant's alone): a payload the vehicle file does not know is a scale "
         "error too (+25 %: k 0.80).  K's band combines the windows' information with soil.gross_scale_sigma "
-        "(TorqueScaleBank.band_sigma); measured 0.05 / 0.10 / 0.15 in docs/robustness.md")
+        "(TorqueScaleBank.band_sigma)")
