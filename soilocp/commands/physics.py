@@ -123,9 +123,16 @@ def curves(out_dir: str, constants_file: str | None, soils: tuple[str, ...]) -> 
 
 
 # -------------------------------------------------------------------------------- calibrate
-@click.command("calibrate", short_help="Fit C1..C6 and K per soil to testbed data (paper §2.2).")
-@click.argument("data", type=click.Path(dir_okay=False))
-@click.option("--out", "out_file", type=click.Path(dir_okay=False), required=True, help="Constants JSON to write.")
+@click.command("calibrate", short_help="Fit C1..C6 to testbed data (paper §2.2) or, --from-drive, to a robot's drives.")
+@click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--out", "out_file", type=click.Path(dir_okay=False), required=True,
+              help="Constants JSON to write (with --from-drive: the wheel's calibration file).")
+@click.option("--from-drive", "from_drive", is_flag=True,
+              help="DATA are sensor logs (JSON Lines) of the robot's own drives: fit its wheels' curve (needs --vehicle).")
+@click.option("--vehicle", "vehicle_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="--from-drive: the robot's vehicle JSON.")
+@click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="--from-drive: the estimator's settings (as soilocp estimate --config).")
 @click.option(
     "--anchor",
     default=None,
@@ -135,14 +142,27 @@ def curves(out_dir: str, constants_file: str | None, soils: tuple[str, ...]) -> 
 @click.option("--fix-k", "fix_k", multiple=True, metavar="SOIL=K", help="Also fix this soil's K (repeat).")
 @click.option("--constants", "initial_file", type=click.Path(dir_okay=False), default=None, help="Initial constants (start values, C4, bridge, alpha/beta fallback).")
 @click.option("--no-efficiency", is_flag=True, help="Do not refit S_E's alpha, beta (eq. 10); keep the initial ones.")
-def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ...], initial_file: str | None, no_efficiency: bool) -> None:
-    """Fit C1..C6 and K per soil to testbed DATA (CSV) by nonlinear least squares (paper §2.2).
+def calibrate(data: tuple[str, ...], out_file: str, from_drive: bool, vehicle_path: str | None, config_path: str | None,
+              anchor: str | None, fix_k: tuple[str, ...], initial_file: str | None, no_efficiency: bool) -> None:
+    """Fit C1..C6 and K per soil to testbed DATA (CSV) by nonlinear least squares (paper §2.2), or with
+    --from-drive to the robot's own drives (sensor logs).
 
-    DATA columns: slip, soil, and mu (F_DP/W) or drawbar_pull + normal_load [N]; optional
+    Testbed DATA columns: slip, soil, and mu (F_DP/W) or drawbar_pull + normal_load [N]; optional
     gross_traction (or gross_force [N]) lets C4 be fitted.  K is identifiable only up to a common
     scale, so one soil's K is fixed (the anchor).  Then S_E's alpha, beta (eq. 10) are refitted
     through the tractive-efficiency peaks (eq. 9) of the fitted model, if it has them.
+
+    From drives: the estimator's own (slip, net traction) pairs, split into soils where their curve
+    changes, fitted by one curve with a K per soil (docs/calibration.md).  Writes a calibration file
+    (constants with their bands and correlations, what could not be fitted and why, and how well the
+    curve predicts held-out parts of the drives) that the vehicle file names as its traction_curve.
     """
+    if from_drive:
+        return _calibrate_from_drives(data, out_file, vehicle_path, config_path)
+    if len(data) != 1 or vehicle_path or config_path:
+        raise click.UsageError("testbed calibration takes one DATA file and no --vehicle/--config; for sensor logs of "
+                               "drives add --from-drive")
+    data = data[0]
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
@@ -179,6 +199,43 @@ def calibrate(data: str, out_file: str, anchor: str | None, fix_k: tuple[str, ..
     for note in res.notes:
         con.print(f"note: {note}", markup=False)
     con.print(f"wrote {out_file}", markup=False)
+
+
+def _calibrate_from_drives(logs: tuple[str, ...], out_file: str, vehicle_path: str | None, config_path: str | None) -> None:
+    """``soilocp calibrate --from-drive``: the wheel's calibration file from sensor logs (module doc of
+    soilocp.analysis.drive_calibration)."""
+    from soilocp.analysis.drive_calibration import calibrate_from_drives
+    from soilocp.estimation.config import load_pipeline_config
+    from soilocp.model.wheel_curve import save_calibration
+
+    if vehicle_path is None:
+        raise click.UsageError("--from-drive needs --vehicle: the robot's vehicle JSON (mass, geometry, wheel radius), "
+                               "without which the traction it reads is another robot's")
+    for log in logs:
+        if not Path(log).is_file():
+            raise click.BadParameter(f"no such file: {log}", param_hint="'DATA'")
+    try:
+        cfg = load_pipeline_config(config_path, vehicle=vehicle_path)
+        fit = calibrate_from_drives([(log, Path(log).open()) for log in logs], cfg)
+    except ValueError as exc:
+        raise click.UsageError(f"calibration failed: {exc}") from None
+    save_calibration(fit.calibration, out_file)
+    cal = fit.calibration
+    for m in fit.messages:
+        click.echo(m)
+    click.echo(f"{'constant':8s} {'value':>10s} {'1-sigma':>10s}")
+    for name in ("C1", "C2", "C3", "C4", "C5", "C6"):
+        v = getattr(cal.constants, name)
+        sd = cal.std.get(name)
+        click.echo(f"{name:8s} {v:10.4g} {'' if sd is None else format(sd, '10.2g'):>10s}"
+                   + (f"  not fitted: {cal.not_fitted[name]}" if name in cal.not_fitted else ""))
+    for soil in cal.soils:
+        click.echo(f"soil {soil['soil']} of {soil['source']}: K {soil['K']:.1f} +- {soil['K_std']:.1f}, {soil['pairs']} "
+                   f"wheel-samples, slips up to {soil['slip_top']:.2f}: mu_T {soil['mu_T']:.3f}, S_T {soil['S_T']:.3f}")
+    h = cal.held_out
+    click.echo(f"traction residual rms: fit {h['rms_fit']:.4f}, held-out {h['rms_held_out']:.4f} (the paper's curve at its "
+               f"best K: {h['rms_held_out_paper_curve']:.4f})")
+    click.echo(f"wrote {out_file}: name it in the vehicle file as \"traction_curve\": \"{Path(out_file).name}\"")
 
 
 COMMANDS = [ocp, curves, calibrate]

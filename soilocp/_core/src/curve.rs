@@ -116,6 +116,8 @@ pub struct CurveLearner {
     pairs: VecDeque<Pair>,
     last_fit: f64,
     fit: Option<Fit>,
+    /// changes of soil detected so far: the current soil's index in the drive
+    changes: usize,
 }
 
 impl CurveLearner {
@@ -125,7 +127,13 @@ impl CurveLearner {
             pairs: VecDeque::new(),
             last_fit: f64::NEG_INFINITY,
             fit: None,
+            changes: 0,
         }
+    }
+
+    /// The current soil's index in the drive: the changes of soil detected so far.
+    pub fn changes(&self) -> usize {
+        self.changes
     }
 
     /// Forget every pair and fit (a restarted vehicle).
@@ -133,6 +141,7 @@ impl CurveLearner {
         self.pairs.clear();
         self.last_fit = f64::NEG_INFINITY;
         self.fit = None;
+        self.changes = 0;
     }
 
     /// One sample: the wheels' slips and net traction coefficients (4,) and which of them inform
@@ -196,6 +205,7 @@ impl CurveLearner {
                 let drop = self.pairs.len() - keep;
                 self.pairs.drain(..drop);
                 changed = true;
+                self.changes += 1;
             }
         }
         if changed || stamp - self.last_fit >= p.interval {
@@ -598,6 +608,7 @@ mod tests {
         }
         assert!(fit.is_none(), "{fit:?}");
         assert!(l.pairs.iter().all(|q| q.t >= 6.0), "older pairs kept");
+        assert_eq!(l.changes(), 1);
     }
 
     #[test]

@@ -136,6 +136,16 @@ impl CurveBank {
         Ok(())
     }
 
+    /// Vehicle `j`'s current soil index in its drive: the changes of soil detected so far.
+    fn changes(&self, j: usize) -> PyResult<usize> {
+        let n = self.learners.len();
+        Ok(self
+            .learners
+            .get(j)
+            .ok_or_else(|| PyIndexError::new_err(format!("vehicle index {j} out of [0, {n})")))?
+            .changes())
+    }
+
     fn __len__(&self) -> usize {
         self.learners.len()
     }
