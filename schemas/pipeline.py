@@ -87,6 +87,12 @@ class ObserverOutput(_Message):
         default=0.0, ge=0, description="s: the ground speed's latency measured against the accelerometer, by which the "
         "observer leads the reading (0: none determined; docs/method.md §13)"
     )
+    ground_speed_excess: float = Field(
+        default=0.0, ge=0, description="m/s: how far the ground speed's new readings stray from the filtered speed "
+        "carried forward by the accelerometer, beyond the noise the observer assumes (rms over the last second, less "
+        "r_ground_speed in quadrature): a GNSS-grade speed's noise, latency and hold, which the slip's uncertainty "
+        "takes in (docs/method.md §20)"
+    )
     interval: Quad = Field(
         default=(0.0,) * 4, description="s: > 0 where this sample is the refresh of a slow (held) stream while the other is "
         "read at every sample: a wheel speed's (the interval_* fields describe its interval, eq. 13 integrated) or a "

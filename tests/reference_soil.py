@@ -665,8 +665,10 @@ class ReferenceSlipGate:
                         (ob.speed_age > cfg.soil.fresh_age) | (ob.torque_age > cfg.soil.fresh_age))
         informative = ((scale >= cfg.slip_deadband) & (ob.normal_force > LIFT_OFF_FORCE) & ~ob.reset[:, None]
                        & (unusable == 0) & (~ob.speed_rejected | refresh | held))
-        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9)
-        s_sig = np.hypot(cfg.soil.slip_sigma, cfg.soil.speed_sigma / np.maximum(scale, 1e-3))
+        # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9), with the
+        # ground speed's stray beyond its assumed noise (§20)
+        speed_sigma = np.hypot(cfg.soil.speed_sigma, ob.ground_speed_excess)[:, None]
+        s_sig = np.hypot(cfg.soil.slip_sigma, speed_sigma / np.maximum(scale, 1e-3))
         if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
             s_sig = np.where(refresh, np.hypot(s_sig, ob.interval_rim_sigma / np.maximum(scale, 1e-3)), s_sig)
         tau = cfg.soil.gate_smoothing

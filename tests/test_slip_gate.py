@@ -52,7 +52,8 @@ def _output(rng: np.random.Generator, k: int) -> ObserverBlocks:
         reset=rng.random(k) < 0.1,
         normal_force=quad(-50.0, 900.0, 0.05), speed_age=quad(0.0, 0.2), torque_age=quad(0.0, 0.2),
         ground_speed_age=rng.uniform(0.0, 1.0, k), ground_speed_measured=rng.random(k) < 0.85,
-        ground_speed_latency=np.zeros(k), interval=interval, interval_gross=quad(-1.5, 1.5),
+        ground_speed_latency=np.zeros(k), ground_speed_excess=np.where(rng.random(k) < 0.5, 0.0, rng.uniform(0.0, 0.1, k)),
+        interval=interval, interval_gross=quad(-1.5, 1.5),
         interval_gross_var=quad(1e-6, 0.3), interval_rim_start=quad(-3.0, 3.0), interval_rim_end=quad(-3.0, 3.0),
         interval_ground_start=quad(-3.0, 3.0), interval_ground_end=quad(-3.0, 3.0),
         interval_rim_sigma=quad(0.0, 0.05), interval_learning=rng.random((k, 4)) < 0.3,
@@ -119,14 +120,14 @@ def test_core_gate_equals_the_numpy_gate_step_by_step_on_a_drive(variant):
 def test_packed_rows_follow_the_core_layout():
     from soilocp import _core
 
-    assert len(GATE_FIELDS) == 23 and _core.SlipGateBank.columns == 18 * 4 + 5
+    assert len(GATE_FIELDS) == 24 and _core.SlipGateBank.columns == 18 * 4 + 6
     gate = SlipGate(PipelineConfig(), 2)
     with pytest.raises(ValueError, match="rows"):
-        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, 76)))
+        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, 77)))
     with pytest.raises(ValueError, match="twice"):
-        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 77)))
+        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 78)))
     with pytest.raises(ValueError, match="out of range"):
-        gate.step(np.array([2]), np.zeros(1), np.zeros((1, 77)))
+        gate.step(np.array([2]), np.zeros(1), np.zeros((1, 78)))
 
 
 def test_a_rejected_wheel_speed_informs_no_k():
@@ -142,7 +143,7 @@ def test_a_rejected_wheel_speed_informs_no_k():
             wheel_speed=np.full((1, 4), 1.0 / (0.8 * r)), ground_speed=np.array([1.0]), yaw_rate=np.zeros(1),
             reset=np.zeros(1, bool), normal_force=np.full((1, 4), 150.0), speed_age=np.full((1, 4), speed_age),
             torque_age=np.zeros((1, 4)), ground_speed_age=np.zeros(1), ground_speed_measured=np.ones(1, bool),
-            ground_speed_latency=np.zeros(1), interval=np.zeros((1, 4)), interval_gross=np.zeros((1, 4)),
+            ground_speed_latency=np.zeros(1), ground_speed_excess=np.zeros(1), interval=np.zeros((1, 4)), interval_gross=np.zeros((1, 4)),
             interval_gross_var=np.zeros((1, 4)), interval_rim_start=np.zeros((1, 4)), interval_rim_end=np.zeros((1, 4)),
             interval_ground_start=np.zeros((1, 4)), interval_ground_end=np.zeros((1, 4)),
             interval_rim_sigma=np.zeros((1, 4)), interval_learning=np.zeros((1, 4), bool),
@@ -174,7 +175,7 @@ def test_the_blocks_and_the_messages_pack_alike():
             rng.uniform(3.0, 5.0, (k, 4)), rng.uniform(0.0, 8.0, (k, 4)),
             np.where(rng.random(k) < 0.3, np.nan, rng.uniform(0.5, 0.8, k)), np.full((k, 4), 150.0)))
         rows = pack_output(out)
-        assert rows.shape == (k, 77) and rows.dtype == np.float64 and rows.flags.c_contiguous
+        assert rows.shape == (k, 78) and rows.dtype == np.float64 and rows.flags.c_contiguous
         for j in range(k):
             msg = observer_message("v", n, 1.0 + 0.01 * n, out, j)
             assert list(rows[j]) == list(pack_message(msg)), (n, j)

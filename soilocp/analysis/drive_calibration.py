@@ -228,8 +228,11 @@ def calibrate_from_drives(logs: Sequence[tuple[str, Iterable[str]]], config: Pip
 
     # the final fit on every pair
     theta, ln_k, cov, noise, res, n_soil = fit_soils(soils, prior)
-    constants = _constants(theta, prior)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # the soils the curve was fitted over (their K within 2 sigma): beyond them the OCPs are extrapolated
+    lo = float(np.min(np.exp(ln_k - 2 * sd[4:])))
+    hi = float(np.max(np.exp(ln_k + 2 * sd[4:])))
+    constants = _constants(theta, prior).model_copy(update={"k_range": (round(lo, 2), round(hi, 2))})
     # 1-sigma in the constants' own units (delta method through exp for the logs)
     values = {"C1": constants.C1, "C3": constants.C3, "C5": constants.C5, "C6": constants.C6}
     std = {"C1": constants.C1 * sd[0], "C3": constants.C3 * sd[1], "C5": sd[2], "C6": constants.C6 * sd[3]}

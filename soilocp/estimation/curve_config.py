@@ -41,3 +41,6 @@ class CurveConfig(BaseModel):
                                                     "observer's traction reads 0.005-0.02 high past the peak and as "
                                                     "much low near zero slip on simulated drives)")
     mu_t_sys: float = Field(0.02, ge=0, description="Systematic 1-sigma added to the learnt mu_T's band")
+    k_range_margin: float = Field(1.25, ge=1, description="A calibrated curve's OCPs are served as ok for K within its "
+                                                          "fitted soils' range widened by this factor either way; "
+                                                          "beyond, they are extrapolated and flagged")

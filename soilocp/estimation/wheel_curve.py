@@ -57,6 +57,9 @@ class WheelCurve:
         c = config.curve
         self.config = c
         self.checked = curve_checked(config.vehicle)
+        #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
+        kr = config.constants.k_range
+        self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
         self.bank = _core.CurveBank(n_vehicles, c.window, c.change_window, c.change_shift, c.change_pairs, c.slip_min,
                                     c.slip_max, c.min_pairs, c.min_beyond, c.peak_span, c.interval) if c.enabled else None
 
@@ -89,7 +92,14 @@ class WheelCurve:
             reason = f"{soil.reason}; {learnt}" if soil.reason else learnt
             return ocp_message(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), curve="learnt", bands=(mu_t_std, s_t_std),
                                status=status, reason=reason)
-        if self.checked or soil.soil_strength is None:
+        k = soil.soil_strength
+        k_range = self.k_range
+        if k is not None and k_range is not None and not k_range[0] <= k <= k_range[1]:
+            beyond = (f"K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({k_range[0]:.0f}..."
+                      f"{k_range[1]:.0f}): its OCPs are extrapolated; drive the calibration on this soil too")
+            status = "uncertain" if soil.status == "ok" else soil.status
+            return ocp_message(soil, values, status=status, reason=f"{soil.reason}; {beyond}" if soil.reason else beyond)
+        if self.checked or k is None:
             return ocp_message(soil, values)
         status = "uncertain" if soil.status == "ok" else soil.status
         reason = f"{soil.reason}; {UNCHECKED_REASON}" if soil.reason else UNCHECKED_REASON

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
@@ -56,6 +57,14 @@ class ModelConstants(BaseModel):
         description=(
             "Half-width of the linear bridge through S=0 (docs/method.md §8): eq. 6 jumps from -C5/K "
             "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear. 0 = as printed."
+        ),
+    )
+    k_range: Optional[tuple[float, float]] = Field(
+        None,
+        description=(
+            "The soil strengths the constants were fitted over (a calibration's soils, on its own scale of K). "
+            "Outside them the OCPs are an extrapolation and are not served as ok. None: not limited (the paper's "
+            "constants, whose testbed soils the simulator's scenarios span)"
         ),
     )
     soils: dict[str, float] = Field(

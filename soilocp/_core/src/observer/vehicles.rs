@@ -6,6 +6,7 @@
 use super::bank::{FilterBank, Sample};
 use super::intervals::{IntervalSettings, Pairs, RefreshIntervals, WheelSample};
 use super::latency::{exp_terms, GroundSpeedLatency};
+use super::layout::N_MEAS;
 use super::numeric::np_max;
 use super::readings::{ReadingClock, CHANNELS};
 use super::wheel_inputs::{encoder_lead, split_side_torque, wheel_acceleration};
@@ -64,7 +65,16 @@ pub const QUAD_NAMES: [&str; 17] = [
     "interval_ground_end",
     "interval_rim_sigma",
 ];
-pub const FLAT_NAMES: [&str; 4] = ["ground_speed", "yaw_rate", "ground_speed_age", "ground_speed_latency"];
+pub const FLAT_NAMES: [&str; 5] = [
+    "ground_speed",
+    "yaw_rate",
+    "ground_speed_age",
+    "ground_speed_latency",
+    "ground_speed_excess",
+];
+
+/// s: memory of the ground speed's disagreement with the accelerometer ([`Estimate::ground_speed_excess`])
+pub const EXCESS_WINDOW: f64 = 1.0;
 
 /// One vehicle's estimate at a step.
 #[derive(Clone, Copy, Debug, Default)]
@@ -90,6 +100,11 @@ pub struct Estimate {
     pub ground_speed_measured: bool,
     /// s the ground speed was led by (0: none)
     pub ground_speed_latency: f64,
+    /// m/s: how far the ground speed's new readings stray from the filtered speed carried forward by the
+    /// accelerometer, beyond the noise the observer assumes (r_ground_speed): the rms over the last
+    /// [`EXCESS_WINDOW`] s, less r_ground_speed in quadrature (0 when within it).  A GNSS-grade speed (noisy,
+    /// late, held between fixes) strays; the slip made of it is that much less certain (docs/method.md §20)
+    pub ground_speed_excess: f64,
     pub pairs: Pairs,
 }
 
@@ -134,12 +149,13 @@ impl Estimate {
     }
 
     /// The per-vehicle numbers, in [`FLAT_NAMES`]' order.
-    pub fn flats(&self) -> [f64; 4] {
+    pub fn flats(&self) -> [f64; 5] {
         [
             self.ground_speed,
             self.yaw_rate,
             self.ground_speed_age(),
             self.ground_speed_latency,
+            self.ground_speed_excess,
         ]
     }
 
@@ -165,6 +181,9 @@ pub struct ObserverBank {
     pub latency: Option<GroundSpeedLatency>,
     pub intervals: RefreshIntervals,
     pub last_stamp: Vec<f64>,
+    /// per vehicle: the mean square of the ground speed's new readings against the filtered speed carried
+    /// forward by the accelerometer, and the stamp of the last new reading
+    pub stray: Vec<(f64, f64)>,
 }
 
 impl ObserverBank {
@@ -176,6 +195,7 @@ impl ObserverBank {
                 .then(|| GroundSpeedLatency::new(n, reading.latency_window, reading.latency_max)),
             intervals: RefreshIntervals::new(n, refresh),
             last_stamp: vec![f64::NAN; n],
+            stray: vec![(0.0, f64::NAN); n],
             filter,
             reading,
         }
@@ -250,10 +270,17 @@ impl ObserverBank {
             normal_force: fz,
             fresh: std::array::from_fn(|c| rd.fresh[c]),
         };
-        let f = self.filter.step(g, &sample);
-        self.last_stamp[g] = r.stamp;
+        // the filtered speed before this step, carried forward to it by the accelerometer
         let l = self.filter.layout;
         let n = l.n();
+        let carried = if restart {
+            f64::NAN
+        } else {
+            self.filter.x[g * n + l.v()] + (r.specific_force_x + g_sin_pitch) * dt
+        };
+        let f = self.filter.step(g, &sample);
+        self.last_stamp[g] = r.stamp;
+        let excess = self.ground_speed_excess(g, r.stamp, restart, rd.fresh[4], ground_speed_z, carried);
         let x = &self.filter.x[g * n..(g + 1) * n];
         let wheel_y = self.filter.vehicle.wheel_y;
         let ground: [f64; 4] = std::array::from_fn(|w| x[l.v()] - x[l.psi()] * wheel_y[w]);
@@ -295,8 +322,31 @@ impl ObserverBank {
             age: rd.age,
             ground_speed_measured: !r.ground_speed.is_nan(),
             ground_speed_latency: latency,
+            ground_speed_excess: excess,
             pairs: speed_pairs.merge(&torque_pairs),
         }
+    }
+
+    /// [`Estimate::ground_speed_excess`] of vehicle `g` after a step: a new reading `z` (led by its latency)
+    /// against `carried`, the filtered speed before the step carried forward by the accelerometer, enters an
+    /// exponentially weighted mean square of memory [`EXCESS_WINDOW`]; a restart forgets it.
+    fn ground_speed_excess(&mut self, g: usize, stamp: f64, restart: bool, fresh: bool, z: f64, carried: f64) -> f64 {
+        let r_v = self.filter.settings.r[N_MEAS - 1];
+        let (ms, last) = &mut self.stray[g];
+        if restart {
+            (*ms, *last) = (0.0, f64::NAN);
+        }
+        if fresh && z.is_finite() && carried.is_finite() {
+            let nu = z - carried;
+            let w = if last.is_nan() {
+                1.0
+            } else {
+                -(-(stamp - *last) / EXCESS_WINDOW).exp_m1()
+            };
+            *ms += w * (nu * nu - *ms);
+            *last = stamp;
+        }
+        (*ms - r_v).max(0.0).sqrt()
     }
 }
 

@@ -48,7 +48,9 @@ pub mod scalar {
     pub const GROUND_SPEED_AGE: usize = GROUND_SPEED + 3;
     /// bool (0 / 1)
     pub const GROUND_SPEED_MEASURED: usize = GROUND_SPEED + 4;
-    pub const COUNT: usize = 5;
+    /// m/s: the ground speed's stray beyond its assumed noise (observer::vehicles::Estimate::ground_speed_excess)
+    pub const GROUND_SPEED_EXCESS: usize = GROUND_SPEED + 5;
+    pub const COUNT: usize = 6;
 }
 
 /// The names of the per-wheel fields, in [`quad`]'s order (soilocp.estimation.slip_gate.GATE_QUADS).
@@ -80,6 +82,7 @@ pub const SCALAR_NAMES: [&str; scalar::COUNT] = [
     "reset",
     "ground_speed_age",
     "ground_speed_measured",
+    "ground_speed_excess",
 ];
 
 /// Numbers per vehicle in a packed row.
@@ -120,6 +123,7 @@ pub fn row_of(e: &Estimate) -> [f64; COLUMNS] {
     row[scalar::RESET] = flag(e.reset > 0);
     row[scalar::GROUND_SPEED_AGE] = e.ground_speed_age();
     row[scalar::GROUND_SPEED_MEASURED] = flag(e.ground_speed_measured);
+    row[scalar::GROUND_SPEED_EXCESS] = e.ground_speed_excess;
     row
 }
 
@@ -323,11 +327,14 @@ impl SlipGateBank {
                 && unusable[w] == 0
                 && (!rejected[w] || (any_refresh && refresh[w]) || held[w])
         });
-        // slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (§6, §9); a refresh
-        // interval's mean rim speed is known only to interval_rim_sigma
+        // slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (§6, §9), and a ground speed
+        // that strays from the accelerometer's course beyond its assumed noise (a GNSS-grade speed: noisy, late,
+        // held between fixes; §20) is that much less certain; a refresh interval's mean rim speed is known only
+        // to interval_rim_sigma
         let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
+        let speed_sigma = cfg.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
         let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
-            let s = cfg.slip_sigma.hypot(cfg.speed_sigma / np_max(scale[w], 1e-3));
+            let s = cfg.slip_sigma.hypot(speed_sigma / np_max(scale[w], 1e-3));
             if any_refresh && refresh[w] {
                 s.hypot(rim_sigma[w] / np_max(scale[w], 1e-3))
             } else {
@@ -461,6 +468,7 @@ mod tests {
             (scalar::RESET, "reset"),
             (scalar::GROUND_SPEED_AGE, "ground_speed_age"),
             (scalar::GROUND_SPEED_MEASURED, "ground_speed_measured"),
+            (scalar::GROUND_SPEED_EXCESS, "ground_speed_excess"),
         ];
         for (i, name) in scalars {
             assert_eq!(SCALAR_NAMES[i - scalar::GROUND_SPEED], name);
