@@ -105,7 +105,7 @@ def soil_pairs(records: Iterable[dict], source: str, curve: CurveConfig, min_pai
 
 
 def _constants(theta: np.ndarray, prior: ModelConstants) -> ModelConstants:
-    c1, c3, c5, c6 = math.exp(theta[0]), math.exp(theta[1]), theta[2], math.exp(theta[3])
+    c1, c3, c5, c6 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2]), math.exp(theta[3])
     return prior.model_copy(update={"C1": c1, "C3": c3, "C5": c5, "C6": c6})
 
 

@@ -1,0 +1,108 @@
+"""The wheel's own traction curve (docs/method.md §19): the OCP records never serve a curve nobody checked as ok,
+serve the learnt curve flagged where the drive shows it, and a calibration fitted from drives makes the curve
+checked within the soils it saw."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from soilocp.analysis.drive_calibration import calibrate_from_drives
+from soilocp.estimation.config import load_pipeline_config
+from soilocp.estimation.estimate import estimate_lines
+from soilocp.estimation.pipeline import PipelineConfig
+from soilocp.model.constants import ModelConstants
+from soilocp.model.ocp import ocp_from_soil_strength
+from soilocp.model.vehicle import DEFAULT_VEHICLE, load_vehicle
+from soilocp.model.wheel_curve import load_calibration, save_calibration
+from soilocp.sim.scenarios import Scenario, Segment, SweepParams
+from soilocp.sim.variants import TYRE_GRIPPY, TYRE_SLOW, Variant
+
+SWEEP = SweepParams(s_min=0.05, s_max=0.7, period=1.6, dwell=0.4)
+
+
+def _drive(tyre, soils, seed, sweep=SWEEP, seconds_per_soil=10.0, **kw):
+    scenario = Scenario("probe", "probe", tuple(Segment(f"k{k:g}", k, length=seconds_per_soil) for k in soils),
+                        duration=seconds_per_soil * len(soils) + 1.0)
+    return list(Variant("probe", "probe", scenario=scenario, sweep=sweep, tyre=tyre, **kw).simulate(seed))
+
+
+def _records(pairs, cfg):
+    truth = {(t.vehicle_id, t.seq): t for _, t in pairs}
+    return [(r, truth[(r["vehicle_id"], r["seq"])]) for r in estimate_lines([s.model_dump_json() for s, _ in pairs], cfg)]
+
+
+def test_a_vehicle_file_without_a_curve_is_unchecked_and_the_built_in_rover_is_the_papers(tmp_path):
+    (tmp_path / "v.json").write_text(json.dumps({"mass": 70.0}))
+    assert load_vehicle(tmp_path / "v.json").traction_curve is None
+    assert DEFAULT_VEHICLE.traction_curve == "paper"
+    cfg = load_pipeline_config(vehicle=tmp_path / "v.json")
+    assert cfg.constants == PipelineConfig().constants
+
+
+def test_an_unchecked_curve_is_never_ok_and_the_learnt_one_is_served_flagged():
+    """The grippy tyre on one soil: with the built-in rover's wheel (checked) K's records are ok; with a vehicle
+    file that names no curve, none is, and once the sweep has shown the peak the learnt OCPs are served, near the
+    true curve's, with their band and a reason that says how to reach ok."""
+    pairs = _drive(TYRE_GRIPPY, (80.0,), seed=5, seconds_per_soil=14.0)
+    unchecked = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
+    recs = _records(pairs, unchecked)
+    assert not any(r["status"] == "ok" for r, _ in recs)
+    learnt = [(r, t) for r, t in recs if r["curve"] == "learnt"]
+    assert len(learnt) > 0.3 * len(recs), {c: sum(r["curve"] == c for r, _ in recs) for c in ("learnt", "unchecked")}
+    s_err = np.array([abs(r["S_T"] - t.S_T) for r, t in learnt])
+    mu_err = np.array([abs(r["mu_T"] - t.mu_T) for r, t in learnt])
+    assert np.quantile(s_err, 0.9) < 0.05 and np.quantile(mu_err, 0.9) < 0.05, (np.quantile(s_err, 0.9), np.quantile(mu_err, 0.9))
+    assert all(r["S_T_std"] > 0 and r["mu_T_std"] > 0 and r["S_E"] is None for r, _ in learnt)
+    assert all("calibrate --from-drive" in r["reason"] for r, _ in learnt)
+    others = [r for r, _ in recs if r["curve"] == "unchecked"]
+    assert others and all("nobody checked" in r["reason"] for r in others)
+    # the paper's curve, which the records rest on before the sweep, is far from this tyre's
+    k = 80.0
+    assert abs(ocp_from_soil_strength(k).S_T - ocp_from_soil_strength(k, TYRE_GRIPPY).S_T) > 0.05
+
+
+def test_a_calibration_from_drives_fits_the_tyre_and_limits_itself_to_its_soils(tmp_path):
+    """Two soils of the slow tyre with a sweep: the fitted curve predicts held-out blocks better than the paper's,
+    its soils' OCPs are near the true curve's, the constants the data cannot fix say why, and a vehicle file naming
+    the calibration is checked within the calibrated soils and flagged beyond them."""
+    pairs = _drive(TYRE_SLOW, (50.0, 100.0), seed=11, seconds_per_soil=12.0)
+    cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
+    fit = calibrate_from_drives([("drive", [s.model_dump_json() for s, _ in pairs])], cfg)
+    cal = fit.calibration
+    assert fit.rms_held_out < fit.rms_held_out_paper, (fit.rms_held_out, fit.rms_held_out_paper)
+    assert set(cal.not_fitted) >= {"C2", "C4", "alpha", "beta"}
+    assert cal.constants.k_range is not None and cal.constants.k_range[0] < cal.constants.k_range[1]
+    for soil in cal.soils:  # each fitted soil's OCPs against the true tyre's at the soil it lies on
+        truths = [ocp_from_soil_strength(k, TYRE_SLOW) for k in (50.0, 100.0)]
+        assert min(abs(soil["mu_T"] - o.mu_T) for o in truths) < 0.05, soil
+    path = tmp_path / "slow.curve.json"
+    save_calibration(cal, path)
+    assert load_calibration(path).model_dump() == cal.model_dump()
+    (tmp_path / "robot.json").write_text(json.dumps({"traction_curve": "slow.curve.json"}))
+    used = load_pipeline_config(vehicle=tmp_path / "robot.json")
+    assert used.vehicle.traction_curve == str(path.resolve()) and used.constants.model_dump() == cal.constants.model_dump()
+    # a later drive on a soil far beyond the calibrated ones: its OCPs are extrapolated, never ok
+    later = _drive(TYRE_SLOW, (1500.0,), seed=12, seconds_per_soil=8.0)
+    recs = _records(later, used)
+    assert not any(r["status"] == "ok" for r, _ in recs)
+    assert any("beyond the soils" in r["reason"] for r, _ in recs)
+
+
+def test_one_soil_says_which_constants_it_cannot_fit():
+    pairs = _drive(TYRE_SLOW, (80.0,), seed=13, seconds_per_soil=14.0)
+    cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
+    cal = calibrate_from_drives([("one", [s.model_dump_json() for s, _ in pairs])], cfg).calibration
+    assert len({s["soil"] for s in cal.soils}) >= 1
+    reasons = " ".join(cal.not_fitted.values())
+    assert "C2" in cal.not_fitted and "scale of K" in cal.not_fitted["C2"]
+    assert any(n in cal.not_fitted for n in ("C1", "C5", "C6")) or "one soil" in reasons or len(cal.soils) > 1
+
+
+def test_a_drive_that_shows_no_curve_fails_with_what_to_drive():
+    pairs = _drive(TYRE_SLOW, (80.0,), seed=14, sweep=None, seconds_per_soil=6.0, mode="cruise")
+    cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
+    with pytest.raises(ValueError, match="traction sweep"):
+        calibrate_from_drives([("cruise", [s.model_dump_json() for s, _ in pairs])], cfg)
