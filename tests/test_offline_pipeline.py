@@ -90,11 +90,11 @@ def test_pipeline_config_errors_name_the_file_and_field(tmp_path):
 
 
 def test_stage_composition_equals_pipeline(mixed_drive):
-    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
+    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpRecordStage, SoilStage
     from soilocp.validation import parse_sample
 
     cfg = PipelineConfig()
-    stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpStage(cfg)
+    stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpRecordStage(cfg)
     pipe = VehiclePipeline(cfg)
     for line in (mixed_drive / "s.jsonl").read_text().splitlines()[:300]:
         s = parse_sample(line)

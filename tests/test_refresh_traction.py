@@ -168,11 +168,11 @@ def test_torques_held_at_2_hz_learn_k_at_their_refreshes_only():
 def test_the_refresh_pairs_cross_the_live_services_json_unchanged(drive):
     """The live services pass ObserverOutput as JSON: the interval fields round-trip, and the chain
     composed through JSON gives the offline pipeline's records, refresh pairs included."""
-    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpStage, SoilStage
+    from soilocp.estimation.pipeline import NormalForceStage, ObserverStage, OcpRecordStage, SoilStage
     from soilocp.sim.variants import get_variant
 
     cfg = PipelineConfig()
-    stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpStage(cfg)
+    stages = NormalForceStage(cfg), ObserverStage(cfg), SoilStage(cfg), OcpRecordStage(cfg)
     pipe, served = VehiclePipeline(cfg), 0
     for sample, _ in get_variant(drive).simulate(0, duration=6.0, nominal=cfg.vehicle, constants=cfg.constants):
         nf = stages[0].step(sample)

@@ -72,9 +72,9 @@ def _soil_stage(pc):
 
 
 def _ocp_stage(pc):
-    from soilocp.estimation.ocp_stage import OcpStage  # no numpy: the OCP publisher loads none
+    from soilocp.estimation.ocp_record import OcpRecordStage  # no numpy: the OCP publisher loads none
 
-    return OcpStage(pc)
+    return OcpRecordStage(pc)
 
 
 PIPELINE: tuple[StageSpec, ...] = (

@@ -10,6 +10,8 @@ from typing import Optional
 
 import click
 
+from soilocp.commands.errors import BadInput
+
 
 def _map_or_fail(map_path: str):
     from soilocp.ingest import load_map
@@ -17,7 +19,7 @@ def _map_or_fail(map_path: str):
     try:
         return load_map(map_path)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
 
 
 def _report(prov, issues: list[str], out) -> None:
@@ -86,7 +88,7 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
         try:
             prov = read_provenance(sensors)
         except ValueError as exc:
-            raise click.UsageError(str(exc)) from None
+            raise BadInput(str(exc)) from None
         _check_drive(prov, cfg)
         withheld: dict[str, int] = {}
         return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld), withheld)
@@ -107,8 +109,8 @@ def _check_drive(prov, cfg) -> None:
 
 def _said(summary, withheld: dict):
     if withheld:
-        click.echo(f"K withheld on every record (the log cannot identify it); the chain's own statuses were {withheld}",
-                   err=True)
+        click.echo("K withheld on every record (the log cannot identify it); the chain's own statuses were "
+                   + ", ".join(f"{k} {v}" for k, v in sorted(withheld.items())), err=True)
     return summary
 
 

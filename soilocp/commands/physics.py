@@ -12,6 +12,8 @@ from pathlib import Path
 
 import click
 
+from soilocp.commands.errors import BadInput
+
 from soilocp.model.constants import ModelConstants, load_constants
 
 
@@ -215,7 +217,7 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
                               accel=accel)
         fit = fit_torque_constant(read_jsonl(log), vehicle, sel)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
     for line in summary_lines(fit, old_scale):
         click.echo(line)
     if json_out:

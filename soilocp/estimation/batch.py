@@ -29,7 +29,8 @@ from soilocp.model.checks import check_count
 from soilocp.estimation.observer_bank import ObserverBank, ObserverBlocks
 from soilocp.model.ocp import ocp_arrays
 from soilocp.model.ocp_values import OCP_NAMES
-from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, ocp_message, soil_message
+from soilocp.estimation.ocp_record import ocp_record
+from soilocp.estimation.pipeline import PipelineConfig, observer_inputs, soil_message
 from soilocp.estimation.slip_gate import SlipGate, pack_output
 from soilocp.estimation.soil_state import SoilInputs
 from soilocp.estimation.soil_strength import SoilBank
@@ -69,7 +70,7 @@ class BatchPipeline:
         """One sample per vehicle in ``idx`` (same order): the observer's output (arrays, one row per vehicle),
         and each vehicle's soil estimate and OCP record."""
         ix = self.observer.index(idx)
-        inputs = observer_inputs(samples, normal_forces)
+        inputs = observer_inputs(samples, normal_forces, self.config.torque_constant)
         if self.chain is not None:  # one core call: scale, observer, gate, soil update, K fed back, OCPs
             blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)
             ob, inp = ObserverBlocks(*blocks), SoilInputs(*fields)
@@ -90,5 +91,5 @@ class BatchPipeline:
         for j, (sample, st) in enumerate(zip(samples, states)):
             soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
             soils.append(soil)
-            ocps.append(ocp_message(soil, [a[j] for a in ocp]))
+            ocps.append(ocp_record(soil, [a[j] for a in ocp]))
         return ob, soils, ocps
