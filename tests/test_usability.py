@@ -201,3 +201,9 @@ def test_run_replay_uses_the_logs_vehicle_id_and_ends_with_the_reason_table(tmp_
     assert "OCP records per status and reason" in r.stdout and "next step" in r.stdout
     n = int(r.stdout.split("OCP records received: ")[1].split(";")[0])
     assert n > 0
+
+
+def test_the_no_estimate_page_lists_every_reason_code():
+    page = (Path(__file__).resolve().parents[1] / "docs" / "from-no-estimate-to-ok.md").read_text()
+    listed = {line.split("`")[1] for line in page.splitlines() if line.startswith("| `")}
+    assert listed == set(REASON_CODES)

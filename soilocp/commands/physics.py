@@ -220,6 +220,10 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
         raise BadInput(str(exc)) from None
     for line in summary_lines(fit, old_scale):
         click.echo(line)
+    if fit.status != "ok":
+        click.echo("what to drive: straight (yaw rate under --max-yaw-rate), forward above --min-speed, and accelerate "
+                   "and brake firmly (|f_x| 0.5 m/s^2 or more) several times, e.g. 0 -> 1.5 m/s in 2 s and back; then "
+                   "soilocp estimate LOG --torque-constant FILE.json (docs/from-no-estimate-to-ok.md)")
     if json_out:
         Path(json_out).write_text(json.dumps(fit.as_dict(), indent=2))
 
