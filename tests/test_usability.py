@@ -207,3 +207,19 @@ def test_the_no_estimate_page_lists_every_reason_code():
     page = (Path(__file__).resolve().parents[1] / "docs" / "from-no-estimate-to-ok.md").read_text()
     listed = {line.split("`")[1] for line in page.splitlines() if line.startswith("| `")}
     assert listed == set(REASON_CODES)
+
+
+def test_a_torque_constant_lifts_only_the_unknown_current_scale_from_the_provenance():
+    from soilocp.commands.io import _with_torque_constant
+    from soilocp.estimation.config import PipelineConfig
+    from soilocp.ingest.align import Provenance
+
+    scale = "wheel torque is a motor current with an unknown scale (no current_to_torque in the map)"
+    prov = Provenance("x", wheel_torque="current_unknown_scale", identifiable=False, reasons=[scale])
+    assert _with_torque_constant(prov, PipelineConfig()) is prov
+    lifted = _with_torque_constant(prov, PipelineConfig(torque_constant=2.5))
+    assert lifted.identifiable and lifted.reasons == [] and lifted.withhold_reason() is None
+    both = Provenance("x", ground_speed="absent", wheel_torque="current_unknown_scale", identifiable=False,
+                      reasons=["no independent ground speed in the source (slip, eq. 1, needs it)", scale])
+    still = _with_torque_constant(both, PipelineConfig(torque_constant=2.5))
+    assert not still.identifiable and still.reasons == both.reasons[:1]
