@@ -13,6 +13,9 @@
 # Few instructions on purpose: each one is a layer commit, slow on some storage drivers.
 ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE}
+# the extras every role of the image needs (the map service, Foxglove, the dashboard, soilocp certs);
+# scripts/build-images.sh puts the same ones in the wheelhouse
+ARG SOILOCP_EXTRAS=map,foxglove,dashboard,certs
 
 ENV PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
@@ -42,7 +45,7 @@ RUN set -eu; \
     whl="$(ls /tmp/dist/soilocp-*.whl 2>/dev/null | head -n 1)"; \
     [ -n "$whl" ] || { echo "no soilocp wheel in deploy/soilocp-wheel/: build it on the host with scripts/build-images.sh" >&2; exit 1; }; \
     if ls /tmp/wheelhouse/*.whl >/dev/null 2>&1; then offline="--no-index --find-links /tmp/wheelhouse"; else offline=""; fi; \
-    pip install $offline "$whl"; \
+    pip install $offline "${whl}[${SOILOCP_EXTRAS}]"; \
     mkdir -p /etc/soilocp; \
     install -d -o soilocp -g soilocp -m 0700 /etc/soilocp/certs; \
     mv /tmp/src/*.json /tmp/src/*.json5 /etc/soilocp/; \

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.position import EstimatePlace, GeoPosition, MapPosition
 from schemas.sensor import VehicleId
@@ -35,6 +35,64 @@ _STATUS_DOC = (
     "curve, or the axles read different soils) | "
     "stale (live publisher: inputs stopped)"
 )
+
+#: Machine-readable reason of a soil / OCP record, with its meaning: the compiled core's reason codes
+#: (soilocp/_core/src/soil/status.rs; soilocp.estimation.soil_strength refuses to load a core whose codes are
+#: not these) and the live publisher's ``stale``.  The record's ``reason`` words the same reason with its numbers.
+REASON_CODES: dict[str, str] = {
+    "none": "no reason: the estimate is ok (or a record written before reason codes existed)",
+    "not_yet": "slip has not been informative yet: no K so far",
+    "stamp_backwards": "the stamps went backwards (source restarted): estimate withdrawn",
+    "withdrawn": "slip uninformative for longer than hold_after + expire_after: estimate withdrawn",
+    "holding": "slip uninformative now: the last K is held",
+    "wide": "K's band is wider than uncertain_log_sigma: K poorly determined",
+    "systematic_scale": "K's band is mostly the torque constant's uncertainty",
+    "systematic_scale_calibrate": "K's band is mostly the torque constant's, and the data suggest a wrong constant",
+    "systematic_radius": "K's band is mostly the wheel radius's uncertainty at these small slips",
+    "not_identifiable": "no independent ground speed (or a log that cannot identify K): slip and K not identifiable",
+    "axles": "the front and rear axles read different soils (normal forces or an axle's torque constant off)",
+    "nis": "the traction curve does not explain the (slip, traction) pairs at any K",
+    "below_floor": "traction below what the weakest soil gives at this slip (torque scale or units?)",
+    "ground_stale": "slip is informative but the ground speed reading is stale",
+    "readings_held": "slip is informative but the wheel speed / torque readings are held (refresh too slow)",
+    "undetermined": "slip is informative but the torque balance does not determine gross traction",
+    "leans": "the data lean to another torque scale, which a drive at constant speed cannot tell from K",
+    "axle_window": "the axles read different soils for most of the evidence window",
+    "evidence": "K from too few seconds of informative slip for the model checks: not yet ok",
+    "out_skid": "wheels in a skid turn (outside the longitudinal model): no K while it lasts",
+    "out_no_wheel": "no wheel inside the longitudinal model (stall, slip beyond eq. 1, stopped unpowered)",
+    "out_holding": "no wheel inside the longitudinal model: the last K is held",
+    "out_others": "some wheels outside the longitudinal model: K from the others",
+    "stale": "live publisher: no input for longer than stale_timeout_s",
+    "curve_unchecked": "OCP record: the OCPs rest on the paper's traction curve, which nobody checked for this wheel",
+    "curve_learnt": "OCP record: the OCPs are the traction curve this drive showed, not checked by a calibration",
+    "curve_extrapolated": "OCP record: K is beyond the soils the wheel's calibration was fitted over",
+}
+#: the codes set after the soil stage: the live publisher's and the OCP record's (the others are the core's)
+RECORD_REASON_CODES = ("stale", "curve_unchecked", "curve_learnt", "curve_extrapolated")
+ReasonCode = Literal[tuple(REASON_CODES)]  # type: ignore[valid-type]
+_REASON_CODE_DOC = ("Machine-readable reason (group and count by it; 'reason' words it with numbers): "
+                    + "; ".join(f"{k}: {v}" for k, v in REASON_CODES.items()))
+_CONFIRMED_DOC = (
+    "True exactly when status is 'ok'. False: K, soil_class, its confidence and (OCP record) mu_T, S_T, S_E, where "
+    "present, are the estimator's current best guess or a held value, NOT a confirmed estimate; a consumer that acts "
+    "on them (a slip controller) must check this flag (or status == 'ok') first and otherwise fall back to its "
+    "conservative setting. Derived from status when absent; a contradicting value is refused"
+)
+
+
+def _confirmed_from_status(data):
+    """``confirmed`` from ``status`` (a record's input as a dict): filled in when absent, refused when it
+    contradicts the status (the flag a consumer acts on must not disagree with the status it summarises)."""
+    if isinstance(data, dict):
+        ok = data.get("status") == "ok"
+        given = data.get("confirmed")
+        if given is None:
+            return {**data, "confirmed": ok}
+        if given is not ok:
+            raise ValueError(f"confirmed={given!r} contradicts status {data.get('status')!r}: confirmed is true "
+                             "exactly when status is 'ok'")
+    return data
 
 
 class _Message(BaseModel):
@@ -155,6 +213,8 @@ class SoilEstimate(_Message):
     soil_class_confidence: Optional[float] = Field(description="Probability of that class, 0..1")
     status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    reason_code: ReasonCode = Field(default="none", description=_REASON_CODE_DOC)
+    confirmed: bool = Field(default=False, description=_CONFIRMED_DOC)
     last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
     held_for_s: Optional[float] = Field(
         default=None, description="Age of K, s: time since the last sample that informed it (0: this one); null "
@@ -170,6 +230,8 @@ class SoilEstimate(_Message):
         default=None, exclude_if=lambda v: v is None,
         description="Contact patches of the wheels that informed this estimate (absent without a position or "
         "without an informing wheel): what the fleet soil map fuses (docs/map.md)")
+
+    _confirmed = model_validator(mode="before")(_confirmed_from_status)
 
 
 class OcpEstimate(_Message):
@@ -189,6 +251,8 @@ class OcpEstimate(_Message):
     S_T_std: Optional[float] = Field(default=None, description="1-sigma of S_T when the curve is learnt")
     status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    reason_code: ReasonCode = Field(default="none", description=_REASON_CODE_DOC)
+    confirmed: bool = Field(default=False, description=_CONFIRMED_DOC)
     mu: Quad = Field(description="Observed net traction per wheel")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
     slip: Quad = Field(description="Slip per wheel (eq. 1)")
@@ -196,3 +260,5 @@ class OcpEstimate(_Message):
     unusable: tuple[str, str, str, str] = Field(
         default=("", "", "", ""), description="Per wheel: why it informs no K now (the soil estimate's unusable)"
     )
+
+    _confirmed = model_validator(mode="before")(_confirmed_from_status)

@@ -55,13 +55,16 @@ fi
 wheelhouse="$root/deploy/wheelhouse"
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
-# The requirements: soilocp's own dependencies (read from pyproject.toml, so the project itself
-# is not built here: the image installs it from source) plus its build backend.
+# The requirements: soilocp's own dependencies and the image's extras (read from pyproject.toml, so the
+# project itself is not built here: the image installs it from source) plus its build backend.
 mapfile -t reqs < <("$PYTHON" - "$root/pyproject.toml" <<'PY'
 import sys, tomllib
 with open(sys.argv[1], "rb") as fh:
     data = tomllib.load(fh)
-for req in data["project"]["dependencies"] + data["build-system"]["requires"]:
+extras = data["project"]["optional-dependencies"]
+# the extras the image's roles need (the Dockerfile's SOILOCP_EXTRAS): map service, Foxglove, dashboard, certs
+image_extras = [r for x in ("map", "foxglove", "dashboard", "certs") for r in extras[x]]
+for req in data["project"]["dependencies"] + image_extras + data["build-system"]["requires"]:
     print(req)
 PY
 )

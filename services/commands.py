@@ -156,10 +156,15 @@ def _ros_domain(value) -> int:
               help="--replay is a ROS 2 bag: its map file (soilocp import); the map's vehicle_id is used.")
 @click.option("--speed", type=float, default=1.0, show_default=True, help="Replay speed factor (0 = as fast as possible).")
 @click.option("--vehicle-id", default="rover1", show_default=True,
-              help="Vehicle id the services serve (and the synthetic vehicle publishes as).")
+              help="The vehicle's id; with --replay LOG default the log's own vehicle_id.")
 @click.option("--duration", type=float, help="Stop after this many seconds of driving (default: when the source ends).")
 @click.option("--listen", multiple=True, help="Router endpoint(s); default tcp/127.0.0.1:7447.")
 @click.option("--pipeline-config", type=click.Path(exists=True, dir_okay=False), help="Physics PipelineConfig file.")
+@click.option("--vehicle", "vehicle_path", type=click.Path(exists=True, dir_okay=False),
+              help="Vehicle parameters JSON (as soilocp estimate --vehicle); over --pipeline-config's vehicle.")
+@click.option("--torque-constant", metavar="K|FILE.json",
+              help="N m per unit of the log's wheel_torque, or the JSON of soilocp calibrate-torque --json "
+                   "(as soilocp estimate --torque-constant).")
 @click.option("--stale-timeout", type=float, default=0.5, show_default=True,
               help="OCP publisher: stale after this many seconds without input.")
 @click.option("--seed", type=int, default=0, show_default=True, help="--synthetic: seed of the sensor noise.")
@@ -181,9 +186,14 @@ def _ros_domain(value) -> int:
               help="The robot's Zenoh router (rmw_zenohd) for --ros2 / --ros2-in; default tcp/127.0.0.1:7447 "
                    "(then give --listen another port for soilocp's own router).")
 @click.option("--ros2-domain", type=int, help="ROS domain id for --ros2 / --ros2-in; default $ROS_DOMAIN_ID or 0.")
-def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, stale_timeout, seed, log_dir,
-            plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect, ros2_domain) -> None:
-    """Start the router, the five services and a source as separate processes; show live OCPs."""
+def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, vehicle_path,
+            torque_constant, stale_timeout, seed, log_dir, plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect,
+            ros2_domain) -> None:
+    """Start the router, the five services and a source as separate processes; show live OCPs.
+
+    Ends with the OCP records per status and reason code, each with its next step, and says what any
+    service dropped and why.  Exits non-zero at once, with the service's own message, when a service
+    cannot start."""
     from schemas import keys
 
     from services.supervisor.run import RunOptions, run_system
@@ -232,6 +242,12 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
         replay, vehicle_id = _import_for_replay(replay, map_path, log_dir)
     elif replay is not None and os.path.isdir(replay):
         _fatal("soilocp run", f"--replay {replay}: a directory (ROS 2 bag?) needs --map MAP.yaml")
+    elif replay is not None:
+        explicit = click.get_current_context().get_parameter_source("vehicle_id") != click.core.ParameterSource.DEFAULT
+        vehicle_id = _replay_vehicle_id(replay, vehicle_id, explicit)
+    if pipeline_config or vehicle_path or torque_constant:
+        log_dir = log_dir or _new_log_dir()
+        pipeline_config = _run_pipeline_config(pipeline_config, vehicle_path, torque_constant, log_dir)
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
                       seed=seed, log_dir=log_dir, plain=plain, control=control, foxglove=foxglove_addr,
@@ -241,6 +257,75 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
     except ValueError as exc:  # the Foxglove port is taken: nothing was started
         _fatal("soilocp run", str(exc))
     sys.exit(code)
+
+
+def _new_log_dir() -> str:
+    import tempfile
+
+    return tempfile.mkdtemp(prefix="soilocp-run-")
+
+
+def _replay_vehicle_id(log: str, given: str, explicit: bool) -> str:
+    """The vehicle id to run a replay of ``log`` under: the log's own (its first samples' vehicle_id).
+    ``given`` (``explicit``: the user's --vehicle-id) must match it: the services serve one id, and every
+    sample of another would be rejected (vehicle_mismatch), leaving no estimate."""
+    import json
+
+    ids: list[str] = []
+    try:
+        with open(log, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if len(ids) >= 50:
+                    break
+                if not line.strip():
+                    continue
+                try:
+                    vid = json.loads(line).get("vehicle_id")
+                except (ValueError, AttributeError):
+                    continue
+                if isinstance(vid, str):
+                    ids.append(vid)
+    except OSError as exc:
+        _fatal("soilocp run", f"--replay {log}: cannot read it: {exc}")
+    found = sorted(set(ids))
+    if not found:
+        if explicit:
+            return given
+        _fatal("soilocp run", f"--replay {log}: no sample with a vehicle_id in its first lines; is it a sensor log "
+                              "(docs/sensor-log.md)? A ROS 2 bag needs --map MAP.yaml")
+    if len(found) > 1:
+        _fatal("soilocp run", f"--replay {log}: the log holds samples of several vehicles ({', '.join(found)}); "
+                              "soilocp run replays one: split the log per vehicle_id")
+    if explicit and given != found[0]:
+        _fatal("soilocp run", f"--vehicle-id {given!r} but the samples of {log} are vehicle_id {found[0]!r}: every "
+                              f"one would be rejected (vehicle_mismatch); leave --vehicle-id out (the log's id is "
+                              f"used) or give --vehicle-id {found[0]}")
+    return found[0]
+
+
+def _run_pipeline_config(pipeline_config, vehicle_path, torque_constant, log_dir: str) -> str:
+    """The pipeline config the services get: ``pipeline_config`` checked now (a typo fails here, not in five
+    services), with ``vehicle_path``'s vehicle and ``torque_constant`` over it, written into ``log_dir``."""
+    import json
+
+    from soilocp.estimation.config import load_pipeline_config
+
+    try:
+        cfg = load_pipeline_config(pipeline_config, vehicle=vehicle_path, torque_constant=torque_constant)
+    except ValueError as exc:
+        _fatal("soilocp run", str(exc))
+    if vehicle_path is None and torque_constant is None:
+        return pipeline_config
+    data = json.loads(open(pipeline_config, encoding="utf-8").read()) if pipeline_config else {}
+    if vehicle_path is not None:
+        data["vehicle"] = cfg.vehicle.model_dump()
+    if torque_constant is not None:
+        data["torque_constant"] = cfg.torque_constant
+    os.makedirs(log_dir, exist_ok=True)
+    out = os.path.join(log_dir, "pipeline-config.json")
+    with open(out, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=2)
+    return out
 
 
 def _ros2_endpoints(ros2_connect, listen) -> list[str]:

@@ -24,4 +24,15 @@ def command_group(args: list[str]) -> click.Group:
 
 
 def run() -> None:
-    command_group(sys.argv[1:])(prog_name="soilocp")
+    """Run the command line; a missing optional dependency ends it with the extra to install (exit 1)."""
+    try:
+        command_group(sys.argv[1:])(prog_name="soilocp")
+    except ModuleNotFoundError as exc:
+        from soilocp_cli.extras import missing_extra
+
+        hint = missing_extra(exc)
+        if hint is None:
+            raise
+        name = " ".join(a for a in sys.argv[1:3] if not a.startswith("-"))
+        print(f"soilocp {name}: error: {hint}", file=sys.stderr, flush=True)
+        sys.exit(1)

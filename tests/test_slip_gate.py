@@ -212,6 +212,16 @@ class _Recording:
         return self.last
 
 
+def _worded(states):
+    """The states as the reference words them (it has the reasons' texts, not their codes): each state's
+    code checked against its text (a code exactly when there is a reason), then left out."""
+    import dataclasses
+
+    for st in states:
+        assert (st.reason_code == "none") == (st.reason == ""), st
+    return [dataclasses.replace(st, reason_code="none") for st in states]
+
+
 @pytest.mark.parametrize("variant", ["skid-spot-turn", "wheel-speed-5hz", "payload+25", "mass-com+20", "nominal"])
 def test_core_records_equal_the_python_records_step_by_step(variant):
     """The records (soilocp/_core/src/soil/status.rs: K held or withdrawn, band, status, reason, class) against
@@ -234,7 +244,7 @@ def test_core_records_equal_the_python_records_step_by_step(variant):
         got = bank.update(ix, stamp, inp, sigma)
         codes = np.asarray(inp.unusable, dtype=np.int64)
         want = ref.summaries(ix, stamp, recording.last, inp, codes if codes.any() else None)
-        assert got == want, (variant, msg.seq, got, want)
+        assert _worded(got) == want, (variant, msg.seq, got, want)
         statuses.add(got[0].status)
         observer.scale.feed_soil(ix, [got[0].soil_strength], inp.slip)
     assert len(statuses) >= 2, statuses
@@ -263,7 +273,7 @@ def test_core_records_equal_the_python_records_on_random_sequences(seed, steps, 
         sigma = rng.uniform(0.0, 0.08, k) if online_scale else None
         got = bank.update(ix, stamp, inp, sigma)
         c = None if inp.unusable is None or not np.asarray(inp.unusable).any() else np.asarray(inp.unusable, np.int64)
-        assert got == ref.summaries(ix, stamp, recording.last, inp, c)
+        assert _worded(got) == ref.summaries(ix, stamp, recording.last, inp, c)
 
 
 def test_one_call_equals_gate_then_update_and_a_refused_step_moves_nothing():

@@ -74,7 +74,7 @@ class OcpStore:
         latest = hist[-1] if hist else None
         if latest is not None and stale:
             latest = latest.model_copy(update={
-                "status": "stale",
+                "status": "stale", "reason_code": "stale", "confirmed": False,
                 "reason": f"no input for {age:.3f} s (> stale_timeout_s {self.stale_timeout_s} s); last status "
                           f"{hist[-1].status}",
             })

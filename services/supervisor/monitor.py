@@ -32,6 +32,8 @@ class Monitor:
         self.alive: set[str] = set()
         self.stale_reports = 0
         self.setpoint: Optional[SlipSetpoint] = None
+        #: OCP records received per (status, reason code)
+        self.reasons: dict[tuple[str, str], int] = {}
         self._decls: list[Any] = []
 
     def attach(self, session) -> None:
@@ -58,6 +60,8 @@ class Monitor:
             self.latest, self.latest_wall = est, now
             self.ocp_count += 1
             self.arrivals.append(now)
+            why = (est.status, est.reason_code)
+            self.reasons[why] = self.reasons.get(why, 0) + 1
 
         def on_rejected(sample) -> None:
             try:
@@ -119,4 +123,5 @@ class Monitor:
                 health=dict(self.health),
                 ocp_stale_reported=bool(ocp_h and ocp_h.stale),
                 setpoint=self.setpoint,
+                reasons=dict(self.reasons),
             )

@@ -29,9 +29,11 @@ from services.runtime.log import JsonLog
 
 from services.runtime.process import open_session
 from services.supervisor.liveliness import wait_alive
+from services.supervisor.log_watch import LogWatch
 from services.supervisor.monitor import Monitor
 from services.supervisor.processes import STOP_TIMEOUT_S, Child, ProcessGroup
-from services.supervisor.table import live_table, plain_line, summary_tables
+from services.supervisor.table import drop_lines, live_table, plain_line, summary_tables
+from soilocp.estimation.next_steps import status_table, verdict
 
 DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
 DRAIN_MAX_S = 30.0
@@ -140,20 +142,36 @@ def run_system(opts: RunOptions) -> int:
             group.start("controller", ["service", "controller", *common, "--control", opts.control,
                                        "--stale-timeout", str(opts.stale_timeout)])
             want_alive.add("controller")
-        session = _open_monitor_session(connect, group, stop, failures)
-        if session is not None:  # None: interrupted, or a process died while connecting
+        # a service that logs an error, or waits on something the run does not start (the robot's ROS 2
+        # router), stops the run at once with its own words, instead of a liveliness timeout
+        watch = LogWatch(log_dir, [c.name for c in group.children])
+        seen: list = []
+
+        def blocked() -> bool:
+            if not seen:
+                problem = watch.poll()
+                if problem is not None:
+                    seen.append(problem)
+            return bool(seen)
+
+        session = _open_monitor_session(connect, group, stop, failures, blocked)
+        if seen:
+            failures.append(str(seen[0]))
+        if session is not None and not seen:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
             if fox is not None:
                 fox.attach(session)
-            # wait until every pipeline service holds its token (or one dies)
+            # wait until every pipeline service holds its token (or one dies, or says it cannot start)
             missing = wait_alive(session, [opts.vehicle_id], want_alive, opts.startup_timeout_s, stop=stop,
-                                 dead=group.dead, interval=0.1)
+                                 dead=lambda: group.dead() or blocked(), interval=0.1)
             dead = group.dead()
             for c in group.children:
                 if c.name in dead:
                     c.outcome = "died"
                     failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
-            if missing and not dead and not stop.is_set():
+            if seen and not dead:
+                failures.append(str(seen[0]))
+            if missing and not dead and not seen and not stop.is_set():
                 failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
                                 + ",".join(sorted(s for _v, s in missing)))
             if not failures and not stop.is_set():
@@ -174,7 +192,8 @@ def run_system(opts: RunOptions) -> int:
                 console.print(f"soilocp run: all services alive after {t_drive - t_start:.1f} s; driving "
                               + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"
                                  if opts.replay else f"from ROS 2 topics ({opts.ros2_in})"))
-                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive)
+                watch = LogWatch(log_dir, [vehicle.name], {})
+                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive, watch)
     finally:
         snap_running = monitor.snapshot()  # what the table showed last, before anything stops
         if session is not None and not failures:
@@ -199,6 +218,14 @@ def run_system(opts: RunOptions) -> int:
         console.print(table)
     if snap["codes"]:
         console.print("rejections by code: " + ", ".join(f"{k}={v}" for k, v in sorted(snap["codes"].items())))
+        if snap["codes"].get("vehicle_mismatch"):
+            console.print(f"  vehicle_mismatch: the samples' vehicle_id is not {opts.vehicle_id!r}, the id the "
+                          "services were started for: give --vehicle-id with the log's id", markup=False)
+    for line in drop_lines(snap["health"], opts.speed if opts.replay else None):
+        console.print(line, markup=False, highlight=False)
+    if snap["reasons"]:
+        console.print(status_table(snap["reasons"], "OCP records per status and reason"))
+        console.print(verdict(snap["reasons"]), markup=False, highlight=False)
     console.print(f"OCP records received: {snap['count']}; logs in {log_dir}")
     if fox is not None:
         console.print("Foxglove: " + ", ".join(f"{k} {v}" for k, v in fox.counts.items()))
@@ -216,9 +243,11 @@ def run_system(opts: RunOptions) -> int:
     return 0
 
 
-def _open_monitor_session(connect: list[str], group: ProcessGroup, stop: threading.Event, failures: list[str]):
+def _open_monitor_session(connect: list[str], group: ProcessGroup, stop: threading.Event, failures: list[str],
+                          blocked=lambda: False):
     """The run's own client session, opened on a thread so that a router that dies at startup
-    (port taken) or a Ctrl-C is noticed while the connection is still being attempted."""
+    (port taken), a service that says it cannot start (``blocked()``) or a Ctrl-C is noticed while the
+    connection is still being attempted."""
     box: dict[str, Any] = {}
     give_up = threading.Event()
 
@@ -232,7 +261,7 @@ def _open_monitor_session(connect: list[str], group: ProcessGroup, stop: threadi
     th.start()
     while th.is_alive():
         dead = [c for c in group.children if c.poll() is not None]
-        if dead or stop.is_set():
+        if dead or stop.is_set() or blocked():
             for c in dead:
                 c.outcome = "died"
                 failures.append(f"{c.name} exited during startup (exit {c.proc.returncode}); see {c.log_path}")
@@ -277,8 +306,9 @@ def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monito
 
 
 def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monitor, stop: threading.Event,
-           t_drive: float, console, interactive: bool) -> list[str]:
-    """The live loop; returns failures (processes that died)."""
+           t_drive: float, console, interactive: bool, watch: Optional[LogWatch] = None) -> list[str]:
+    """The live loop; returns failures (processes that died, or a source that says it cannot start:
+    ``watch`` reads its log)."""
     from rich.live import Live
 
     failures: list[str] = []
@@ -301,6 +331,9 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
                 else:
                     child.outcome = "died"
                     failures.append(f"{child.name} died (exit {rc}); see {child.log_path}")
+            problem = watch.poll() if watch is not None else None
+            if problem is not None:
+                failures.append(str(problem))
             snap = monitor.snapshot()
             if live:
                 live.update(live_table(opts.vehicle_id, snap, elapsed, width=console.width))

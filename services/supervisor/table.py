@@ -27,7 +27,9 @@ def _row(snap: dict[str, Any], source_ended: bool = False) -> dict[str, str]:
             k = f"{est.soil_strength:.1f} ± {_fmt(est.soil_strength_std, '.1f')}"
         if est.soil_class:
             cls = est.soil_class + (f" ({est.soil_class_confidence:.2f})" if est.soil_class_confidence is not None else "")
-        status = est.status
+            if not est.confirmed:
+                cls += " unconfirmed"
+        status = est.status if est.reason_code == "none" else f"{est.status} ({est.reason_code})"
     fresh = "STALE" if snap["stale"] and est is not None else ("fresh" if est is not None else "-")
     if source_ended and fresh == "STALE":
         fresh = "source ended"  # silence after the end of the drive is expected, not a fault
@@ -94,3 +96,28 @@ def summary_tables(vid: str, snap: dict[str, Any], group: ProcessGroup, elapsed:
         t.add_row(child.name, str(child.pid), child.outcome, "-" if rc is None else str(rc),
                   *(str(getattr(h, f)) if h else "-" for f in ("received", "published", "rejected", "dropped", "errors")))
     return top, t
+
+
+#: why a service drops inputs (ServiceHealth.detail's counters), in words
+DROP_REASONS = {
+    "unjoined": "their normal forces arrived too late to be joined (observer join_timeout_s)",
+    "queue_full": "the service's worker queue was full (it could not keep up)",
+    "out_of_order": "they came out of order (a restarted gateway)",
+}
+
+
+def drop_lines(health: dict, replay_speed: Optional[float]) -> list[str]:
+    """One line per service that dropped inputs: how many and why (its health's detail counters), and
+    for a replay at ``--speed 0`` (``replay_speed`` 0) what to do about it."""
+    out = []
+    for name, h in sorted(health.items()):
+        if not h.dropped:
+            continue
+        why = [f"{n} {DROP_REASONS.get(k, k)}" for k, n in sorted(h.detail.items())
+               if k in DROP_REASONS and isinstance(n, int) and n]
+        out.append(f"DROPPED: {name} dropped {h.dropped} of {h.received} inputs"
+                   + (": " + "; ".join(why) if why else ""))
+    if out and replay_speed == 0:
+        out.append("  --speed 0 replays faster than the services keep up, and what they drop gets no estimate: "
+                   "replay at --speed 1 (real time), or run soilocp estimate on the log (every sample, offline)")
+    return out

@@ -10,6 +10,8 @@ from typing import Optional
 
 import click
 
+from soilocp.commands.errors import BadInput
+
 
 def _map_or_fail(map_path: str):
     from soilocp.ingest import load_map
@@ -17,7 +19,7 @@ def _map_or_fail(map_path: str):
     try:
         return load_map(map_path)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
 
 
 def _report(prov, issues: list[str], out) -> None:
@@ -84,19 +86,32 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
         if Path(sensors).is_dir() or Path(sensors).suffix in (".mcap", ".db3"):
             raise click.UsageError(f"{sensors} looks like a ROS 2 bag: give its topics with --map MAP.yaml")
         try:
-            prov = read_provenance(sensors)
+            prov = _with_torque_constant(read_provenance(sensors), cfg)
         except ValueError as exc:
-            raise click.UsageError(str(exc)) from None
+            raise BadInput(str(exc)) from None
         _check_drive(prov, cfg)
         withheld: dict[str, int] = {}
         return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld), withheld)
     with tempfile.TemporaryDirectory(prefix="soilocp-import-") as tmp:
         log = str(Path(tmp) / "sensors.jsonl")
-        prov = run_import(sensors, (), map_path, log, progress=sys.stderr.isatty())
+        prov = _with_torque_constant(run_import(sensors, (), map_path, log, progress=sys.stderr.isatty()), cfg)
         _check_drive(prov, cfg)
         withheld = {}
         return _said(estimate_to(log, out, cfg, full=full, provenance=prov, label=f"{sensors} (imported)",
                                  withheld=withheld), withheld)
+
+
+def _with_torque_constant(prov, cfg):
+    """The provenance once a torque constant is given: a current of unknown scale is no longer a reason to
+    withhold K (the constant is the scale); any other reason still is."""
+    if prov is None or cfg.torque_constant == 1.0 or prov.wheel_torque != "current_unknown_scale":
+        return prov
+    import dataclasses
+
+    reasons = [r for r in prov.reasons if "current with an unknown scale" not in r]
+    click.echo(f"torque constant {cfg.torque_constant:g} given: the log's motor currents are taken as "
+               f"{cfg.torque_constant:g} N m per unit", err=True)
+    return dataclasses.replace(prov, wheel_torque="current_scaled", reasons=reasons, identifiable=not reasons)
 
 
 def _check_drive(prov, cfg) -> None:
@@ -107,8 +122,8 @@ def _check_drive(prov, cfg) -> None:
 
 def _said(summary, withheld: dict):
     if withheld:
-        click.echo(f"K withheld on every record (the log cannot identify it); the chain's own statuses were {withheld}",
-                   err=True)
+        click.echo("K withheld on every record (the log cannot identify it); the chain's own statuses were "
+                   + ", ".join(f"{k} {v}" for k, v in sorted(withheld.items())), err=True)
     return summary
 
 

@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 
 import click
+
+from soilocp.commands.errors import BadInput
 from rich.console import Console
 from rich.table import Table
 
@@ -30,24 +32,29 @@ def _numbers_table(title: str, columns: tuple[str, ...]) -> Table:
 @click.option("--map", "map_path", type=click.Path(exists=True, dir_okay=False),
               help="SENSORS is a ROS 2 bag: the map file of its topics (see soilocp import)")
 @click.option("--vehicle", type=click.Path(exists=True, dir_okay=False), help="Vehicle parameters JSON")
+@click.option("--torque-constant", "torque_constant", metavar="K|FILE.json",
+              help="N m at the wheel per unit of the log's wheel_torque (e.g. a motor current's constant), or the "
+                   "JSON of soilocp calibrate-torque --json; default 1 (the log holds torques in N m)")
 @click.option("--constants", type=click.Path(exists=True, dir_okay=False), help="Model constants JSON (soilocp calibrate)")
 @click.option("--config", type=click.Path(exists=True, dir_okay=False), help="Pipeline config JSON (observer, soil)")
 @click.option("--no-compensation", is_flag=True, help="Observer without motion-resistance compensation (paper Figs. 11, 13)")
 @click.option("--method", type=click.Choice(["bayes", "paper"]), default=None, help="Soil-strength estimator")
 @click.option("--full", is_flag=True, help="Also write normal forces, gross traction, resistance, the filtered ground speed and its measured latency per record")
-def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation, method, full):
+def estimate(sensors, out, map_path, vehicle, torque_constant, constants, config, no_compensation, method, full):
     """Run the whole chain on a sensor log: validate -> normal forces -> observer -> slip + K -> OCPs.
 
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
-    their line number and skipped.
+    their line number and skipped.  Ends with the records per status and reason code, each with
+    the next step that can bring it to ok.  Exits 1 when no record was written (an empty log, or
+    every line rejected).
     """
     from soilocp.estimation.pipeline import load_pipeline_config
     from soilocp.commands.io import estimate_source
 
     try:
-        cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants)
+        cfg = load_pipeline_config(config, vehicle=vehicle, constants=constants, torque_constant=torque_constant)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
     if no_compensation:
         cfg = cfg.model_copy(update={"observer": cfg.observer.model_copy(update={"structure": "none"})})
     if method:
@@ -56,17 +63,59 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     t0 = time.perf_counter()
     summary = estimate_source(sensors, map_path, out, cfg, full=full)
     dt = time.perf_counter() - t0
+    report_estimate(summary, sensors, out, dt, cfg, vehicle_given=vehicle is not None or _config_has_vehicle(config))
+
+
+def _config_has_vehicle(config) -> bool:
+    """The pipeline config file gives a vehicle (its ``vehicle`` key)."""
+    if config is None:
+        return False
+    try:
+        return "vehicle" in json.loads(Path(config).read_text(encoding="utf-8"))
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def report_estimate(summary, sensors: str, out: str, dt: float, cfg, *, vehicle_given: bool) -> None:
+    """What ``soilocp estimate`` says at the end, on stderr: the counts, the records per status and reason
+    code with the next steps, a warning when the data do not look like the vehicle; and exit 1 when no
+    record was written (with the cause)."""
+    from soilocp.estimation.next_steps import status_table, verdict
+    from soilocp.estimation.vehicle_check import vehicle_warning
+
+    err = Console(stderr=True, width=max(Console(stderr=True).width, 120))
     rate = summary.estimates / dt if dt > 0 else float("inf")
-    click.echo(
-        f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
-        f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses}; observer resets {summary.resets}; "
-        f"wheels out of model {summary.unusable} -> {out}",
-        err=True,
-    )
+    click.echo(f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
+               f"in {dt:.2f} s = {rate:.0f} samples/s -> {out}", err=True)
     for lineno, error in summary.stage_errors[:20]:
         click.echo(f"{sensors}:{lineno}: processing failed, that vehicle's chain restarted: {error}", err=True)
     if len(summary.stage_errors) > 20:
         click.echo(f"... {len(summary.stage_errors)} processing failures in all", err=True)
+    if summary.estimates == 0:
+        if not summary.rejected:
+            raise click.ClickException(f"{sensors} holds no sensor sample ({summary.lines} lines, all blank): "
+                                       f"nothing estimated, {out} is empty; the sensor log's format: docs/sensor-log.md")
+        codes = ", ".join(f"{c} {n}" for c, n in sorted(summary.rejected_by_code().items(), key=lambda kv: -kv[1]))
+        lineno, code, message = summary.rejected[0]
+        raise click.ClickException(
+            f"every sample of {sensors} was rejected ({len(summary.rejected)} lines: {codes}), so {out} is empty; "
+            f"the first, line {lineno}: {code}: {message}. Fix the log to the sensor-log contract "
+            "(docs/sensor-log.md) or import it with soilocp import")
+    extras = []
+    if summary.resets:
+        extras.append("observer resets: " + ", ".join(f"{k} {v}" for k, v in sorted(summary.resets.items())))
+    if summary.unusable:
+        extras.append("wheel-samples out of the model: "
+                      + ", ".join(f"{k} {v}" for k, v in sorted(summary.unusable.items())))
+    if summary.rejected:
+        extras.append("rejected lines: " + ", ".join(f"{c} {n}" for c, n in sorted(summary.rejected_by_code().items())))
+    for line in extras:
+        click.echo(line, err=True)
+    err.print(status_table(summary.reasons))
+    click.echo(verdict(summary.reasons), err=True)
+    warning = vehicle_warning(summary.fit, cfg.vehicle, vehicle_given)
+    if warning:  # last: the line a user reads first
+        click.echo(warning, err=True)
 
 
 @click.command()
@@ -82,7 +131,7 @@ def evaluate(truth, estimates, settle, as_json, check):
     try:
         results = evaluate_files(truth, estimates, settle)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
     ok = all(all(r.passes().values()) for r in results)
     if as_json:
         click.echo(json.dumps({"targets": TARGETS, "segments": results_as_json(results), "all_pass": ok}, indent=2))
@@ -120,9 +169,29 @@ def plot(truth, estimates, labels, out):
 
     if labels and len(labels) != len(estimates):
         raise click.UsageError("give one --label per --estimates")
+    for path in ([truth] if truth else []) + list(estimates):
+        _check_records(path)
     paths = plot_run(truth, list(estimates), list(labels) or None, Path(out))
     for p in paths:
         click.echo(str(p))
+
+
+def _check_records(path: str) -> None:
+    """BadInput unless ``path`` holds at least one JSON record (an empty file has nothing to plot)."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+            except ValueError as exc:
+                raise BadInput(f"{path}:{lineno}: not a JSON record ({exc}): expected the JSON Lines of soilocp "
+                               "estimate (or soilocp simulate --truth)") from None
+            if not isinstance(rec, dict):
+                raise BadInput(f"{path}:{lineno}: a JSON {type(rec).__name__}, not a record")
+            return
+    raise BadInput(f"{path} holds no record (empty file): nothing to plot; write it with soilocp estimate "
+                   "(or soilocp simulate --truth)")
 
 
 COMMANDS = [estimate, evaluate, plot]
@@ -164,7 +233,7 @@ def accuracy(scenarios, modes, compensation, duration, seed, jobs, json_out, rob
         try:
             config = load_pipeline_config(config_path, vehicle=vehicle_path)
         except ValueError as exc:
-            raise click.UsageError(str(exc)) from None
+            raise BadInput(str(exc)) from None
     drive = "".join(f"; {what} {path}" for what, path in (("vehicle", vehicle_path), ("config", config_path)) if path)
     if robustness:
         from soilocp.commands.robustness_table import run_and_print

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import click
 
+from soilocp.commands.errors import BadInput
+
 from soilocp.model.constants import ModelConstants, load_constants
 
 
@@ -272,9 +274,13 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
                               accel=accel)
         fit = fit_torque_constant(read_jsonl(log), vehicle, sel)
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise BadInput(str(exc)) from None
     for line in summary_lines(fit, old_scale):
         click.echo(line)
+    if fit.status != "ok":
+        click.echo("what to drive: straight (yaw rate under --max-yaw-rate), forward above --min-speed, and accelerate "
+                   "and brake firmly (|f_x| 0.5 m/s^2 or more) several times, e.g. 0 -> 1.5 m/s in 2 s and back; then "
+                   "soilocp estimate LOG --torque-constant FILE.json (docs/from-no-estimate-to-ok.md)")
     if json_out:
         Path(json_out).write_text(json.dumps(fit.as_dict(), indent=2))
 

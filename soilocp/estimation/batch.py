@@ -71,7 +71,7 @@ class BatchPipeline:
         """One sample per vehicle in ``idx`` (same order): the observer's output (arrays, one row per vehicle),
         and each vehicle's soil estimate and OCP record."""
         ix = self.observer.index(idx)
-        inputs = observer_inputs(samples, normal_forces)
+        inputs = observer_inputs(samples, normal_forces, self.config.torque_constant)
         if self.chain is not None:  # one core call: scale, observer, gate, soil update, K fed back, OCPs
             blocks, fields, report, ocp = self.observer.run(self.chain.step, ix, inputs)
             ob, inp = ObserverBlocks(*blocks), SoilInputs(*fields)

@@ -4,6 +4,7 @@ so that a service which needs the settings but not the physics (the OCP publishe
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -14,6 +15,7 @@ from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.torque_scale_config import TorqueScaleConfig
 from soilocp.model.constants import DEFAULT_CONSTANTS, DEFAULT_DEADBAND, DEFAULT_FLOOR, ModelConstants, load_constants
 from soilocp.model.files import read_json
+from soilocp.model.settings_errors import describe_validation_error
 from soilocp.model.vehicle import PAPER_WHEEL, DEFAULT_VEHICLE, VehicleParams, load_vehicle, user_vehicle_data
 
 
@@ -30,6 +32,10 @@ class PipelineConfig(BaseModel):
     curve: CurveConfig = Field(default_factory=CurveConfig)
     slip_deadband: float = Field(DEFAULT_DEADBAND, ge=0, description="m/s below which slip is not informative (eq. 1)")
     slip_floor: float = Field(DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s")
+    torque_constant: float = Field(
+        1.0, gt=0, description="N m at the wheel per unit of the log's wheel_torque column: every logged torque is "
+        "multiplied by it before the chain (a motor current's constant, as soilocp calibrate-torque fits it; 1: the "
+        "log holds wheel torques in N m)")
 
 
 def load_pipeline_config(
@@ -37,9 +43,11 @@ def load_pipeline_config(
     *,
     vehicle: str | Path | None = None,
     constants: str | Path | None = None,
+    torque_constant: str | float | None = None,
 ) -> PipelineConfig:
     """Read a pipeline config (JSON, shape of PipelineConfig; every key optional) and apply
-    separate vehicle / constants files on top.  Errors name the file and the field."""
+    separate vehicle / constants files and a torque constant (a number or a calibrate-torque JSON,
+    :func:`torque_constant_from`) on top.  Errors name the file and the field."""
     data: dict = {}
     if path is not None:
         p = Path(path)
@@ -51,7 +59,7 @@ def load_pipeline_config(
     try:
         cfg = PipelineConfig.model_validate(data)
     except ValidationError as exc:
-        raise ValueError(f"config {str(path)!r}: {exc}") from exc
+        raise ValueError(describe_validation_error(exc, f"config file {str(path)!r}", PipelineConfig)) from exc
     update = {}
     if vehicle is not None:
         update["vehicle"] = load_vehicle(vehicle)
@@ -63,4 +71,38 @@ def load_pipeline_config(
             from soilocp.model.wheel_curve import load_calibration
 
             update["constants"] = load_calibration(curve).constants
+    if torque_constant is not None:
+        update["torque_constant"] = torque_constant_from(torque_constant)
     return cfg.model_copy(update=update) if update else cfg
+
+
+def torque_constant_from(value: str | float) -> float:
+    """The torque constant a user gives: a number (N m per unit of the logged torque) or the JSON file
+    ``soilocp calibrate-torque --json`` writes (its ``k``, when its status is ok).  ValueError says which
+    value or file and why it cannot be used."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        k = float(value)
+    else:
+        text = str(value)
+        try:
+            k = float(text)
+        except ValueError:
+            p = Path(text)
+            if not p.is_file():
+                raise ValueError(f"torque constant {text!r}: neither a number nor an existing file (give N m per "
+                                 "unit of the logged torque, or the JSON of soilocp calibrate-torque --json)") from None
+            data = read_json(p, "torque-constant file")
+            if not isinstance(data, dict) or "k" not in data:
+                raise ValueError(f"torque-constant file {text!r}: no 'k' in it (expected the JSON of soilocp "
+                                 "calibrate-torque --json)")
+            if data.get("status", "ok") != "ok" or data["k"] is None:
+                raise ValueError(f"torque-constant file {text!r}: the calibration did not determine k (status "
+                                 f"{data.get('status')!r}: {data.get('reason', '')}); calibrate on a drive with "
+                                 "straight accelerations and brakings (docs/import.md)")
+            k = data["k"]
+            if not isinstance(k, (int, float)) or isinstance(k, bool):
+                raise ValueError(f"torque-constant file {text!r}: k {k!r} is not a number")
+            k = float(k)
+    if not (math.isfinite(k) and k > 0):
+        raise ValueError(f"torque constant {value!r}: must be a finite number > 0 (N m per unit of the logged torque)")
+    return k

@@ -19,6 +19,7 @@ from schemas.pipeline import OcpEstimate, SoilEstimate
 from schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
+from soilocp.estimation.vehicle_check import VehicleFit
 from soilocp.model.normal_force import NormalForceSolver
 from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
@@ -36,6 +37,17 @@ class EstimateSummary:
     resets: dict[str, int] = field(default_factory=dict)
     #: wheel-samples the longitudinal model did not describe (no K from them), by reason (docs/method.md §17)
     unusable: dict[str, int] = field(default_factory=dict)
+    #: records per (status, reason code): what ``soilocp estimate`` ends with (soilocp.estimation.next_steps)
+    reasons: dict[tuple[str, str], int] = field(default_factory=dict)
+    #: what the validated samples say of the vehicle (soilocp.estimation.vehicle_check)
+    fit: VehicleFit = field(default_factory=VehicleFit)
+
+    def rejected_by_code(self) -> dict[str, int]:
+        """The rejected lines counted per rejection code (soilocp.validation.REJECTION_CODES)."""
+        out: dict[str, int] = {}
+        for _, code, _ in self.rejected:
+            out[code] = out.get(code, 0) + 1
+        return out
 
 
 class Observed(NamedTuple):
@@ -112,6 +124,7 @@ def estimate_samples(
     pipelines: dict[str, _Chain | _Stages] = {}
     validators: dict[str, SampleValidator] = {}
     summary = summary if summary is not None else EstimateSummary()
+    radius, mass, k_torque = config.vehicle.wheel_radius, config.vehicle.mass, config.torque_constant
     for lineno, line in enumerate(lines, start=1):
         summary.lines += 1
         if not line.strip():
@@ -124,6 +137,7 @@ def estimate_samples(
             if on_reject:
                 on_reject(lineno, exc)
             continue
+        summary.fit.add(sample, radius, mass, k_torque)
         pipe = pipelines.get(sample.vehicle_id)
         if pipe is None:
             pipe = pipelines[sample.vehicle_id] = vehicle_chain(config)
@@ -138,6 +152,8 @@ def estimate_samples(
         summary.estimates += 1
         summary.vehicles.add(sample.vehicle_id)
         summary.statuses[oc.status] = summary.statuses.get(oc.status, 0) + 1
+        why = (oc.status, oc.reason_code)
+        summary.reasons[why] = summary.reasons.get(why, 0) + 1
         for why in so.unusable:
             if why:
                 summary.unusable[why] = summary.unusable.get(why, 0) + 1

@@ -15,18 +15,19 @@ from soilocp.model.ocp_values import ocp_values
 
 
 def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model", bands=(None, None),
-                status: Optional[str] = None, reason: Optional[str] = None) -> OcpEstimate:
+                status: Optional[str] = None, reason: Optional[str] = None,
+                reason_code: Optional[str] = None) -> OcpEstimate:
     """An OcpEstimate from a soil estimate and its K's (mu_T, S_T, S_E, TE at S_E) in the core's order
     (:data:`soilocp.model.ocp_values.OCP_NAMES`; NaN: none); ``curve`` says where they come from, ``bands`` is
-    (mu_T's, S_T's) 1-sigma of a learnt curve, ``status`` and ``reason`` replace the soil estimate's
-    (:class:`soilocp.estimation.wheel_curve.WheelCurve` decides them)."""
+    (mu_T's, S_T's) 1-sigma of a learnt curve, ``status``, ``reason`` and ``reason_code`` replace the soil
+    estimate's (:class:`soilocp.estimation.wheel_curve.WheelCurve` decides them)."""
     have = soil.soil_strength is not None
     mu_t, s_t, s_e, te = (None if not have or math.isnan(v) else float(v) for v in values)
     return OcpEstimate(
         vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
         soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
         soil_class_confidence=soil.soil_class_confidence, status=status or soil.status,
-        reason=soil.reason if reason is None else reason, mu=soil.mu,
+        reason=soil.reason if reason is None else reason, reason_code=reason_code or soil.reason_code, mu=soil.mu,
         mu_determined=soil.mu_determined, slip=soil.slip, mu_T=mu_t, S_T=s_t, S_E=s_e, te_at_S_E=te,
         curve=curve, mu_T_std=bands[0], S_T_std=bands[1], held_for_s=soil.held_for_s, unusable=soil.unusable,
     )

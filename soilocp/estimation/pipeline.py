@@ -48,19 +48,24 @@ def _bools(a) -> tuple[bool, bool, bool, bool]:
     return tuple(a.tolist() if isinstance(a, np.ndarray) else (bool(v) for v in a))  # type: ignore[return-value]
 
 
-def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence) -> ObserverInputs:
+def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence,
+                    torque_constant: float = 1.0) -> ObserverInputs:
     """Stack k sensor samples and their normal forces (each a 4-sequence, N) into the kernel's
     inputs: scalars (k,) (stamp s, specific force x m/s^2, yaw rate rad/s, pitch rad, ground speed
-    m/s or NaN when absent) and per-wheel arrays (k, 4) (speeds rad/s, torques N m, forces N)."""
+    m/s or NaN when absent) and per-wheel arrays (k, 4) (speeds rad/s, torques N m, forces N); the
+    logged torques times ``torque_constant`` (N m per unit of the log's column, PipelineConfig)."""
     if len(samples) != len(normal_forces):
         raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
     # one array for the scalars and one per quad: a handful of numpy calls whatever k is
     sc = np.array([(s.stamp, s.specific_force[0], s.yaw_rate, s.pitch, np.nan if s.ground_speed is None
                     else s.ground_speed) for s in samples], dtype=float).reshape(-1, 5).T
+    torque = np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4)
+    if torque_constant != 1.0:
+        torque *= torque_constant
     return ObserverInputs(
         stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
         wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
-        wheel_torque=np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4),
+        wheel_torque=torque,
         normal_force=_forces(normal_forces),
     )
 
@@ -79,6 +84,7 @@ class ObserverStage:
 
     def __init__(self, config: PipelineConfig):
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
+        self.torque_constant = config.torque_constant
         self.scale = TorqueScaleBank(config.vehicle, config.torque_scale, config.soil.gross_scale_sigma, 1,
                                      config.constants)
 
@@ -96,7 +102,8 @@ class ObserverStage:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        inputs, scale_sigma = self.scale.apply(_ZERO, observer_inputs([sample], [forces.normal_force]))
+        inputs, scale_sigma = self.scale.apply(_ZERO, observer_inputs([sample], [forces.normal_force],
+                                                                     self.torque_constant))
         out = self.bank.step(None, inputs)  # N = 1: every vehicle
         if scale_sigma is None:
             msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
@@ -117,7 +124,7 @@ def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: S
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
-        reason=st.reason, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
+        reason=st.reason, reason_code=st.reason_code, last_update_stamp=st.last_update_stamp, mu=_quad(mu), mu_determined=_bools(mu_determined),
         held_for_s=st.held_for_s, unusable=st.unusable,
     )
 

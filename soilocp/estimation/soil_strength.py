@@ -36,6 +36,7 @@ from typing import Optional, get_args
 
 import numpy as np
 
+from schemas.pipeline import REASON_CODES, RECORD_REASON_CODES
 from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
@@ -65,21 +66,23 @@ def _gate(slip: np.ndarray, informative: np.ndarray, cfg: SoilConfig, slip_sigma
     return ok
 
 
-def _paper_status(cfg: SoilConfig, stamp: float, last_update: Optional[float]) -> tuple[Status, str, Optional[float]]:
+def _paper_status(cfg: SoilConfig, stamp: float,
+                  last_update: Optional[float]) -> tuple[Status, str, str, Optional[float]]:
     """The paper method's status from the age of its last update (docs/method.md §9: hold, flagged; never
-    drift; withdraw after ``hold_after + expire_after``), and the last update time to keep (None once the
+    drift; withdraw after ``hold_after + expire_after``) with its reason and reason code, and the last update
+    time to keep (None once the
     stamps went backwards: a restarted source's old time means nothing).  Its K only changes when it updates,
     so the held value is its K.  The Bayes bank's records are the core's (soilocp/_core/src/soil/status.rs)."""
     if last_update is None:
-        return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, None
+        return "no_estimate", "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min, "not_yet", None
     age = stamp - last_update
     if age < 0:
-        return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", None
+        return "no_estimate", "stamp went backwards (source restarted): estimate withdrawn", "stamp_backwards", None
     if age > cfg.hold_after + cfg.expire_after:
-        return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", last_update
+        return "no_estimate", f"slip uninformative for {age:.1f} s: estimate withdrawn", "withdrawn", last_update
     if age > cfg.hold_after:
-        return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", last_update
-    return "ok", "", last_update
+        return "holding", f"slip uninformative for {age:.1f} s: holding the last estimate", "holding", last_update
+    return "ok", "", "none", last_update
 
 
 class SoilBank:
@@ -224,7 +227,8 @@ class SoilBank:
             elif status != "model_mismatch":
                 rep.append((j, k, log_std))
             held_for = None if k is None or last is None else max(st - last, 0.0)
-            out.append([k, k_std, log_std, None, None, status, reason, last, tuple(use), held_for, unusable])
+            out.append([k, k_std, log_std, None, None, status, reason, last, tuple(use), held_for, unusable,
+                        _REASON_NAMES[why]])
         if rep:  # the class from the whole band (statistical and systematic), as reported
             js, ks, ls = zip(*rep)
             cls, conf = classify_many(np.log(ks), np.array(ls), self.c)
@@ -309,9 +313,13 @@ class SoilBank:
 _STATUSES: tuple[Status, ...] = tuple(getattr(_core.SoilGridBank, "status_names", ()))
 #: the core's reason codes (status.rs, ``reason::NAMES``) by name
 _R = {name: code for code, name in enumerate(getattr(_core.SoilGridBank, "reason_names", ()))}
-if set(_STATUSES) != set(get_args(Status)) or _R.get("none") != 0:
-    raise ImportError(f"soilocp._core's status names {_STATUSES} are not the schema's, or its reason 0 is not "
-                      "'none': rebuild the core (make setup)")
+#: code -> name, as the records' reason_code (schemas.pipeline.REASON_CODES: the core's, and RECORD_REASON_CODES)
+_REASON_NAMES: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "reason_names", ()))
+if (set(_STATUSES) != set(get_args(Status)) or _R.get("none") != 0
+        or set(_REASON_NAMES) | set(RECORD_REASON_CODES) != set(REASON_CODES)):
+    raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not the schema's "
+                      "(schemas.pipeline: EstimateStatus, REASON_CODES), or its reason 0 is not 'none': rebuild the "
+                      "core (make setup)")
 (_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
  _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,
  _R_GROUND_STALE, _R_READINGS_HELD, _R_UNDETERMINED, _R_LEANS, _R_AXLE_WINDOW, _R_EVIDENCE, _R_OUT_SKID,
@@ -378,9 +386,10 @@ class PaperSoilEstimator:
             used[i] = True
         if used.any():
             self.last_update = stamp
-        status, reason, self.last_update = _paper_status(cfg, stamp, self.last_update)
+        status, reason, code, self.last_update = _paper_status(cfg, stamp, self.last_update)
         rk = self.k if status != "no_estimate" else None
         cls = conf = None
         if rk is not None:
             cls, conf = classify(rk, 0.1, self.c)
-        return SoilState(rk, None, None, cls, conf, status, reason, self.last_update, tuple(bool(u) for u in used))
+        return SoilState(rk, None, None, cls, conf, status, reason, self.last_update, tuple(bool(u) for u in used),
+                         reason_code=code)

@@ -91,16 +91,24 @@ class WheelCurve:
             status = "uncertain" if soil.status == "ok" else soil.status
             reason = f"{soil.reason}; {learnt}" if soil.reason else learnt
             return ocp_message(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), curve="learnt", bands=(mu_t_std, s_t_std),
-                               status=status, reason=reason)
+                               status=status, reason=reason, reason_code=_code(soil, status, "curve_learnt"))
         k = soil.soil_strength
         k_range = self.k_range
         if k is not None and k_range is not None and not k_range[0] <= k <= k_range[1]:
             beyond = (f"K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({k_range[0]:.0f}..."
                       f"{k_range[1]:.0f}): its OCPs are extrapolated; drive the calibration on this soil too")
             status = "uncertain" if soil.status == "ok" else soil.status
-            return ocp_message(soil, values, status=status, reason=f"{soil.reason}; {beyond}" if soil.reason else beyond)
+            return ocp_message(soil, values, status=status, reason=f"{soil.reason}; {beyond}" if soil.reason else beyond,
+                               reason_code=_code(soil, status, "curve_extrapolated"))
         if self.checked or k is None:
             return ocp_message(soil, values)
         status = "uncertain" if soil.status == "ok" else soil.status
         reason = f"{soil.reason}; {UNCHECKED_REASON}" if soil.reason else UNCHECKED_REASON
-        return ocp_message(soil, values, curve="unchecked", status=status, reason=reason)
+        return ocp_message(soil, values, curve="unchecked", status=status, reason=reason,
+                           reason_code=_code(soil, status, "curve_unchecked"))
+
+
+def _code(soil: SoilEstimate, status: str, curve_code: str) -> str:
+    """The record's reason code: the soil estimate's own where it is flagged already (its reason comes first),
+    else the curve's, which alone keeps an ok soil estimate from being an ok record."""
+    return soil.reason_code if soil.status != "ok" and soil.reason_code != "none" else curve_code

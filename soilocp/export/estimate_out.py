@@ -56,4 +56,5 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
         sink.close()
     if reason is not None:  # the statuses reported are the ones written
         summary.statuses = {"no_estimate": summary.estimates}
+        summary.reasons = {("no_estimate", "not_identifiable"): summary.estimates} if summary.estimates else {}
     return summary

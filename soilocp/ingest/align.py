@@ -323,4 +323,6 @@ def withhold(rec: dict, reason: str) -> dict:
             out[k] = None
     out["status"] = "no_estimate"
     out["reason"] = reason
+    out["reason_code"] = "not_identifiable"
+    out["confirmed"] = False
     return out

@@ -114,4 +114,6 @@ def load_vehicle(path: str | Path | None) -> VehicleParams:
     try:
         return VehicleParams.model_validate(data)
     except ValidationError as exc:
-        raise ValueError(f"vehicle file {str(p)!r}: {exc}") from exc
+        from soilocp.model.settings_errors import describe_validation_error
+
+        raise ValueError(describe_validation_error(exc, f"vehicle file {str(p)!r}", VehicleParams)) from exc
