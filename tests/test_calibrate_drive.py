@@ -99,22 +99,47 @@ def _robot(procs, ep, vid, scenario, tyre, seed):
                             "--follow-drive", "--tyre", tyre, "--seed", str(seed), "--duration", "150"])
 
 
-def test_a_sweep_below_the_peak_is_too_little_exit_1(tmp_path):
-    """A 25 s drive whose sweep stops at 0.15: the curve's peak was never shown, the command says raise --max-slip."""
+def test_a_sweep_below_the_peak_is_too_little_exit_1_and_cmd_vel_goes_out_over_ros2(tmp_path):
+    """A 25 s drive whose sweep stops at 0.15: the curve's peak was never shown, the command says raise --max-slip.
+    With --ros2 the speed set-points also go out as geometry_msgs/Twist on /cmd_vel through rmw_zenoh (here the
+    same router), CDR-encoded as a ROS 2 subscriber reads them; the last ones say stop."""
+    import threading
+
+    from services.ros2 import rmw_zenoh
+    from zenoh_helpers import client
+
     vid, ep = "cd-low", endpoint(free_port())
     procs = Procs(tmp_path / "logs")
     out = tmp_path / "cal.json"
     (tmp_path / "v.json").write_text("{}")
+    twists, lock = [], threading.Lock()
+
+    def on_twist(sample):
+        msg = rmw_zenoh.typestore().deserialize_cdr(bytes(sample.payload.to_bytes()), "geometry_msgs/msg/Twist")
+        with lock:
+            twists.append((str(sample.key_expr), msg.linear.x, msg.angular.z))
+
     try:
         procs.spawn("router", ["router", "--listen", ep])
         _robot(procs, ep, vid, "tyre-sand-loam", "slow", 1)
-        r = _cli(["calibrate-drive", "--vehicle", str(tmp_path / "v.json"), "--out", str(out), "--vehicle-id", vid,
-                  "--connect", ep, "--duration", "25", "--max-slip", "0.15", "--answer-timeout", "30"], 150)
+        with client(ep) as s:
+            sub = s.declare_subscriber(rmw_zenoh.topic_selector(0, "/cmd_vel"), on_twist)
+            r = _cli(["calibrate-drive", "--vehicle", str(tmp_path / "v.json"), "--out", str(out), "--vehicle-id", vid,
+                      "--connect", ep, "--duration", "25", "--max-slip", "0.15", "--max-speed", "0.8",
+                      "--answer-timeout", "30", "--ros2", "--ros2-domain", "0"], 150)
+            sub.undeclare()
     finally:
         procs.close()
     assert r.returncode == 1, r.stdout + r.stderr
     assert "--max-slip" in r.stderr and "nothing was written" in r.stderr
     assert not out.exists()
+    with lock:
+        got = list(twists)
+    assert len(got) > 25 * 40, len(got)  # 50 Hz over the drive
+    assert "geometry_msgs::msg::dds_::Twist_" in got[0][0]
+    speeds = [x for _k, x, _z in got]
+    assert max(speeds) <= 0.8 + 1e-9 and max(speeds) > 0.7 and all(z == 0.0 for _k, _x, z in got)
+    assert speeds[-1] == 0.0
 
 
 #: the later drive: constant speed, a traction test at small slips that never reaches the peak (S_T >= 0.37 here)
