@@ -14,7 +14,7 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from schemas.map import MapCellUpdate, MapQueryReply, MapRejection, MapStatus
-from schemas.messages import OcpReply, Rejection, ServiceHealth, SlipSetpoint
+from schemas.messages import DriveSetpoint, OcpReply, Rejection, ServiceHealth, SlipSetpoint
 from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from schemas.sensor import SENSOR_SCHEMA_ID, SensorSample
 
@@ -29,6 +29,7 @@ MESSAGE_MODELS: dict[type[BaseModel], str] = {
     OcpEstimate: "soilocp/<vid>/ocp (publication)",
     OcpReply: "soilocp/<vid>/ocp (queryable reply)",
     SlipSetpoint: "soilocp/<vid>/control/slip",
+    DriveSetpoint: "soilocp/<vid>/control/drive",
     Rejection: "soilocp/<vid>/rejected",
     ServiceHealth: "soilocp/<vid>/status/<service> (publication and queryable reply)",
     MapCellUpdate: "soilmap/<map_id>/cells",

@@ -14,6 +14,7 @@ Public keys (a contract for other programs, see ``docs/services.md``)::
     soilocp/<vid>/rejected             Rejection JSON, one per rejected raw sample
     soilocp/<vid>/alive/<service>      liveliness token of each running service
     soilocp/<vid>/control/slip         SlipSetpoint JSON: wheel slip set-points of the controller service
+    soilocp/<vid>/control/drive        DriveSetpoint JSON: speed and slip set-points of a calibration drive
                                        (on each OCP, and the safe fallback while the OCPs are stale)
 
 Internal keys (between the services of one vehicle; stable, documented, but not a promise)::
@@ -104,6 +105,7 @@ def _fleet_selector(tail: str, what: str) -> Callable[[], str]:
 raw = _vehicle_key("sensors/raw", "Raw sensor input")
 ocp = _vehicle_key("ocp", "OCP output (publication and queryable)")
 control_slip = _vehicle_key("control/slip", "Wheel slip set-points of the controller service")
+control_drive = _vehicle_key("control/drive", "Speed and slip set-points of a calibration drive (soilocp calibrate-drive)")
 rejected = _vehicle_key("rejected", "Rejections of the gateway")
 alive = _service_key("alive", "Liveliness token of one service")
 

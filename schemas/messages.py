@@ -124,3 +124,24 @@ class SlipSetpoint(_ServiceMessage):
     ocp_age_s: Optional[float] = Field(default=None, description="Wall-clock s since the last OCP (null: none yet)")
     stale_timeout_s: float = Field(gt=0)
     issued_at: float = Field(description="Wall-clock time of publication, s since the Unix epoch")
+
+
+class DriveSetpoint(_ServiceMessage):
+    """One set-point of a calibration drive (``soilocp/<vid>/control/drive``, ``soilocp calibrate-drive``).
+
+    Published at a fixed rate (50 Hz) while the drive lasts, then ``phase: "done"`` with speed 0 a few times.
+    The robot drives straight at ``speed``; with ``slip`` set, its front axle tracks that driving slip
+    (eq. 1) while the rear axle brakes to hold the speed (a traction test).  A robot that hears no set-point
+    for longer than ``timeout_s`` stops by itself: a dead or unplugged command side must not leave a robot
+    sweeping its slip."""
+
+    vehicle_id: VehicleId
+    seq: int = Field(ge=0, description="Counts the set-points of this drive from 0")
+    t: float = Field(ge=0, description="s since the drive's start (the protocol's clock)")
+    phase: Literal["start", "swing", "sweep", "stop", "done"] = Field(
+        description="start (from rest), swing (accelerate and brake), sweep (front-axle slip sweep), stop, done")
+    speed: float = Field(ge=0, le=5, description="Speed set-point, m/s, forward")
+    slip: Optional[float] = Field(default=None, ge=0, lt=0.95,
+                                  description="Front-axle driving slip set-point (eq. 1); null: every wheel holds the speed")
+    timeout_s: float = Field(gt=0, description="Stop if no set-point arrives for this long, s")
+    issued_at: float = Field(description="Wall-clock time of publication, s since the Unix epoch")

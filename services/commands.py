@@ -60,13 +60,18 @@ def _service_class(name: str):
 @click.option("--control", metavar="CONTROLLER",
               help="controller: the set-point policy (ocp_traction, ocp_efficiency, fixed_<slip>, speed); "
                    "vehicle: follow that controller's set-points (closed loop, --scenario only).")
+@click.option("--follow-drive", is_flag=True,
+              help="vehicle: follow a calibration drive's set-points (soilocp calibrate-drive) on --scenario's terrain; "
+                   "publishes at once, stands still until set-points arrive.")
+@click.option("--tyre", metavar="slow|grippy|vector|FILE.json",
+              help="vehicle (--scenario): the simulated robot's tyre (its true traction constants; default: the paper's).")
 @click.option("--ros2-map", type=click.Path(dir_okay=False), help="ros2-in: the topic map file (as for soilocp import).")
 @click.option("--ros2-connect", multiple=True,
               help="ros2-in / ros2-out: the robot's Zenoh router (rmw_zenohd), repeatable; default tcp/127.0.0.1:7447.")
 @click.option("--ros2-domain", type=int, help="ros2-in / ros2-out: ROS domain id; default $ROS_DOMAIN_ID or 0.")
 def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level, stale_timeout, pipeline_config,
-                scenario, replay, speed, duration, rate, seed, wait_timeout, control, ros2_map, ros2_connect,
-                ros2_domain) -> None:
+                scenario, replay, speed, duration, rate, seed, wait_timeout, control, follow_drive, tyre, ros2_map,
+                ros2_connect, ros2_domain) -> None:
     """Run one service NAME of the pipeline (or the synthetic vehicle) until SIGINT/SIGTERM."""
     from services.runtime.config import ConfigError, load_service_config
     from services.runtime.service import run_service
@@ -85,10 +90,24 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
             wait = PIPELINE_SERVICES
             inbox = None
             if replay is not None:
-                if control:
-                    raise ConfigError("--control needs --scenario (a replayed log cannot follow set-points)")
+                if control or follow_drive or tyre:
+                    raise ConfigError("--control, --follow-drive and --tyre need --scenario (a replayed log cannot "
+                                      "follow set-points or change its tyre)")
                 source = replay_source(replay, duration)
                 describe = f"replay {replay}"
+            elif follow_drive:
+                from services.control.vehicle_drive import DriveInbox, drive_source
+
+                if control:
+                    raise ConfigError("--follow-drive and --control are two ways to drive: give one")
+                if rate <= 0:
+                    raise ConfigError(f"--rate {rate!r}: must be > 0 Hz")
+                inbox = DriveInbox(cfg.vehicle_id)
+                source = drive_source(scenario, cfg.vehicle_id, inbox, duration=duration, rate=rate, seed=seed, tyre=tyre)
+                describe = f"scenario {scenario}, following calibration-drive set-points" + (f", tyre {tyre}" if tyre else "")
+                wait = ()  # a robot publishes its sensors whether a pipeline listens or not
+            elif tyre:
+                raise ConfigError("--tyre needs --follow-drive (the open-loop scenarios drive the paper's wheel)")
             elif control:
                 from services.control.vehicle_control import SetpointInbox, controlled_source
 
@@ -119,8 +138,8 @@ def service_cmd(name, config_path, vehicle_ids, connect, listen, mode, log_level
                               wait_timeout_s=wait_timeout)
             elif ros2_map is not None:
                 raise ConfigError("--ros2-map is an option of the ros2-in service only")
-        elif scenario or replay:
-            raise ConfigError("--scenario/--replay are options of the vehicle service only")
+        elif scenario or replay or follow_drive or tyre:
+            raise ConfigError("--scenario/--replay/--follow-drive/--tyre are options of the vehicle service only")
         elif name == "controller":
             kwargs = dict(control=control or "ocp_traction")
         elif control:

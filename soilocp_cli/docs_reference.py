@@ -431,7 +431,8 @@ def records_page() -> tuple[str, int, int]:
 #: The kind of each key builder of schemas.keys (a new builder must be added here: the generator refuses
 #: an unknown one).
 KEY_KIND = {
-    "raw": "public", "ocp": "public", "control_slip": "public", "rejected": "public", "alive": "public",
+    "raw": "public", "ocp": "public", "control_slip": "public", "control_drive": "public", "rejected": "public",
+    "alive": "public",
     "clean": "internal", "normal_forces": "internal", "observer": "internal", "soil": "internal",
     "status": "internal",
     "vehicle_alive_all": "selector", "vehicle_status_all": "selector", "any_vehicle_ocp": "selector",
@@ -445,6 +446,7 @@ OTHER_PAYLOADS = {
     "alive": ("liveliness token", "every service"),
     "status": ("ServiceHealth", "every service (also answered as a query)"),
     "control_slip": ("SlipSetpoint", "controller"),
+    "control_drive": ("DriveSetpoint", "soilocp calibrate-drive"),
 }
 MAP_TAILS = {
     "cells": ("MapCellUpdate", "map service", "cells whose estimate changed"),

@@ -106,7 +106,8 @@ class VehicleService(Service):
                 counters.received += 1
                 offer(sample.payload.to_bytes())
 
-            self.keep(session.declare_subscriber(keys.control_slip(vehicle_id), _setpoint))
+            key = getattr(self.inbox, "key", keys.control_slip)  # a calibration drive's inbox has its own key
+            self.keep(session.declare_subscriber(key(vehicle_id), _setpoint))
         self._thread = threading.Thread(target=self._publish_all, name="vehicle-source", daemon=True)
         self._thread.start()
 

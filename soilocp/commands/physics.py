@@ -286,3 +286,8 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
 
 
 COMMANDS.append(calibrate_torque)
+
+
+from soilocp.commands.calibrate_drive import calibrate_drive  # noqa: E402  (the command body imports lazily)
+
+COMMANDS.append(calibrate_drive)

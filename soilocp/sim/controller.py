@@ -108,6 +108,9 @@ class SweepController:
         self.v_mean = 0.0  # low-passed speed for the sweep governor
         self.slip_cmd: float | None = None
         self.speed_cmd = 0.0
+        #: an external command (speed set-point m/s, leading axle's slip set-point or None), set by the
+        #: simulator's ``drive_command`` hook: it replaces the scenario's speed, ramp, swing and sweep
+        self.command: tuple[float, float | None] | None = None
 
     def references(self, t: float, V: float, r: float) -> list[float]:
         """Wheel-speed references (rad/s, wheels 1..4) for the sub-step ending at t, from the body
@@ -116,7 +119,10 @@ class SweepController:
         ramp = smoothstep(t / ctl.ramp_time) if ctl.ramp_time > 0 else 1.0
         v_ref = sc.speed * ramp
         swinging = False
-        if ctl.speed_swing > 0:
+        external = self.command
+        if external is not None:  # the command's own profile: no ramp, no swing, its slip or none
+            v_ref, ramp, swinging = external[0], 1.0, external[1] is None
+        elif ctl.speed_swing > 0:
             cycle = ctl.speed_swing_period + (ctl.swing_sweep_time if self.mode == "excitation" else 0.0)
             phase = t % cycle
             if phase < ctl.speed_swing_period:
@@ -148,10 +154,14 @@ class SweepController:
             self.slip_cmd = None
             return [clamp(v_ref - r_c * yi) / R for yi in self.ys]
         # excitation: the leading axle sweeps driving slip, the trailing one holds the speed by braking
-        s_cmd = 0.0 if swinging else sc.sweep.slip_at(t) * ramp
+        if swinging:
+            s_cmd = 0.0
+        else:
+            s_cmd = external[1] if external is not None else sc.sweep.slip_at(t) * ramp
         # the governor acts on the cycle-mean speed, not on the excursions within one sweep
         self.v_mean += h / ctl.governor_tau * (V - self.v_mean)
-        over = (ctl.direction * self.v_mean - sc.speed) / sc.speed - ctl.governor_deadband
+        v_gov = max(abs(v_ref), 0.1) if external is not None else sc.speed
+        over = (ctl.direction * self.v_mean - v_gov) / v_gov - ctl.governor_deadband
         if over > 0:
             s_cmd *= max(0.0, 1.0 - ctl.governor_gain * over)
         self.slip_cmd = s_cmd

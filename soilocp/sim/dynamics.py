@@ -61,7 +61,7 @@ class RoverDrive:
     """State and stepping of one simulated drive (scalar Python inner loop over the 4 wheels)."""
 
     def __init__(self, sc: Scenario, *, duration, rate, rng, vehicle, constants, mode, noise, vehicle_id, ctl, par,
-                 torque_command=None, drawbar_load=None, start=None):
+                 torque_command=None, drawbar_load=None, start=None, drive_command=None):
         self.sc, self.duration, self.rate, self.mode = sc, duration, rate, mode
         self.v, self.c, self.ctl, self.par, self.vehicle_id = vehicle, constants, ctl, par, vehicle_id
         self.interval = 1.0 / rate
@@ -100,6 +100,7 @@ class RoverDrive:
         self.newton_failures = 0
         self.substeps = 0
         self.torque_command, self.drawbar_load = torque_command, drawbar_load
+        self.drive_command = drive_command
         self.held_torque: list[float] | None = None  # external torque command over this interval
         self.load = 0.0  # drawbar draft force over this interval, N
         self.drawbar_work = 0.0  # work done against the draft, J (not in the truth record's balance)
@@ -436,6 +437,13 @@ class RoverDrive:
                     raise ValueError(f"wheel_torque_command must return 4 finite torques (N m), got {cmd!r}")
                 tmax = self.ctl.torque_limit
                 self.held_torque = [min(max(q, -tmax), tmax) for q in cmd]
+            if self.drive_command is not None:
+                speed, slip = self.drive_command(records[0])
+                speed = float(speed)
+                if not math.isfinite(speed) or (slip is not None and not (math.isfinite(slip) and 0.0 <= slip < 0.95)):
+                    raise ValueError(f"drive_command must return a finite speed (m/s) and a slip in [0, 0.95) or None, "
+                                     f"got {speed!r}, {slip!r}")
+                self.controller.command = (speed, None if slip is None else float(slip))
             if self.drawbar_load is not None:
                 f = float(self.drawbar_load(self.t, self.V))
                 if not (math.isfinite(f) and f >= 0):

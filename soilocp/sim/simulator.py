@@ -114,6 +114,7 @@ def simulate(
     wheel_torque_command: Callable[[SensorSample], Sequence[float]] | None = None,
     drawbar_load: Callable[[float, float], float] | None = None,
     start: StartPose | None = None,
+    drive_command: Callable[[SensorSample], tuple[float, float | None]] | None = None,
 ) -> Iterator[tuple[SensorSample, TruthRecord]]:
     """Drive ``scenario`` and yield ``(SensorSample, TruthRecord)`` pairs lazily, one per sensor
     sample at ``stamp = seq / rate`` (seq 0 = at rest at t = 0), for ``duration`` seconds
@@ -132,6 +133,12 @@ def simulate(
     * ``drawbar_load(t, V)`` is a towed load's draft force (N >= 0) at time t and speed V, held over each
       interval; it opposes the motion like friction (F tanh(V / _LOAD_EPS)), so a stalled
       rover is not pulled backwards (``_LOAD_EPS`` = 0.05 m/s).
+    * ``drive_command(sample)`` is called with each sensor sample and returns ``(speed, slip)``: the speed
+      set-point (m/s) and the leading axle's driving slip set-point (None: every wheel holds the speed),
+      held over the next interval.  They replace the scenario's speed, start ramp, swing and sweep; the
+      rover's own loops follow them as in a traction test (excitation mode: the trailing axle brakes to hold
+      the speed while the leading one sweeps).  A robot that follows a calibration drive's set-points
+      (:mod:`soilocp.control.calibration_drive`).
 
     ``start`` (a :class:`soilocp.sim.field.StartPose`) puts the drive in a map frame: the samples
     then carry the true position and heading (and latitude/longitude with a ``geo_origin``); the
@@ -162,5 +169,6 @@ def simulate(
         torque_command=wheel_torque_command,
         drawbar_load=drawbar_load,
         start=start,
+        drive_command=drive_command,
     )
     return run.samples()
