@@ -24,7 +24,7 @@ TARGETS = {
 }
 
 #: Relative K error beyond which a number served with status "ok" counts as confidently wrong
-#: (issue 10: where K is not identifiable the output must say so "instead of a number more than
+#: (where K is not identifiable the output must say so "instead of a number more than
 #: 30 % off").
 UNFLAGGED_ERROR_REL = 0.30
 

@@ -10,10 +10,10 @@ samples for the 2-std band coverage, the median std/K (K ~ 300 saturates, §9: i
 rightly wider than the drive's) and the confidently wrong share; all samples for the status
 shares.  Over seeds, the worst.
 
-Verdicts (issues 10 and 27, "Done means"):
+Verdicts:
 
 * every row: no confidently wrong number, i.e. NO settled record with status ``ok`` and K more
-  than 30 % off (issue 27; the column ``ok>30%`` counts them, worst seed);
+  than 30 % off (the column ``ok>30%`` counts them, worst seed);
 * identifiable (``yes``): K median <= 10 %, p90 <= 25 %, back within +-15 % in < 2 s after every
   terrain change, >= 90 % of truths within +-2 std, median std/K <= 0.15 (no inflated band),
   median |mu_T|, |S_T|, |S_E| errors <= 0.02;
@@ -38,7 +38,7 @@ from soilocp.analysis.evaluation import TARGETS, UNFLAGGED_ERROR_REL, UNFLAGGED_
 from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.sim.variants import get_variant, list_variants
 
-#: Targets of the robustness table (issue 10); the K and OCP numbers are soilocp.analysis.evaluation's.
+#: Targets of the robustness table; the K and OCP numbers are soilocp.analysis.evaluation's.
 ROBUSTNESS_TARGETS = {
     "k_median_rel": TARGETS["k_median_rel"],
     "k_p90_rel": TARGETS["k_p90_rel"],
@@ -53,7 +53,7 @@ ROBUSTNESS_TARGETS = {
     "tyre_S_T_p90_abs": 0.03,
     "unflagged_ocp_error": UNFLAGGED_OCP_ERROR,
     "ok_ocp_off_count": 0,
-    "confident_wrong_share": 0.05,  # issue 10's rule, superseded by issue 27's count (kept in the JSON)
+    "confident_wrong_share": 0.05,  # the share rule, superseded by the count (kept in the JSON)
     "confident_wrong_count": 0,
     "reason_named_share": 0.5,
     "settle_s": TARGETS["settle_s"],

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import click
 
+from soilocp.commands.calibration_report import echo_calibration
+
 
 class DriveError(click.ClickException):
     """Exit status 1 with the message: the drive failed or showed too little."""
@@ -121,23 +123,4 @@ def calibrate_drive(vehicle_path, out_file, vehicle_id, connect, max_speed, max_
     save_calibration(cal, out_file)
     for m in res.messages:
         click.echo(m)
-    _report(cal)
-    click.echo(f"wrote {out_file}: name it in the vehicle file as \"traction_curve\": \"{Path(out_file).name}\"")
-
-
-def _report(cal) -> None:
-    click.echo(f"{'constant':8s} {'value':>10s} {'1-sigma':>10s}")
-    for name in ("C1", "C2", "C3", "C4", "C5", "C6"):
-        v = getattr(cal.constants, name)
-        sd = cal.std.get(name)
-        click.echo(f"{name:8s} {v:10.4g} {'' if sd is None else format(sd, '10.2g'):>10s}"
-                   + (f"  not fitted: {cal.not_fitted[name]}" if name in cal.not_fitted else ""))
-    for soil in cal.soils:
-        click.echo(f"soil {soil['soil']}: K {soil['K']:.1f} +- {soil['K_std']:.1f}, {soil['pairs']} wheel-samples, slips "
-                   f"up to {soil['slip_top']:.2f}: mu_T {soil['mu_T']:.3f}, S_T {soil['S_T']:.3f}")
-    for name in ("payload", "torque_constant", "rolling_resistance"):
-        e = cal.extra.get(name, {})
-        if e.get("value") is None or "std" not in e:
-            click.echo(f"{name}: not fitted: {e.get('reason', '?')}")
-        else:
-            click.echo(f"{name}: {e['value']:.4g} +- {e['std']:.2g} {e.get('unit', '')}")
+    echo_calibration(cal, out_file)

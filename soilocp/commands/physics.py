@@ -222,22 +222,11 @@ def _calibrate_from_drives(logs: tuple[str, ...], out_file: str, vehicle_path: s
     except ValueError as exc:
         raise click.UsageError(f"calibration failed: {exc}") from None
     save_calibration(fit.calibration, out_file)
-    cal = fit.calibration
     for m in fit.messages:
         click.echo(m)
-    click.echo(f"{'constant':8s} {'value':>10s} {'1-sigma':>10s}")
-    for name in ("C1", "C2", "C3", "C4", "C5", "C6"):
-        v = getattr(cal.constants, name)
-        sd = cal.std.get(name)
-        click.echo(f"{name:8s} {v:10.4g} {'' if sd is None else format(sd, '10.2g'):>10s}"
-                   + (f"  not fitted: {cal.not_fitted[name]}" if name in cal.not_fitted else ""))
-    for soil in cal.soils:
-        click.echo(f"soil {soil['soil']} of {soil['source']}: K {soil['K']:.1f} +- {soil['K_std']:.1f}, {soil['pairs']} "
-                   f"wheel-samples, slips up to {soil['slip_top']:.2f}: mu_T {soil['mu_T']:.3f}, S_T {soil['S_T']:.3f}")
-    h = cal.held_out
-    click.echo(f"traction residual rms: fit {h['rms_fit']:.4f}, held-out {h['rms_held_out']:.4f} (the paper's curve at its "
-               f"best K: {h['rms_held_out_paper_curve']:.4f})")
-    click.echo(f"wrote {out_file}: name it in the vehicle file as \"traction_curve\": \"{Path(out_file).name}\"")
+    from soilocp.commands.calibration_report import echo_calibration
+
+    echo_calibration(fit.calibration, out_file)
 
 
 COMMANDS = [ocp, curves, calibrate]

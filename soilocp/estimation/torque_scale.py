@@ -1,6 +1,6 @@
 """The torque scale learnt online: one common scale k of the wheel torques (motor constant x 1 /
 mass), a slow state, from the longitudinal force balance whenever the robot accelerates or brakes
-(issue 27; docs/method.md §15).
+(docs/method.md §15).
 
 Eq. TC (:func:`soilocp.model.force_balance.longitudinal_balance`, the function ``soilocp
 calibrate-torque`` fits offline) holds for the means over a window: y = k x - F_MR with

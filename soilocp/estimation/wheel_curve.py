@@ -35,19 +35,20 @@ from soilocp import _core
 from soilocp.estimation.config import PipelineConfig
 from soilocp.model.vehicle import curve_checked
 
-#: The reason an unchecked curve's OCPs are not served as ok, and what a user can do about it.
+#: Why an unchecked curve's OCPs are not served as ok, and what a user can do about it.
 UNCHECKED_REASON = (
-    "OCPs from the paper's traction curve, which nobody checked for this wheel: drive a traction sweep (slips "
-    "past the peak) so that the curve is learnt, or name a calibration file as the vehicle's traction_curve "
-    "(soilocp calibrate --from-drive)"
+    "OCPs from the paper's traction curve, which nobody checked for this wheel: name a calibration file as the "
+    "vehicle's traction_curve (soilocp calibrate-drive, or soilocp calibrate --from-drive on drives with a traction "
+    "sweep past the peak)"
 )
-
-
-#: The reason a learnt curve's OCPs are not served as ok, and the way to ok.
-LEARNT_REASON = "OCPs from the traction curve this drive showed"
-LEARNT_NEXT = (": the learnt peak rests on the observer's split of traction and resistance and is not checked; fit "
-               "a calibration from such drives (soilocp calibrate --from-drive) and name it as the vehicle's "
-               "traction_curve")
+#: Why a learnt curve's OCPs are not served as ok, and the way to ok.
+LEARNT_REASON = ("OCPs from the traction curve this drive showed (S_T {s_t:.2f} +- {s_t_std:.2f}, mu_T {mu_t:.2f} +- "
+                 "{mu_t_std:.2f}): the learnt peak rests on the observer's split of traction and resistance and is "
+                 "not checked; fit a calibration from such drives (soilocp calibrate --from-drive) and name it as the "
+                 "vehicle's traction_curve")
+#: Why a calibrated curve's OCPs beyond its soils are not served as ok.
+BEYOND_REASON = ("K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({lo:.0f}...{hi:.0f}): its "
+                 "OCPs are extrapolated; drive the calibration on this soil too")
 
 
 class WheelCurve:
@@ -84,31 +85,27 @@ class WheelCurve:
         from soilocp.estimation.ocp_stage import ocp_message
 
         fit = self.fit(j, soil)
-        cfg = self.config
-        if not self.checked and fit is not None and fit.shown and soil.soil_strength is not None:
-            s_t_std, mu_t_std = self.bands(fit)
-            learnt = f"{LEARNT_REASON} (S_T {fit.s_t:.2f} +- {s_t_std:.2f}, mu_T {fit.mu_t:.2f} +- {mu_t_std:.2f}){LEARNT_NEXT}"
-            status = "uncertain" if soil.status == "ok" else soil.status
-            reason = f"{soil.reason}; {learnt}" if soil.reason else learnt
-            return ocp_message(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), curve="learnt", bands=(mu_t_std, s_t_std),
-                               status=status, reason=reason, reason_code=_code(soil, status, "curve_learnt"))
         k = soil.soil_strength
-        k_range = self.k_range
-        if k is not None and k_range is not None and not k_range[0] <= k <= k_range[1]:
-            beyond = (f"K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({k_range[0]:.0f}..."
-                      f"{k_range[1]:.0f}): its OCPs are extrapolated; drive the calibration on this soil too")
-            status = "uncertain" if soil.status == "ok" else soil.status
-            return ocp_message(soil, values, status=status, reason=f"{soil.reason}; {beyond}" if soil.reason else beyond,
-                               reason_code=_code(soil, status, "curve_extrapolated"))
-        if self.checked or k is None:
+        if k is None or (self.checked and self.k_range is None):
             return ocp_message(soil, values)
-        status = "uncertain" if soil.status == "ok" else soil.status
-        reason = f"{soil.reason}; {UNCHECKED_REASON}" if soil.reason else UNCHECKED_REASON
-        return ocp_message(soil, values, curve="unchecked", status=status, reason=reason,
-                           reason_code=_code(soil, status, "curve_unchecked"))
+        if not self.checked and fit is not None and fit.shown:
+            s_t_std, mu_t_std = self.bands(fit)
+            why = LEARNT_REASON.format(s_t=fit.s_t, s_t_std=s_t_std, mu_t=fit.mu_t, mu_t_std=mu_t_std)
+            return _flagged(ocp_message, soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
+                            curve="learnt", bands=(mu_t_std, s_t_std))
+        if not self.checked:
+            return _flagged(ocp_message, soil, values, UNCHECKED_REASON, "curve_unchecked", curve="unchecked")
+        lo, hi = self.k_range
+        if not lo <= k <= hi:
+            return _flagged(ocp_message, soil, values, BEYOND_REASON.format(k=k, lo=lo, hi=hi), "curve_extrapolated")
+        return ocp_message(soil, values)
 
 
-def _code(soil: SoilEstimate, status: str, curve_code: str) -> str:
-    """The record's reason code: the soil estimate's own where it is flagged already (its reason comes first),
-    else the curve's, which alone keeps an ok soil estimate from being an ok record."""
-    return soil.reason_code if soil.status != "ok" and soil.reason_code != "none" else curve_code
+def _flagged(ocp_message, soil: SoilEstimate, values, why: str, code: str, **kw) -> OcpEstimate:
+    """The OCP record of a curve that keeps it from being ok: ``uncertain`` where the soil estimate was ok, its
+    reason after the soil estimate's, and the reason code the soil estimate's own where it is flagged already (that
+    reason comes first), else ``code``."""
+    flagged_before = soil.status != "ok" and soil.reason_code != "none"
+    return ocp_message(soil, values, status="uncertain" if soil.status == "ok" else soil.status,
+                       reason=f"{soil.reason}; {why}" if soil.reason else why,
+                       reason_code=soil.reason_code if flagged_before else code, **kw)

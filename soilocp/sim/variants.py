@@ -1,5 +1,4 @@
-"""Robustness variants: drives the estimator was not tuned to (issue 10, "A robustness evaluation
-you did not tune to"; docs/method.md §11-13).
+"""Robustness variants: drives the estimator was not tuned to (docs/robustness.md; docs/method.md §11-13).
 
 A :class:`Variant` changes what the simulator does or what the sensors report while the
 estimator keeps its NOMINAL vehicle and default configuration:
@@ -306,7 +305,7 @@ class Variant:
     def judged_from(self) -> float:
         """s into the drive from which K and the OCPs are judged (the targets' median, p90 and OCP errors):
         the end of the first speed swing on a drive that accelerates and brakes (its slip, <= 0.02, gives no
-        K, and the torque scale is learnt once both signs were seen: issue 27's "converges to the right K
+        K, and the torque scale is learnt once both signs were seen: it "converges to the right K
         once it has accelerated"); 0 otherwise.  The ok>30% count and the band judge every settled record."""
         return self.controller.speed_swing_period if self.controller.speed_swing > 0 else 0.0
 
@@ -419,7 +418,7 @@ VARIANTS: dict[str, Variant] = {
         Variant("s-turns", "S-turns during the traction test: yaw rate 0.3 sin(2 pi t / 4 s) rad/s",
                 controller=ControllerParams(s_turn_rate=0.3, s_turn_period=4.0)),
         Variant("cruise", "constant speed, no traction test: slip ~0, K not identifiable", "no", mode="cruise"),
-        # issue 27: reversing, skid turns, an unknown payload or motor constant, a descent, a stall
+        # reversing, skid turns, an unknown payload or motor constant, a descent, a stall
         Variant("reverse", "traction test travelling backwards at 1 m/s: the rear (leading) axle sweeps, the front brakes",
                 controller=ControllerParams(reverse=True)),
         Variant("reverse-braking", "the reverse traction test while the speed set-point swings 0.5..1.5 m/s every 4 s "

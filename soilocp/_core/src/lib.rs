@@ -26,22 +26,22 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(py::traction::tractive_efficiency, m)?)?;
     m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
     m.add_function(wrap_pyfunction!(py::ocp::ocp_one, m)?)?;
-    // the soil-grid update (issue 28)
+    // the soil-grid update
     m.add_class::<py::soil::SoilGridBank>()?;
-    // the slip gate, eq. 1 and the wheels' usability codes (issue 28)
+    // the slip gate, eq. 1 and the wheels' usability codes
     m.add_class::<py::soil::SlipGateBank>()?;
     m.add_function(wrap_pyfunction!(py::soil::soil_classes, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::slip_ratio, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::travel_slip, m)?)?;
     m.add_function(wrap_pyfunction!(py::slip::wheel_usability, m)?)?;
-    // the observer (issue 28): its filter bank
+    // the observer: its filter bank
     m.add_class::<py::observer::ObserverCore>()?;
-    // the torque scale (issue 27 item 5, issue 28): its bank, eq. TC and eq. 20 for the offline fit
+    // the torque scale: its bank, eq. TC and eq. 20 for the offline fit
     m.add_class::<py::torque_scale::TorqueScaleCore>()?;
     m.add_function(wrap_pyfunction!(py::torque_scale::longitudinal_balance, m)?)?;
     m.add_function(wrap_pyfunction!(py::torque_scale::modelled_resistance, m)?)?;
     m.add_function(wrap_pyfunction!(py::normal_force::gravity_from_attitude, m)?)?;
-    // the whole chain of a bank in one call per step (issue 28): the offline path, the batched service
+    // the whole chain of a bank in one call per step: the offline path, the batched service
     m.add_class::<py::chain::ChainCore>()?;
     // the wheel's own traction curve, learnt where the drive shows it
     m.add_class::<py::curve::CurveBank>()?;

@@ -32,7 +32,7 @@ fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
     [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
 }
 
-/// The torque scales of N vehicles (docs/method.md §15; issue 27 item 5).
+/// The torque scales of N vehicles (docs/method.md §15).
 #[pyclass(module = "soilocp._core")]
 pub struct TorqueScaleCore {
     inner: bank::TorqueScaleBank,

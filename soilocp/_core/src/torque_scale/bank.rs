@@ -1,4 +1,4 @@
-//! The torque scales of N vehicles (docs/method.md §15; issue 27): per vehicle the open window
+//! The torque scales of N vehicles (docs/method.md §15): per vehicle the open window
 //! ([`Window`]), the (k, b) posterior ([`ScaleState`]) and the soil stage's last K and slips for
 //! eq. 4's modelled resistance.  One call per vehicle-sample: [`TorqueScaleBank::step`].
 //!

@@ -1,4 +1,4 @@
-//! The (k, F_MR) filter of the torque scale (docs/method.md §15; issue 27): state theta = (k, b),
+//! The (k, F_MR) filter of the torque scale (docs/method.md §15): state theta = (k, b),
 //! k the common scale of the logged torques (prior N(1, state_sigma)), b the motion resistance the
 //! model does not give (prior N(0, resistance_sigma)); one update per closed window with the
 //! window's eq. TC: y = k x - b, H = (x, -1).

@@ -1,4 +1,4 @@
-//! The torque scale learnt online (issue 27; docs/method.md §15): one common scale k of the wheel
+//! The torque scale learnt online (docs/method.md §15): one common scale k of the wheel
 //! torques (motor constant x 1 / mass), a slow state per vehicle, from the longitudinal force
 //! balance (eq. TC) whenever the robot accelerates or brakes; and eq. TC itself, the one
 //! definition that `soilocp calibrate-torque` fits offline and the online state uses.
