@@ -39,7 +39,7 @@ def test_a_vehicle_file_without_a_curve_is_unchecked_and_the_built_in_rover_is_t
     assert load_vehicle(tmp_path / "v.json").traction_curve is None
     assert DEFAULT_VEHICLE.traction_curve == "paper"
     cfg = load_pipeline_config(vehicle=tmp_path / "v.json")
-    assert cfg.constants == PipelineConfig().constants
+    assert cfg.constants.model_dump() == PipelineConfig().constants.model_dump()
 
 
 def test_an_unchecked_curve_is_never_ok_and_the_learnt_one_is_served_flagged():
