@@ -62,7 +62,8 @@ class WheelCurve:
         kr = config.constants.k_range
         self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
         self.bank = _core.CurveBank(n_vehicles, c.window, c.change_window, c.change_shift, c.change_pairs, c.slip_min,
-                                    c.slip_max, c.min_pairs, c.min_beyond, c.peak_span, c.interval) if c.enabled else None
+                                    c.slip_max, c.min_pairs, c.min_beyond, c.peak_span, c.interval) \
+            if c.enabled and not self.checked else None  # a checked curve keeps its own OCPs: nothing to learn
 
     def fit(self, j: int, soil: SoilEstimate):
         """Vehicle ``j``'s learnt curve after this soil estimate (None: none yet, or learning is off)."""
