@@ -58,7 +58,8 @@ def estimate(sensors, out, map_path, vehicle, constants, config, no_compensation
     dt = time.perf_counter() - t0
     rate = summary.estimates / dt if dt > 0 else float("inf")
     click.echo(
-        f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
+        f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected"
+        f"{', by reason ' + str(summary.rejected_by_code()) if summary.rejected else ''}) "
         f"in {dt:.2f} s = {rate:.0f} samples/s; statuses {summary.statuses}; observer resets {summary.resets}; "
         f"wheels out of model {summary.unusable} -> {out}",
         err=True,

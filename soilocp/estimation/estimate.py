@@ -37,6 +37,13 @@ class EstimateSummary:
     #: wheel-samples the longitudinal model did not describe (no K from them), by reason (docs/method.md §17)
     unusable: dict[str, int] = field(default_factory=dict)
 
+    def rejected_by_code(self) -> dict[str, int]:
+        """How many lines were rejected, per rejection code (``too_large``, ``schema``, ...)."""
+        out: dict[str, int] = {}
+        for _, code, _ in self.rejected:
+            out[code] = out.get(code, 0) + 1
+        return out
+
 
 class Observed(NamedTuple):
     """What a record takes from the observer (``full``) and the summary counts (its reset)."""
