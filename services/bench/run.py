@@ -355,10 +355,14 @@ def render(report: dict[str, Any], console) -> None:
 @click.option("--map", "map_row", is_flag=True,
               help="Only the fleet soil map's row: updates/s one map service sustains, query p99 of a 1 km² box.")
 @click.option("--floor", "floor", is_flag=True,
-              help="Only the live rows, each for the real pipeline and for its relays without the math (messages) "
-                   "and without the messages (zenoh): the floor of this architecture (services/bench/floor.py).")
+              help="Only the live rows, each for the real pipeline, for its relays without the math (messages) "
+                   "and without the messages (zenoh), and for bare zenoh-python relays (bare, the true floor), "
+                   "each row also as a ratio to bare (services/bench/floor.py).")
+@click.option("--links", "links", multiple=True, type=click.Choice(["client", "peer"]),
+              help="With --floor: client (default) and/or peer links between the services, alternating in one run.")
 def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int],
-          compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False) -> None:
+          compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False,
+          links: tuple[str, ...] = ()) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
 
@@ -374,7 +378,7 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
             render_floor(json.loads(Path(saved).read_text()), console)
             return
         ladder = None if max_vehicles is None else [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-        floor_command(quick, json_out, list(pipelines), ladder, None, console)
+        floor_command(quick, json_out, list(pipelines), ladder, None, console, list(links) or None)
         return
 
     if map_row:  # the map's own section (services/bench/map.py)
