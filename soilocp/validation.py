@@ -204,35 +204,52 @@ class SampleValidator:
     (seq and stamp increasing), they are a new session of the source, not stragglers: the
     validator adopts it, accepts the sample and counts a restart (``restarts``).  Downstream
     stages see the stamp go backwards and re-initialise.
+
+    Live, the checks are given each sample's arrival time (``received_at``), and a restart is adopted
+    only once no sample has been accepted for ``restart_quiet_s``: a source that restarted has left
+    its old session, whereas a recorded stream replayed at a high rate beside the live one (50 old
+    samples arrive between two live ones at 5 kHz) would otherwise be taken for a restart, and every
+    replayed sample after it fed downstream.  Offline (no arrival time) the run alone decides.
     """
 
-    def __init__(self, restart_after: int = 50) -> None:
+    def __init__(self, restart_after: int = 50, restart_quiet_s: float = 0.5) -> None:
         if restart_after < 2:
             raise ValueError(f"restart_after must be >= 2, got {restart_after!r}")
         self.restart_after = restart_after
+        self.restart_quiet_s = float(restart_quiet_s)
         self.last_seq: Optional[int] = None
         self.last_stamp: Optional[float] = None
         self.restarts = 0
-        self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples
+        self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples (the latest restart_after)
+        self._accepted_at: Optional[float] = None  # arrival time of the last accepted sample (live)
 
-    def check(self, sample: SensorSample) -> None:
-        """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it."""
+    def check(self, sample: SensorSample, received_at: Optional[float] = None) -> None:
+        """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it.
+        ``received_at``: its arrival time, s (live; class doc)."""
         try:
             self._check_order(sample)
         except SampleRejected as rej:
             if rej.code in ("old_seq", "stamp_backwards") and self._extends_run(sample):
                 self._run.append((sample.seq, sample.stamp))
-                if len(self._run) >= self.restart_after:
+                if len(self._run) >= self.restart_after and self._quiet(received_at):
                     self.restarts += 1
                     self._run.clear()
                     self.last_seq, self.last_stamp = sample.seq, sample.stamp
+                    self._accepted_at = received_at
                     return  # a restarted source: accepted as the start of its new session
+                del self._run[:-self.restart_after]
             elif rej.code in ("old_seq", "stamp_backwards"):
                 self._run = [(sample.seq, sample.stamp)]
             raise
         self._run.clear()
         self.last_seq = sample.seq
         self.last_stamp = sample.stamp
+        self._accepted_at = received_at
+
+    def _quiet(self, received_at: Optional[float]) -> bool:
+        if received_at is None or self._accepted_at is None:
+            return True
+        return received_at - self._accepted_at >= self.restart_quiet_s
 
     def _extends_run(self, sample: SensorSample) -> bool:
         if not self._run:

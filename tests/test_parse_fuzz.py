@@ -2,8 +2,9 @@
 
 Whatever a sender puts on the raw key or in a sensor log, :func:`soilocp.validation.parse_sample`
 returns a sample or raises ``SampleRejected``, and the gateway's checker returns a sample or a
-``Rejection``; nothing else escapes.  The payloads are a seeded generator's (reproducible, no
-hypothesis shrinking needed to name a failure: the failing payload is in the message): oversized,
+``Rejection``; nothing else escapes.  The payloads are a seeded generator's
+(:func:`services.bench.hostile.mutate`, which the live flood of tests/test_live_stress.py uses too;
+reproducible, the failing payload is in the message): oversized,
 truncated, byte-flipped, invalid UTF-8, non-finite, wrongly typed, deeply nested, huge numbers,
 another vehicle's id.  The slowest parse is measured and printed; the bound asserted is generous
 (a shared machine's scheduling is not the parser's cost), the figure is what the report quotes.
@@ -21,6 +22,7 @@ import pytest
 
 from schemas.messages import Rejection
 from schemas.sensor import SensorSample
+from services.bench.hostile import good_sample, mutate as _mutate
 from services.stages.gateway import RawSampleChecker
 from soilocp.validation import (MAX_PAYLOAD_BYTES, REJECTION_CODES, OversizedLine, SampleRejected, capped_lines,
                                 check_size, parse_sample, payload_size)
@@ -29,82 +31,7 @@ N_PAYLOADS = 100_000
 
 
 def _good(seq: int, vehicle_id: str = "rover1") -> dict:
-    return SensorSample(vehicle_id=vehicle_id, seq=seq, stamp=0.01 * seq, specific_force=(0.1, -0.2, 9.81),
-                        roll=0.01, pitch=-0.02, yaw_rate=0.003, wheel_speed=(3.0, 3.1, 2.9, 3.0),
-                        wheel_torque=(1.5, 1.4, 1.6, 1.5), ground_speed=0.45).model_dump(mode="json")
-
-
-_HOSTILE_VALUES = ("NaN", "Infinity", "-Infinity", "1e400", "-1e400", "1e-400", "null", "true", '"x"', "[]", "{}",
-                   "[1,2,3]", '"NaN"', "9" * 300, "-" + "9" * 4000, "0." + "0" * 3000 + "1", "1" + "0" * 4300,
-                   "1e99999999999", "0x10", "+1", ".5", "01", "\"\\ud800\"", "2e308")
-
-
-def _mutate(rng: random.Random, seq: int) -> bytes:
-    """One hostile payload, of a kind drawn by ``rng``."""
-    base = _good(seq)
-    base["vehicle_id"] = rng.choice(("rover1", "rover1", "rover1", "rover2", "x" * 64, "", "a/b", "x" * 65))
-    text = json.dumps(base, indent=rng.choice((None, None, 2)))
-    kind = rng.randrange(14)
-    if kind == 0:  # oversized: whitespace, or a valid-looking array, a little or far past the limit
-        size = rng.choice((MAX_PAYLOAD_BYTES + 1, MAX_PAYLOAD_BYTES + rng.randrange(1, 5000),
-                           rng.randrange(10_000, 600_000)))
-        filler = rng.choice((b" ", b"1,", b"[", b"9"))
-        return (text[:-1].encode() + filler * (size // len(filler)) + b"}")[:size + rng.randrange(2)]
-    if kind == 1:  # truncated
-        return text.encode()[:rng.randrange(len(text))]
-    if kind == 2:  # bytes flipped or inserted, invalid UTF-8 included
-        b = bytearray(text.encode())
-        for _ in range(rng.randrange(1, 6)):
-            i = rng.randrange(len(b))
-            if rng.random() < 0.5:
-                b[i] = rng.randrange(256)
-            else:
-                b[i:i] = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 4)))
-        return bytes(b)
-    if kind in (3, 4):  # one field's value replaced by a hostile literal
-        field = rng.choice(list(base))
-        value = rng.choice(_HOSTILE_VALUES)
-        out = text.replace(json.dumps(base[field]) if not isinstance(base[field], list) else
-                           json.dumps(base[field], indent=None), value, 1)
-        if out == text:
-            out = text.replace(f'"{field}": ', f'"{field}": {value}, "_x": ', 1)
-        return out.encode()
-    if kind == 5:  # an element of a vector replaced
-        field = rng.choice(("specific_force", "wheel_speed", "wheel_torque"))
-        v = list(base[field])
-        v[rng.randrange(len(v))] = rng.choice((float("nan"), float("inf"), -float("inf"), 1e308, -1e308, 5e-324))
-        base[field] = v
-        return json.dumps(base).encode()  # json.dumps writes NaN / Infinity
-    if kind == 6:  # deep nesting under the limit
-        depth = rng.randrange(10, MAX_PAYLOAD_BYTES // 2)
-        opener, closer = rng.choice((("[", "]"), ('{"a":', "}"), ('{"seq":', "}")))
-        depth = min(depth, MAX_PAYLOAD_BYTES // (len(opener) + len(closer)))
-        return (opener * depth + rng.choice(("1", "NaN", "")) + closer * depth).encode()
-    if kind == 7:  # huge or odd numbers for seq / stamp
-        field = rng.choice(("seq", "stamp"))
-        base[field] = rng.choice((-1, 2**63, 2**64 + 1, 10**300, -10**300, 1e308, True, 0.5, "1", None))
-        return json.dumps(base).encode()
-    if kind == 8:  # a field missing, an extra one, a vector of the wrong length
-        what = rng.randrange(3)
-        if what == 0:
-            base.pop(rng.choice(list(base)))
-        elif what == 1:
-            base[rng.choice(("extra", "$id", "__proto__", "vehicle_id "))] = 1
-        else:
-            field = rng.choice(("specific_force", "wheel_speed", "wheel_torque"))
-            base[field] = base[field] * rng.choice((0, 2)) + [0.0] * rng.randrange(2)
-        return json.dumps(base).encode()
-    if kind == 9:  # not an object at all
-        return rng.choice((b"", b"null", b"[]", b"1", b'"x"', b"true", b"\xff\xfe", b"\x00" * 64, b"{}", b"{" * 3,
-                           json.dumps([base]).encode()))
-    if kind == 10:  # random bytes
-        return bytes(rng.randrange(256) for _ in range(rng.randrange(0, 300)))
-    if kind == 11:  # an array of numbers up to the limit (the most parsing a payload that passes the size check buys)
-        n = rng.randrange(100, MAX_PAYLOAD_BYTES // 2)
-        return ("[" + ",".join("1" for _ in range(n)) + "]").encode()[:MAX_PAYLOAD_BYTES]
-    if kind == 12:  # duplicate keys, the last one hostile
-        return (text[:-1] + ', "seq": ' + rng.choice(_HOSTILE_VALUES) + "}").encode()
-    return text.encode()  # valid (the vehicle may be another one, or an empty id)
+    return SensorSample.model_validate(good_sample(seq, vehicle_id)).model_dump(mode="json")
 
 
 def test_capped_lines_gives_oversized_lines_unread_and_the_rest_as_text():

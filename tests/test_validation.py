@@ -35,6 +35,36 @@ def test_a_restarted_source_is_adopted_after_a_run_of_ordered_samples_only():
     assert rejected == 4 and v.restarts == 1 and v.last_seq == 9
 
 
+def test_a_replay_beside_the_live_stream_is_never_adopted_but_a_real_restart_is():
+    """Live (arrival times given): 80 old samples in order between two live ones, as a replay at a high
+    rate brings them, are all refused; the live stream goes on.  When the live source falls silent for
+    the quiet time, its new session (seq from 0) is adopted as before."""
+    v = SampleValidator(restart_after=5, restart_quiet_s=0.5)
+    t, live_seq = 100.0, 1000
+    v.check(sample(live_seq - 1, (live_seq - 1) * 0.01), received_at=t)
+    old = 0
+    for _ in range(20):
+        for _ in range(80):  # the replay: in order among themselves, 0.1 ms apart
+            t += 1e-4
+            with pytest.raises(SampleRejected):
+                v.check(sample(old, old * 0.01), received_at=t)
+            old = (old + 1) % 900  # a recorded stream, older than the live one
+        t += 0.01
+        v.check(sample(live_seq, live_seq * 0.01), received_at=t)  # the live stream: never refused
+        live_seq += 1
+    assert v.restarts == 0 and v.last_seq == live_seq - 1
+    t += 0.6  # the live source stops; it comes back from seq 0 (a restart)
+    adopted = None
+    for i in range(10):
+        t += 0.01
+        try:
+            v.check(sample(i, i * 0.01), received_at=t)
+            adopted = i if adopted is None else adopted
+        except SampleRejected:
+            assert adopted is None
+    assert adopted == 4 and v.restarts == 1 and v.last_seq == 9
+
+
 def test_scattered_stragglers_never_open_a_new_session():
     v = SampleValidator(restart_after=5)
     for i in range(100):

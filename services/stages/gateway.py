@@ -56,7 +56,7 @@ class RawSampleChecker:
                 raise SampleRejected("bad_key", f"key: sample arrived on {key!r}, expected exactly {self.raw_key!r}")
             # the size first, then the parse: the library's, with the limit of soilocp estimate unless configured
             sample = parse_sample(payload, expected_vehicle_id=self.vehicle_id, max_bytes=self.max_payload_bytes)
-            self.validator.check(sample)  # updates the ordering state only when accepted
+            self.validator.check(sample, received_at)  # updates the ordering state only when accepted
             return sample
         except SampleRejected as rej:
             return self._rejection(rej.code, rej.message, rej.seq, payload, key, received_at)
