@@ -212,6 +212,12 @@ class SampleValidator:
     replayed sample after it fed downstream.  Offline (no arrival time) the run alone decides.
     """
 
+    #: A sample further ahead of the last accepted one than this (seq, stamp in s) is refused as out_of_range
+    #: (unless a run of them adopts it, as a restart): no recorded drive jumps so far, and one forged sample
+    #: with a seq of 10^300 would otherwise make every later sample of the vehicle an old one.
+    MAX_SEQ_JUMP = 1_000_000
+    MAX_STAMP_JUMP_S = 86_400.0
+
     def __init__(self, restart_after: int = 50, restart_quiet_s: float = 0.5) -> None:
         if restart_after < 2:
             raise ValueError(f"restart_after must be >= 2, got {restart_after!r}")
@@ -229,7 +235,8 @@ class SampleValidator:
         try:
             self._check_order(sample)
         except SampleRejected as rej:
-            if rej.code in ("old_seq", "stamp_backwards") and self._extends_run(sample):
+            candidate = rej.code in ("old_seq", "stamp_backwards") or getattr(rej, "jump", False)
+            if candidate and self._extends_run(sample):
                 self._run.append((sample.seq, sample.stamp))
                 if len(self._run) >= self.restart_after and self._quiet(received_at):
                     self.restarts += 1
@@ -238,7 +245,7 @@ class SampleValidator:
                     self._accepted_at = received_at
                     return  # a restarted source: accepted as the start of its new session
                 del self._run[:-self.restart_after]
-            elif rej.code in ("old_seq", "stamp_backwards"):
+            elif candidate:
                 self._run = [(sample.seq, sample.stamp)]
             raise
         self._run.clear()
@@ -272,3 +279,11 @@ class SampleValidator:
                 f"stamp: {sample.stamp!r} is before the last accepted {self.last_stamp!r}",
                 sample.seq,
             )
+        if sample.seq - self.last_seq > self.MAX_SEQ_JUMP or sample.stamp - self.last_stamp > self.MAX_STAMP_JUMP_S:
+            field, value, last, most = (("seq", sample.seq, self.last_seq, self.MAX_SEQ_JUMP)
+                                        if sample.seq - self.last_seq > self.MAX_SEQ_JUMP else
+                                        ("stamp", sample.stamp, self.last_stamp, self.MAX_STAMP_JUMP_S))
+            rej = SampleRejected("out_of_range", f"{field}: {value!r:.60} is more than {most:g} ahead of the last "
+                                 f"accepted {last!r}", sample.seq if sample.seq < 2**63 else None)
+            rej.jump = True
+            raise rej

@@ -77,8 +77,7 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
     vid = "stress1"
     ep = endpoint(free_port())
     procs = Procs(tmp_path / "logs")
-    payloads = _good_payloads(vid, 9.0)
-    clean, flooded = payloads[:300], payloads[300:800]
+    payloads = _good_payloads(vid, 10.0)[:1000]  # 10 s at 100 Hz, without a pause: the flood comes in the middle
     got: dict[int, float] = {}
     ocp_seqs: list[int] = []
     statuses: dict[str, int] = {}
@@ -99,16 +98,13 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
             s.declare_subscriber(f"soilocp/{vid}/ocp", _ocp)
             assert wait_alive(s, vid), alive_services(s, vid)
             time.sleep(0.3)
-            sent_clean = _drive(s, vid, clean, got)
-            time.sleep(1.0)
             h0 = _gateway_health(s, vid)
             gw_pid = procs.procs["gateway"].pid
             rss0 = proc_rss_mib(gw_pid)
-            duration = len(flooded) / 100.0 - 0.5
+            # the flooder connects at once, waits, then floods for 4 s: from ~3 s into the good stream
             flooder = procs.start_argv("flood", [sys.executable, "-m", "services.bench.hostile", "--connect", ep,
-                                                 "--vehicle-id", vid, "--rate", str(FLOOD_RATE), "--duration",
-                                                 str(duration), "--seed", "7", "--below-seq", str(SEQ0)])
-            time.sleep(1.5)  # the flooder's interpreter and session up: the flood overlaps the good stream
+                                                 "--vehicle-id", vid, "--rate", str(FLOOD_RATE), "--duration", "4",
+                                                 "--delay", "2.5", "--seed", "7", "--below-seq", str(SEQ0)])
             rss_peak = [rss0]
             stop_rss = threading.Event()
 
@@ -120,40 +116,45 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
 
             th = threading.Thread(target=_watch_rss, daemon=True)
             th.start()
-            sent_flood = _drive(s, vid, flooded, got)
+            wall0, perf0 = time.time(), time.perf_counter()
+            sent = _drive(s, vid, payloads, got)
             flooder.proc.wait(30)
             stop_rss.set()
             th.join(2)
             report = json.loads(procs.log_text("flood").strip().splitlines()[-1])
-            # the gateway works through its queue of hostile payloads; the good samples' OCPs follow
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline and not all(q in got for q in sent_flood):
+            deadline = time.monotonic() + 60  # the gateway works through its queue; the good OCPs follow
+            while time.monotonic() < deadline and not all(q in got for q in sent):
                 time.sleep(0.2)
             time.sleep(1.5)  # the last health report after the queue drained
             h1 = _gateway_health(s, vid)
             rss1 = proc_rss_mib(gw_pid)
     finally:
         procs.close()
-    lost = sorted(q for q in [*sent_clean, *sent_flood] if q not in got)
+    f0, f1 = (report["start_wall"] - wall0 + perf0, report["end_wall"] - wall0 + perf0)  # the flood, perf clock
+    during = {q: t for q, t in sent.items() if f0 <= t <= f1}
+    before = {q: t for q, t in sent.items() if t < f0}
+    lost = sorted(q for q in sent if q not in got)
     codes = {k[len("rejected_"):]: v - h0.detail.get(k, 0) for k, v in h1.detail.items() if k.startswith("rejected_")}
     codes = {k: v for k, v in codes.items() if v}
-    lat_clean, lat_flood = _latencies(sent_clean, got), _latencies(sent_flood, got)
+    lat_clean, lat_flood = _latencies(before, got), _latencies(during, got)
     print(f"\nflood: {report['sent']} hostile payloads at {report['rate']:.0f}/s (asked {FLOOD_RATE:.0f}) in "
           f"{report['seconds']:.1f} s, by kind {report['by_kind']}")
-    print(f"flood: gateway received {h1.received - h0.received} (good {len(sent_flood)}), rejections by code "
+    print(f"flood: gateway received {h1.received - h0.received} (good {len(sent)}), rejections by code "
           f"{dict(sorted(codes.items()))}; rejected {h1.rejected - h0.rejected}, "
           f"dropped at its queue {h1.dropped - h0.dropped}, errors {h1.errors}")
-    print(f"flood: good samples sent {len(sent_clean) + len(sent_flood)}, lost {len(lost)}; OCP statuses {statuses}")
-    print(f"flood: good-stream latency ms, clean {lat_clean}, under the flood {lat_flood}; p99 ratio "
+    print(f"flood: good samples sent {len(sent)} ({len(during)} during the flood), lost {len(lost)}; "
+          f"OCP statuses {statuses}")
+    print(f"flood: good-stream latency ms, before the flood {lat_clean}, during it {lat_flood}; p99 ratio "
           f"{lat_flood.get('p99', float('nan')) / lat_clean.get('p99', float('nan')):.2f}")
     print(f"flood: gateway RSS MiB before {rss0:.1f}, peak {rss_peak[0]:.1f}, after {rss1:.1f}")
+    assert len(during) > 200, "the flood did not overlap the good stream"
     assert not lost, f"{len(lost)} good samples lost, e.g. {lost[:10]}"
     assert all(q >= SEQ0 for q in ocp_seqs), "a hostile sample reached the OCPs"
-    assert len(ocp_seqs) == len(set(ocp_seqs)) == len(sent_clean) + len(sent_flood)
+    assert len(ocp_seqs) == len(set(ocp_seqs)) == len(sent)
     # every hostile payload the gateway got was refused and counted under a reason; none was an error
     assert h1.errors == 0 and h1.rejected - h0.rejected == sum(codes.values())
     received = h1.received - h0.received  # what reached the gateway (the flooder's own queue may drop, as it may)
-    assert received == len(sent_flood) + (h1.rejected - h0.rejected) + (h1.dropped - h0.dropped)
-    assert received > len(sent_flood) + report["sent"] // 2
+    assert received == len(sent) + (h1.rejected - h0.rejected) + (h1.dropped - h0.dropped)
+    assert received > len(sent) + report["sent"] // 2
     assert {"too_large", "malformed_json", "non_finite", "schema", "vehicle_mismatch", "old_seq"} <= set(codes)
     assert rss_peak[0] - rss0 < 64, (rss0, rss_peak[0])  # bounded: the queue holds at most queue_size payloads

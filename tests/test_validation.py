@@ -65,6 +65,28 @@ def test_a_replay_beside_the_live_stream_is_never_adopted_but_a_real_restart_is(
     assert adopted == 4 and v.restarts == 1 and v.last_seq == 9
 
 
+def test_a_forged_jump_ahead_is_refused_and_a_run_of_them_is_a_restart():
+    """One sample with a seq of 10^300 (or a stamp a year ahead) does not become the vehicle's last:
+    it is out_of_range and the stream goes on; a source that really jumps (its new session's seqs)
+    is adopted after a run, as any restart."""
+    v = SampleValidator(restart_after=5)
+    for i in range(10):
+        v.check(sample(i, i * 0.01))
+    for bad in (sample(10**300, 0.1), sample(10, 3.2e7)):
+        with pytest.raises(SampleRejected) as exc:
+            v.check(bad)
+        assert exc.value.code == "out_of_range"
+    v.check(sample(10, 0.1))
+    adopted = []
+    for i in range(8):
+        try:
+            v.check(sample(5_000_000 + i, 0.11 + i * 0.01))
+            adopted.append(i)
+        except SampleRejected as exc:
+            assert exc.code == "out_of_range"
+    assert adopted == [4, 5, 6, 7] and v.restarts == 1
+
+
 def test_scattered_stragglers_never_open_a_new_session():
     v = SampleValidator(restart_after=5)
     for i in range(100):

@@ -150,6 +150,7 @@ def flood(session, key: str, payloads: list[tuple[str, bytes]], rate: float, dur
     n_max = int(rate * duration)
     burst = max(1, int(round(rate / 1000.0)))
     t0 = time.perf_counter()
+    wall0 = time.time()
     i = 0
     try:
         while i < n_max:
@@ -167,7 +168,8 @@ def flood(session, key: str, payloads: list[tuple[str, bytes]], rate: float, dur
     finally:
         pub.undeclare()
     elapsed = time.perf_counter() - t0
-    return {"sent": i, "by_kind": sent, "seconds": elapsed, "rate": i / max(elapsed, 1e-9)}
+    return {"sent": i, "by_kind": sent, "seconds": elapsed, "rate": i / max(elapsed, 1e-9), "start_wall": wall0,
+            "end_wall": wall0 + elapsed}
 
 
 def main(argv: Optional[list[str]] = None) -> int:
