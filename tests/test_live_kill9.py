@@ -171,3 +171,21 @@ def test_kill9_of_every_process_every_10s_for_5_minutes(tmp_path):
         if r["victim"] == "soil-strength":
             assert r["first_statuses"][0] != "ok", r
     print(f"kill -9: {len(results)} kills, max up -> OCP {max(r['up_to_ocp_s'] for r in results):.3f} s")
+
+
+def test_every_deployment_restarts_what_dies():
+    """Who restarts what (docs/services.md, "Who restarts what"): the systemd units restart the router
+    and every service (not on a configuration error, exit 2); in the compose files every long-running
+    container restarts (the one-shot certificate maker does not)."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    for unit in ("soilocp@.service", "soilocp-router.service"):
+        lines = (root / "deploy" / "systemd" / unit).read_text().splitlines()
+        assert "Restart=always" in lines and "RestartPreventExitStatus=2" in lines, unit
+    for compose in ("docker-compose.yml", "docker-compose.plain.yml"):
+        services = yaml.safe_load((root / compose).read_text())["services"]
+        assert services
+        for name, svc in services.items():
+            want = "no" if name == "certs" else "unless-stopped"
+            assert svc.get("restart") == want, (compose, name, svc.get("restart"))
