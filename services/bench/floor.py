@@ -125,46 +125,43 @@ def write_bare_templates(recorded: dict[str, str], templates: Path) -> None:
         (templates.parent / f"bare-{name}.json").write_text(text)
 
 
-def split_label(label: str) -> tuple[str, str, str]:
-    """``"real@peer+inline"`` -> ``("real", "peer", "inline")``; ``"real"`` -> ``("real", "client", "queue")``."""
-    rest, _, dispatch = label.partition("+")
-    v, _, links = rest.partition("@")
-    return v, links or "client", dispatch or "queue"
+def split_label(label: str) -> tuple[str, str]:
+    """``"real@peer"`` -> ``("real", "peer")``; ``"real"`` -> ``("real", "client")``."""
+    v, _, links = label.partition("@")
+    return v, links or "client"
 
 
-def _with_links(make_rig, links: str, dispatch: str = "queue"):
-    if links == "client" and dispatch == "queue":
+def _with_links(make_rig, links: str):
+    if links == "client":
         return make_rig
 
     def make(vehicle_ids):
         rig = make_rig(vehicle_ids)
         rig.links = links
-        if dispatch != "queue":  # the services' SOILOCP_DISPATCH (services.runtime.worker)
-            rig.env = {**rig.env, "SOILOCP_DISPATCH": dispatch}
         return rig
 
     return make
 
 
 def _rig(pipeline: str, label: str, templates: Path):
-    v, links, dispatch = split_label(label)
+    v, links = split_label(label)
     make = (RIGS[pipeline] if v == "real" else bare_rig(pipeline, templates) if v == "bare"
             else relay_rig(pipeline, v, templates))
-    return _with_links(make, links, dispatch)
+    return _with_links(make, links)
 
 
 def _control_rig(label: str, templates: Path):
     from services.bench.control import control_rig
 
-    v, links, dispatch = split_label(label)
+    v, links = split_label(label)
     make = (control_rig if v == "real" else bare_rig("standard", templates, controller=True) if v == "bare"
             else relay_rig("standard", v, templates, controller=True))
-    return _with_links(make, links, dispatch)
+    return _with_links(make, links)
 
 
 def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
               variants: Optional[list[str]] = None, log=print, links: Optional[list[str]] = None,
-              control: bool = True, dispatch: Optional[list[str]] = None) -> dict[str, Any]:
+              control: bool = True) -> dict[str, Any]:
     """Every live row for every pipeline and variant (each variant once per ``links`` mode, the peer
     ones labelled ``VARIANT@peer``); the report (a JSON-able dict).  ``control``: the control-loop row."""
     from services.bench.control import control_loop_latency
@@ -177,11 +174,7 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     if "bare" not in variants:
         variants.insert(0, "bare")  # the baseline of every ratio
     links = list(links or ["client"])
-    dispatch = list(dispatch or ["queue"])
-    # every variant in every mode, the modes of one variant next to each other (paired); the bare relay has
-    # no runtime, hence no dispatch mode
-    variants = [v + ("" if ln == "client" else f"@{ln}") + ("" if d == "queue" else f"+{d}")
-                for v in variants for ln in links for d in (["queue"] if v == "bare" else dispatch)]
+    variants = [v if ln == "client" else f"{v}@{ln}" for v in variants for ln in links]
     ladder = list(ladder or ((1, 2) if quick else LADDER))
     d_100, d_1k, d_scale = live_durations(quick)
     report: dict[str, Any] = {"kind": "floor", "quick": quick, "machine": machine_info(), "targets": TARGETS,
@@ -372,10 +365,10 @@ def render_floor(report: dict[str, Any], console) -> None:
 
 def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], ladder: Optional[list[int]],
                   variants: Optional[list[str]], console, links: Optional[list[str]] = None,
-                  control: bool = True, dispatch: Optional[list[str]] = None) -> dict[str, Any]:
+                  control: bool = True) -> dict[str, Any]:
     """``soilocp bench --floor``: run, print the tables, write the JSON."""
     report = run_floor(quick, pipelines or None, ladder, variants, log=lambda msg: console.print(msg, style="dim"),
-                       links=links or None, control=control, dispatch=dispatch or None)
+                       links=links or None, control=control)
     render_floor(report, console)
     if json_out:
         Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
@@ -392,13 +385,10 @@ def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], la
 @click.option("--links", "links", multiple=True, type=click.Choice(LINKS),
               help="client (default): every process a client of the router; peer: the services link to each other "
                    "directly.  Repeat for both, alternating in the same run.")
-@click.option("--dispatch", "dispatch", multiple=True, type=click.Choice(["queue", "inline"]),
-              help="queue (default): every input through the worker queue; inline: handled on the Zenoh thread when "
-                   "the worker is idle (SOILOCP_DISPATCH).  Repeat for both, alternating in the same run.")
 @click.option("--no-control", is_flag=True, help="Skip the control-loop row.")
 @click.option("--max-vehicles", type=int, help="Stop the ladder at this many vehicles.")
 @click.option("--report", "saved", type=click.Path(dir_okay=False, exists=True), help="Render a saved report.")
-def floor_cmd(quick, json_out, pipelines, variants, links, dispatch, no_control, max_vehicles, saved) -> None:
+def floor_cmd(quick, json_out, pipelines, variants, links, no_control, max_vehicles, saved) -> None:
     """The floor of the live rows: the real pipeline next to its relays (no math; no messages)."""
     from rich.console import Console
 
@@ -410,7 +400,7 @@ def floor_cmd(quick, json_out, pipelines, variants, links, dispatch, no_control,
     if max_vehicles is not None:
         ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
     floor_command(quick, json_out, list(pipelines), ladder, list(variants) or None, console, list(links) or None,
-                  control=not no_control, dispatch=list(dispatch) or None)
+                  control=not no_control)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 from schemas.sensor import VehicleId
 from soilocp.validation import MAX_PAYLOAD_BYTES
 from services.runtime.settings import (  # noqa: F401  (re-exported: the services' settings in one import)
-    DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_DISPATCH, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_LISTEN,
+    DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_LISTEN,
     ENV_LOG_LEVEL, ENV_MAP_PRIOR, ENV_MODE, ENV_STALE_TIMEOUT, ENV_VEHICLE_ID, ConfigError, _read_config_file,
     _split_list, check_endpoint, env_settings, zenoh_config)
 
@@ -59,10 +59,6 @@ class ServiceConfig(BaseModel):
                           "batched with others (docs/performance.md, 'Zenoh settings, chosen')")
     batching: bool = Field(True, description="Zenoh: the links may batch messages queued together "
                            "(transport/link/tx/queue/batching; docs/performance.md)")
-    dispatch: Literal["queue", "inline"] = Field(
-        "queue", description="queue: every input goes through the bounded queue to the worker thread; inline: "
-        "an input that finds the worker idle and nothing queued is handled at once on the Zenoh thread that "
-        "delivered it (one thread hand-off less per message), the others queue as before (env SOILOCP_DISPATCH)")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     stale_timeout_s: float = Field(0.5, gt=0, le=3600, description="OCP publisher: stale after this much silence")
     queue_size: int = Field(4096, ge=1, le=1_000_000, description="Worker queue bound; beyond it inputs are dropped")
@@ -122,7 +118,7 @@ def load_service_config(
         values.update(_file_section(_read_config_file(path), service, path))
     values.update(env_settings(env, {ENV_VEHICLE_ID: "vehicle_ids", ENV_CONNECT: "connect", ENV_LISTEN: "listen"},
                                {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level", ENV_EXPRESS: "express",
-                                ENV_BATCHING: "batching", ENV_DISPATCH: "dispatch"}))
+                                ENV_BATCHING: "batching"}))
     if env.get(ENV_STALE_TIMEOUT):
         raw = env[ENV_STALE_TIMEOUT].strip()
         try:

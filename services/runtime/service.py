@@ -35,8 +35,7 @@ class Service:
         self.counters: dict[str, Counters] = {vid: Counters() for vid in cfg.vehicle_ids}
         self._declared: list[Any] = []
         self.session = None
-        self.worker = BoundedWorker(self.name, self._handle_safe, cfg.queue_size, self._dropped, self._failed,
-                                    inline=cfg.dispatch == "inline")
+        self.worker = BoundedWorker(self.name, self._handle_safe, cfg.queue_size, self._dropped, self._failed)
         self._drop_logged = 0
         self.stop_event: threading.Event = threading.Event()  # replaced by the runner's
         self.exit_code = 0
