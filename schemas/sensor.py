@@ -8,6 +8,7 @@ field: the contract is versioned by :data:`SENSOR_SCHEMA_ID`).
 from __future__ import annotations
 
 import math
+import reprlib
 from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
@@ -91,13 +92,21 @@ class SensorSample(BaseModel):
         description="CoM position, WGS84 latitude/longitude (deg) and heading, e.g. from sensor_msgs/NavSatFix; optional")
 
 
+#: The repr of a refused value in a message: what a reader needs (scalars and short vectors in full), its
+#: cost bounded whatever the value (nesting, length).
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxstring, _SHORT_REPR.maxother = 2, 64, 64
+_SHORT_REPR.maxlist = _SHORT_REPR.maxtuple = _SHORT_REPR.maxdict = 8
+
+
 def format_validation_error(exc: ValidationError) -> str:
     """One line per problem: 'field.path: message (got value)'."""
     parts = []
     for err in exc.errors(include_url=False):
         loc = ".".join(str(p) for p in err.get("loc", ())) or "<sample>"
         got = err.get("input")
-        got_s = repr(got)
+        # bounded: a full repr of a hostile input (an object nested 600 deep) costs milliseconds per error
+        got_s = _SHORT_REPR.repr(got)
         if len(got_s) > 60:
             got_s = got_s[:57] + "..."
         parts.append(f"{loc}: {err.get('msg')} (got {got_s})")

@@ -205,14 +205,16 @@ def _ros_domain(value) -> int:
               help="The robot's Zenoh router (rmw_zenohd) for --ros2 / --ros2-in; default tcp/127.0.0.1:7447 "
                    "(then give --listen another port for soilocp's own router).")
 @click.option("--ros2-domain", type=int, help="ROS domain id for --ros2 / --ros2-in; default $ROS_DOMAIN_ID or 0.")
+@click.option("--restart", is_flag=True, help="Restart a router or service that dies (at most 5 times a minute each) "
+                                              "instead of stopping the run.")
 def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, vehicle_path,
             torque_constant, stale_timeout, seed, log_dir, plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect,
-            ros2_domain) -> None:
+            ros2_domain, restart=False) -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs.
 
     Ends with the OCP records per status and reason code, each with its next step, and says what any
     service dropped and why.  Exits non-zero at once, with the service's own message, when a service
-    cannot start."""
+    cannot start; with --restart a router or service that dies is restarted instead."""
     from schemas import keys
 
     from services.supervisor.run import RunOptions, run_system
@@ -270,7 +272,8 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
     opts = RunOptions(scenario=scenario, replay=replay, speed=speed, vehicle_id=vehicle_id, duration=duration,
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
                       seed=seed, log_dir=log_dir, plain=plain, control=control, foxglove=foxglove_addr,
-                      ros2_out=ros2_out, ros2_in=ros2_in, ros2_connect=ros2_eps, ros2_domain=ros2_domain)
+                      ros2_out=ros2_out, ros2_in=ros2_in, ros2_connect=ros2_eps, ros2_domain=ros2_domain,
+                      restart=restart)
     try:
         code = run_system(opts)
     except ValueError as exc:  # the Foxglove port is taken: nothing was started

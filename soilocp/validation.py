@@ -10,14 +10,23 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Optional
+from typing import IO, Iterator, Optional
 
 from pydantic import ValidationError
 
 from schemas.sensor import SensorSample, format_validation_error
 
+#: Byte limit of one raw sample (a gateway payload, a line of a sensor log), checked before any parsing.
+#: The largest valid SensorSample (a 64-character vehicle id, every number at full float precision) is
+#: about 550 bytes as compact JSON and 750 pretty-printed, so 4 KiB leaves a 5x margin for any writer's
+#: formatting.  Parsing is what a hostile payload costs below the limit: a 4 KiB array of numbers is
+#: refused in ~0.1 ms, a 64 KiB one in ~13 ms and a 500 KB one in over 50 ms, so a stream (or a log) of
+#: them would stall the chain.  The gateway's ``max_payload_bytes`` setting defaults to it.
+MAX_PAYLOAD_BYTES = 4096
+
 #: Machine-readable rejection codes.
 REJECTION_CODES = (
+    "too_large",  # longer than the byte limit: refused before parsing
     "malformed_json",  # not JSON, or not a JSON object
     "non_finite",  # NaN / Infinity anywhere
     "schema",  # missing / extra / wrongly typed field
@@ -39,6 +48,67 @@ class SampleRejected(ValueError):
         self.seq = seq
 
 
+class OversizedLine(str):
+    """A line of a sensor log that :func:`capped_lines` did not read in full: its first bytes only
+    (decoded), and its whole length in bytes as ``size``.  :func:`parse_sample` refuses it as
+    ``too_large`` without looking at the text."""
+
+    size: int
+
+    def __new__(cls, head: str, size: int) -> "OversizedLine":
+        obj = super().__new__(cls, head)
+        obj.size = int(size)
+        return obj
+
+
+def payload_size(payload: bytes | str) -> int:
+    """Bytes of ``payload`` as the limit counts them: a line's end (``\\n``, ``\\r\\n``) does not count,
+    a str counts its UTF-8 bytes."""
+    if isinstance(payload, OversizedLine):
+        return payload.size
+    n = len(payload)
+    if isinstance(payload, str):
+        end = 2 if payload.endswith("\r\n") else 1 if payload.endswith("\n") else 0
+        n -= end
+        if not payload.isascii():
+            n = len(payload.encode("utf-8", "surrogatepass")) - end
+        return n
+    return n - (2 if payload.endswith(b"\r\n") else 1 if payload.endswith(b"\n") else 0)
+
+
+def check_size(payload: bytes | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> None:
+    """Raise SampleRejected ``too_large`` if ``payload`` is longer than ``max_bytes``: the check that
+    comes before any parsing, live and offline."""
+    n = payload_size(payload)
+    if n > max_bytes:
+        raise SampleRejected("too_large", f"payload: {n} bytes exceeds the limit of {max_bytes} bytes")
+
+
+def capped_lines(fobj: IO[bytes], max_bytes: int = MAX_PAYLOAD_BYTES) -> Iterator[str]:
+    """The lines of a binary file as text (invalid UTF-8 replaced), never holding more than about
+    ``max_bytes`` of one line in memory: a longer line is skipped to its end and given as an
+    :class:`OversizedLine`, which :func:`parse_sample` refuses before parsing.
+
+    Offline, this is what the gateway's size check is live: a sensor log with a line of megabytes
+    costs neither the memory nor the parse."""
+    want = max_bytes + 3  # the limit, a line end (\r\n) and one byte more
+    while True:
+        chunk = fobj.readline(want)
+        if not chunk:
+            return
+        if len(chunk) < want or chunk.endswith(b"\n"):
+            yield chunk.decode("utf-8", errors="replace")
+            continue
+        size, tail = len(chunk), chunk
+        while not tail.endswith(b"\n"):
+            tail = fobj.readline(1 << 16)
+            if not tail:
+                break
+            size += len(tail)
+        size -= 2 if tail.endswith(b"\r\n") else 1 if tail.endswith(b"\n") else 0
+        yield OversizedLine(chunk[:256].decode("utf-8", errors="replace"), size)
+
+
 def _find_non_finite(obj, path="") -> Optional[str]:
     if isinstance(obj, float) and not math.isfinite(obj):
         return path or "<sample>"
@@ -58,11 +128,15 @@ def _find_non_finite(obj, path="") -> Optional[str]:
 _RANGE_TYPES = {"less_than_equal", "greater_than_equal", "less_than", "greater_than"}
 
 
-def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None) -> SensorSample:
+def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None, *,
+                 max_bytes: int = MAX_PAYLOAD_BYTES) -> SensorSample:
     """Parse and schema-check one raw payload; SampleRejected says which field, which value, why.
 
     The one parser of the gateway and of ``soilocp estimate``: whatever the payload, it returns a
-    sample or raises SampleRejected, never anything else (a deeply nested payload included)."""
+    sample or raises SampleRejected, never anything else (a deeply nested payload, an integer of
+    thousands of digits included).  A payload longer than ``max_bytes`` is refused (``too_large``)
+    before it is parsed."""
+    check_size(payload, max_bytes)
     # a good payload costs one call into pydantic-core (JSON parsed and validated in Rust, 5x cheaper
     # than json.loads + a walk + model_validate); a payload it refuses takes the path below, which words
     # the rejection (malformed JSON, the non-finite value's path, the schema or range error)
@@ -77,6 +151,11 @@ def parse_sample(payload: bytes | str, expected_vehicle_id: Optional[str] = None
         return _parse_sample(payload, expected_vehicle_id)
     except RecursionError:
         raise SampleRejected("malformed_json", "payload: JSON nested too deeply") from None
+    except SampleRejected:
+        raise
+    except (ValueError, TypeError, OverflowError) as exc:
+        # what the parser itself refuses beyond JSON syntax, e.g. an integer of 5000 digits
+        raise SampleRejected("malformed_json", f"payload: cannot be parsed: {exc}"[:300]) from None
 
 
 def _check_vehicle(sample: SensorSample, expected_vehicle_id: Optional[str]) -> None:
@@ -125,35 +204,59 @@ class SampleValidator:
     (seq and stamp increasing), they are a new session of the source, not stragglers: the
     validator adopts it, accepts the sample and counts a restart (``restarts``).  Downstream
     stages see the stamp go backwards and re-initialise.
+
+    Live, the checks are given each sample's arrival time (``received_at``), and a restart is adopted
+    only once no sample has been accepted for ``restart_quiet_s``: a source that restarted has left
+    its old session, whereas a recorded stream replayed at a high rate beside the live one (50 old
+    samples arrive between two live ones at 5 kHz) would otherwise be taken for a restart, and every
+    replayed sample after it fed downstream.  Offline (no arrival time) the run alone decides.
     """
 
-    def __init__(self, restart_after: int = 50) -> None:
+    #: A sample further ahead of the last accepted one than this (seq, stamp in s) is refused as out_of_range
+    #: (unless a run of them adopts it, as a restart): no recorded drive jumps so far, and one forged sample
+    #: with a seq of 10^300 would otherwise make every later sample of the vehicle an old one.
+    MAX_SEQ_JUMP = 1_000_000
+    MAX_STAMP_JUMP_S = 86_400.0
+
+    def __init__(self, restart_after: int = 50, restart_quiet_s: float = 0.5) -> None:
         if restart_after < 2:
             raise ValueError(f"restart_after must be >= 2, got {restart_after!r}")
         self.restart_after = restart_after
+        self.restart_quiet_s = float(restart_quiet_s)
         self.last_seq: Optional[int] = None
         self.last_stamp: Optional[float] = None
         self.restarts = 0
-        self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples
+        self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples (the latest restart_after)
+        self._accepted_at: Optional[float] = None  # arrival time of the last accepted sample (live)
 
-    def check(self, sample: SensorSample) -> None:
-        """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it."""
+    def check(self, sample: SensorSample, received_at: Optional[float] = None) -> None:
+        """Raise SampleRejected if ``sample`` cannot follow the last accepted one; else accept it.
+        ``received_at``: its arrival time, s (live; class doc)."""
         try:
             self._check_order(sample)
         except SampleRejected as rej:
-            if rej.code in ("old_seq", "stamp_backwards") and self._extends_run(sample):
+            candidate = rej.code in ("old_seq", "stamp_backwards") or getattr(rej, "jump", False)
+            if candidate and self._extends_run(sample):
                 self._run.append((sample.seq, sample.stamp))
-                if len(self._run) >= self.restart_after:
+                if len(self._run) >= self.restart_after and self._quiet(received_at):
                     self.restarts += 1
                     self._run.clear()
                     self.last_seq, self.last_stamp = sample.seq, sample.stamp
+                    self._accepted_at = received_at
                     return  # a restarted source: accepted as the start of its new session
-            elif rej.code in ("old_seq", "stamp_backwards"):
+                del self._run[:-self.restart_after]
+            elif candidate:
                 self._run = [(sample.seq, sample.stamp)]
             raise
         self._run.clear()
         self.last_seq = sample.seq
         self.last_stamp = sample.stamp
+        self._accepted_at = received_at
+
+    def _quiet(self, received_at: Optional[float]) -> bool:
+        if received_at is None or self._accepted_at is None:
+            return True
+        return received_at - self._accepted_at >= self.restart_quiet_s
 
     def _extends_run(self, sample: SensorSample) -> bool:
         if not self._run:
@@ -176,3 +279,11 @@ class SampleValidator:
                 f"stamp: {sample.stamp!r} is before the last accepted {self.last_stamp!r}",
                 sample.seq,
             )
+        if sample.seq - self.last_seq > self.MAX_SEQ_JUMP or sample.stamp - self.last_stamp > self.MAX_STAMP_JUMP_S:
+            field, value, last, most = (("seq", sample.seq, self.last_seq, self.MAX_SEQ_JUMP)
+                                        if sample.seq - self.last_seq > self.MAX_SEQ_JUMP else
+                                        ("stamp", sample.stamp, self.last_stamp, self.MAX_STAMP_JUMP_S))
+            rej = SampleRejected("out_of_range", f"{field}: {value!r:.60} is more than {most:g} ahead of the last "
+                                 f"accepted {last!r}", sample.seq if sample.seq < 2**63 else None)
+            rej.jump = True
+            raise rej

@@ -164,3 +164,22 @@ def test_process_commands_load_no_heavy_module(argv):
     assert ("'service'" in commands) == (argv[0] == "service")  # the router's group holds the router only
     r = subprocess.run([sys.executable, "-c", code, "estimate"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "'estimate'" in r.stdout and "'bench'" in r.stdout, r.stdout + r.stderr
+
+
+@pytest.mark.timeout(200)
+def test_soak_short_form_carries_every_sample_and_reports_memory(tmp_path):
+    """``soilocp bench --soak 20``: the report has every figure of the soak; nothing dropped, no
+    observer reset but the start's, no process error.  Timing figures are reported, not asserted."""
+    out = tmp_path / "soak.json"
+    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "bench", "--soak", "20", "--json", str(out)],
+                       capture_output=True, text=True, timeout=170)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    rep = json.loads(out.read_text())
+    assert rep["kind"] == "soak" and rep["sent"] == 2000
+    assert rep["drops"] == 0, rep["drops"]
+    assert set(rep["rss"]) == {"router", "gateway", "normal-force", "observer", "soil-strength", "ocp"}
+    assert all(v["growth_mib"] is not None for v in rep["rss"].values())
+    assert rep["observer_resets"] == {"start": 1}, rep["observer_resets"]
+    assert all(h["errors"] == 0 and h["dropped"] == 0 for h in rep["health"].values()), rep["health"]
+    assert rep["latency"]["first_tenth_n"] > 0 and rep["latency"]["last_tenth_n"] > 0
+    assert "soak targets:" in r.stdout and "resident memory per process" in r.stdout

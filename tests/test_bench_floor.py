@@ -66,10 +66,10 @@ def test_quick_floor_carries_every_sample(tmp_path):
     assert not [p for p in scratch.iterdir() if p.name.startswith("soilocp-floor-")]
     assert "floor of the live rows, standard pipeline" in r.stdout and "batched pipeline" in r.stdout
     rep = json.loads(out.read_text())
-    assert rep["kind"] == "floor" and rep["variants"] == ["messages", "zenoh"]
+    assert rep["kind"] == "floor" and rep["variants"] == ["bare", "messages", "zenoh"]  # bare: always, first
     assert {"raw sample", *RECORDED} <= set(rep["message_bytes"])
     rows = {(row["pipeline"], row["variant"], row["rate_hz"]): row for row in rep["latency"]}
-    assert set(rows) == {(p, v, rate) for p in ("standard", "batched") for v in ("messages", "zenoh")
+    assert set(rows) == {(p, v, rate) for p in ("standard", "batched") for v in ("bare", "messages", "zenoh")
                          for rate in (100.0, 1000.0)}
     for (pipe, _v, _rate), row in rows.items():
         res = row["result"]
@@ -86,7 +86,12 @@ def test_quick_floor_carries_every_sample(tmp_path):
             (step,) = sc["steps"]
             assert step["vehicles"] == 1 and 0 <= step["result"]["drops"] < step["result"]["sent"], (pipe, v, step)
             assert GRAPH_PROCS[pipe] <= set(step["processes"])
-    assert set(rep["targets_met"]) == {f"{p}/{v}" for p in ("standard", "batched") for v in ("messages", "zenoh")}
+    assert set(rep["targets_met"]) == {f"{p}/{v}" for p in ("standard", "batched") for v in ("bare", "messages", "zenoh")}
+    # every row as a ratio to the bare relay of the same run: 1 for bare itself, a figure for the others
+    for pipe in ("standard", "batched"):
+        assert rep["ratios"][pipe]["bare"]["100hz_p50"] == pytest.approx(1.0)
+        assert rep["ratios"][pipe]["zenoh"]["1khz_cpu"] > 0 and rep["ratios"][pipe]["messages"]["100hz_p99"] > 0
+    assert "over the bare zenoh-python relay of the same run" in r.stdout
 
 
 def test_floor_refuses_compare_and_map():
@@ -97,3 +102,24 @@ def test_floor_refuses_compare_and_map():
     for extra in (["--compare", "base.json"], ["--map"]):
         r = CliRunner().invoke(bench, ["--floor", *extra])
         assert r.exit_code == 2 and "takes neither --compare nor --map" in r.output, r.output
+
+
+def test_bare_relay_args_follow_the_graph(tmp_path):
+    """Each bare relay subscribes its row's inputs, puts on its output key, holds its row's token."""
+    from services.bench.bare import splice_template
+    from services.bench.floor import bare_args
+
+    t = tmp_path / "templates.json"
+    obs = bare_args("observer", t)
+    assert obs[:4] == ["--sub", "soilocp/{vid}/sensors/clean", "--sub", "soilocp/{vid}/normal_forces"]
+    assert obs[obs.index("--forward") + 1] == "soilocp/{vid}/normal_forces"
+    assert obs[obs.index("--pub") + 1] == "soilocp/{vid}/observer"
+    assert obs[obs.index("--token") + 1] == "soilocp/{vid}/alive/observer"
+    assert "--template" not in bare_args("gateway", t)  # forwards the sample's own bytes
+    batch = bare_args("batch", t)
+    assert [batch[i + 1] for i, a in enumerate(batch) if a == "--token"] == [
+        f"soilocp/{{vid}}/alive/{n}" for n in ("normal-force", "observer", "soil-strength", "ocp")]
+    out = splice_template(b'{"vehicle_id":"bench","seq":17,"x":1}')
+    assert out(b"123456") == b'{"vehicle_id":"bench","seq":123456,"x":1}'
+    with pytest.raises(ValueError):
+        splice_template(b'{"x":1}')

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from schemas.messages import Rejection
 from schemas.sensor import SensorSample
-from services.stages.gateway import DEFAULT_MAX_PAYLOAD_BYTES, RawSampleChecker
+from services.stages.gateway import RawSampleChecker
+from soilocp.validation import MAX_PAYLOAD_BYTES as DEFAULT_MAX_PAYLOAD_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -35,6 +35,58 @@ def test_a_restarted_source_is_adopted_after_a_run_of_ordered_samples_only():
     assert rejected == 4 and v.restarts == 1 and v.last_seq == 9
 
 
+def test_a_replay_beside_the_live_stream_is_never_adopted_but_a_real_restart_is():
+    """Live (arrival times given): 80 old samples in order between two live ones, as a replay at a high
+    rate brings them, are all refused; the live stream goes on.  When the live source falls silent for
+    the quiet time, its new session (seq from 0) is adopted as before."""
+    v = SampleValidator(restart_after=5, restart_quiet_s=0.5)
+    t, live_seq = 100.0, 1000
+    v.check(sample(live_seq - 1, (live_seq - 1) * 0.01), received_at=t)
+    old = 0
+    for _ in range(20):
+        for _ in range(80):  # the replay: in order among themselves, 0.1 ms apart
+            t += 1e-4
+            with pytest.raises(SampleRejected):
+                v.check(sample(old, old * 0.01), received_at=t)
+            old = (old + 1) % 900  # a recorded stream, older than the live one
+        t += 0.01
+        v.check(sample(live_seq, live_seq * 0.01), received_at=t)  # the live stream: never refused
+        live_seq += 1
+    assert v.restarts == 0 and v.last_seq == live_seq - 1
+    t += 0.6  # the live source stops; it comes back from seq 0 (a restart)
+    adopted = None
+    for i in range(10):
+        t += 0.01
+        try:
+            v.check(sample(i, i * 0.01), received_at=t)
+            adopted = i if adopted is None else adopted
+        except SampleRejected:
+            assert adopted is None
+    assert adopted == 4 and v.restarts == 1 and v.last_seq == 9
+
+
+def test_a_forged_jump_ahead_is_refused_and_a_run_of_them_is_a_restart():
+    """One sample with a seq of 10^300 (or a stamp a year ahead) does not become the vehicle's last:
+    it is out_of_range and the stream goes on; a source that really jumps (its new session's seqs)
+    is adopted after a run, as any restart."""
+    v = SampleValidator(restart_after=5)
+    for i in range(10):
+        v.check(sample(i, i * 0.01))
+    for bad in (sample(10**300, 0.1), sample(10, 3.2e7)):
+        with pytest.raises(SampleRejected) as exc:
+            v.check(bad)
+        assert exc.value.code == "out_of_range"
+    v.check(sample(10, 0.1))
+    adopted = []
+    for i in range(8):
+        try:
+            v.check(sample(5_000_000 + i, 0.11 + i * 0.01))
+            adopted.append(i)
+        except SampleRejected as exc:
+            assert exc.code == "out_of_range"
+    assert adopted == [4, 5, 6, 7] and v.restarts == 1
+
+
 def test_scattered_stragglers_never_open_a_new_session():
     v = SampleValidator(restart_after=5)
     for i in range(100):
@@ -57,8 +109,8 @@ def test_parse_sample_names_field_and_value():
     '{"a":' * 5000 + "1" + "}" * 5000,
 ])
 def test_deeply_nested_payload_is_a_rejection_not_a_recursion_error(payload):
-    with pytest.raises(SampleRejected) as exc:
-        parse_sample(payload)
+    with pytest.raises(SampleRejected) as exc:  # the limit raised: what the parser does past the size check
+        parse_sample(payload, max_bytes=len(payload))
     assert exc.value.code == "malformed_json" and "nested too deeply" in exc.value.message
 
 
@@ -67,7 +119,7 @@ def test_deep_line_in_a_log_loses_no_good_line_around_it():
     from soilocp.estimation.pipeline import PipelineConfig
 
     good = [sample(i, i * 0.01).model_dump_json() for i in range(6)]
-    lines = good[:3] + ["[" * 5000 + "]" * 5000] + good[3:]
+    lines = good[:3] + ["[" * 2000 + "]" * 2000] + good[3:]  # under the byte limit, past the recursion limit
     summary = EstimateSummary()
     recs = list(estimate_lines(lines, PipelineConfig(), summary=summary))
     assert [r["seq"] for r in recs] == list(range(6))

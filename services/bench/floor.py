@@ -8,10 +8,17 @@ statistics and ladder, on rigs of the same process graph and keys:
 * ``real``: the deployed services (``Rig.standard`` / ``Rig.batched`` / ``control_rig``);
 * ``messages``: every stage a relay of :mod:`services.bench.relay` at the messages level (the
   services' message handling: parse, join, store, serialise a real-sized output; no estimation);
-* ``zenoh``: every stage a relay at the zenoh level (payload bytes forwarded by the worker).
+* ``zenoh``: every stage a relay at the zenoh level (payload bytes forwarded by the worker);
+* ``bare``: every stage a bare zenoh-python process (:mod:`services.bench.bare`: a callback that
+  republishes a message of the row's output size, on Zenoh's own thread; none of our runtime).
 
-So ``zenoh`` is the floor of processes + hops + scheduling on this machine, ``messages - zenoh`` what
-the message handling adds and ``real - messages`` what the estimation adds.  A full run is three
+So ``bare`` is the true floor of processes + hops on this machine (what any Python process over
+Zenoh costs), ``zenoh - bare`` what our runtime adds (queue hand-off, worker thread, health,
+liveliness), ``messages - zenoh`` what the message handling adds and ``real - messages`` what the
+estimation adds.  Every live row is also given as a ratio to ``bare`` (CPU per sample summed over
+the router and the stages, p50, p99).  ``--links peer`` (repeatable with ``client``) measures the
+variants with the services as Zenoh peers that link to each other directly (``bare@peer``...),
+in the same run, alternating with the client ones; their ratios are to the client ``bare``.  A full run is three
 times the bench's live part (~14 min on 2 cores, twice the whole bench), hence an option of its own
 rather than part of the bench or of its ``--quick``.  ``python -m services.bench.floor`` is the same command.
 """
@@ -19,6 +26,7 @@ rather than part of the bench or of its ``--quick``.  ``python -m services.bench
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import sys
@@ -32,7 +40,8 @@ import click
 from services.bench.run import (LADDER, RIGS, TARGETS, _clone, _f, _payloads, json_safe, live_drives, live_durations,
                                 machine_info, measure_latency, measure_scale)
 
-VARIANTS = ("real", "messages", "zenoh")
+VARIANTS = ("bare", "zenoh", "messages", "real")
+LINKS = ("client", "peer")
 PIPELINE_ROWS = {"standard": None, "batched": ("gateway", "batch")}  # None: every row of the graph
 
 
@@ -51,19 +60,110 @@ def relay_rig(pipeline: str, level: str, templates: Path, controller: bool = Fal
     return make_rig
 
 
-def _rig(pipeline: str, variant: str, templates: Path):
-    return RIGS[pipeline] if variant == "real" else relay_rig(pipeline, variant, templates)
+def bare_rig(pipeline: str, templates: Path, controller: bool = False):
+    """``make_rig(vehicle_ids)`` of the bare relay pipeline: the graph of ``pipeline`` (+ the controller),
+    every process ``python -m services.bench.bare`` with the row's keys and recorded output."""
+    from services.bench.live import Rig
+
+    names = list(PIPELINE_ROWS[pipeline] or _pipeline_services()) + (["controller"] if controller else [])
+    services = [(n, "services.bench.bare", bare_args(n, templates)) for n in names]
+
+    def make_rig(vehicle_ids):
+        return Rig(list(vehicle_ids), services)
+
+    return make_rig
 
 
-def _control_rig(variant: str, templates: Path):
+def _pipeline_services():
+    from services.stages.graph import PIPELINE_SERVICES
+
+    return PIPELINE_SERVICES
+
+
+_VID = "VIDXPLACEHOLDER"  # a valid id, replaced by the bare relay's {vid} placeholder
+
+
+def bare_args(name: str, templates: Path) -> list[str]:
+    """The command line of the bare relay standing for row ``name`` (``batch``, ``controller`` too):
+    its inputs, the one that triggers a put (the observer's later input), its output key and the file
+    of its recorded output (none for the gateway: it forwards the sample's bytes)."""
+    from schemas import keys
+    from services.stages.graph import BATCHED_STAGES, BY_NAME
+
+    def k(key_fn) -> str:
+        return key_fn(_VID).replace(_VID, "{vid}")
+
+    if name == "batch":
+        subs, out, tokens, template = [k(keys.clean)], k(keys.ocp), [*BATCHED_STAGES, "ocp"], "ocp"
+    elif name == "controller":
+        subs, out, tokens, template = [k(keys.ocp)], k(keys.control_slip), ["controller"], "controller"
+    else:
+        spec = BY_NAME[name]
+        subs, out, tokens = [k(i.key) for i in spec.inputs], k(spec.output), [name]
+        template = None if name == "gateway" else name
+    args = [a for key in subs for a in ("--sub", key)]
+    if len(subs) > 1:  # the observer: its join completes on the later input, the forces
+        args += ["--forward", subs[-1]]
+    args += ["--pub", out]
+    if template is not None:
+        args += ["--template", str(templates.parent / f"bare-{template}.json")]
+    for t in tokens:
+        args += ["--token", keys.alive(_VID, t).replace(_VID, "{vid}")]
+    return args
+
+
+def write_bare_templates(recorded: dict[str, str], templates: Path) -> None:
+    """One file per recorded row (and the controller's set-point) beside ``templates``, for the bare relays."""
+    import time as _time
+
+    from schemas.messages import SlipSetpoint
+
+    setpoint = SlipSetpoint(vehicle_id="bench", controller="ocp_traction", slip=(0.21, 0.22, 0.2, 0.19),
+                            source="estimate", fallback=0.12, seq=1234, stamp=12.34, soil_strength=321.5,
+                            ocp_age_s=0.004, stale_timeout_s=0.5, issued_at=_time.time())
+    for name, text in {**recorded, "controller": setpoint.model_dump_json()}.items():
+        (templates.parent / f"bare-{name}.json").write_text(text)
+
+
+def split_label(label: str) -> tuple[str, str]:
+    """``"real@peer"`` -> ``("real", "peer")``; ``"real"`` -> ``("real", "client")``."""
+    v, _, links = label.partition("@")
+    return v, links or "client"
+
+
+def _with_links(make_rig, links: str):
+    if links == "client":
+        return make_rig
+
+    def make(vehicle_ids):
+        rig = make_rig(vehicle_ids)
+        rig.links = links
+        return rig
+
+    return make
+
+
+def _rig(pipeline: str, label: str, templates: Path):
+    v, links = split_label(label)
+    make = (RIGS[pipeline] if v == "real" else bare_rig(pipeline, templates) if v == "bare"
+            else relay_rig(pipeline, v, templates))
+    return _with_links(make, links)
+
+
+def _control_rig(label: str, templates: Path):
     from services.bench.control import control_rig
 
-    return control_rig if variant == "real" else relay_rig("standard", variant, templates, controller=True)
+    v, links = split_label(label)
+    make = (control_rig if v == "real" else bare_rig("standard", templates, controller=True) if v == "bare"
+            else relay_rig("standard", v, templates, controller=True))
+    return _with_links(make, links)
 
 
 def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
-              variants: Optional[list[str]] = None, log=print) -> dict[str, Any]:
-    """Every live row for every pipeline and variant; the report (a JSON-able dict)."""
+              variants: Optional[list[str]] = None, log=print, links: Optional[list[str]] = None,
+              control: bool = True) -> dict[str, Any]:
+    """Every live row for every pipeline and variant (each variant once per ``links`` mode, the peer
+    ones labelled ``VARIANT@peer``); the report (a JSON-able dict).  ``control``: the control-loop row."""
     from services.bench.control import control_loop_latency
     from services.bench.relay import record_templates
     from services.bench.stages import cpu_share
@@ -71,6 +171,10 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     t_start = time.monotonic()
     pipelines = list(pipelines or ["standard", "batched"])
     variants = list(variants or VARIANTS)
+    if "bare" not in variants:
+        variants.insert(0, "bare")  # the baseline of every ratio
+    links = list(links or ["client"])
+    variants = [v if ln == "client" else f"{v}@{ln}" for v in variants for ln in links]
     ladder = list(ladder or ((1, 2) if quick else LADDER))
     d_100, d_1k, d_scale = live_durations(quick)
     report: dict[str, Any] = {"kind": "floor", "quick": quick, "machine": machine_info(), "targets": TARGETS,
@@ -84,6 +188,7 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         templates = work / "templates.json"
         recorded = record_templates(s100)
         templates.write_text(json.dumps(recorded))
+        write_bare_templates(recorded, templates)
         report["message_bytes"] = {"raw sample": len(p100[len(p100) // 2][1]),
                                    **{name: len(text) for name, text in recorded.items()}}
 
@@ -94,7 +199,7 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
                 for row in measure_latency(_rig(pipe, v, templates), f"{pipe}/{v}", p100, p1k, d_100, d_1k, quick, log):
                     report["latency"].append({**row, "pipeline": pipe, "variant": v})
         report["control_loop"] = {}
-        for v in variants:
+        for v in (variants if control else []):
             log(f"bench: control loop latency, {v}")
             try:
                 report["control_loop"][v] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100,
@@ -109,7 +214,41 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report["machine"]["cpu_share_end"] = cpu_share()["share"]
     report["elapsed_s"] = time.monotonic() - t_start
     report["targets_met"] = targets_met(report)
+    report["ratios"] = ratios_to_bare(report)
     return report
+
+
+def cpu_us_per_sample_of(row: Optional[dict[str, Any]]) -> Optional[float]:
+    """CPU µs per sample of one latency row, summed over the router and the stages."""
+    if not row or not row.get("processes"):
+        return None
+    return cpu_per_sample_us(row["processes"], row["rate_hz"] * row.get("vehicles", 1))
+
+
+def ratios_to_bare(report: dict[str, Any]) -> dict[str, dict[str, dict[str, Optional[float]]]]:
+    """Per pipeline and variant, each live row's figures over the bare relay's in the same run:
+    ``{pipe: {variant: {"100hz_cpu": x, "100hz_p50": x, ..., "control_p99": x}}}`` (None: a figure missing)."""
+
+    def ratio(a: Optional[float], b: Optional[float]) -> Optional[float]:
+        if a is None or b is None or not b or not math.isfinite(a) or not math.isfinite(b):
+            return None
+        return a / b
+
+    lat = {(r["pipeline"], r["variant"], r["rate_hz"]): r for r in report["latency"]}
+    out: dict[str, dict[str, dict[str, Optional[float]]]] = {}
+    for pipe in report["pipelines"]:
+        for v in report["variants"]:
+            got = out.setdefault(pipe, {}).setdefault(v, {})
+            for rate, tag in ((100.0, "100hz"), (1000.0, "1khz")):
+                row, base = lat.get((pipe, v, rate)), lat.get((pipe, "bare", rate))
+                got[f"{tag}_cpu"] = ratio(cpu_us_per_sample_of(row), cpu_us_per_sample_of(base))
+                for q in ("p50", "p99"):
+                    got[f"{tag}_{q}"] = ratio(row and row["result"].get(q), base and base["result"].get(q))
+            if pipe == "standard":
+                cl, cb = report.get("control_loop", {}).get(v, {}), report.get("control_loop", {}).get("bare", {})
+                for q in ("p50", "p99"):
+                    got[f"control_{q}"] = ratio(cl.get(q), cb.get(q))
+    return out
 
 
 def targets_met(report: dict[str, Any]) -> dict[str, dict[str, bool]]:
@@ -136,8 +275,8 @@ def targets_met(report: dict[str, Any]) -> dict[str, dict[str, bool]]:
 # ----------------------------------------------------------------------------------------------
 def _top_step(sc: dict[str, Any]) -> Optional[dict[str, Any]]:
     """The ladder's largest count measured without a drop (else its first step)."""
-    good = [s for s in sc["steps"] if s.get("carried")]
-    return good[-1] if good else next((s for s in sc["steps"] if "result" in s), None)
+    good = [s for s in sc.get("steps", []) if s.get("carried")]
+    return good[-1] if good else next((s for s in sc.get("steps", []) if "result" in s), None)
 
 
 def cpu_per_sample_us(procs: dict[str, Any], rate_hz: float = 1000.0) -> Optional[float]:
@@ -169,7 +308,7 @@ def render_floor(report: dict[str, Any], console) -> None:
     for pipe in report["pipelines"]:
         t = Table(title=f"floor of the live rows, {pipe} pipeline: real services vs relays (messages: parse + "
                         "serialise, no math; zenoh: bytes forwarded), ms", title_justify="left")
-        cols = ["variant", "100 Hz p50", "p99", "ping p99", "1 kHz p50", "p99", "drops", "CPU µs/sample",
+        cols = ["variant", "100 Hz p50", "p99", "ping p99", "CPU µs/sample", "1 kHz p50", "p99", "drops", "CPU µs/sample",
                 "vehicles passing", "no drop", "ladder p99 at that count"]
         if pipe == "standard":
             cols += ["control p50", "control p99"]
@@ -179,10 +318,10 @@ def render_floor(report: dict[str, Any], console) -> None:
             a, b = lat.get((pipe, v, 100.0)), lat.get((pipe, v, 1000.0))
             ra = a["result"] if a else {}
             rb = b["result"] if b else {}
-            sc = report["scale"][pipe][v]
+            sc = report["scale"][pipe].get(v, {"steps": [], "max_vehicles": "-", "max_vehicles_no_drop": "-"})
             top = _top_step(sc)
             cells = [v, _f(ra.get("p50")), _f(ra.get("p99")), _f(a["baseline"]["p99"]) if a else "-",
-                     _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")),
+                     _f(cpu_us_per_sample_of(a), ".0f"), _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")),
                      _f(cpu_per_sample_us(b["processes"]) if b else None, ".0f"), str(sc["max_vehicles"]),
                      str(sc["max_vehicles_no_drop"]),
                      f"{_f(top['result']['p99'])} ({top['vehicles']})" if top and "result" in top else "-"]
@@ -191,6 +330,20 @@ def render_floor(report: dict[str, Any], console) -> None:
                 cells += ["-", "-"] if "error" in cl or not cl else [_f(cl["p50"]), _f(cl["p99"])]
             t.add_row(*cells)
         console.print(t)
+        rt = report.get("ratios", {}).get(pipe)
+        if rt:
+            t = Table(title=f"every live row over the bare zenoh-python relay of the same run, {pipe} pipeline "
+                            "(CPU: µs per sample summed over router and stages; x = times the bare relay's)",
+                      title_justify="left")
+            keys_ = [k for k in ("100hz_cpu", "100hz_p50", "100hz_p99", "1khz_cpu", "1khz_p50", "1khz_p99",
+                                 "control_p50", "control_p99") if any(k in r for r in rt.values())]
+            t.add_column("variant", no_wrap=True)
+            for k in keys_:
+                t.add_column(k.replace("100hz_", "100 Hz ").replace("1khz_", "1 kHz ").replace("control_", "control "),
+                             justify="right", no_wrap=True)
+            for v, r in rt.items():
+                t.add_row(v, *[_f(r.get(k)) + ("x" if r.get(k) is not None else "") for k in keys_])
+            console.print(t)
         t = Table(title=f"CPU % of one core per process, {pipe} pipeline (1 kHz: % x 10 = µs per sample; "
                         "CPU µs/sample above: their sum over router and stages)",
                   title_justify="left")
@@ -200,7 +353,7 @@ def render_floor(report: dict[str, Any], console) -> None:
             for rate in (100.0, 1000.0):
                 row = lat.get((pipe, v, rate))
                 t.add_row(v, f"1 vehicle, {rate:.0f} Hz", _cpu(row and row["processes"]))
-            top = _top_step(report["scale"][pipe][v])
+            top = _top_step(report["scale"][pipe].get(v, {"steps": []}))
             if top and "result" in top:
                 t.add_row(v, f"{top['vehicles']} vehicles x 100 Hz", _cpu(top["processes"]))
         console.print(t)
@@ -211,9 +364,11 @@ def render_floor(report: dict[str, Any], console) -> None:
 
 
 def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], ladder: Optional[list[int]],
-                  variants: Optional[list[str]], console) -> dict[str, Any]:
+                  variants: Optional[list[str]], console, links: Optional[list[str]] = None,
+                  control: bool = True) -> dict[str, Any]:
     """``soilocp bench --floor``: run, print the tables, write the JSON."""
-    report = run_floor(quick, pipelines or None, ladder, variants, log=lambda msg: console.print(msg, style="dim"))
+    report = run_floor(quick, pipelines or None, ladder, variants, log=lambda msg: console.print(msg, style="dim"),
+                       links=links or None, control=control)
     render_floor(report, console)
     if json_out:
         Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
@@ -225,10 +380,15 @@ def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], la
 @click.option("--quick", is_flag=True, help="Short rows, ladder 1-2 vehicles.")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the report as JSON here.")
 @click.option("--pipeline", "pipelines", multiple=True, type=click.Choice(["standard", "batched"]))
-@click.option("--variant", "variants", multiple=True, type=click.Choice(VARIANTS))
+@click.option("--variant", "variants", multiple=True, type=click.Choice(VARIANTS),
+              help="Variants to measure (default: all; bare, the baseline of the ratios, always).")
+@click.option("--links", "links", multiple=True, type=click.Choice(LINKS),
+              help="client (default): every process a client of the router; peer: the services link to each other "
+                   "directly.  Repeat for both, alternating in the same run.")
+@click.option("--no-control", is_flag=True, help="Skip the control-loop row.")
 @click.option("--max-vehicles", type=int, help="Stop the ladder at this many vehicles.")
 @click.option("--report", "saved", type=click.Path(dir_okay=False, exists=True), help="Render a saved report.")
-def floor_cmd(quick, json_out, pipelines, variants, max_vehicles, saved) -> None:
+def floor_cmd(quick, json_out, pipelines, variants, links, no_control, max_vehicles, saved) -> None:
     """The floor of the live rows: the real pipeline next to its relays (no math; no messages)."""
     from rich.console import Console
 
@@ -239,7 +399,8 @@ def floor_cmd(quick, json_out, pipelines, variants, max_vehicles, saved) -> None
     ladder = None
     if max_vehicles is not None:
         ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-    floor_command(quick, json_out, list(pipelines), ladder, list(variants) or None, console)
+    floor_command(quick, json_out, list(pipelines), ladder, list(variants) or None, console, list(links) or None,
+                  control=not no_control)
 
 
 if __name__ == "__main__":

@@ -355,12 +355,31 @@ def render(report: dict[str, Any], console) -> None:
 @click.option("--map", "map_row", is_flag=True,
               help="Only the fleet soil map's row: updates/s one map service sustains, query p99 of a 1 km² box.")
 @click.option("--floor", "floor", is_flag=True,
-              help="Only the live rows, each for the real pipeline and for its relays without the math (messages) "
-                   "and without the messages (zenoh): the floor of this architecture (services/bench/floor.py).")
+              help="Only the live rows, each for the real pipeline, for its relays without the math (messages) "
+                   "and without the messages (zenoh), and for bare zenoh-python relays (bare, the true floor), "
+                   "each row also as a ratio to bare (services/bench/floor.py).")
+@click.option("--links", "links", multiple=True, type=click.Choice(["client", "peer"]),
+              help="With --floor: client (default) and/or peer links between the services, alternating in one run.")
+@click.option("--soak", "soak_s", type=click.FloatRange(min=1.0),
+              help="Only the soak: one vehicle through the live pipeline for this many seconds; RSS growth per "
+                   "process, p99 of the first vs the last tenth, drops, observer resets (services/bench/soak.py).")
+@click.option("--soak-rate", type=click.FloatRange(min=1.0, max=2000.0), default=100.0, show_default=True,
+              help="With --soak: samples per second.")
 def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_vehicles: Optional[int],
-          compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False) -> None:
+          compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False,
+          links: tuple[str, ...] = (), soak_s: Optional[float] = None, soak_rate: float = 100.0) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
     from rich.console import Console
+
+    if soak_s is not None:  # hours of driving (services/bench/soak.py)
+        from services.bench.soak import render_soak, soak_command
+
+        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        if saved:
+            render_soak(json.loads(Path(saved).read_text()), console)
+            return
+        soak_command(soak_s, soak_rate, json_out, console)
+        return
 
     if floor:  # the live rows next to their relay pipelines (services/bench/floor.py)
         from services.bench.floor import floor_command, render_floor
@@ -374,7 +393,7 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
             render_floor(json.loads(Path(saved).read_text()), console)
             return
         ladder = None if max_vehicles is None else [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-        floor_command(quick, json_out, list(pipelines), ladder, None, console)
+        floor_command(quick, json_out, list(pipelines), ladder, None, console, list(links) or None)
         return
 
     if map_row:  # the map's own section (services/bench/map.py)

@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal, Optional
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.sensor import VehicleId
+from soilocp.validation import MAX_PAYLOAD_BYTES
 from services.runtime.settings import (  # noqa: F401  (re-exported: the services' settings in one import)
     DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_LISTEN,
     ENV_LOG_LEVEL, ENV_MAP_PRIOR, ENV_MODE, ENV_STALE_TIMEOUT, ENV_VEHICLE_ID, ConfigError, _read_config_file,
@@ -71,8 +72,9 @@ class ServiceConfig(BaseModel):
     join_timeout_s: float = Field(0.2, gt=0, description="Observer: give up on a sample's normal forces after this")
     history_size: int = Field(1000, ge=1, le=1_000_000, description="OCP publisher: estimates kept for ?last / ?since")
     status_period_s: float = Field(1.0, gt=0, le=3600, description="Period of the health publication")
-    max_payload_bytes: int = Field(4096, ge=256, description="Gateway: larger raw payloads are rejected before "
-                                   "parsing (4 KiB: 5x the largest valid sample; services.stages.gateway)")
+    max_payload_bytes: int = Field(MAX_PAYLOAD_BYTES, ge=256, description="Gateway: larger raw payloads are "
+                                   "rejected before parsing (4 KiB: 5x the largest valid sample; the limit of "
+                                   "soilocp estimate, soilocp.validation.MAX_PAYLOAD_BYTES)")
     connect_retry_s: float = Field(1.0, gt=0, le=60, description="Client: wait per connection attempt to the router")
     pipeline_config: Optional[str] = Field(None, description="Path of the physics PipelineConfig file (null: defaults)")
     map_prior: Optional[MapPriorConfig] = Field(None, description="Soil-strength: start the belief from a fleet "

@@ -3,8 +3,9 @@
 Input ``soilocp/<vid>/sensors/raw``; output ``soilocp/<vid>/sensors/clean`` (SensorSample JSON)
 and ``soilocp/<vid>/rejected`` (Rejection JSON).  The checks are the library's
 (:func:`soilocp.validation.parse_sample`, :class:`soilocp.validation.SampleValidator`), the same
-that ``soilocp estimate`` applies offline, plus two transport checks: payload size (before any
-parsing) and key.  Nothing a sender puts on the raw key can crash it: every failure becomes a
+that ``soilocp estimate`` applies offline, with the same size limit before any parsing
+(:data:`soilocp.validation.MAX_PAYLOAD_BYTES`, configurable as ``max_payload_bytes``), plus a transport
+check: the key.  Nothing a sender puts on the raw key can crash it: every failure becomes a
 Rejection, counted per code in the service's health (``rejected_too_large``, ...).  The process
 imports neither numpy nor the estimation package (tests/test_gateway_lean.py).
 """
@@ -17,20 +18,13 @@ from typing import Any, Optional, Union
 from schemas import keys
 from schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
 from schemas.sensor import SensorSample
-from soilocp.validation import SampleRejected, SampleValidator, parse_sample
+from soilocp.validation import MAX_PAYLOAD_BYTES, SampleRejected, SampleValidator, parse_sample
 
 from services.runtime.worker import WorkItem
 from services.stages.graph import BY_NAME
 from services.stages.stage_service import StageService
 
 
-#: Default byte limit of a raw payload.  The largest valid SensorSample (a 64-character vehicle id,
-#: every number at full float precision) is about 550 bytes as compact JSON and 750 pretty-printed,
-#: so 4 KiB leaves a 5x margin for any writer's formatting; beyond it the gateway refuses the payload
-#: before parsing it (``too_large``).  Parsing is what a hostile payload costs below the limit: a 4 KiB
-#: array of numbers is rejected in ~0.1 ms, a 64 KiB one (the former limit) in ~13 ms, so a stream of
-#: them would have stalled the chain (docs/services.md).
-DEFAULT_MAX_PAYLOAD_BYTES = 4096
 
 
 def _peek(payload: bytes) -> dict:
@@ -47,7 +41,7 @@ def _peek(payload: bytes) -> dict:
 class RawSampleChecker:
     """The gateway's decision for one vehicle, without any transport: sample or Rejection."""
 
-    def __init__(self, vehicle_id: str, *, max_payload_bytes: int = DEFAULT_MAX_PAYLOAD_BYTES):
+    def __init__(self, vehicle_id: str, *, max_payload_bytes: int = MAX_PAYLOAD_BYTES):
         self.vehicle_id = keys.check_vehicle_id(vehicle_id)
         self.raw_key = keys.raw(vehicle_id)
         self.max_payload_bytes = int(max_payload_bytes)
@@ -60,19 +54,12 @@ class RawSampleChecker:
         try:
             if key != self.raw_key:
                 raise SampleRejected("bad_key", f"key: sample arrived on {key!r}, expected exactly {self.raw_key!r}")
-            if len(payload) > self.max_payload_bytes:
-                raise SampleRejected(
-                    "too_large", f"payload: {len(payload)} bytes exceeds the limit of {self.max_payload_bytes} bytes"
-                )
-            sample = parse_sample(payload, expected_vehicle_id=self.vehicle_id)
-            self.validator.check(sample)  # updates the ordering state only when accepted
+            # the size first, then the parse: the library's, with the limit of soilocp estimate unless configured
+            sample = parse_sample(payload, expected_vehicle_id=self.vehicle_id, max_bytes=self.max_payload_bytes)
+            self.validator.check(sample, received_at)  # updates the ordering state only when accepted
             return sample
         except SampleRejected as rej:
             return self._rejection(rej.code, rej.message, rej.seq, payload, key, received_at)
-        except (ValueError, TypeError, OverflowError) as exc:
-            # what the parser itself refuses beyond JSON syntax, e.g. an integer of 5000 digits
-            return self._rejection("malformed_json", f"payload: cannot be parsed: {exc}"[:300], None, payload, key,
-                                   received_at)
 
     def _rejection(self, code: str, message: str, seq, payload: bytes, key: str, received_at: float) -> Rejection:
         fields = _peek(payload) if len(payload) <= self.max_payload_bytes else {}

@@ -37,6 +37,9 @@ from soilocp.estimation.next_steps import status_table, verdict
 
 DRAIN_QUIET_S = 1.5  # after the source ends: stop once no OCP arrived for this long
 DRAIN_MAX_S = 30.0
+#: --restart: a process that dies more than RESTART_MAX times within RESTART_WINDOW_S stops the run after all
+RESTART_MAX = 5
+RESTART_WINDOW_S = 60.0
 
 
 @dataclass
@@ -59,6 +62,7 @@ class RunOptions:
     ros2_in: Optional[str] = None  # map file: the sensors come from the robot's ROS 2 topics (ros2-in service)
     ros2_connect: Optional[list[str]] = None  # the robot's Zenoh router (rmw_zenohd)
     ros2_domain: int = 0
+    restart: bool = False  # a router or service that dies is restarted (RESTART_MAX a RESTART_WINDOW_S), not fatal
 
 
 def client_endpoints(listen: list[str]) -> list[str]:
@@ -305,6 +309,17 @@ def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monito
         pass
 
 
+def _restart(group: ProcessGroup, child: Child, restarts: dict[str, list[float]], now: float) -> bool:
+    """Start ``child``'s command again under its name, unless it has died too often lately (False)."""
+    recent = [t for t in restarts.get(child.name, []) if now - t < RESTART_WINDOW_S]
+    if len(recent) >= RESTART_MAX:
+        return False
+    child.outcome = "restarted"
+    group.start_argv(child.name, child.argv)
+    restarts[child.name] = [*recent, now]
+    return True
+
+
 def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monitor, stop: threading.Event,
            t_drive: float, console, interactive: bool, watch: Optional[LogWatch] = None) -> list[str]:
     """The live loop; returns failures (processes that died, or a source that says it cannot start:
@@ -312,6 +327,7 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
     from rich.live import Live
 
     failures: list[str] = []
+    restarts: dict[str, list[float]] = {}
     source_done_at: Optional[float] = None
     next_plain = 0.0
     live = Live(console=console, refresh_per_second=4, transient=False) if interactive else None
@@ -328,6 +344,9 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
                 if child is vehicle and rc == 0:
                     child.outcome = "done"
                     source_done_at = now
+                elif opts.restart and child is not vehicle and _restart(group, child, restarts, now):
+                    console.print(f"soilocp run: {child.name} exited (exit {rc}); restarted as pid "
+                                  f"{group.procs[child.name].pid} (restart {len(restarts[child.name])})")
                 else:
                     child.outcome = "died"
                     failures.append(f"{child.name} died (exit {rc}); see {child.log_path}")

@@ -85,7 +85,8 @@ def report_estimate(summary, sensors: str, out: str, dt: float, cfg, *, vehicle_
 
     err = Console(stderr=True, width=max(Console(stderr=True).width, 120))
     rate = summary.estimates / dt if dt > 0 else float("inf")
-    click.echo(f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected) "
+    click.echo(f"{summary.estimates} estimates from {summary.lines} lines ({len(summary.rejected)} rejected"
+               f"{', by reason ' + str(summary.rejected_by_code()) if summary.rejected else ''}) "
                f"in {dt:.2f} s = {rate:.0f} samples/s -> {out}", err=True)
     for lineno, error in summary.stage_errors[:20]:
         click.echo(f"{sensors}:{lineno}: processing failed, that vehicle's chain restarted: {error}", err=True)

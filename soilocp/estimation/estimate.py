@@ -49,6 +49,13 @@ class EstimateSummary:
             out[code] = out.get(code, 0) + 1
         return out
 
+    def rejected_by_code(self) -> dict[str, int]:
+        """How many lines were rejected, per rejection code (``too_large``, ``schema``, ...)."""
+        out: dict[str, int] = {}
+        for _, code, _ in self.rejected:
+            out[code] = out.get(code, 0) + 1
+        return out
+
 
 class Observed(NamedTuple):
     """What a record takes from the observer (``full``) and the summary counts (its reset)."""

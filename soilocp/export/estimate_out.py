@@ -11,6 +11,7 @@ from typing import IO, Optional
 
 from soilocp.estimation.estimate import EstimateSummary, estimate_samples
 from soilocp.ingest.align import Provenance, withhold
+from soilocp.validation import capped_lines
 from soilocp.estimation.pipeline import PipelineConfig
 
 
@@ -46,8 +47,9 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
         put = lambda sample, rec: sink.write(json.dumps(rec) + "\n")  # noqa: E731
     withheld = withheld if withheld is not None else {}
     try:
-        with open(sensors, encoding="utf-8", errors="replace") as fin:
-            for sample, rec in estimate_samples(fin, config, on_reject=report, full=full, summary=summary):
+        # read capped: a line over the gateway's byte limit is skipped unread and rejected (too_large)
+        with open(sensors, "rb") as fin:
+            for sample, rec in estimate_samples(capped_lines(fin), config, on_reject=report, full=full, summary=summary):
                 if reason is not None:
                     withheld[rec["status"]] = withheld.get(rec["status"], 0) + 1
                     rec = withhold(rec, reason)
