@@ -252,7 +252,7 @@ def ratios_to_bare(report: dict[str, Any]) -> dict[str, dict[str, dict[str, Opti
 
 
 def targets_met(report: dict[str, Any]) -> dict[str, dict[str, bool]]:
-    """Per pipeline and variant: which of the live targets of issue 28 the run meets."""
+    """Per pipeline and variant: which of the live targets the run meets."""
     out: dict[str, dict[str, bool]] = {}
     for row in report["latency"]:
         r, key = row["result"], f"{row['pipeline']}/{row['variant']}"
@@ -262,7 +262,7 @@ def targets_met(report: dict[str, Any]) -> dict[str, dict[str, bool]]:
         else:
             met["1khz"] = r["drops"] == 0 and r["rejections"] == 0 and r["p99"] <= TARGETS["p99_ms_1khz"]
     for pipe, by_variant in report["scale"].items():
-        need = 20 if pipe == "standard" else TARGETS["vehicles_100hz"]  # issue 28: >= 20 / >= 100
+        need = 20 if pipe == "standard" else TARGETS["vehicles_100hz"]  # >= 20 / >= 100 vehicles at 100 Hz
         for v, sc in by_variant.items():
             out.setdefault(f"{pipe}/{v}", {})["vehicles"] = sc["max_vehicles"] >= need
     for v, cl in report.get("control_loop", {}).items():
@@ -358,7 +358,7 @@ def render_floor(report: dict[str, Any], console) -> None:
                 t.add_row(v, f"{top['vehicles']} vehicles x 100 Hz", _cpu(top["processes"]))
         console.print(t)
     tm = report.get("targets_met", {})
-    console.print("targets (issue 28) met: " + "; ".join(
+    console.print("targets met: " + "; ".join(
         f"{k}: " + ", ".join(f"{n}={'yes' if ok else 'NO'}" for n, ok in met.items()) for k, met in tm.items()))
     console.print(f"floor run took {_f(report.get('elapsed_s'), '.0f')} s")
 

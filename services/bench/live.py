@@ -113,7 +113,7 @@ class Rig:
     endpoint: str = ""
     #: "client": every service a client of the router (each hop client -> router -> client);
     #: "peer": the services are peers that also listen on an ephemeral loopback port, so that
-    #: they link to each other directly (the router only introduces them) - issue 11's hops
+    #: they link to each other directly (the router only introduces them): the pipeline's hops
     links: str = "client"
     #: extra environment of the router and the services: the Zenoh settings under test
     #: (SOILOCP_EXPRESS, SOILOCP_BATCHING; services.bench.zenoh_settings)

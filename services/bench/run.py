@@ -35,7 +35,7 @@ from typing import Any, Optional
 import click
 
 HOPS = {"standard": 6, "batched": 3}  # client -> router -> client hops on a sample's critical path
-# issue 11's targets: chain CPU per sample (median), offline replay, one vehicle at 100 Hz and 1 kHz on the
+# the performance targets: chain CPU per sample (median), offline replay, one vehicle at 100 Hz and 1 kHz on the
 # standard pipeline, vehicles x 100 Hz on the batched one, resident memory of router + 5 services
 TARGETS = {"chain_cpu_us": 100.0, "replay_x": 100.0, "p50_ms_100hz": 1.5, "p99_ms_100hz": 3.0, "p99_ms_1khz": 5.0,
            "scale_p99_ms": 10.0, "vehicles_100hz": 100, "rss_mib_total": 300.0}

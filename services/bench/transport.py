@@ -1,6 +1,6 @@
 """``python -m services.bench.transport [--json OUT]``: Zenoh transport options on this machine.
 
-Issue 11 asks to choose the hops' transport with numbers.  Each variant is a ping-pong between
+The hops' transport is chosen with numbers.  Each variant is a ping-pong between
 two OS processes (bench -> echo -> bench, the echo answering from its subscriber callback, the
 payload the size of a pipeline message), at 100 Hz and 1 kHz, on an ephemeral loopback port,
 multicast scouting off:

@@ -1,6 +1,5 @@
 """``python -m services.bench.zenoh_settings [--runs 3] [--json OUT]``: the standard pipeline
-(router + 5 services) under each Zenoh setting, to choose the default with numbers (issue 28,
-item 7).
+(router + 5 services) under each Zenoh setting, to choose the default with numbers.
 
 Each setting starts a fresh :class:`~services.bench.live.Rig` (router, the five services, the echo
 of the ping-pong) and measures, in that one run, one vehicle at 100 Hz and one at 1 kHz: sample ->

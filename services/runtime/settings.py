@@ -3,8 +3,8 @@ endpoint check, the config file reader and the Zenoh config with explicit endpoi
 TLS from the environment).
 
 Split from :mod:`services.runtime.config` (the services' pydantic ``ServiceConfig``) so that the
-router, which needs only these, does not load pydantic and the message models (issue 28, item 7:
-resident memory; tests/test_lean_processes.py).
+router, which needs only these, does not load pydantic and the message models (resident
+memory; tests/test_lean_processes.py).
 """
 
 from __future__ import annotations
