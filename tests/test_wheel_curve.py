@@ -13,7 +13,6 @@ from soilocp.analysis.drive_calibration import calibrate_from_drives
 from soilocp.estimation.config import load_pipeline_config
 from soilocp.estimation.estimate import estimate_lines
 from soilocp.estimation.pipeline import PipelineConfig
-from soilocp.model.constants import ModelConstants
 from soilocp.model.ocp import ocp_from_soil_strength
 from soilocp.model.vehicle import DEFAULT_VEHICLE, load_vehicle
 from soilocp.model.wheel_curve import load_calibration, save_calibration
@@ -95,10 +94,10 @@ def test_one_soil_says_which_constants_it_cannot_fit():
     pairs = _drive(TYRE_SLOW, (80.0,), seed=13, seconds_per_soil=14.0)
     cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
     cal = calibrate_from_drives([("one", [s.model_dump_json() for s, _ in pairs])], cfg).calibration
-    assert len({s["soil"] for s in cal.soils}) >= 1
-    reasons = " ".join(cal.not_fitted.values())
     assert "C2" in cal.not_fitted and "scale of K" in cal.not_fitted["C2"]
-    assert any(n in cal.not_fitted for n in ("C1", "C5", "C6")) or "one soil" in reasons or len(cal.soils) > 1
+    # K and the amplitude / slope constants trade off on one soil: some are left at their prior, K's band is wide
+    assert any(n in cal.not_fitted for n in ("C1", "C5", "C6")), cal.not_fitted
+    assert all(s["K_std"] > 0.3 * s["K"] for s in cal.soils), cal.soils
 
 
 def test_a_drive_that_shows_no_curve_fails_with_what_to_drive():

@@ -255,7 +255,7 @@ def calibrate_from_drives(logs: Sequence[tuple[str, Iterable[str]]], config: Pip
     for j, (s, lk) in enumerate(zip(soils, ln_k)):
         k = math.exp(lk)
         o = ocp_from_soil_strength(k, constants)
-        soils_out.append({"source": s.source, "soil": s.index, "K": round(k, 2), "K_std": round(k * sd[4 + j], 2),
+        soils_out.append({"source": s.source, "soil": s.index, "K": round(k, 2), "K_std": round(float(k * sd[4 + j]), 2),
                           "pairs": len(s), "slip_top": round(float(np.quantile(s.slip, 0.98)), 3),
                           "mu_T": round(o.mu_T, 4), "S_T": round(o.S_T, 4)})
     cal = WheelCalibration(
