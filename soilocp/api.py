@@ -105,16 +105,19 @@ def _lines(records: Any) -> tuple[Iterable[str], bool]:
 
 
 def _config(vehicle, config, torque_constant):
-    from soilocp.estimation.config import PipelineConfig, load_pipeline_config
+    from soilocp.estimation.config import PipelineConfig, calibrated_constants, load_pipeline_config
     from soilocp.model.settings_errors import describe_validation_error
-    from soilocp.model.vehicle import VehicleParams
+    from soilocp.model.vehicle import VehicleParams, load_vehicle, user_vehicle_data
     from pydantic import ValidationError
 
     if isinstance(config, PipelineConfig):
         cfg = config
     elif isinstance(config, Mapping):
+        data = dict(config)
+        if "vehicle" in data:  # a user's robot: its curve is unchecked unless it names one
+            data["vehicle"] = user_vehicle_data(data["vehicle"])
         try:
-            cfg = PipelineConfig.model_validate(dict(config))
+            cfg = PipelineConfig.model_validate(data)
         except ValidationError as exc:
             raise ValueError(describe_validation_error(exc, "config", PipelineConfig)) from None
     else:
@@ -122,13 +125,15 @@ def _config(vehicle, config, torque_constant):
     update: dict[str, Any] = {}
     if isinstance(vehicle, VehicleParams):
         update["vehicle"] = vehicle
-    elif isinstance(vehicle, Mapping):
+    elif isinstance(vehicle, Mapping):  # a user's robot: its curve is unchecked unless it names one
         try:
-            update["vehicle"] = VehicleParams.model_validate(dict(vehicle))
+            update["vehicle"] = VehicleParams.model_validate(user_vehicle_data(dict(vehicle)))
         except ValidationError as exc:
             raise ValueError(describe_validation_error(exc, "vehicle", VehicleParams)) from None
     elif vehicle is not None:
-        update["vehicle"] = load_pipeline_config(vehicle=vehicle).vehicle
+        update["vehicle"] = load_vehicle(vehicle)
+    if "vehicle" in update:
+        update.update(calibrated_constants(update["vehicle"]))
     if torque_constant is not None:
         from soilocp.estimation.config import torque_constant_from
 

@@ -105,3 +105,24 @@ def test_a_drive_that_shows_no_curve_fails_with_what_to_drive():
     cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
     with pytest.raises(ValueError, match="traction sweep"):
         calibrate_from_drives([("cruise", [s.model_dump_json() for s, _ in pairs])], cfg)
+
+
+def test_the_python_api_treats_a_users_vehicle_as_unchecked_and_uses_its_calibration(tmp_path):
+    """soilocp.estimate with a vehicle dict (a user's robot) serves no ok OCPs on the paper's curve; with the built-in
+    rover (no vehicle) the same drive has ok records; a vehicle file naming a calibration uses its constants."""
+    import soilocp
+
+    pairs = _drive(None, (80.0,), seed=21, seconds_per_soil=8.0)
+    records = [s.model_dump(mode="json") for s, _ in pairs]
+    assert any(r["status"] == "ok" for r in soilocp.estimate(records))
+    mine = soilocp.estimate(records, vehicle={"mass": 60.0})
+    assert not any(r["status"] == "ok" for r in mine)
+    assert {r["reason_code"] for r in mine if r["soil_strength"] is not None and r["curve"] == "unchecked"} <= {
+        "curve_unchecked", "evidence", "wide", "holding", "withdrawn", "not_yet", "out_others", "out_no_wheel"}
+    cal = calibrate_from_drives([("d", [s.model_dump_json() for s, _ in _drive(TYRE_SLOW, (50.0, 100.0), seed=22,
+                                                                               seconds_per_soil=12.0)])],
+                                PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None})))
+    save_calibration(cal.calibration, tmp_path / "c.json")
+    (tmp_path / "v.json").write_text(json.dumps({"traction_curve": "c.json"}))
+    used = soilocp.estimate(records, vehicle=tmp_path / "v.json")
+    assert all(r["curve"] == "model" for r in used if r["soil_strength"] is not None and "beyond" not in r["reason"])

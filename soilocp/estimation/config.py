@@ -65,12 +65,8 @@ def load_pipeline_config(
         update["vehicle"] = load_vehicle(vehicle)
     if constants is not None:
         update["constants"] = load_constants(constants)
-    else:  # the wheel's calibration file, named by the vehicle: its constants replace the paper's
-        curve = update.get("vehicle", cfg.vehicle).traction_curve
-        if curve is not None and curve != PAPER_WHEEL:
-            from soilocp.model.wheel_curve import load_calibration
-
-            update["constants"] = load_calibration(curve).constants
+    else:
+        update.update(calibrated_constants(update.get("vehicle", cfg.vehicle)))
     if torque_constant is not None:
         update["torque_constant"] = torque_constant_from(torque_constant)
     return cfg.model_copy(update=update) if update else cfg
@@ -106,3 +102,14 @@ def torque_constant_from(value: str | float) -> float:
     if not (math.isfinite(k) and k > 0):
         raise ValueError(f"torque constant {value!r}: must be a finite number > 0 (N m per unit of the logged torque)")
     return k
+
+
+def calibrated_constants(vehicle: VehicleParams) -> dict:
+    """``{"constants": ...}`` of the wheel's calibration file that ``vehicle`` names as its traction_curve (its
+    constants replace the paper's), or ``{}`` for the paper's wheel and a curve nobody checked."""
+    curve = vehicle.traction_curve
+    if curve is None or curve == PAPER_WHEEL:
+        return {}
+    from soilocp.model.wheel_curve import load_calibration
+
+    return {"constants": load_calibration(curve).constants}
