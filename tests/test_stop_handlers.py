@@ -61,3 +61,29 @@ def test_a_hung_shutdown_ends_before_the_supervisors_kill_and_says_where(hang, c
         line = next(i for i, text in enumerate(CHILD.splitlines(), 1) if "PyDLL" in text)
         assert f"line {line} in <module>" in output, output
         assert '"forced_exit"' not in output, output
+
+
+# The handler runs on the main thread between two bytecodes, possibly inside stop.wait() with the event's lock
+# held (a service's main loop is `while not stop.wait(0.05)`): it must not take that lock itself.  The child
+# calls the installed handler while holding the lock, as the signal would land, and then releases it.
+HELD_LOCK = textwrap.dedent("""
+    import signal, sys, threading, time
+    from services.runtime.process import install_stop_handlers
+    stop = threading.Event()
+    install_stop_handlers(stop, None)
+    handler = signal.getsignal(signal.SIGTERM)
+    t0 = time.monotonic()
+    with stop._cond:
+        handler(signal.SIGTERM, None)
+    returned = time.monotonic() - t0
+    print("handler returned in %.3f s; stop set: %s" % (returned, stop.wait(2.0)), flush=True)
+    sys.exit(0)
+""")
+
+
+def test_the_handler_takes_no_lock_the_interrupted_main_thread_may_hold():
+    proc = subprocess.run([sys.executable, "-c", HELD_LOCK], capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    line = proc.stdout.strip()
+    assert line.startswith("handler returned in") and line.endswith("stop set: True"), (line, proc.stderr[-2000:])
+    assert float(line.split()[3]) < 0.5, line

@@ -16,7 +16,8 @@ from services.runtime.settings import ENV_EXIT_WITH_PARENT, zenoh_config
 from services.runtime.log import JsonLog
 
 def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, *, grace_s: float = 1.8) -> None:
-    """SIGINT/SIGTERM set ``stop``; a second signal, or a shutdown hanging past ``grace_s``, exits at once.
+    """SIGINT/SIGTERM set ``stop`` (from a thread: the handler itself takes no lock); a second signal, or a
+    shutdown hanging past ``grace_s``, exits at once.
 
     SIGTERM is handled explicitly: as PID 1 in a container the default action is ignored.
 
@@ -27,21 +28,26 @@ def install_stop_handlers(stop: threading.Event, log: Optional[JsonLog] = None, 
     SIGKILL, so that such a hang is both bounded and located.
     """
     native_grace_s = grace_s + 1.5
+    signalled: list[int] = []
 
-    def _force_exit_later() -> None:
+    def _stop_then_watch(signum: int) -> None:
+        # on a thread of its own, not in the handler: the handler runs on the main thread between two of its
+        # bytecodes, possibly inside stop.wait() with the event's lock held, and Event.set() there deadlocks
+        # (the dumped stack of a hung shutdown: run_service -> Event.wait -> _handler -> Event.set -> lock)
+        if log:
+            log.info("signal", signal=signal.Signals(signum).name)
+        stop.set()
         time.sleep(grace_s)
         if log:
             log.error("forced_exit", reason=f"shutdown took longer than {grace_s} s")
         os._exit(0)
 
     def _handler(signum, _frame) -> None:
-        if stop.is_set():
+        if signalled:
             os._exit(130 if signum == signal.SIGINT else 143)
+        signalled.append(signum)
         faulthandler.dump_traceback_later(native_grace_s, exit=True)
-        if log:
-            log.info("signal", signal=signal.Signals(signum).name)
-        stop.set()
-        threading.Thread(target=_force_exit_later, name="shutdown-watchdog", daemon=True).start()
+        threading.Thread(target=_stop_then_watch, args=(signum,), name="shutdown-watchdog", daemon=True).start()
 
     signal.signal(signal.SIGINT, _handler)
     signal.signal(signal.SIGTERM, _handler)
