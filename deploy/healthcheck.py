@@ -42,10 +42,10 @@ def soilocp_args(argv: list[str]) -> Optional[list[str]]:
     """The arguments after the ``soilocp`` program in ``argv`` if they start with a role, else None.
 
     Matches ``.../soilocp service gateway ...`` (console script, possibly run by a python) and
-    ``python -m soilocp_cli router ...``.
+    ``python -m soilocp.cli router ...``.
     """
     for i, arg in enumerate(argv):
-        is_prog = os.path.basename(arg) == "soilocp" or (arg == "soilocp_cli" and i > 0 and argv[i - 1] == "-m")
+        is_prog = os.path.basename(arg) == "soilocp" or (arg == "soilocp.cli" and i > 0 and argv[i - 1] == "-m")
         if is_prog and i + 1 < len(argv) and argv[i + 1] in ROLES:
             return argv[i + 1:]
     return None
@@ -91,21 +91,21 @@ def _client_config(connect: list[str], timeout_ms: int):
     conf.insert_json5("connect/timeout_ms", str(int(timeout_ms)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if any(ep.startswith("tls/") for ep in connect):  # the secure fleet router: the container's own certificate
-        from services.security.fleet_security import apply_tls, check_client_tls
+        from soilocp.services.security.fleet_security import apply_tls, check_client_tls
 
         apply_tls(conf, check_client_tls(connect), listener=False)
     return conf
 
 
-#: The services' default router endpoint (services.runtime.config.DEFAULT_ENDPOINT), repeated here so
+#: The services' default router endpoint (soilocp.services.runtime.config.DEFAULT_ENDPOINT), repeated here so
 #: that the common case needs no pydantic import: a health check runs every few seconds in every
 #: container, and its CPU time adds up on a small vehicle computer.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-DEFAULT_VEHICLE_ID = "rover1"  # services.runtime.config.ServiceConfig's default
+DEFAULT_VEHICLE_ID = "rover1"  # soilocp.services.runtime.config.ServiceConfig's default
 
 
 def alive_key(vehicle_id: str, service: str) -> str:
-    """``schemas.keys.alive()`` (``soilocp/<vid>/alive/<service>``) without its pydantic import."""
+    """``soilocp.schemas.keys.alive()`` (``soilocp/<vid>/alive/<service>``) without its pydantic import."""
     return f"soilocp/{vehicle_id}/alive/{service}"
 
 
@@ -124,7 +124,7 @@ def settings_of(args: list[str], env: dict[str, str]) -> dict[str, list[str]]:
     config_path = (opts.get("config") or [None])[-1] or env.get("SOILOCP_CONFIG")
     if role == "router":
         if config_path:
-            from services.router import router_settings
+            from soilocp.services.router import router_settings
 
             listen = router_settings(config_path, tuple(opts.get("listen", ())), (), env=env)["listen"]
         else:
@@ -132,7 +132,7 @@ def settings_of(args: list[str], env: dict[str, str]) -> dict[str, list[str]]:
         return {"listen": listen}
     name = args[1] if len(args) > 1 else ""
     if config_path:
-        from services.runtime.config import load_service_config
+        from soilocp.services.runtime.config import load_service_config
 
         overrides = {"vehicle_ids": opts.get("vehicle-id"), "connect": opts.get("connect")}
         cfg = load_service_config(name, config_path=config_path, overrides=overrides, env=env)

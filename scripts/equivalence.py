@@ -158,14 +158,14 @@ def make_drives(py: str, cwd: Path, inputs: Path, duration: float | None, jobs: 
     for name in scenarios:
         for mode in ("excitation", "cruise"):
             log = inputs / f"scenario-{name}-{mode}.jsonl"
-            sims.append(([py, "-m", "soilocp_cli", "simulate", "--scenario", name, "--mode", mode, "--seed", "0",
+            sims.append(([py, "-m", "soilocp.cli", "simulate", "--scenario", name, "--mode", mode, "--seed", "0",
                           *dur, "--out", str(log)], []))
             drives.append(Drive(f"{name} {mode}", "scenario", log))
             drives.append(Drive(f"{name} {mode} no-comp", "scenario", log, ["--no-compensation"]))
     skid = str(REPO / SKID_VEHICLE)
     for name in SKID_SCENARIOS:
         log = inputs / f"skid-{name}.jsonl"
-        sims.append(([py, "-m", "soilocp_cli", "simulate", "--scenario", name, "--mode", "excitation", "--seed", "0",
+        sims.append(([py, "-m", "soilocp.cli", "simulate", "--scenario", name, "--mode", "excitation", "--seed", "0",
                       "--vehicle", skid, *dur, "--out", str(log)], []))
         drives.append(Drive(f"skid {name}", "skid-steer", log, ["--vehicle", skid]))
     # a --keep directory's logs are reused (the same ref simulates the same drives)
@@ -188,7 +188,7 @@ def make_drives(py: str, cwd: Path, inputs: Path, duration: float | None, jobs: 
 
 def estimate(py: str, cwd: Path, drive: Drive, out: Path) -> str:
     """``soilocp estimate`` of one drive; returns its summary line (stderr) without the timing."""
-    r = run([py, "-m", "soilocp_cli", "estimate", str(drive.sensors), "--out", str(out), *drive.estimate_args],
+    r = run([py, "-m", "soilocp.cli", "estimate", str(drive.sensors), "--out", str(out), *drive.estimate_args],
             cwd=cwd, env=clean_env())
     line = next((ln for ln in r.stderr.splitlines() if " estimates from " in ln), "")
     # "N estimates from L lines (R rejected) in T s = X samples/s; statuses {...}; observer resets ..."

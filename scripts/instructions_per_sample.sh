@@ -9,7 +9,7 @@ DRIVE=$(mktemp --suffix=.jsonl)
 trap 'rm -f "$DRIVE"' EXIT
 "$PY" - "$DRIVE" "$N2" <<'PYEOF'
 import sys
-from services.bench.stages import simulate_drive
+from soilocp.services.bench.stages import simulate_drive
 n = int(sys.argv[2])
 with open(sys.argv[1], "w") as fh:
     fh.write("\n".join(s.model_dump_json() for s in simulate_drive("bench", n / 100.0 + 1.0)[:n]))

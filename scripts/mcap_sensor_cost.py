@@ -11,7 +11,7 @@ import io
 import sys
 import time
 
-from schemas.sensor import parse_sensor_line
+from soilocp.schemas.sensor import parse_sensor_line
 from soilocp.export.mcap_out import EstimateMcapWriter
 
 

@@ -10,7 +10,7 @@ with ``t`` (wall clock, s since the epoch):
 
 * ``{"kind": "sample", "vid", "seq", "stamp", "status"}`` for every OCP publication received on
   ``soilocp/<vid>/ocp``, or ``{"kind": "corrupt", "vid", "error"}`` if the payload is not a
-  valid :class:`schemas.pipeline.OcpEstimate`;
+  valid :class:`soilocp.schemas.pipeline.OcpEstimate`;
 * ``{"kind": "query", "vid", "replies", "stale", "age_s", "seq"}`` for a get on the OCP
   queryable every ``--period`` seconds (``replies`` 0: nobody answered: the publisher is not
   reachable from here);
@@ -45,7 +45,7 @@ def _config(connect: list[str]):
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router rather than fail
     conf.insert_json5("scouting/multicast/enabled", "false")
     # a secure fleet router (tls/ endpoint) admits only certified tools: SOILOCP_TLS_CA/_CERT/_KEY
-    from services.security.fleet_security import apply_tls, check_client_tls
+    from soilocp.services.security.fleet_security import apply_tls, check_client_tls
 
     tls = check_client_tls(connect)
     if tls is not None:
@@ -70,9 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     import zenoh
     from pydantic import ValidationError
 
-    from schemas import keys
-    from schemas.messages import OcpReply, ServiceHealth
-    from schemas.pipeline import OcpEstimate
+    from soilocp.schemas import keys
+    from soilocp.schemas.messages import OcpReply, ServiceHealth
+    from soilocp.schemas.pipeline import OcpEstimate
 
     vids = [keys.check_vehicle_id(v) for v in args.vehicle]
     out = open(args.out, "w", encoding="utf-8", buffering=1) if args.out else sys.stdout

@@ -7,7 +7,7 @@ Each thread's CPU time (utime + stime from /proc/PID/task/TID/stat) over the dri
 samples sent (a thread that ends during the drive is not counted).  Zenoh's Rust threads carry their
 own names (rx-N, tx-N, acc-N, app-N); every thread Python or zenoh-python starts keeps the process's
 name, so those are told apart by thread id: ``py<TID>``, the busiest one being the service's worker.  The rig, the drive and the latency
-figures are the bench's own (``services.bench.live``).
+figures are the bench's own (``soilocp.services.bench.live``).
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ def _threads(pid: int) -> dict[str, tuple[str, int]]:
 
 
 def run_once(rate: float, duration: float) -> None:
-    from services.bench.live import Rig, drive, open_client
-    from services.bench.run import _clone, _payloads
-    from services.bench.stages import simulate_drive
+    from soilocp.services.bench.live import Rig, drive, open_client
+    from soilocp.services.bench.run import _clone, _payloads
+    from soilocp.services.bench.stages import simulate_drive
 
     payloads = _payloads(simulate_drive("bench", duration + 1.0, rate=rate))
     rig = Rig.standard(["cpu"])

@@ -1,7 +1,7 @@
 """The Python API: :func:`estimate` runs the whole chain on sensor samples held in Python.
 
 It is ``soilocp estimate`` without files: the same validation, the same chain, the same records
-(:class:`schemas.pipeline.OcpEstimate` as dicts), from a list of dicts, a pandas or polars DataFrame, or
+(:class:`soilocp.schemas.pipeline.OcpEstimate` as dicts), from a list of dicts, a pandas or polars DataFrame, or
 a sensor-log path, into a list of dicts or a pandas DataFrame.  A DataFrame holds a missing value as
 NaN (or None); a missing ground speed (or position) is the sensor log's null, so NaN there is taken as
 missing, not as a bad number.  pandas is optional: it is imported only for a DataFrame in or out.
@@ -18,7 +18,7 @@ from typing import Any, Iterable, Iterator, Mapping, Optional, Union
 
 __all__ = ["estimate", "SamplesRejectedWarning", "VehicleMismatchWarning"]
 
-#: sensor-log fields that may be missing (null): NaN there means missing (schemas.sensor.SensorSample)
+#: sensor-log fields that may be missing (null): NaN there means missing (soilocp.schemas.sensor.SensorSample)
 OPTIONAL_FIELDS = ("ground_speed", "position", "geo")
 
 

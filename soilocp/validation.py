@@ -14,7 +14,7 @@ from typing import IO, Iterator, Optional
 
 from pydantic import ValidationError
 
-from schemas.sensor import SensorSample, format_validation_error
+from soilocp.schemas.sensor import SensorSample, format_validation_error
 
 #: Byte limit of one raw sample (a gateway payload, a line of a sensor log), checked before any parsing.
 #: The largest valid SensorSample (a 64-character vehicle id, every number at full float precision) is

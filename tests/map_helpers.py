@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence
 
-from schemas.pipeline import SoilEstimate
-from schemas.position import EstimatePlace
+from soilocp.schemas.pipeline import SoilEstimate
+from soilocp.schemas.position import EstimatePlace
 
 
 def estimate(vid: str, seq: int, k: Optional[float], log_k_std: Optional[float] = 0.1,
@@ -27,7 +27,7 @@ def estimate(vid: str, seq: int, k: Optional[float], log_k_std: Optional[float] 
 
 def item(e: SoilEstimate | bytes, key_vid: Optional[str] = None, t: float = 1_800_000_000.0):
     """(key, payload, received_at) as the map service queues it."""
-    from schemas import keys
+    from soilocp.schemas import keys
 
     if isinstance(e, SoilEstimate):
         return keys.soil(key_vid or e.vehicle_id), e.model_dump_json().encode(), t

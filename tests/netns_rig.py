@@ -16,8 +16,8 @@ from typing import Callable, Optional
 
 import pytest
 
-from services.stages.graph import PIPELINE_SERVICES
-from services.supervisor.processes import ProcessGroup
+from soilocp.services.stages.graph import PIPELINE_SERVICES
+from soilocp.services.supervisor.processes import ProcessGroup
 
 ROOT = Path(__file__).resolve().parents[1]
 NETNS = ROOT / "scripts" / "netns-vehicle.sh"
@@ -25,7 +25,7 @@ PROBE = ROOT / "scripts" / "ocp_probe.py"
 ESTIMATION = ROOT / "deploy" / "vehicle-two-unit" / "estimation.json"
 SENSING_SECURE = ROOT / "deploy" / "vehicle-two-unit" / "sensing-secure.json"
 FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
-SOILOCP = [sys.executable, "-m", "soilocp_cli"]
+SOILOCP = [sys.executable, "-m", "soilocp.cli"]
 #: The run's addresses (scripts/netns-vehicle.sh): the fleet router, the sensing unit's router on
 #: the link to the estimation unit, and each unit's own loopback router.
 VID = "rover1"

@@ -152,7 +152,7 @@ def test_bad_arguments_are_named(drives):
 
 @pytest.mark.timeout(300)
 def test_batch_service_stream_equals_offline_estimate():
-    """gateway + the batched normal-force/observer/soil/OCP service (services.stages.batch), real processes
+    """gateway + the batched normal-force/observer/soil/OCP service (soilocp.services.stages.batch), real processes
     behind a real router: two vehicles' live OCP streams equal ``estimate_lines`` offline."""
     import json
     import threading
@@ -160,8 +160,8 @@ def test_batch_service_stream_equals_offline_estimate():
 
     import zenoh
 
-    from schemas import keys
-    from services.bench.live import Rig, open_client
+    from soilocp.schemas import keys
+    from soilocp.services.bench.live import Rig, open_client
     from soilocp.estimation.estimate import estimate_lines
 
     vids = ["bx1", "bx2"]

@@ -1,4 +1,4 @@
-"""The batched service's handling (services.stages.batch), in process without Zenoh: every published OCP
+"""The batched service's handling (soilocp.services.stages.batch), in process without Zenoh: every published OCP
 payload is byte for byte that of the plain flush (the normal forces by ``normal_forces(vehicle, ...)``, a
 list of quads to ``BatchPipeline.step``), one vehicle at a time and batched; the service's faster path
 (its solver held, the forces block passed whole) must not move a byte."""
@@ -10,10 +10,10 @@ import itertools
 
 import numpy as np
 
-from services.runtime.config import load_service_config
-from services.runtime.log import JsonLog
-from services.runtime.worker import WorkItem
-from services.stages.batch import BatchOcpService
+from soilocp.services.runtime.config import load_service_config
+from soilocp.services.runtime.log import JsonLog
+from soilocp.services.runtime.worker import WorkItem
+from soilocp.services.stages.batch import BatchOcpService
 from soilocp.model.normal_force import normal_forces
 from soilocp.sim.simulator import simulate
 

@@ -13,9 +13,9 @@ import time
 
 import pytest
 
-from services.bench.run import json_safe, verdict
-from services.bench.live import proc_cpu_seconds, proc_pss_mib, proc_rss_mib
-from services.bench.stages import STAGES, summarize
+from soilocp.services.bench.run import json_safe, verdict
+from soilocp.services.bench.live import proc_cpu_seconds, proc_pss_mib, proc_rss_mib
+from soilocp.services.bench.stages import STAGES, summarize
 
 PIPELINE_PROCS = {"standard": {"router", "gateway", "normal-force", "observer", "soil-strength", "ocp"},
                   "batched": {"router", "gateway", "batch"}}
@@ -49,7 +49,7 @@ def test_proc_readers_see_this_process():
 @pytest.mark.timeout(900)
 def test_quick_bench_report_is_well_formed(tmp_path):
     out = tmp_path / "bench.json"
-    r = subprocess.run([sys.executable, "-m", "services.bench.run", "--quick", "--json", str(out)],
+    r = subprocess.run([sys.executable, "-m", "soilocp.services.bench.run", "--quick", "--json", str(out)],
                        capture_output=True, text=True, timeout=880, cwd=tmp_path)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "sample -> OCP latency" in r.stdout and "targets:" in r.stdout
@@ -109,7 +109,7 @@ def _report(total_cpu, replay_x, p99, rss_gateway, vehicles):
 
 
 def test_compare_ratios_and_gains_on_known_reports():
-    from services.bench.compare import compare, pipeline_rss_mib
+    from soilocp.services.bench.compare import compare, pipeline_rss_mib
 
     base, now = _report(400.0, 20.0, 8.0, 150.0, 10), _report(100.0, 50.0, 2.0, 50.0, None)
     assert pipeline_rss_mib(base["latency"][0]["processes"]) == 200.0  # bench and echo are not the pipeline
@@ -137,7 +137,7 @@ def test_compare_cli_renders_saved_reports_and_rejects_a_bad_baseline(tmp_path):
     base.write_text(json.dumps(b))
     now.write_text(json.dumps(n))
     bad.write_text(json.dumps({"not": "a report"}))
-    cmd = [sys.executable, "-m", "services.bench.run", "--report", str(now), "--compare"]
+    cmd = [sys.executable, "-m", "soilocp.services.bench.run", "--report", str(now), "--compare"]
     r = subprocess.run(cmd + [str(base)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "before / after" in r.stdout and "stage total CPU median, us" in r.stdout and "4.00" in r.stdout
@@ -150,8 +150,8 @@ def test_process_commands_load_no_heavy_module(argv):
     """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
     register only the services area's commands, and the stage services, with every stage built,
     load no scipy / rich / matplotlib / filterpy (the cli with any other command still registers every area)."""
-    code = ("import sys; import soilocp_cli.entry as entry; group = entry.command_group(sys.argv[1:]); "
-            "import services.stages.registry; from services.stages.graph import PIPELINE; "
+    code = ("import sys; import soilocp.cli.entry as entry; group = entry.command_group(sys.argv[1:]); "
+            "import soilocp.services.stages.registry; from soilocp.services.stages.graph import PIPELINE; "
             "from soilocp.estimation.pipeline import PipelineConfig; "
             "[row.stage(PipelineConfig()) for row in PIPELINE if row.stage is not None]; "
             "heavy = sorted(m for m in ('scipy', 'rich', 'matplotlib', 'filterpy') if m in sys.modules); "
@@ -171,7 +171,7 @@ def test_soak_short_form_carries_every_sample_and_reports_memory(tmp_path):
     """``soilocp bench --soak 20``: the report has every figure of the soak; nothing dropped, no
     observer reset but the start's, no process error.  Timing figures are reported, not asserted."""
     out = tmp_path / "soak.json"
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "bench", "--soak", "20", "--json", str(out)],
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "bench", "--soak", "20", "--json", str(out)],
                        capture_output=True, text=True, timeout=170)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     rep = json.loads(out.read_text())

@@ -11,11 +11,11 @@ import sys
 
 import pytest
 
-from services.bench.relay import LEVELS, RECORDED, RelayStep, record_templates, relay_class
-from services.bench.stages import simulate_drive
-from services.stages.graph import BY_NAME, PIPELINE_SERVICES
-from services.stages.registry import SPECIAL, stage_service
-from services.stages.stage_service import StageService
+from soilocp.services.bench.relay import LEVELS, RECORDED, RelayStep, record_templates, relay_class
+from soilocp.services.bench.stages import simulate_drive
+from soilocp.services.stages.graph import BY_NAME, PIPELINE_SERVICES
+from soilocp.services.stages.registry import SPECIAL, stage_service
+from soilocp.services.stages.stage_service import StageService
 
 GRAPH_PROCS = {"standard": {"router", *PIPELINE_SERVICES}, "batched": {"router", "gateway", "batch"}}
 
@@ -58,7 +58,7 @@ def test_quick_floor_carries_every_sample(tmp_path):
     out = tmp_path / "floor.json"
     scratch = tmp_path / "tmp"  # the run's temporary files (the relays' recorded outputs): removed at its end
     scratch.mkdir()
-    r = subprocess.run([sys.executable, "-m", "services.bench.floor", "--quick", "--max-vehicles", "1",
+    r = subprocess.run([sys.executable, "-m", "soilocp.services.bench.floor", "--quick", "--max-vehicles", "1",
                         "--variant", "messages", "--variant", "zenoh", "--json", str(out)],
                        capture_output=True, text=True, timeout=580, cwd=tmp_path,
                        env={**os.environ, "TMPDIR": str(scratch)})
@@ -97,7 +97,7 @@ def test_quick_floor_carries_every_sample(tmp_path):
 def test_floor_refuses_compare_and_map():
     from click.testing import CliRunner
 
-    from services.bench.run import bench
+    from soilocp.services.bench.run import bench
 
     for extra in (["--compare", "base.json"], ["--map"]):
         r = CliRunner().invoke(bench, ["--floor", *extra])
@@ -106,8 +106,8 @@ def test_floor_refuses_compare_and_map():
 
 def test_bare_relay_args_follow_the_graph(tmp_path):
     """Each bare relay subscribes its row's inputs, puts on its output key, holds its row's token."""
-    from services.bench.bare import splice_template
-    from services.bench.floor import bare_args
+    from soilocp.services.bench.bare import splice_template
+    from soilocp.services.bench.floor import bare_args
 
     t = tmp_path / "templates.json"
     obs = bare_args("observer", t)

@@ -13,8 +13,8 @@ import sys
 
 import pytest
 
-from schemas.messages import DriveSetpoint
-from services.control.vehicle_drive import DriveInbox, tyre_constants
+from soilocp.schemas.messages import DriveSetpoint
+from soilocp.services.control.vehicle_drive import DriveInbox, tyre_constants
 from soilocp.control.calibration_drive import DriveProtocol
 
 from zenoh_helpers import Procs, endpoint, free_port
@@ -75,7 +75,7 @@ def test_tyre_names_and_files(tmp_path):
 
 # --- live over Zenoh -----------------------------------------------------------------------------------------------
 def _cli(args, timeout):
-    return subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([sys.executable, "-m", "soilocp.cli", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_no_robot_answers_exit_1_and_nothing_written(tmp_path):
@@ -105,7 +105,7 @@ def test_a_sweep_below_the_peak_is_too_little_exit_1_and_cmd_vel_goes_out_over_r
     same router), CDR-encoded as a ROS 2 subscriber reads them; the last ones say stop."""
     import threading
 
-    from services.ros2 import rmw_zenoh
+    from soilocp.services.ros2 import rmw_zenoh
     from zenoh_helpers import client
 
     vid, ep = "cd-low", endpoint(free_port())

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from soilocp.analysis.testbed import synthetic_testbed, write_testbed_csv
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants, load_constants, save_constants
 from soilocp.analysis.curves import FIGURE_FILES
 
@@ -85,7 +85,7 @@ def test_ocp_bad_constants_file(tmp_path, content):
 
 def test_ocp_bad_k_in_a_real_process_exits_cleanly():
     p = subprocess.run(
-        [sys.executable, "-m", "soilocp_cli", "ocp", "--soil-strength", "nan"],
+        [sys.executable, "-m", "soilocp.cli", "ocp", "--soil-strength", "nan"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from schemas.pipeline import OcpEstimate
+from soilocp.schemas.pipeline import OcpEstimate
 from soilocp.control import DEFAULT_GAINS, LoopGains, OcpSetPoint, WheelTorqueLoop, fallback_slip, make_policy
 from soilocp.control.compare import METRICS
 from soilocp.control.rig import get_rig_scenario, run_closed_loop
@@ -167,7 +167,7 @@ def test_fixed_slip_is_tracked_and_ocp_traction_pulls_more_on_firm_soil():
 def test_control_compare_json_shape_on_a_short_run(tmp_path):
     out = tmp_path / "cmp.json"
     plots = tmp_path / "plots"
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "control", "compare", "--scenario", "drawbar-sand",
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "control", "compare", "--scenario", "drawbar-sand",
                         "--scenario", "mixed-drive", "--duration", "4", "--json", str(out), "--plots", str(plots)],
                        capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
@@ -182,15 +182,15 @@ def test_control_compare_json_shape_on_a_short_run(tmp_path):
             assert m["distance_m"] > 0
     assert "ocp_traction" in r.stdout and "drawbar-sand" in r.stdout
     assert sorted(p.name for p in plots.iterdir()) == ["control-drawbar-sand.png", "control-mixed-drive.png"]
-    bad = subprocess.run([sys.executable, "-m", "soilocp_cli", "control", "compare", "--scenario", "nowhere"],
+    bad = subprocess.run([sys.executable, "-m", "soilocp.cli", "control", "compare", "--scenario", "nowhere"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "scenario must be one of" in bad.stderr
 
 
 # --- the closed-loop vehicle's set-point inbox (no Zenoh needed) ------------------------------------
 def test_vehicle_inbox_follows_set_points_falls_back_when_silent_and_times_the_loop():
-    from schemas.messages import SlipSetpoint
-    from services.control.vehicle_control import SetpointInbox
+    from soilocp.schemas.messages import SlipSetpoint
+    from soilocp.services.control.vehicle_control import SetpointInbox
 
     inbox = SetpointInbox("rover1", "ocp_traction", stale_timeout_s=0.5)
     fb = fallback_slip("S_T")

@@ -9,9 +9,9 @@ import threading
 
 import pytest
 
-from schemas import keys
-from schemas.messages import ServiceHealth, SlipSetpoint
-from schemas.pipeline import OcpEstimate
+from soilocp.schemas import keys
+from soilocp.schemas.messages import ServiceHealth, SlipSetpoint
+from soilocp.schemas.pipeline import OcpEstimate
 from soilocp.control import fallback_slip
 from soilocp.model.ocp import ocp_from_soil_strength
 

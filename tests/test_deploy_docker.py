@@ -253,7 +253,7 @@ def test_compose_fleet_survives_service_kill_and_fleet_partition(image_build_sec
         # the published fleet port is TLS only: a plain TCP client gets nothing (the refusal cases of
         # TLS clients are tests/test_fleet_security.py)
         no_cert = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-        res = subprocess.run([sys.executable, "-m", "soilocp_cli", "fleet", "status", "--connect",
+        res = subprocess.run([sys.executable, "-m", "soilocp.cli", "fleet", "status", "--connect",
                               f"tcp/127.0.0.1:{fleet.port}", "--timeout", "3"], capture_output=True, text=True,
                              env=no_cert, timeout=120)
         assert res.returncode == 1 and "no router answered" in res.stdout + res.stderr, res
@@ -377,16 +377,16 @@ def test_healthcheck_finds_soilocp_in_command_lines():
         ["service", "ocp"]
     assert healthcheck.soilocp_args(["/sbin/docker-init", "--", "soilocp", "router", "--listen", "tcp/0.0.0.0:7447"]) \
         == ["router", "--listen", "tcp/0.0.0.0:7447"]
-    assert healthcheck.soilocp_args(["python", "-m", "soilocp_cli", "service", "gateway"]) == ["service", "gateway"]
+    assert healthcheck.soilocp_args(["python", "-m", "soilocp.cli", "service", "gateway"]) == ["service", "gateway"]
     assert healthcheck.soilocp_args(["python", "/usr/local/bin/soilocp-healthcheck"]) is None
     assert healthcheck.soilocp_args(["soilocp", "run", "--synthetic", "sand"]) is None
 
 
 def test_healthcheck_settings_match_the_services_loaders(tmp_path):
     """The health check's pydantic-free fast path resolves settings exactly as the services do."""
-    from schemas import keys
-    from services.router import router_settings
-    from services.runtime.config import DEFAULT_ENDPOINT, load_service_config
+    from soilocp.schemas import keys
+    from soilocp.services.router import router_settings
+    from soilocp.services.runtime.config import DEFAULT_ENDPOINT, load_service_config
 
     assert healthcheck.DEFAULT_ENDPOINT == DEFAULT_ENDPOINT
     assert healthcheck.alive_key("rover9", "soil-strength") == keys.alive("rover9", "soil-strength")

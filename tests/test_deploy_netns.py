@@ -140,8 +140,8 @@ def test_link_cut_between_compute_units_goes_stale_and_recovers(vehicle_netns, t
 # deploy/ configuration files, through the real loaders (no root, no network)
 # ---------------------------------------------------------------------------------------------
 def test_deploy_unit_configs_load_and_env_overrides_win():
-    from services.router import router_settings
-    from services.runtime.config import load_service_config
+    from soilocp.services.router import router_settings
+    from soilocp.services.runtime.config import load_service_config
 
     expected = {SENSING: {"gateway", "normal-force", "vehicle"}, ESTIMATION: {"observer", "soil-strength", "ocp"}}
     for path, services in expected.items():
@@ -192,9 +192,9 @@ def _env_file(path: Path) -> dict[str, str]:
 def test_systemd_example_environments_resolve_through_the_loaders(tmp_path):
     import shlex
 
-    from services.commands import service_cmd
-    from services.router import router_settings
-    from services.runtime.config import load_service_config
+    from soilocp.services.commands import service_cmd
+    from soilocp.services.router import router_settings
+    from soilocp.services.runtime.config import load_service_config
 
     # the certificates the secure units name, made where the test can read them
     certs = tmp_path / "certs"

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from soilocp_cli import docs_reference
+from soilocp.cli import docs_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "docs" / "reference"
@@ -23,15 +23,15 @@ def test_committed_reference_pages_are_what_the_code_gives():
 
 def test_generator_writes_every_page_and_check_passes_on_them(tmp_path):
     out = tmp_path / "reference"
-    gen = subprocess.run([sys.executable, "-m", "soilocp_cli.docs_reference", "--out", str(out)],
+    gen = subprocess.run([sys.executable, "-m", "soilocp.cli.docs_reference", "--out", str(out)],
                          cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert gen.returncode == 0, gen.stderr
     assert sorted(p.name for p in out.iterdir()) == ["cli.md", "records.md", "settings.md", "topics.md"]
-    check = subprocess.run([sys.executable, "-m", "soilocp_cli.docs_reference", "--out", str(out), "--check"],
+    check = subprocess.run([sys.executable, "-m", "soilocp.cli.docs_reference", "--out", str(out), "--check"],
                            cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert check.returncode == 0, check.stderr
     (out / "settings.md").write_text("stale\n")
-    stale = subprocess.run([sys.executable, "-m", "soilocp_cli.docs_reference", "--out", str(out), "--check"],
+    stale = subprocess.run([sys.executable, "-m", "soilocp.cli.docs_reference", "--out", str(out), "--check"],
                            cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert stale.returncode == 1
     assert docs_reference.REGENERATE in stale.stderr
@@ -40,9 +40,9 @@ def test_generator_writes_every_page_and_check_passes_on_them(tmp_path):
 def test_pages_cover_every_command_setting_field_and_key():
     from pydantic import BaseModel
 
-    from schemas.pipeline import OcpEstimate
+    from soilocp.schemas.pipeline import OcpEstimate
     from soilocp.estimation.config import PipelineConfig
-    from soilocp_cli.main import main
+    from soilocp.cli.main import main
 
     cli = (REFERENCE / "cli.md").read_text()
     for name in main.commands:

@@ -42,7 +42,7 @@ def test_value_only_curves_equal_the_curves_with_derivatives(s, k):
 
 def test_ocp_stage_with_the_printed_model_on_very_firm_soil():
     """bridge_slip = 0 (eq. 6 as printed) and K above alpha (S_E clamped to 0): no TE, no error."""
-    from schemas.pipeline import SoilEstimate
+    from soilocp.schemas.pipeline import SoilEstimate
     from soilocp.model.constants import ModelConstants
     from soilocp.estimation.pipeline import OcpStage, PipelineConfig
 

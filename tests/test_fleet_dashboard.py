@@ -4,7 +4,7 @@ A fleet router, two vehicles each run by ``soilocp run`` (its own router linked 
 router, five services, a synthetic vehicle), the dashboard server, and headless Chromium driven
 over the DevTools protocol on a pipe (``--remote-debugging-pipe``: no websocket client needed).
 Loopback only, ephemeral ports, multicast off; every process is reaped.  Plus fast unit tests of
-:class:`services.fleet.state.FleetState` with a fake clock.
+:class:`soilocp.services.fleet.state.FleetState` with a fake clock.
 """
 
 from __future__ import annotations
@@ -29,11 +29,11 @@ from typing import Any, Optional
 import numpy as np
 import pytest
 
-from schemas import keys
-from services.stages.graph import PIPELINE_SERVICES
-from schemas.messages import OcpReply, ServiceHealth
-from schemas.pipeline import OcpEstimate
-from services.fleet.state import FleetState, traction_curve
+from soilocp.schemas import keys
+from soilocp.services.stages.graph import PIPELINE_SERVICES
+from soilocp.schemas.messages import OcpReply, ServiceHealth
+from soilocp.schemas.pipeline import OcpEstimate
+from soilocp.services.fleet.state import FleetState, traction_curve
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.traction import net_traction
 
@@ -207,7 +207,7 @@ def fleet(tmp_path_factory):
 
 def _fleet_start(*args: str) -> subprocess.Popen:
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.Popen([sys.executable, "-m", "soilocp_cli", "fleet", "status", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "soilocp.cli", "fleet", "status", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=e, stdin=subprocess.DEVNULL)
 
 

@@ -57,7 +57,7 @@ def _fresh_at(recs: list[dict], after: float) -> tuple[float | None, float | Non
 #: OCPs, health) crosses the fleet link, so the link's queue is full within seconds of a cut.
 RECORDER = """
 import os, signal, sys, time, zenoh
-from services.security.fleet_security import apply_tls, check_client_tls
+from soilocp.services.security.fleet_security import apply_tls, check_client_tls
 c = zenoh.Config()
 c.insert_json5("mode", '"client"')
 c.insert_json5("connect/endpoints", '["' + sys.argv[1] + '"]')

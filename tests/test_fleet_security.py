@@ -30,12 +30,12 @@ from pathlib import Path
 import pytest
 from zenoh_helpers import Procs, free_port, wait_for
 
-from services.security.fleet_security import TlsFiles, apply_tls
+from soilocp.services.security.fleet_security import TlsFiles, apply_tls
 
 ROOT = Path(__file__).resolve().parents[1]
 FLEET_SECURE = ROOT / "deploy" / "fleet" / "fleet-router-secure.json"
 NATIVE_SECURE = ROOT / "deploy" / "zenoh" / "fleet-router-secure.json5"
-SOILOCP = [sys.executable, "-m", "soilocp_cli"]
+SOILOCP = [sys.executable, "-m", "soilocp.cli"]
 GRACE_S = 1.0
 
 
@@ -260,7 +260,7 @@ os._exit(0)
 def test_native_json5_fleet_router_enforces_the_same_rules(native_fleet):
     import zenoh
 
-    from services.security.fleet_security import apply_fleet_link_qos, fleet_access_control
+    from soilocp.services.security.fleet_security import apply_fleet_link_qos, fleet_access_control
 
     # the file's access control is the one `soilocp router` builds (both read back through Zenoh)
     built = zenoh.Config()
@@ -320,8 +320,8 @@ def test_vehicle_ocps_reach_dashboard_and_fleet_cli_over_tls(fleet, tmp_path):
 
 
 def test_security_settings_fail_with_a_clear_message(tmp_path):
-    from services.router import router_settings
-    from services.runtime.config import ConfigError
+    from soilocp.services.router import router_settings
+    from soilocp.services.runtime.config import ConfigError
 
     certs = tmp_path / "certs"
     _certs(certs, "init", str(certs), "--vehicle", "rover1")

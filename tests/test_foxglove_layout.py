@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from soilocp.export.channels import topics
 from soilocp.sim.simulator import simulate
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 
 LAYOUT = Path(__file__).resolve().parents[1] / "docs" / "foxglove" / "soilocp-layout.json"
 VID = "rover1"  # the layout's vehicle (docs/foxglove.md: how to point it at another)

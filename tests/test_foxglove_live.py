@@ -17,7 +17,7 @@ from collections import defaultdict
 
 import pytest
 
-from schemas import keys
+from soilocp.schemas import keys
 
 from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
 
@@ -130,7 +130,7 @@ def test_run_foxglove_and_fleet_foxglove_serve_the_zenoh_stream(tmp_path):
     ep = endpoint(free_port())
     ws_run, ws_fleet = free_port(), free_port()
     procs = Procs(tmp_path / "logs")
-    run = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--synthetic", "sand", "--duration", "20",
+    run = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--synthetic", "sand", "--duration", "20",
                             "--vehicle-id", VID, "--listen", ep, "--foxglove", f"127.0.0.1:{ws_run}", "--plain",
                             "--log-dir", str(tmp_path / "run")],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
@@ -208,7 +208,7 @@ def test_a_taken_port_or_a_bad_address_is_a_clear_error_before_anything_starts(t
               "--log-dir", str(tmp_path / "run")], "Address already in use"),
             (["run", "--synthetic", "sand", "--foxglove", "localhost:http"], "expected HOST:PORT"),
         ):
-            r = subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=60)
+            r = subprocess.run([sys.executable, "-m", "soilocp.cli", *args], capture_output=True, text=True, timeout=60)
             assert r.returncode == 2 and says in r.stderr + r.stdout, r.stderr + r.stdout
     assert not (tmp_path / "run" / "router.log").exists()  # nothing was started
 
@@ -231,8 +231,8 @@ def test_a_subscription_refused_by_the_sdk_gets_the_channel_advertised_again_the
 
     from websockets.sync.client import connect
 
-    from services.io.foxglove_live import FoxgloveLive, _RefusedSubscriptions
-    from services.runtime.log import JsonLog
+    from soilocp.services.io.foxglove_live import FoxgloveLive, _RefusedSubscriptions
+    from soilocp.services.runtime.log import JsonLog
 
     log = io.StringIO()
     live = FoxgloveLive("127.0.0.1", 0, (), log=JsonLog("foxglove", stream=log))

@@ -7,9 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from schemas.messages import Rejection
-from schemas.sensor import SensorSample
-from services.stages.gateway import RawSampleChecker
+from soilocp.schemas.messages import Rejection
+from soilocp.schemas.sensor import SensorSample
+from soilocp.services.stages.gateway import RawSampleChecker
 from soilocp.validation import MAX_PAYLOAD_BYTES as DEFAULT_MAX_PAYLOAD_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,7 +20,7 @@ def test_gateway_module_loads_no_numpy_and_no_estimation_package():
     the service runtime.  None of it may pull numpy or soilocp.estimation (the physics)."""
     code = (
         "import sys, json\n"
-        "import services.stages.gateway, services.runtime.service, services.stages.stage_service\n"
+        "import soilocp.services.stages.gateway, soilocp.services.runtime.service, soilocp.services.stages.stage_service\n"
         "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'filterpy')\n"
         "                        or m.startswith('soilocp.estimation') or m == 'soilocp._core')))\n"
     )
@@ -51,7 +51,7 @@ def test_oversized_payload_is_refused_before_parsing_and_named():
 def test_limit_is_configurable_and_the_default_fits_every_valid_sample():
     """The largest valid sample (64-character id, every number at full precision, pretty-printed)
     fits the default with a margin; a service config can set another limit."""
-    from services.runtime.config import ServiceConfig
+    from soilocp.services.runtime.config import ServiceConfig
 
     big = SensorSample(vehicle_id="v" * 64, seq=2**62, stamp=1.7e9 + 0.123456789012345,
                        specific_force=(-1.2345678901234567e-10,) * 3, roll=-0.12345678901234567,

@@ -17,7 +17,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.estimation.pipeline import NormalForceStage, PipelineConfig, VehiclePipeline
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 from soilocp.ingest import load_map
 from soilocp.ingest.csv_import import CsvImportError, import_csv
 

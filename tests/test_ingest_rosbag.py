@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 from soilocp.estimation.estimate import estimate_lines
 from soilocp.analysis.evaluation import evaluate_records
 from soilocp.ingest import load_map

@@ -36,7 +36,7 @@ def _mapped(pid: int) -> str:
 
 def _start(args: list[str], env: dict[str, str]) -> subprocess.Popen:
     clean = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    return subprocess.Popen([sys.executable, "-m", "soilocp_cli", *args], cwd=ROOT, env={**clean, **env},
+    return subprocess.Popen([sys.executable, "-m", "soilocp.cli", *args], cwd=ROOT, env={**clean, **env},
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 
@@ -66,8 +66,8 @@ def _wait_alive(endpoint: str, service: str, timeout: float = 90.0) -> None:
     """Until the service holds its liveliness token: it has built its stage and declared everything."""
     import zenoh
 
-    from schemas import keys
-    from services.runtime.settings import zenoh_config
+    from soilocp.schemas import keys
+    from soilocp.services.runtime.settings import zenoh_config
 
     with zenoh.open(zenoh_config("client", [endpoint], [], connect_timeout_ms=10000)) as session:
         deadline = time.monotonic() + timeout
@@ -119,7 +119,7 @@ def _one_record(service: str, in_key: str, payload: str, out_key: str) -> tuple[
     comes on ``out_key``; the records got, the service's ``/proc/PID/maps`` after it, and its stderr."""
     import zenoh
 
-    from services.runtime.settings import zenoh_config
+    from soilocp.services.runtime.settings import zenoh_config
 
     port = _free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -150,8 +150,8 @@ def test_ocp_publisher_computes_a_record_without_loading_numpy():
     """The OCP publisher needs the pipeline's settings and eqs. 7-10 of one K, not the physics: running,
     and after it has turned a soil estimate into an OCP record (so that no lazy import on the step's
     path is missed), it has loaded no numpy.  Its record equals the library's for that K."""
-    from schemas import keys
-    from schemas.pipeline import OcpEstimate, SoilEstimate
+    from soilocp.schemas import keys
+    from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
     from soilocp.model.ocp import ocp_arrays
 
     soil = SoilEstimate(vehicle_id="rover1", seq=7, stamp=0.07, slip=(0.1,) * 4, informative=(True,) * 4,
@@ -170,9 +170,9 @@ def test_normal_force_service_computes_a_record_without_loading_numpy():
     after it has turned a sensor sample into a NormalForces record (so that no lazy import on the
     step's path is missed), it has loaded no numpy.  Its record equals the library's (the bank's
     solver, numpy arrays) to the bit."""
-    from schemas import keys
-    from schemas.pipeline import NormalForces
-    from schemas.sensor import SensorSample
+    from soilocp.schemas import keys
+    from soilocp.schemas.pipeline import NormalForces
+    from soilocp.schemas.sensor import SensorSample
     from soilocp.model.normal_force import normal_forces
     from soilocp.model.vehicle import DEFAULT_VEHICLE
 
@@ -188,20 +188,20 @@ def test_normal_force_service_computes_a_record_without_loading_numpy():
 
 
 def test_key_functions_need_no_pydantic():
-    """``schemas.keys`` (the router's ACLs, every key of the pipeline) imports no pydantic model:
+    """``soilocp.schemas.keys`` (the router's ACLs, every key of the pipeline) imports no pydantic model:
     the package's models are re-exported lazily, and still importable from ``schemas``."""
-    code = ("import sys; import schemas.keys, services.router, services.runtime.settings; "
+    code = ("import sys; import soilocp.schemas.keys, soilocp.services.router, soilocp.services.runtime.settings; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('pydantic', 'pydantic_core', 'numpy') "
-            "or m in ('schemas.sensor', 'schemas.pipeline', 'schemas.messages', 'services.runtime.config')))")
+            "or m in ('soilocp.schemas.sensor', 'soilocp.schemas.pipeline', 'soilocp.schemas.messages', 'soilocp.services.runtime.config')))")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
-    from schemas import VEHICLE_ID_PATTERN, SensorSample
-    from schemas.sensor import VEHICLE_ID_PATTERN as in_sensor
+    from soilocp.schemas import VEHICLE_ID_PATTERN, SensorSample
+    from soilocp.schemas.sensor import VEHICLE_ID_PATTERN as in_sensor
 
-    assert VEHICLE_ID_PATTERN == in_sensor and SensorSample.__module__ == "schemas.sensor"
+    assert VEHICLE_ID_PATTERN == in_sensor and SensorSample.__module__ == "soilocp.schemas.sensor"
     with pytest.raises(AttributeError, match="no attribute 'NotAModel'"):
-        import schemas
+        import soilocp.schemas
 
         schemas.NotAModel  # noqa: B018
 
@@ -211,9 +211,9 @@ def test_zenoh_settings_are_configurable_and_checked():
     set from the environment for the services and the router, a bad value named."""
     import json
 
-    from services.router import router_settings
-    from services.runtime.config import ConfigError, load_service_config
-    from services.runtime.settings import zenoh_config
+    from soilocp.services.router import router_settings
+    from soilocp.services.runtime.config import ConfigError, load_service_config
+    from soilocp.services.runtime.settings import zenoh_config
 
     cfg = load_service_config("observer", env={})
     assert (cfg.express, cfg.batching, cfg.mode) == (False, True, "client")

@@ -25,8 +25,8 @@ import pytest
 
 import zenoh
 
-from services.runtime.settings import zenoh_config
-from services.stages.graph import PIPELINE_SERVICES
+from soilocp.services.runtime.settings import zenoh_config
+from soilocp.services.stages.graph import PIPELINE_SERVICES
 from zenoh_helpers import endpoint, free_port, wait_alive, wait_for
 
 RESUME_WITHIN_S = 2.0
@@ -34,7 +34,7 @@ RESUME_WITHIN_S = 2.0
 
 def _children(ppid: int) -> dict[str, int]:
     """``{process name: pid}`` of the ``soilocp run`` children (``router``, ``gateway``..., ``vehicle``),
-    from /proc (their command lines: ``python -m soilocp_cli router|service NAME ...``)."""
+    from /proc (their command lines: ``python -m soilocp.cli router|service NAME ...``)."""
     out = {}
     for d in Path("/proc").iterdir():
         if not d.name.isdigit():
@@ -47,9 +47,9 @@ def _children(ppid: int) -> dict[str, int]:
         except (OSError, ValueError):
             continue
         args = [a.decode(errors="replace") for a in argv if a]
-        if "soilocp_cli" not in args:
+        if "soilocp.cli" not in args:
             continue
-        rest = args[args.index("soilocp_cli") + 1:]
+        rest = args[args.index("soilocp.cli") + 1:]
         name = rest[1] if rest[:1] == ["service"] and len(rest) > 1 else rest[0] if rest else "?"
         out[name] = int(d.name)
     return out
@@ -112,7 +112,7 @@ def _run_kills(tmp_path, victims: list[str], interval_s: float, duration_s: floa
     ep = endpoint(free_port())
     log_dir = tmp_path / "logs"
     env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    run = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--synthetic", "mixed", "--duration",
+    run = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--synthetic", "mixed", "--duration",
                             str(duration_s), "--restart", "--plain", "--listen", ep, "--vehicle-id", vid,
                             "--log-dir", str(log_dir)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                            env=env, start_new_session=True)
@@ -186,6 +186,6 @@ def test_every_deployment_restarts_what_dies():
     for compose in ("docker-compose.yml", "docker-compose.plain.yml"):
         services = yaml.safe_load((root / compose).read_text())["services"]
         assert services
-        for name, svc in services.items():
+        for name, svc in soilocp.services.items():
             want = "no" if name == "certs" else "unless-stopped"
             assert svc.get("restart") == want, (compose, name, svc.get("restart"))

@@ -2,7 +2,7 @@
 gateway's input key, on an ephemeral loopback port (explicit endpoints, no multicast scouting).
 
 One vehicle drives at 100 Hz from the test's own session (a simulated drive, seqs from 10^6 up) while
-another process (``python -m services.bench.hostile``) puts mutated payloads on the same raw key at a
+another process (``python -m soilocp.services.bench.hostile``) puts mutated payloads on the same raw key at a
 high rate, bounded in count and time: oversized, malformed, non-finite, wrongly typed, deeply nested,
 another vehicle's, the vehicle's own samples replayed in order (old seqs), future stamps on old seqs.
 The good stream must lose nothing and no hostile sample may reach the OCPs; every rejection is
@@ -21,8 +21,8 @@ import time
 
 import pytest
 
-from schemas.messages import ServiceHealth
-from services.bench.live import proc_rss_mib
+from soilocp.schemas.messages import ServiceHealth
+from soilocp.services.bench.live import proc_rss_mib
 from zenoh_helpers import Procs, alive_services, client, endpoint, free_port, get_payloads, start_pipeline, wait_alive
 
 pytestmark = pytest.mark.timeout(300)
@@ -32,7 +32,7 @@ SEQ0 = 1_000_000  # the good stream's first seq: every replayed / future-stamped
 
 
 def _good_payloads(vid: str, duration: float) -> list[tuple[int, bytes]]:
-    from services.bench.stages import simulate_drive
+    from soilocp.services.bench.stages import simulate_drive
 
     out = []
     for s in simulate_drive(vid, duration, scenario="mixed"):
@@ -102,7 +102,7 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
             gw_pid = procs.procs["gateway"].pid
             rss0 = proc_rss_mib(gw_pid)
             # the flooder connects at once, waits, then floods for 4 s: from ~3 s into the good stream
-            flooder = procs.start_argv("flood", [sys.executable, "-m", "services.bench.hostile", "--connect", ep,
+            flooder = procs.start_argv("flood", [sys.executable, "-m", "soilocp.services.bench.hostile", "--connect", ep,
                                                  "--vehicle-id", vid, "--rate", str(FLOOD_RATE), "--duration", "4",
                                                  "--delay", "2.5", "--seed", "7", "--below-seq", str(SEQ0)])
             rss_peak = [rss0]

@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from map_helpers import estimate
-from schemas import keys
+from soilocp.schemas import keys
 from soilocp.analysis.fleet_map import FLEET, mixed_field
 from test_fleet_dashboard import Chromium, _chromium
 from zenoh_helpers import Procs, client, endpoint, free_port, wait_for

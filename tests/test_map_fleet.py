@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from schemas import keys
-from schemas.map import MapCellUpdate
+from soilocp.schemas import keys
+from soilocp.schemas.map import MapCellUpdate
 from soilocp.analysis.fleet_map import fleet_drives, map_items, mixed_field, score_cells
 from soilocp.map.fusion import FusionConfig
 from soilocp.map.store import open_store
@@ -56,7 +56,7 @@ def _publish_fleet(ep: str, drives, every: int = 1) -> int:
     import zenoh
 
     with client(ep) as s:
-        # reliable and blocking, as the soil-strength service publishes (services.runtime.service)
+        # reliable and blocking, as the soil-strength service publishes (soilocp.services.runtime.service)
         pubs = {d.vehicle_id: s.declare_publisher(keys.soil(d.vehicle_id),
                                                   congestion_control=zenoh.CongestionControl.BLOCK) for d in drives}
         n = 0
@@ -106,7 +106,7 @@ def test_two_live_map_services_converge(drives, tmp_path):
             for sub in subs:
                 sub.undeclare()
             # ask both over Zenoh for the whole field
-            from services.map.client import query_map
+            from soilocp.services.map.client import query_map
 
             now_cells = {}
             for m in "ab":

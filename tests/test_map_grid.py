@@ -54,7 +54,7 @@ def test_export_foxglove_grid_equals_the_maps_cells(tmp_path):
     cells = {c.cell: c for c in st.all_cells(1_800_000_000.0)}
     st.close()
     out = tmp_path / "grid.mcap"
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "map", "export", "--store", f"sqlite:{db}", "--map-id",
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "map", "export", "--store", f"sqlite:{db}", "--map-id",
                         "fleet", "--foxglove-grid", str(out)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "2 grid(s)" in r.stdout and "WGS84" in r.stdout
@@ -146,7 +146,7 @@ def test_live_foxglove_serves_the_maps_grid_and_follows_its_updates(tmp_path):
     import asyncio
     import time
 
-    from schemas import keys
+    from soilocp.schemas import keys
     from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
 
     db = tmp_path / "m.db"

@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from schemas.pipeline import SoilEstimate
-from schemas.sensor import SensorSample, parse_sensor_line
+from soilocp.schemas.pipeline import SoilEstimate
+from soilocp.schemas.sensor import SensorSample, parse_sensor_line
 from soilocp.estimation.pipeline import VehiclePipeline
 from soilocp.map.place import estimate_place, geo_to_local, local_to_geo
 from soilocp.model.vehicle import DEFAULT_VEHICLE
@@ -92,7 +92,7 @@ def test_soil_estimates_carry_the_informing_wheels_contact_patches(drive):
 
 
 def test_no_position_no_place_and_no_heading_puts_patches_at_the_com():
-    from schemas.position import MapPosition
+    from soilocp.schemas.position import MapPosition
 
     assert estimate_place(DEFAULT_VEHICLE, None, None, (True,) * 4) is None
     p = MapPosition(frame="m", x=3.0, y=4.0)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from schemas.map import MapCell
+from soilocp.schemas.map import MapCell
 from soilocp.analysis.fleet_map import mixed_field
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
@@ -66,7 +66,7 @@ def test_the_batched_pipeline_takes_the_same_map_prior_as_the_single_one():
 
 
 def test_live_batched_service_starts_from_the_map(tmp_path):
-    """The batched service (services.stages.batch) with SOILOCP_MAP_PRIOR, real processes: a map
+    """The batched service (soilocp.services.stages.batch) with SOILOCP_MAP_PRIOR, real processes: a map
     service holds cells along the drive at K = 123 (no soil of the drive has it); the batched
     service asks it for the cells around the vehicle and starts the belief from them as the vehicle
     enters each, as the soil-strength service does (tests/test_map_service.py)."""
@@ -76,7 +76,7 @@ def test_live_batched_service_starts_from_the_map(tmp_path):
     import zenoh
 
     from map_helpers import estimate, item
-    from schemas import keys
+    from soilocp.schemas import keys
     from soilocp.map.store import open_store
     from soilocp.map.updater import MapUpdater
     from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
@@ -95,7 +95,7 @@ def test_live_batched_service_starts_from_the_map(tmp_path):
         procs.spawn("router", ["router", "--listen", ep])
         procs.spawn("map", ["service", "map", "--map-id", "m", "--connect", ep, "--store", f"sqlite:{db}"])
         procs.spawn("gateway", ["service", "gateway"], env=env)
-        procs.start("batch", [], module="services.stages.batch", env={**env, "SOILOCP_MAP_PRIOR": "m"})
+        procs.start("batch", [], module="soilocp.services.stages.batch", env={**env, "SOILOCP_MAP_PRIOR": "m"})
         with client(ep) as s:
             for name in ("map/m", "ocp"):
                 key = keys.map_key("m", "alive") if name == "map/m" else keys.alive("bx1", "ocp")

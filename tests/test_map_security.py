@@ -12,8 +12,8 @@ import time
 import pytest
 
 from map_helpers import estimate
-from schemas import keys
-from schemas.map import MapCellUpdate, MapQueryReply, MapRejection
+from soilocp.schemas import keys
+from soilocp.schemas.map import MapCellUpdate, MapQueryReply, MapRejection
 from test_fleet_security import FLEET_SECURE, GRACE_S, Inbox, SecureFleet, _certs
 from zenoh_helpers import wait_for
 

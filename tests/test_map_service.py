@@ -16,8 +16,8 @@ import time
 import pytest
 
 from map_helpers import estimate
-from schemas import keys
-from schemas.map import MapCellUpdate, MapRejection
+from soilocp.schemas import keys
+from soilocp.schemas.map import MapCellUpdate, MapRejection
 from soilocp.map.store import open_store
 from zenoh_helpers import Procs, client, endpoint, free_port, wait_for
 
@@ -131,7 +131,7 @@ def test_kill9_postgresql_loses_no_acknowledged_update(tmp_path):
 
 
 def _cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([sys.executable, "-m", "soilocp.cli", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_rejections_status_query_and_export(tmp_path):
@@ -198,7 +198,7 @@ def test_a_query_after_an_acknowledgement_sees_it(tmp_path):
     committed since; a commit marks them out of date before it is acknowledged, so a query sent
     on the acknowledgement finds the new cell, every time (and queries in between, none
     changed, answer the same cells)."""
-    from schemas.map import MapQueryReply
+    from soilocp.schemas.map import MapQueryReply
 
     procs = Procs(tmp_path / "logs")
     ep = endpoint(free_port())

@@ -11,7 +11,7 @@ import random
 import pytest
 
 from map_helpers import estimate, item
-from schemas.map import WGS84
+from soilocp.schemas.map import WGS84
 from soilocp.map.cells import CellConfig, CellIndex, cell_polygon
 from soilocp.map.fusion import BAND_Z, FusionConfig, fuse
 from soilocp.map.store import SqliteStore, StoreError, open_store
@@ -218,7 +218,7 @@ def test_postgresql_postgis_store_gives_the_same_cells(tmp_path, pg):
 
 
 def _reply_equals_columns(store, frame, box, now, limit=100_000):
-    from schemas.map import MapCellColumns
+    from soilocp.schemas.map import MapCellColumns
 
     text, n, cut, aged_to = store.query_json(frame, box, now, limit)
     assert now - 1.0 < aged_to <= now  # the replies' ageing clock steps once a second
@@ -263,7 +263,7 @@ def test_map_prior_enters_new_ground_once_not_each_wobble_over_a_border():
     the map on entering ground it has not just left, not at every crossing of the border."""
     from types import SimpleNamespace
 
-    from schemas.map import MapCell
+    from soilocp.schemas.map import MapCell
     from soilocp.map.prior import MapPrior
 
     def cell(ix, iy, k):

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 from soilocp.export.channels import topics
 from soilocp.export.mcap_out import CHANNEL_SCHEMAS, RotatingMcapWriter
 from soilocp.sim.simulator import simulate

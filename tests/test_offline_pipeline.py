@@ -11,7 +11,7 @@ import pytest
 from soilocp.estimation.estimate import estimate_lines
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline, load_pipeline_config
 
-CLI = [sys.executable, "-m", "soilocp_cli"]
+CLI = [sys.executable, "-m", "soilocp.cli"]
 
 
 def run(*args, check=True):

@@ -3,7 +3,7 @@
 Whatever a sender puts on the raw key or in a sensor log, :func:`soilocp.validation.parse_sample`
 returns a sample or raises ``SampleRejected``, and the gateway's checker returns a sample or a
 ``Rejection``; nothing else escapes.  The payloads are a seeded generator's
-(:func:`services.bench.hostile.mutate`, which the live flood of tests/test_live_stress.py uses too;
+(:func:`soilocp.services.bench.hostile.mutate`, which the live flood of tests/test_live_stress.py uses too;
 reproducible, the failing payload is in the message): oversized,
 truncated, byte-flipped, invalid UTF-8, non-finite, wrongly typed, deeply nested, huge numbers,
 another vehicle's id.  The slowest parse is measured and printed; the bound asserted is generous
@@ -20,10 +20,10 @@ import time
 
 import pytest
 
-from schemas.messages import Rejection
-from schemas.sensor import SensorSample
-from services.bench.hostile import good_sample, mutate as _mutate
-from services.stages.gateway import RawSampleChecker
+from soilocp.schemas.messages import Rejection
+from soilocp.schemas.sensor import SensorSample
+from soilocp.services.bench.hostile import good_sample, mutate as _mutate
+from soilocp.services.stages.gateway import RawSampleChecker
 from soilocp.validation import (MAX_PAYLOAD_BYTES, REJECTION_CODES, OversizedLine, SampleRejected, capped_lines,
                                 check_size, parse_sample, payload_size)
 
@@ -83,7 +83,7 @@ def test_estimate_refuses_an_oversized_line_before_parsing_and_counts_it(tmp_pat
 
 
 def test_gateway_and_offline_share_the_limit():
-    from services.runtime.config import ServiceConfig
+    from soilocp.services.runtime.config import ServiceConfig
 
     assert "too_large" in REJECTION_CODES
     assert ServiceConfig().max_payload_bytes == MAX_PAYLOAD_BYTES
@@ -113,7 +113,7 @@ def test_fuzzed_payloads_raise_nothing_unexpected_and_parse_fast():
                 slowest.sort(key=lambda r: -r[0])
                 del slowest[5:]
 
-    # as a service does once started (services.runtime.service.run_service): the long-lived objects out of
+    # as a service does once started (soilocp.services.runtime.service.run_service): the long-lived objects out of
     # the collector's sight, so that a full collection pass is not billed to whichever parse it falls on
     gc.collect()
     gc.freeze()

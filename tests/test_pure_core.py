@@ -1,7 +1,7 @@
 """The physics library never imports Zenoh (architecture: a pure library, usable offline).
 
 Every module of the ``soilocp`` package, its command modules included (the command line is
-composed above it, in ``soilocp_cli``), is imported in a fresh interpreter, which must end without
+composed above it, in ``soilocp.cli``), is imported in a fresh interpreter, which must end without
 ``zenoh`` or the ``services`` floor in ``sys.modules``; and no file under ``soilocp/`` imports
 zenoh at module level.
 """
@@ -30,7 +30,7 @@ for info in pkgutil.walk_packages(soilocp.__path__, prefix="soilocp."):
     importlib.import_module(info.name)
     names.append(info.name)
 print(json.dumps({"imported": names, "zenoh": sorted(m for m in sys.modules if m == "zenoh" or m.startswith("zenoh.")),
-                  "upper": sorted(m for m in sys.modules if m.split(".")[0] in ("services", "soilocp_cli"))}))
+                  "upper": sorted(m for m in sys.modules if m.split(".")[0] in ("services", "soilocp.cli"))}))
 """
 
 

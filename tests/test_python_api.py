@@ -18,7 +18,7 @@ from soilocp.estimation.pipeline import PipelineConfig
 @pytest.fixture(scope="module")
 def log(tmp_path_factory):
     d = tmp_path_factory.mktemp("api")
-    subprocess.run([sys.executable, "-m", "soilocp_cli", "simulate", "--scenario", "sand", "--duration", "8",
+    subprocess.run([sys.executable, "-m", "soilocp.cli", "simulate", "--scenario", "sand", "--duration", "8",
                     "--out", str(d / "s.jsonl"), "--truth", str(d / "t.jsonl")], check=True, capture_output=True)
     return d / "s.jsonl"
 

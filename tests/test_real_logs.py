@@ -66,7 +66,7 @@ def test_warthog_log_replayed_live_through_the_services_stays_alive_to_the_end(t
     n = sum(1 for _ in open(log))
     cfg = tmp_path / "pipeline.json"
     cfg.write_text(warthog_config().model_dump_json())
-    p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--replay", str(log), "--speed", "10",
+    p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--replay", str(log), "--speed", "10",
                           "--vehicle-id", name, "--pipeline-config", str(cfg), "--listen", endpoint(free_port()),
                           "--log-dir", str(tmp_path / "logs"), "--plain"],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)

@@ -10,8 +10,8 @@ import signal
 import pytest
 from mcap.reader import make_reader
 
-from schemas import keys
-from schemas.pipeline import OcpEstimate
+from soilocp.schemas import keys
+from soilocp.schemas.pipeline import OcpEstimate
 from soilocp.export.channels import topics
 from soilocp.sim.simulator import simulate
 
@@ -123,7 +123,7 @@ def test_soilocp_run_replays_a_bag_with_its_map(tmp_path):
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     m.write_text(open(os.path.join(root, "docs", "maps", "ros2-robot.yaml")).read().replace("rover1", "bagrover"))
     ep = endpoint(free_port())
-    p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--replay", str(bag), "--map", str(m), "--speed", "2",
+    p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--replay", str(bag), "--map", str(m), "--speed", "2",
                           "--listen", ep, "--log-dir", str(tmp_path / "logs")],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:

@@ -9,7 +9,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from soilocp_cli.main import main
+from soilocp.cli.main import main
 from soilocp.commands.robustness_table import COLUMNS
 from soilocp.analysis.evaluation import evaluate_records, results_as_json
 from soilocp.analysis.robustness import run_variant, summarize

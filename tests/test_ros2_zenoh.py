@@ -74,7 +74,7 @@ def _write_msg_dir(d: Path) -> Path:
 
 
 def _cli(*args, timeout=180):
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", *args], capture_output=True, text=True, timeout=timeout,
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", *args], capture_output=True, text=True, timeout=timeout,
                        cwd=REPO)
     assert r.returncode == 0, r.stderr + r.stdout
     return r
@@ -146,7 +146,7 @@ def live_run(drive):
     try:
         procs.spawn("robot-router", ["router", "--listen", ros_ep])
         env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-        run = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--ros2-in", str(d / "map.yaml"), "--ros2",
+        run = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--ros2-in", str(d / "map.yaml"), "--ros2",
                                 "--ros2-connect", ros_ep, "--ros2-domain", "0", "--listen", soil_ep, "--plain",
                                 "--log-dir", str(d / "run-logs")],
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO, env=env)
@@ -251,9 +251,9 @@ def test_b_sdk_subscriber_receives_and_decodes_our_topics(live_run):
 def _reader(drive):
     import io
 
-    from services.ros2.ros2_in import Ros2InService
-    from services.runtime.config import ServiceConfig
-    from services.runtime.log import JsonLog
+    from soilocp.services.ros2.ros2_in import Ros2InService
+    from soilocp.services.runtime.config import ServiceConfig
+    from soilocp.services.runtime.log import JsonLog
 
     d, _bag, _samples = drive
     return Ros2InService(ServiceConfig(vehicle_ids=[VID]), JsonLog("ros2-in", "error", stream=io.StringIO()),
@@ -261,7 +261,7 @@ def _reader(drive):
 
 
 def test_reader_drops_what_does_not_fit_with_its_reason(drive):
-    from services.ros2 import rmw_zenoh as rz
+    from soilocp.services.ros2 import rmw_zenoh as rz
 
     svc = _reader(drive)
     ts = rz.typestore()
@@ -294,7 +294,7 @@ def test_reader_drops_what_does_not_fit_with_its_reason(drive):
 
 
 def test_wire_helpers_follow_design_md():
-    from services.ros2 import rmw_zenoh as rz
+    from soilocp.services.ros2 import rmw_zenoh as rz
 
     # design.md's own example: chatter, std_msgs/String, domain 0
     assert rz.topic_key(0, "/chatter", "std_msgs/msg/String") == (
@@ -316,14 +316,14 @@ def test_wire_helpers_follow_design_md():
 
 def test_run_refuses_the_robots_router_on_its_own_port(drive):
     d, _bag, _samples = drive
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "run", "--ros2-in", str(d / "map.yaml")],
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "run", "--ros2-in", str(d / "map.yaml")],
                        capture_output=True, text=True, timeout=60, cwd=REPO)
     assert r.returncode == 2 and "give --listen another endpoint" in r.stderr, r.stderr
 
 
 def test_reader_names_the_robots_topics_when_a_mapped_one_stays_silent(drive, tmp_path):
     """The robot publishes /imu, the map says /imu/data: the reader's log lists what the graph has."""
-    from services.ros2 import rmw_zenoh as rz
+    from soilocp.services.ros2 import rmw_zenoh as rz
 
     d, _bag, _samples = drive
     ep = endpoint(free_port())

@@ -8,8 +8,8 @@ import time
 import pytest
 import zenoh
 
-from schemas import keys
-from schemas.messages import ServiceHealth
+from soilocp.schemas import keys
+from soilocp.schemas.messages import ServiceHealth
 from zenoh_helpers import Procs, client, endpoint, free_port, get_payloads, wait_alive, wait_for, write_log
 
 pytestmark = pytest.mark.timeout(240)

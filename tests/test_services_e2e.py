@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from schemas.export import export_schemas
-from schemas.messages import OcpReply, Rejection, ServiceHealth
-from schemas.pipeline import OcpEstimate
+from soilocp.schemas.export import export_schemas
+from soilocp.schemas.messages import OcpReply, Rejection, ServiceHealth
+from soilocp.schemas.pipeline import OcpEstimate
 
 from zenoh_helpers import (PIPELINE, Procs, alive_services, client, endpoint, free_port, get_payloads,
                             start_pipeline, wait_alive, wait_count, wait_for, write_log)
@@ -74,7 +74,7 @@ def _healths(session, vid: str) -> list[str]:
 
 def _offline_estimates(log: Path, out: Path) -> list[dict]:
     """``soilocp estimate`` on the same log: the reference the live stream must equal."""
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "estimate", str(log), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "estimate", str(log), "--out", str(out)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     return [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
@@ -419,7 +419,7 @@ def test_service_waits_for_late_router_and_stops_cleanly_on_sigterm(procs):
 def test_fatal_config_error_exits_nonzero_with_one_line(args, env, needle):
     e = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
     e.update(env)
-    r = subprocess.run([sys.executable, "-m", "soilocp_cli", "service", "ocp", *args], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "soilocp.cli", "service", "ocp", *args], capture_output=True,
                        text=True, timeout=60, env=e)
     assert r.returncode == 2
     lines = [x for x in r.stderr.splitlines() if x.strip()]
@@ -430,7 +430,7 @@ def test_soilocp_run_replay_without_tty_prints_lines_and_summary(tmp_path):
     log = tmp_path / "drive.jsonl"
     write_log(log, "rover1", duration=4.0)
     ep = endpoint(free_port())
-    p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", "--replay", str(log), "--speed", "2",
+    p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", "--replay", str(log), "--speed", "2",
                           "--listen", ep, "--log-dir", str(tmp_path / "logs")],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
@@ -508,7 +508,7 @@ class _RunProc:
 
     def __init__(self, args, tmp_path):
         self.log_dir = tmp_path / "runlogs"
-        self.p = subprocess.Popen([sys.executable, "-m", "soilocp_cli", "run", *args, "--log-dir", str(self.log_dir)],
+        self.p = subprocess.Popen([sys.executable, "-m", "soilocp.cli", "run", *args, "--log-dir", str(self.log_dir)],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self.lines: list[str] = []
         self.t = threading.Thread(target=lambda: self.lines.extend(iter(self.p.stdout.readline, "")), daemon=True)

@@ -8,17 +8,17 @@ import math
 
 import pytest
 
-from schemas import keys
-from services.stages.graph import ALL_SERVICES
-from schemas.export import MESSAGE_MODELS, export_schemas
-from schemas.messages import OcpReply, Rejection
-from schemas.pipeline import NormalForces, OcpEstimate
-from schemas.sensor import SensorSample
-from services.stages.gateway import RawSampleChecker
-from services.stages.observer import SeqJoiner
-from services.stages.ocp import OcpStore, parse_parameters
-from services.runtime.config import ConfigError, load_service_config
-from services.runtime.worker import Counters
+from soilocp.schemas import keys
+from soilocp.services.stages.graph import ALL_SERVICES
+from soilocp.schemas.export import MESSAGE_MODELS, export_schemas
+from soilocp.schemas.messages import OcpReply, Rejection
+from soilocp.schemas.pipeline import NormalForces, OcpEstimate
+from soilocp.schemas.sensor import SensorSample
+from soilocp.services.stages.gateway import RawSampleChecker
+from soilocp.services.stages.observer import SeqJoiner
+from soilocp.services.stages.ocp import OcpStore, parse_parameters
+from soilocp.services.runtime.config import ConfigError, load_service_config
+from soilocp.services.runtime.worker import Counters
 
 
 def _sample(seq: int, stamp: float, vid: str = "rover1", **kw) -> dict:
@@ -94,7 +94,7 @@ def test_config_file_with_unknown_key_is_fatal(tmp_path):
 def test_deploy_single_machine_config_is_valid():
     from pathlib import Path
 
-    from services.router import router_settings
+    from soilocp.services.router import router_settings
 
     path = Path(__file__).resolve().parents[1] / "deploy" / "single-machine.json"
     for name in ALL_SERVICES:
@@ -233,7 +233,7 @@ def test_schema_export_writes_one_versioned_schema_per_message(tmp_path):
 def test_schemas_export_command_and_service_help(tmp_path):
     from click.testing import CliRunner
 
-    from soilocp_cli.main import main
+    from soilocp.cli.main import main
 
     r = CliRunner().invoke(main, ["schemas", "export", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
@@ -249,7 +249,7 @@ def test_bounded_worker_keeps_order_drops_beyond_its_bound_and_survives_a_failin
     import threading
     import time
 
-    from services.runtime.worker import BoundedWorker
+    from soilocp.services.runtime.worker import BoundedWorker
 
     gate, seen, dropped, failed = threading.Event(), [], [], []
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from schemas.sensor import SensorSample, parse_sensor_line
+from soilocp.schemas.sensor import SensorSample, parse_sensor_line
 from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces, static_normal_forces
 from soilocp.model.ocp import ocp_from_soil_strength
 from soilocp.sim.scenarios import Scenario, Segment, SweepParams, get_scenario, list_scenarios
@@ -266,7 +266,7 @@ def test_default_noise_levels_and_encoder_quantisation(sand_excitation):
 def test_cli_writes_logs_that_validate_line_by_line(tmp_path):
     out, tr = tmp_path / "s.jsonl", tmp_path / "t.jsonl"
     proc = subprocess.run(
-        [sys.executable, "-m", "soilocp_cli", "simulate", "--scenario", "sandy-slope", "--duration", "1.5",
+        [sys.executable, "-m", "soilocp.cli", "simulate", "--scenario", "sandy-slope", "--duration", "1.5",
          "--rate", "50", "--seed", "4", "--vehicle", str(ROOT / "soilocp/data/rover.json"),
          "--vehicle-id", "rover-7", "--out", str(out), "--truth", str(tr)],
         capture_output=True, text=True, cwd=ROOT, timeout=120,

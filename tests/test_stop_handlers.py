@@ -1,4 +1,4 @@
-"""The stop handlers of every long-running process (services.runtime.process.install_stop_handlers):
+"""The stop handlers of every long-running process (soilocp.services.runtime.process.install_stop_handlers):
 a SIGTERM stops the process cleanly, and a shutdown that hangs is bounded even when the hang holds
 the GIL, where the Python watchdog thread cannot run.  Real OS processes and real signals."""
 
@@ -11,15 +11,15 @@ import textwrap
 
 import pytest
 
-from services.supervisor.processes import STOP_TIMEOUT_S
+from soilocp.services.supervisor.processes import STOP_TIMEOUT_S
 
 # ``hang`` selects what the child does after its stop event is set: return at once, block in
 # Python (the GIL free: the Python watchdog answers), or block in a native call that holds the
 # GIL (ctypes.PyDLL keeps it across the call, as a native extension that forgets to release it).
 CHILD = textwrap.dedent("""
     import ctypes, sys, threading
-    from services.runtime.process import install_stop_handlers
-    from services.runtime.log import JsonLog
+    from soilocp.services.runtime.process import install_stop_handlers
+    from soilocp.services.runtime.log import JsonLog
     hang = sys.argv[1]
     stop = threading.Event()
     install_stop_handlers(stop, JsonLog("stop-test", "info"))
@@ -68,7 +68,7 @@ def test_a_hung_shutdown_ends_before_the_supervisors_kill_and_says_where(hang, c
 # calls the installed handler while holding the lock, as the signal would land, and then releases it.
 HELD_LOCK = textwrap.dedent("""
     import signal, sys, threading, time
-    from services.runtime.process import install_stop_handlers
+    from soilocp.services.runtime.process import install_stop_handlers
     stop = threading.Event()
     install_stop_handlers(stop, None)
     handler = signal.getsignal(signal.SIGTERM)

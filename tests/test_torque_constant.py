@@ -55,7 +55,7 @@ def test_bad_logs_get_specific_errors():
 
 
 def test_cli_prints_k_and_status(tmp_path):
-    from soilocp_cli.main import main
+    from soilocp.cli.main import main
 
     p = tmp_path / "s.jsonl"
     p.write_text("\n".join(json.dumps(d) for d in _log("sand")) + "\n")

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from schemas.pipeline import REASON_CODES, OcpEstimate
-from services.supervisor.log_watch import LogWatch
-from services.supervisor.table import drop_lines
+from soilocp.schemas.pipeline import REASON_CODES, OcpEstimate
+from soilocp.services.supervisor.log_watch import LogWatch
+from soilocp.services.supervisor.table import drop_lines
 from soilocp.estimation.next_steps import NEXT_STEPS, status_rows
 from soilocp.model.settings_errors import describe_validation_error
 from soilocp.model.vehicle import VehicleParams

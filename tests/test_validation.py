@@ -2,7 +2,7 @@
 
 import pytest
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 from soilocp.validation import SampleRejected, SampleValidator, parse_sample
 
 

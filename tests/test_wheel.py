@@ -50,6 +50,8 @@ def test_abi3_wheel_installs_lean_and_estimates(tmp_path):
     assert "soilocp/_core.abi3.so" in names and not any(n.startswith("soilocp/_core/") for n in names)
     tops = sorted({n.split("/")[0] for n in names if not n.split("/")[0].endswith((".dist-info", ".data"))})
     print(f"\nwheel {wheel.name}: {wheel.stat().st_size / 1e6:.1f} MB; top-level import names {tops}")
+    assert tops == ["soilocp"], f"the wheel installs import names other than the project's own: {tops}"
+    assert "soilocp/services/fleet/dashboard/static/index.html" in names and "soilocp/schemas/sensor.py" in names
     venv = tmp_path / "clean"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
     base_mb, base_n = _site_size(venv)

@@ -150,7 +150,7 @@ def test_observer_speed_stays_on_its_encoder_at_a_stall():
     bank = ObserverBank(v, ObserverConfig(), 1)
     worst = 0.0
     rng = np.random.default_rng(0)
-    from schemas.sensor import SensorSample
+    from soilocp.schemas.sensor import SensorSample
 
     for i in range(300):
         # encoder noise (a constant reading would be a held one), and a few spikes, which the gate rejects

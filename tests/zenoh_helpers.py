@@ -11,9 +11,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Optional
 
-from services.stages.graph import PIPELINE_SERVICES
-from services.supervisor import liveliness
-from services.supervisor.processes import ProcessGroup
+from soilocp.services.stages.graph import PIPELINE_SERVICES
+from soilocp.services.supervisor import liveliness
+from soilocp.services.supervisor.processes import ProcessGroup
 
 PIPELINE = PIPELINE_SERVICES  # the rig starts the rows the graph declares
 

@@ -15,8 +15,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
-from schemas import keys
-from schemas.map import MapCell
+from soilocp.schemas import keys
+from soilocp.schemas.map import MapCell
 
 from soilocp.sim.field import Field, Region, StartPose, straight_drive
 

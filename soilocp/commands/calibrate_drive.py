@@ -60,17 +60,17 @@ def calibrate_drive(vehicle_path, out_file, vehicle_id, connect, max_speed, max_
     constant and the rolling resistance, and writes the calibration file with each value's band, or the reason
     it could not be fitted.
 
-    The robot follows schemas.messages.DriveSetpoint on soilocp/<vid>/control/drive (and stops by itself when
+    The robot follows soilocp.schemas.messages.DriveSetpoint on soilocp/<vid>/control/drive (and stops by itself when
     they stop); with --ros2 the speed also goes out as cmd_vel.  The simulated robot:
     soilocp service vehicle --scenario NAME --follow-drive [--tyre slow].
     """
-    from services.control.calibrate_drive import DriveFailed, run_drive
-    from services.runtime.settings import check_endpoint
+    from soilocp.services.control.calibrate_drive import DriveFailed, run_drive
+    from soilocp.services.runtime.settings import check_endpoint
     from soilocp.analysis.calibration_drive_fit import DriveTooLittle, fit_drive
     from soilocp.control.calibration_drive import DriveProtocol
     from soilocp.estimation.config import load_pipeline_config
     from soilocp.model.wheel_curve import save_calibration
-    from schemas import keys
+    from soilocp.schemas import keys
 
     try:
         keys.check_vehicle_id(vehicle_id)

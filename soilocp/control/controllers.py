@@ -18,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Optional
 
-from schemas.pipeline import OcpEstimate
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import OcpEstimate
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.vehicle import DEFAULT_VEHICLE, VehicleParams

@@ -30,8 +30,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from schemas.pipeline import OcpEstimate
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import OcpEstimate
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.model.constants import REFERENCE_SOILS
 from soilocp.model.normal_force import STANDARD_GRAVITY

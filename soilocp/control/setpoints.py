@@ -1,6 +1,6 @@
 """Slip set-points: fixed, or an OCP (S_T, S_E) from the product's own live estimate.
 
-:class:`OcpSetPoint` reads the :class:`schemas.pipeline.OcpEstimate` the estimation chain
+:class:`OcpSetPoint` reads the :class:`soilocp.schemas.pipeline.OcpEstimate` the estimation chain
 produced (never the simulator's truth) and falls back to a documented safe set-point whenever
 the estimate cannot be acted on:
 
@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, Optional
 
-from schemas.pipeline import OcpEstimate
+from soilocp.schemas.pipeline import OcpEstimate
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.ocp import ocp_from_soil_strength

@@ -21,8 +21,8 @@ from typing import Sequence
 
 import numpy as np
 
-from schemas.pipeline import OcpEstimate, SoilEstimate
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp import _core
 from soilocp.model.checks import check_count

@@ -15,8 +15,8 @@ from typing import Callable, Iterable, Iterator, NamedTuple, Optional
 
 import numpy as np
 
-from schemas.pipeline import OcpEstimate, SoilEstimate
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
+from soilocp.schemas.sensor import SensorSample
 from soilocp.estimation.batch import BatchPipeline
 from soilocp.estimation.pipeline import PipelineConfig, VehiclePipeline
 from soilocp.estimation.vehicle_check import VehicleFit

@@ -1,13 +1,13 @@
 """What a user can do about each reason a record is not ``ok``: the next step per reason code, and the
 table ``soilocp estimate`` and ``soilocp run`` end with (records per status and reason code, each with its
-next step).  The codes are :data:`schemas.pipeline.REASON_CODES`; docs/from-no-estimate-to-ok.md walks a
+next step).  The codes are :data:`soilocp.schemas.pipeline.REASON_CODES`; docs/from-no-estimate-to-ok.md walks a
 real log through them.  Lean: no numpy (``soilocp run`` prints it)."""
 
 from __future__ import annotations
 
 from typing import Iterable, Mapping
 
-from schemas.pipeline import REASON_CODES
+from soilocp.schemas.pipeline import REASON_CODES
 
 _TRACTION_TEST = "drive a traction test (straight; accelerate and brake so the wheels slip 5-30 % for seconds)"
 _CALIBRATE = ("calibrate the torque constant (soilocp calibrate-torque LOG --vehicle V.json --json k.json), then "
@@ -15,7 +15,7 @@ _CALIBRATE = ("calibrate the torque constant (soilocp calibrate-torque LOG --veh
 _OUT_OF_MODEL = ("drive straight with moderate slip: skid turns, stalls and slips beyond eq. 1 are outside the "
                  "longitudinal model")
 
-#: reason code -> the next step a user can take (every code of schemas.pipeline.REASON_CODES)
+#: reason code -> the next step a user can take (every code of soilocp.schemas.pipeline.REASON_CODES)
 NEXT_STEPS: dict[str, str] = {
     "none": "nothing: K and the OCPs are confirmed",
     "not_yet": _TRACTION_TEST,

@@ -1,13 +1,13 @@
 """The normal-force stage: a sensor sample's specific force -> the normal force per wheel (eqs. 16-25,
-the zero-warp solution of docs/method.md §2-3), as the :class:`~schemas.pipeline.NormalForces`
+the zero-warp solution of docs/method.md §2-3), as the :class:`~soilocp.schemas.pipeline.NormalForces`
 record.  No numpy on this path: the normal-force service, which runs only this stage, loads none
 (tests/test_lean_processes.py); the core's map is the one every path uses
 (:func:`soilocp.model.normal_force_map.core_solver`)."""
 
 from __future__ import annotations
 
-from schemas.pipeline import NormalForces
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import NormalForces
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.estimation.config import PipelineConfig
 from soilocp.model.normal_force_map import core_solver, solve_one

@@ -48,7 +48,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from schemas.pipeline import BoolQuad, ObserverOutput, Quad
+from soilocp.schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
@@ -131,7 +131,7 @@ def _check_rows() -> None:
     unfed = sorted(set(fields) - set(ROWS) - _NOT_ROWS)
     twice = len(ROWS) != sum(map(len, BLOCK_FIELDS))
     if twice or wrong or unfed:
-        raise ImportError(f"soilocp._core's observer rows and schemas.pipeline.ObserverOutput disagree: rows without "
+        raise ImportError(f"soilocp._core's observer rows and soilocp.schemas.pipeline.ObserverOutput disagree: rows without "
                           f"their message field {wrong}, message fields without a row {unfed}"
                           f"{', a row name in two blocks' if twice else ''}: rebuild the core (make setup), or follow "
                           f"its rows in the message")

@@ -1,5 +1,5 @@
 """The OCP stage: a soil estimate's K -> mu_T, S_T, S_E and TE at S_E (eqs. 7-10), as the
-:class:`~schemas.pipeline.OcpEstimate` record.  No numpy on this path: the OCP publisher, which runs
+:class:`~soilocp.schemas.pipeline.OcpEstimate` record.  No numpy on this path: the OCP publisher, which runs
 only this stage, loads none (tests/test_lean_processes.py)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence
 
-from schemas.pipeline import OcpEstimate, SoilEstimate
+from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
 
 from soilocp.estimation.config import PipelineConfig
 from soilocp.model.constants import ModelConstants

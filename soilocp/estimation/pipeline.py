@@ -1,7 +1,7 @@
 """The estimation chain as stages: normal forces -> observer -> slip + soil strength -> OCPs.
 
 Each stage is a small deterministic object with a ``step`` method that takes and returns the
-message models of ``schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
+message models of ``soilocp.schemas.pipeline``.  The offline ``soilocp estimate`` composes them in one
 process (:class:`VehiclePipeline`); the live services run one stage each and pass the same
 messages over Zenoh.  Same code, same numbers.  Every stage runs the core's kernels with N = 1 (the normal forces
 and the OCPs through their float-only calls, so that their services load no numpy:
@@ -18,8 +18,8 @@ from typing import Sequence
 
 import numpy as np
 
-from schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
-from schemas.sensor import SensorSample
+from soilocp.schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.estimation.config import PipelineConfig, load_pipeline_config
 from soilocp.estimation.normal_force_stage import NormalForceStage

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.pipeline import ObserverOutput
+from soilocp.schemas.pipeline import ObserverOutput
 
 from soilocp import _core
 from soilocp.estimation.observer_bank import (BOOL_FLAT_FIELDS, BOOL_QUAD_FIELDS, FLAT_FIELDS, LIFT_OFF_FORCE, QUAD_FIELDS,

@@ -33,7 +33,7 @@ class SoilState:
     held_for_s: Optional[float] = None
     #: per wheel: why the longitudinal model does not describe it now (soilocp.estimation.wheel_usability), '' usable
     unusable: tuple[str, str, str, str] = ("", "", "", "")
-    #: the reason's machine-readable code (schemas.pipeline.REASON_CODES; "none": no reason)
+    #: the reason's machine-readable code (soilocp.schemas.pipeline.REASON_CODES; "none": no reason)
     reason_code: str = "none"
 
 

@@ -36,7 +36,7 @@ from typing import Optional, get_args
 
 import numpy as np
 
-from schemas.pipeline import REASON_CODES, RECORD_REASON_CODES
+from soilocp.schemas.pipeline import REASON_CODES, RECORD_REASON_CODES
 from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
@@ -313,12 +313,12 @@ class SoilBank:
 _STATUSES: tuple[Status, ...] = tuple(getattr(_core.SoilGridBank, "status_names", ()))
 #: the core's reason codes (status.rs, ``reason::NAMES``) by name
 _R = {name: code for code, name in enumerate(getattr(_core.SoilGridBank, "reason_names", ()))}
-#: code -> name, as the records' reason_code (schemas.pipeline.REASON_CODES: the core's, and RECORD_REASON_CODES)
+#: code -> name, as the records' reason_code (soilocp.schemas.pipeline.REASON_CODES: the core's, and RECORD_REASON_CODES)
 _REASON_NAMES: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "reason_names", ()))
 if (set(_STATUSES) != set(get_args(Status)) or _R.get("none") != 0
         or set(_REASON_NAMES) | set(RECORD_REASON_CODES) != set(REASON_CODES)):
     raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not the schema's "
-                      "(schemas.pipeline: EstimateStatus, REASON_CODES), or its reason 0 is not 'none': rebuild the "
+                      "(soilocp.schemas.pipeline: EstimateStatus, REASON_CODES), or its reason 0 is not 'none': rebuild the "
                       "core (make setup)")
 (_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
  _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,

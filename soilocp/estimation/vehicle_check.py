@@ -45,7 +45,7 @@ class VehicleFit:
     mus: list[float] = field(default_factory=list)
 
     def add(self, sample, wheel_radius: float, mass: float, torque_constant: float = 1.0) -> None:
-        """Take one validated sensor sample (a :class:`schemas.sensor.SensorSample`), judged against a
+        """Take one validated sensor sample (a :class:`soilocp.schemas.sensor.SensorSample`), judged against a
         vehicle of ``wheel_radius`` m and ``mass`` kg whose torques are the logged ones x ``torque_constant``."""
         v = sample.ground_speed
         if v is None or abs(v) < MIN_SPEED or abs(sample.yaw_rate) > MAX_YAW_RATE:

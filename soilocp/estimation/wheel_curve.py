@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from schemas.pipeline import OcpEstimate, SoilEstimate
+from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
 
 from soilocp import _core
 from soilocp.estimation.config import PipelineConfig

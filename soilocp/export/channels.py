@@ -4,7 +4,7 @@ export (:mod:`soilocp.export.mcap_out`) and the live WebSocket server (``service
 Per vehicle, JSON messages with JSON schemas, log time = the sensor sample's stamp (Unix ns when the
 source had Unix header stamps, so the estimates line up with the robot's bag in Foxglove's timeline):
 
-Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``):
+Estimate channels (from one OCP record, ``soilocp.schemas.pipeline.OcpEstimate``):
 
 * ``/soilocp/<vid>/soil_strength``: K, its 1-sigma, K - std and K + std (plot all three), class,
   class probability, status, reason;
@@ -13,7 +13,7 @@ Estimate channels (from one OCP record, ``schemas.pipeline.OcpEstimate``):
   (LR, LF, RF, RR), plus their names;
 * ``/soilocp/<vid>/status``: status and reason only (for a state-transitions panel).
 
-Sensor channel (from one ``schemas.sensor.SensorSample``):
+Sensor channel (from one ``soilocp.schemas.sensor.SensorSample``):
 
 * ``/soilocp/<vid>/sensors``: the sample as the robot sent it (specific force, roll, pitch, yaw
   rate, wheel speeds and torques, ground speed).
@@ -77,7 +77,7 @@ CHANNEL_SCHEMAS: dict[str, tuple[str, dict]] = {
         "wheel_speed": _array(4, description="rad/s, wheels 1..4"),
         "wheel_torque": _array(4, description="N m, wheels 1..4"),
         "ground_speed": {"type": ["number", "null"], "description": "m/s (null: no ground-speed sensor)"},
-    }, "The robot's sensor sample (schemas.sensor.SensorSample)")),
+    }, "The robot's sensor sample (soilocp.schemas.sensor.SensorSample)")),
 }
 
 
@@ -101,7 +101,7 @@ def encode(message: dict) -> bytes:
 
 
 def split_estimate(rec: dict) -> dict[str, dict]:
-    """One OCP record (schemas.pipeline.OcpEstimate as a dict) -> the message of each estimate channel."""
+    """One OCP record (soilocp.schemas.pipeline.OcpEstimate as a dict) -> the message of each estimate channel."""
     base = {"vehicle_id": rec["vehicle_id"], "seq": rec["seq"], "stamp": rec["stamp"]}
     k, sd = rec.get("soil_strength"), rec.get("soil_strength_std")
     band = k is not None and sd is not None
@@ -118,7 +118,7 @@ def split_estimate(rec: dict) -> dict[str, dict]:
 
 
 def split_sensor(sample: dict) -> dict[str, dict]:
-    """One sensor sample (schemas.sensor.SensorSample as a dict) -> the message of each sensor channel."""
+    """One sensor sample (soilocp.schemas.sensor.SensorSample as a dict) -> the message of each sensor channel."""
     return {"sensors": {
         "vehicle_id": sample["vehicle_id"], "seq": sample["seq"], "stamp": sample["stamp"],
         "specific_force": list(sample["specific_force"]), "roll": sample["roll"], "pitch": sample["pitch"],

@@ -53,12 +53,12 @@ class EstimateMcapWriter:
                                 data=encode(msg), sequence=int(src["seq"]) & 0xFFFFFFFF)
 
     def write(self, rec: dict) -> None:
-        """One OCP record (``schemas.pipeline.OcpEstimate`` as a dict) -> the estimate channels."""
+        """One OCP record (``soilocp.schemas.pipeline.OcpEstimate`` as a dict) -> the estimate channels."""
         self._add(rec, split_estimate(rec))
         self.messages += 1
 
     def write_sensor(self, sample: dict) -> None:
-        """One sensor sample (``schemas.sensor.SensorSample`` as a dict) -> the sensor channel."""
+        """One sensor sample (``soilocp.schemas.sensor.SensorSample`` as a dict) -> the sensor channel."""
         self._add(sample, split_sensor(sample))
         self.samples += 1
 
@@ -138,7 +138,7 @@ def write_map_grids(output: Union[str, Path], map_id: str, cells, stamp: float) 
     from foxglove.messages import Grid
     from mcap.writer import CompressionType, Writer
 
-    from schemas.map import WGS84
+    from soilocp.schemas.map import WGS84
     from soilocp.export.channels import map_grid_message, map_grid_topic
     from soilocp.map.grid import raster
 

@@ -22,7 +22,7 @@ from typing import Iterator, Optional
 import numpy as np
 from pydantic import ValidationError
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 
 NS = 1_000_000_000
 
@@ -194,16 +194,16 @@ def samples_from_aligned(al: Aligned, vehicle_id: str, skipped: Counter) -> Iter
 
 
 def sample_position(v: dict, i: int) -> dict:
-    """The optional position fields of tick i (schemas.position), where the aligned values hold them."""
+    """The optional position fields of tick i (soilocp.schemas.position), where the aligned values hold them."""
     out: dict = {}
     if "position_x" in v and not np.isnan(v["position_x"][i]):
-        from schemas.position import MapPosition
+        from soilocp.schemas.position import MapPosition
 
         h = float(v["position_heading"][i])
         out["position"] = MapPosition(frame=str(v["position_frame"][i]), x=float(v["position_x"][i]),
                                       y=float(v["position_y"][i]), heading=None if math.isnan(h) else h)
     if "latitude" in v and not np.isnan(v["latitude"][i]):
-        from schemas.position import GeoPosition
+        from soilocp.schemas.position import GeoPosition
 
         out["geo"] = GeoPosition(latitude=float(v["latitude"][i]), longitude=float(v["longitude"][i]))
     return out

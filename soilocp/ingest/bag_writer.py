@@ -18,7 +18,7 @@ from typing import Callable, Iterable, Optional
 
 import numpy as np
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 
 WHEEL_JOINTS = ("rear_left_wheel", "front_left_wheel", "front_right_wheel", "rear_right_wheel")  # wheels 1..4
 UNIX_BASE = 1_700_000_000  # s; a recent Unix time, so the stamps look like a real robot's
@@ -127,7 +127,7 @@ def write_bag(
 def main(argv: list[str]) -> int:
     import argparse
 
-    from schemas.sensor import parse_sensor_line
+    from soilocp.schemas.sensor import parse_sensor_line
 
     ap = argparse.ArgumentParser(prog="python -m soilocp.ingest.bag_writer", description=__doc__.split("\n\n")[0])
     ap.add_argument("sensors")

@@ -28,7 +28,7 @@ from typing import Optional
 
 import numpy as np
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 from soilocp.ingest.align import NS, Provenance, Stream, pick, samples_from_aligned, tick_count
 from soilocp.ingest.mapfile import TopicMap
 from soilocp.ingest.rosbag_import import (EXPECTED_TYPES, BagIssues, TopicReader, convert_message, message_stamp,

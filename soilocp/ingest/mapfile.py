@@ -31,7 +31,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from schemas.sensor import VEHICLE_ID_PATTERN
+from soilocp.schemas.sensor import VEHICLE_ID_PATTERN
 
 DEFAULT_MAX_AGE = {"imu": 0.05, "joint_states": 0.1, "ground_speed": 0.25, "wheels": 0.5, "position": 0.5, "geo": 1.5}
 

@@ -10,7 +10,7 @@ import re
 
 import numpy as np
 
-from schemas.position import FRAME_PATTERN
+from soilocp.schemas.position import FRAME_PATTERN
 
 from soilocp.ingest.align import Stream
 

@@ -16,7 +16,7 @@ from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.map import WGS84
+from soilocp.schemas.map import WGS84
 
 #: H3 resolutions that make sense for soil under wheels (res 15 is ~1 m^2, res 9 ~0.1 km^2).
 H3_MIN_RES, H3_MAX_RES = 7, 15

@@ -29,8 +29,8 @@ from typing import Iterable, Optional, Sequence
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from schemas.map import MapCell
-from schemas.pipeline import SoilEstimate
+from soilocp.schemas.map import MapCell
+from soilocp.schemas.pipeline import SoilEstimate
 
 from soilocp.map.cells import CellIndex, CellRef
 
@@ -117,7 +117,7 @@ def check_estimate(est: SoilEstimate) -> Optional[str]:
         # a finite band this wide is the estimator being honest (e.g. small slips under a wheel-radius
         # uncertainty), not bad input: it carries no weight worth storing, so it is skipped, not refused
         return "band_too_wide"
-    w = est.where  # coordinates and wheel numbers are range-checked by the schema (schemas.position)
+    w = est.where  # coordinates and wheel numbers are range-checked by the schema (soilocp.schemas.position)
     if len(set(w.wheels)) != len(w.wheels):
         raise MapInputError("inconsistent", f"where.wheels: {list(w.wheels)} must be distinct wheel numbers 1..4",
                             "where.wheels", est.seq)
@@ -201,7 +201,7 @@ def fuse_cells(rows: Sequence[tuple], ageing_rate: float) -> list[tuple]:
 
 
 def aged_columns(rows: Sequence[tuple], frame: str, now: float, ageing_rate: float) -> dict:
-    """Reply columns (schemas.map.MapCellColumns) from stored cells ``(cell, cx, cy, ln_k, var, t,
+    """Reply columns (soilocp.schemas.map.MapCellColumns) from stored cells ``(cell, cx, cy, ln_k, var, t,
     n, last_seen, vehicles)``: each cell's fused variance aged to ``now`` (:func:`fuse_cells`),
     vectorised (a box may hold ten thousand cells)."""
     import numpy as np

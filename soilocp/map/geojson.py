@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from schemas.map import MapCell
+from soilocp.schemas.map import MapCell
 
 from soilocp.map.cells import cell_polygon
 from soilocp.model.ocp import ocp_from_soil_strength

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from schemas.map import WGS84, MapCell
+from soilocp.schemas.map import WGS84, MapCell
 
 from soilocp.model.ocp import ocp_from_soil_strength
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence
 
-from schemas.position import EstimatePlace, GeoPosition, MapPosition
+from soilocp.schemas.position import EstimatePlace, GeoPosition, MapPosition
 
 from soilocp.model.vehicle import VehicleParams
 

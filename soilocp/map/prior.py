@@ -15,8 +15,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from schemas.map import WGS84, MapCell
-from schemas.pipeline import ObserverOutput
+from soilocp.schemas.map import WGS84, MapCell
+from soilocp.schemas.pipeline import ObserverOutput
 
 from soilocp.map.cells import CellConfig, CellIndex
 from soilocp.map.place import wgs84_radii, wheel_offsets
@@ -40,7 +40,7 @@ class MapPrior:
     Coming back into the cell just left, within ``rearm_m`` of where it was left, is no new ground:
     a front axle driving along a cell border wanders across it, and restarting the belief at each
     crossing would throw away what the wheels learnt (seen live, docs/map.md §4).
-    ``cells``: the map around the route (a box query: :func:`services.map.client.query_map` or
+    ``cells``: the map around the route (a box query: :func:`soilocp.services.map.client.query_map` or
     :meth:`MapStore.query_box`).  ``min_count``: a cell seen by fewer estimates is not trusted."""
 
     def __init__(self, cells: Sequence[MapCell], cell_config: Optional[CellConfig] = None,

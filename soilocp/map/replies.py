@@ -177,7 +177,7 @@ class ReplyCache:
 
     def columns_json(self, frame: str, bbox: Sequence[float], now: float, limit: int, ready_only: bool = False
                      ) -> Optional[tuple[bytes, int, bool, float]]:
-        """The reply's ``columns`` (schemas.map.MapCellColumns) as JSON for the cells of ``frame``
+        """The reply's ``columns`` (soilocp.schemas.map.MapCellColumns) as JSON for the cells of ``frame``
         whose centre lies in ``bbox``, ordered by centre (x, then y); their number; whether
         ``limit`` cut them; and the time they are aged to (:meth:`aged_to` of ``now``).
         ``ready_only``: from what is laid out already, without reading the store (the caller knows

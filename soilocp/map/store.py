@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from contextlib import closing
 from typing import Optional
 
-from schemas.map import MapCell
+from soilocp.schemas.map import MapCell
 
 from soilocp.map.cells import CellConfig
 from soilocp.map.fusion import FusionConfig, Observation, aged_columns, cells_of_columns, fuse_cells
@@ -201,7 +201,7 @@ class MapStore:
 
     def query_json(self, frame: str, bbox: Sequence[float], now: float, limit: int = 100_000, ready_only: bool = False
                    ) -> Optional[tuple[bytes, int, bool, float]]:
-        """:meth:`query_columns` as the JSON (bytes) of the reply's ``columns`` (schemas.map.MapCellColumns),
+        """:meth:`query_columns` as the JSON (bytes) of the reply's ``columns`` (soilocp.schemas.map.MapCellColumns),
         their number, whether ``limit`` cut them, and the time they are aged to (``now`` on the
         replies' ageing clock: the start of its one-second step); from memory, kept up to date from
         the cells' commit numbers (:class:`soilocp.map.replies.ReplyCache`: one per store, for one

@@ -8,7 +8,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
-from schemas import keys
+from soilocp.schemas import keys
 
 from soilocp.map.cells import CellIndex
 from soilocp.map.fusion import MapInputError, Observation, check_estimate, observations, parse_estimate, reduce_batch

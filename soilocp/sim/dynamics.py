@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.model.constants import ModelConstants
 from soilocp.model.normal_force import STANDARD_GRAVITY, gravity_from_attitude, normal_forces

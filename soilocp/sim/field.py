@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Optional
 
-from schemas.position import FRAME_PATTERN
+from soilocp.schemas.position import FRAME_PATTERN
 
 from soilocp.model.constants import REFERENCE_SOILS
 from soilocp.sim.scenarios import Scenario, Segment
@@ -104,7 +104,7 @@ def true_position(start: StartPose, x: float, y: float, heading: float) -> dict:
     """The sensor-sample position fields of a simulated CoM at (x, y) m, heading rad, in
     ``start.frame``; with ``start.geo_origin`` also WGS84 (x east, y north on the local tangent
     plane, :func:`soilocp.map.place.local_to_geo`)."""
-    from schemas.position import GeoPosition, MapPosition
+    from soilocp.schemas.position import GeoPosition, MapPosition
 
     out: dict = {"position": MapPosition(frame=start.frame, x=x, y=y, heading=heading)}
     if start.geo_origin is not None:

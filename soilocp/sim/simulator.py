@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.sensor import VEHICLE_ID_PATTERN, SensorSample
+from soilocp.schemas.sensor import VEHICLE_ID_PATTERN, SensorSample
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.sim.scenarios import MODES, Scenario, SweepParams, get_scenario

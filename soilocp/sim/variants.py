@@ -28,7 +28,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from schemas.sensor import SensorSample
+from soilocp.schemas.sensor import SensorSample
 
 from soilocp.model.constants import DEFAULT_CONSTANTS, REFERENCE_SOILS, ModelConstants
 from soilocp.sim.scenarios import Scenario, Segment, SweepParams

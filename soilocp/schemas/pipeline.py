@@ -1,0 +1,264 @@
+"""Messages between the physics stages: normal forces -> observer -> soil strength -> OCP.
+
+The same models are produced by the offline ``soilocp estimate`` path and by the live services,
+and are serialised as JSON on Zenoh (floats round-trip exactly), so the live OCP stream equals
+the offline one on the same log.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from soilocp.schemas.position import EstimatePlace, GeoPosition, MapPosition
+from soilocp.schemas.sensor import VehicleId
+
+PIPELINE_SCHEMA_VERSION = 1
+
+Quad = tuple[float, float, float, float]
+BoolQuad = tuple[bool, bool, bool, bool]
+
+#: Status of a soil / OCP record (see soilocp.estimation.soil_strength); ``stale`` is set by the live publisher.
+#: Where an OCP record's mu_T and S_T come from (soilocp.estimation.wheel_curve).
+OcpCurve = Literal["model", "learnt", "unchecked"]
+_CURVE_DOC = (
+    "Where mu_T and S_T come from. model: K and the configured constants, whose curve was checked for this wheel "
+    "(the paper's testbed wheel, or a calibration file). learnt: the curve this drive showed on the current soil "
+    "(a traction sweep), with its band in mu_T_std and S_T_std. unchecked: K and the paper's constants, which nobody "
+    "checked for this wheel: such OCPs are never served as ok (the status says uncertain, the reason why)"
+)
+EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
+_STATUS_DOC = (
+    "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
+    "not_observable (the data do not determine K) | model_mismatch (the model does not explain the data: the traction "
+    "curve, or the axles read different soils) | "
+    "stale (live publisher: inputs stopped)"
+)
+
+#: Machine-readable reason of a soil / OCP record, with its meaning: the compiled core's reason codes
+#: (soilocp/_core/src/soil/status.rs; soilocp.estimation.soil_strength refuses to load a core whose codes are
+#: not these) and the live publisher's ``stale``.  The record's ``reason`` words the same reason with its numbers.
+REASON_CODES: dict[str, str] = {
+    "none": "no reason: the estimate is ok (or a record written before reason codes existed)",
+    "not_yet": "slip has not been informative yet: no K so far",
+    "stamp_backwards": "the stamps went backwards (source restarted): estimate withdrawn",
+    "withdrawn": "slip uninformative for longer than hold_after + expire_after: estimate withdrawn",
+    "holding": "slip uninformative now: the last K is held",
+    "wide": "K's band is wider than uncertain_log_sigma: K poorly determined",
+    "systematic_scale": "K's band is mostly the torque constant's uncertainty",
+    "systematic_scale_calibrate": "K's band is mostly the torque constant's, and the data suggest a wrong constant",
+    "systematic_radius": "K's band is mostly the wheel radius's uncertainty at these small slips",
+    "not_identifiable": "no independent ground speed (or a log that cannot identify K): slip and K not identifiable",
+    "axles": "the front and rear axles read different soils (normal forces or an axle's torque constant off)",
+    "nis": "the traction curve does not explain the (slip, traction) pairs at any K",
+    "below_floor": "traction below what the weakest soil gives at this slip (torque scale or units?)",
+    "ground_stale": "slip is informative but the ground speed reading is stale",
+    "readings_held": "slip is informative but the wheel speed / torque readings are held (refresh too slow)",
+    "undetermined": "slip is informative but the torque balance does not determine gross traction",
+    "leans": "the data lean to another torque scale, which a drive at constant speed cannot tell from K",
+    "axle_window": "the axles read different soils for most of the evidence window",
+    "evidence": "K from too few seconds of informative slip for the model checks: not yet ok",
+    "out_skid": "wheels in a skid turn (outside the longitudinal model): no K while it lasts",
+    "out_no_wheel": "no wheel inside the longitudinal model (stall, slip beyond eq. 1, stopped unpowered)",
+    "out_holding": "no wheel inside the longitudinal model: the last K is held",
+    "out_others": "some wheels outside the longitudinal model: K from the others",
+    "stale": "live publisher: no input for longer than stale_timeout_s",
+    "curve_unchecked": "OCP record: the OCPs rest on the paper's traction curve, which nobody checked for this wheel",
+    "curve_learnt": "OCP record: the OCPs are the traction curve this drive showed, not checked by a calibration",
+    "curve_extrapolated": "OCP record: K is beyond the soils the wheel's calibration was fitted over",
+}
+#: the codes set after the soil stage: the live publisher's and the OCP record's (the others are the core's)
+RECORD_REASON_CODES = ("stale", "curve_unchecked", "curve_learnt", "curve_extrapolated")
+ReasonCode = Literal[tuple(REASON_CODES)]  # type: ignore[valid-type]
+_REASON_CODE_DOC = ("Machine-readable reason (group and count by it; 'reason' words it with numbers): "
+                    + "; ".join(f"{k}: {v}" for k, v in REASON_CODES.items()))
+_CONFIRMED_DOC = (
+    "True exactly when status is 'ok'. False: K, soil_class, its confidence and (OCP record) mu_T, S_T, S_E, where "
+    "present, are the estimator's current best guess or a held value, NOT a confirmed estimate; a consumer that acts "
+    "on them (a slip controller) must check this flag (or status == 'ok') first and otherwise fall back to its "
+    "conservative setting. Derived from status when absent; a contradicting value is refused"
+)
+
+
+def _confirmed_from_status(data):
+    """``confirmed`` from ``status`` (a record's input as a dict): filled in when absent, refused when it
+    contradicts the status (the flag a consumer acts on must not disagree with the status it summarises)."""
+    if isinstance(data, dict):
+        ok = data.get("status") == "ok"
+        given = data.get("confirmed")
+        if given is None:
+            return {**data, "confirmed": ok}
+        if given is not ok:
+            raise ValueError(f"confirmed={given!r} contradicts status {data.get('status')!r}: confirmed is true "
+                             "exactly when status is 'ok'")
+    return data
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    schema_version: Literal[1] = PIPELINE_SCHEMA_VERSION
+    vehicle_id: VehicleId
+    seq: int = Field(ge=0, description="Sequence number of the sensor sample this derives from")
+    stamp: float = Field(ge=0, description="Stamp of that sensor sample, s")
+
+
+class NormalForces(_Message):
+    """Normal force per wheel from the specific force (eqs. 16-25, zero-warp solution)."""
+
+    normal_force: Quad = Field(description="F_z per wheel, N, wheels 1 LR, 2 LF, 3 RF, 4 RR; at or below 0 the "
+                               "wheel has lifted off (the solution is not clipped); the observer takes a wheel at or "
+                               "below 1 N (soilocp.estimation.observer_bank.LIFT_OFF_FORCE) as giving no traction "
+                               "information")
+
+
+
+
+class ObserverOutput(_Message):
+    """Kalman observer estimate (eqs. 26-35, with the state chosen observable: docs/method.md §7)."""
+
+    mu: Quad = Field(description="Net traction coefficient per wheel (F_DP/W, eq. 6's mu)")
+    mu_var: Quad = Field(description="Variance of mu per wheel")
+    resistance: Quad = Field(description="Longitudinal motion-resistance coefficient mu_xR per wheel (eq. 15)")
+    gross: Quad = Field(description="Gross traction coefficient mu + mu_xR per wheel (what eq. 13 sees)")
+    gross_var: Quad = Field(description="Variance of the gross coefficient per wheel")
+    wheel_speed: Quad = Field(description="Filtered wheel angular speed, rad/s")
+    ground_speed: float = Field(description="Filtered longitudinal CoM speed, m/s")
+    ground_speed_measured: bool = Field(
+        default=True, description="False: the sample had no independent ground speed (then slip and K are not identifiable)"
+    )
+    yaw_rate: float = Field(description="Filtered yaw rate, rad/s")
+    normal_force: Quad = Field(description="F_z used in this step, N")
+    mu_determined: BoolQuad = Field(
+        default=(True,) * 4,
+        description="Per wheel: the data determine mu (posterior 1-sigma small). False: the net / resistance split is "
+        "carried by the model's assumptions only (e.g. a traction test with mirrored slips): do not use mu",
+    )
+    speed_age: Quad = Field(
+        default=(0.0,) * 4, description="s since the wheel's speed reading was last a new measurement (a changed value, "
+        "or a full-rate stream's quantised repeat; a held value ages: docs/method.md §13)"
+    )
+    ground_speed_age: float = Field(default=0.0, description="s since the ground speed reading was last a new measurement")
+    torque_age: Quad = Field(default=(0.0,) * 4, description="s since the wheel's torque reading was last a new measurement")
+    ground_speed_latency: float = Field(
+        default=0.0, ge=0, description="s: the ground speed's latency measured against the accelerometer, by which the "
+        "observer leads the reading (0: none determined; docs/method.md §13)"
+    )
+    ground_speed_excess: float = Field(
+        default=0.0, ge=0, description="m/s: how far the ground speed's new readings stray from the filtered speed "
+        "carried forward by the accelerometer, beyond the noise the observer assumes (rms over the last second, less "
+        "r_ground_speed in quadrature): a GNSS-grade speed's noise, latency and hold, which the slip's uncertainty "
+        "takes in (docs/method.md §20)"
+    )
+    interval: Quad = Field(
+        default=(0.0,) * 4, description="s: > 0 where this sample is the refresh of a slow (held) stream while the other is "
+        "read at every sample: a wheel speed's (the interval_* fields describe its interval, eq. 13 integrated) or a "
+        "torque's (they describe this instant, eq. 13 from the readings; start = end); docs/method.md §13; 0 otherwise"
+    )
+    interval_gross: Quad = Field(
+        default=(0.0,) * 4, description="The refresh's gross traction coefficient from the readings (the interval's mean)"
+    )
+    interval_gross_var: Quad = Field(default=(0.0,) * 4, description="Variance of interval_gross")
+    interval_rim_start: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's start, m/s")
+    interval_rim_end: Quad = Field(default=(0.0,) * 4, description="Rim speed R_w omega at the interval's end, m/s")
+    interval_ground_start: Quad = Field(
+        default=(0.0,) * 4, description="Ground speed at the wheel (V - yaw rate x y_i) at the interval's start, m/s"
+    )
+    interval_ground_end: Quad = Field(default=(0.0,) * 4, description="Ground speed at the wheel at the interval's end, m/s")
+    interval_rim_sigma: Quad = Field(
+        default=(0.0,) * 4, description="1-sigma of the rim speed's course between the readings against "
+        "their chord, m/s"
+    )
+    interval_learning: BoolQuad = Field(
+        default=(False,) * 4, description="Per wheel: one of its speed and torque streams refreshes slowly and the other is "
+        "read at every sample, so K learns at the refreshes only, not from the observer's prediction between them"
+    )
+    speed_rejected: BoolQuad = Field(
+        default=(False,) * 4, description="Per wheel: a new speed reading that the innovation gate rejected (and that "
+        "did not re-anchor the wheel), or a held reading that the filtered speed has left by more than the gate's "
+        "multiple of the encoder noise: the filtered speed, and the slip from it, are the prediction, not the "
+        "measurement; such a wheel informs no K (docs/method.md §18)"
+    )
+    torque_scale: float = Field(
+        default=1.0, gt=0, description="The common torque scale (motor constant x 1 / mass) the logged torques were "
+        "multiplied by before this step: learnt online from the force balance (soilocp.estimation.torque_scale)"
+    )
+    torque_scale_std: Optional[float] = Field(
+        default=None, ge=0, description="Its posterior 1-sigma, relative; None: the soil estimator's prior "
+        "(soil.gross_scale_sigma), i.e. the online scale is off"
+    )
+    rejected_measurements: int = Field(ge=0, description="Measurement rows dropped by innovation gating this step")
+    reset: bool = Field(description="True if the filter was (re)initialised at this sample")
+    reset_reason: str = Field(
+        default="", description="start | time_gap | stamp_backwards | non_finite_state | state_out_of_physics ('' if no reset)"
+    )
+    # the sample's position, passed on so that the soil estimate can say where it was made (docs/map.md)
+    position: Optional[MapPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                            description="The sample's local-frame position (optional)")
+    geo: Optional[GeoPosition] = Field(default=None, exclude_if=lambda v: v is None,
+                                       description="The sample's WGS84 position (optional)")
+
+
+class SoilEstimate(_Message):
+    """Soil strength K from per-wheel slip (eq. 1) and observed traction (eqs. 36-37, corrected)."""
+
+    slip: Quad = Field(description="Slip per wheel from the filtered speeds (eq. 1), in the wheel's direction of "
+                       "travel: > 0 driving, < 0 braking, forwards or backwards (docs/method.md §17)")
+    informative: tuple[bool, bool, bool, bool] = Field(description="Wheel used for the K update this step")
+    soil_strength: Optional[float] = Field(description="K estimate (null: no estimate)")
+    soil_strength_std: Optional[float] = Field(description="1-sigma uncertainty of K")
+    log_k_std: Optional[float] = Field(description="1-sigma uncertainty of ln K")
+    soil_class: Optional[str] = Field(description="Most probable soil class")
+    soil_class_confidence: Optional[float] = Field(description="Probability of that class, 0..1")
+    status: EstimateStatus = Field(description=_STATUS_DOC)
+    reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    reason_code: ReasonCode = Field(default="none", description=_REASON_CODE_DOC)
+    confirmed: bool = Field(default=False, description=_CONFIRMED_DOC)
+    last_update_stamp: Optional[float] = Field(description="Stamp of the last informative update")
+    held_for_s: Optional[float] = Field(
+        default=None, description="Age of K, s: time since the last sample that informed it (0: this one); null "
+        "without K. A held K's band widens with this age"
+    )
+    unusable: tuple[str, str, str, str] = Field(
+        default=("", "", "", ""), description="Per wheel, why the longitudinal model does not describe it now and it "
+        "informs no K: slip_beyond_eq1 | stopped_unpowered | stall | skid_turn ('' usable; docs/method.md §17)"
+    )
+    mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
+    mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
+    where: Optional[EstimatePlace] = Field(
+        default=None, exclude_if=lambda v: v is None,
+        description="Contact patches of the wheels that informed this estimate (absent without a position or "
+        "without an informing wheel): what the fleet soil map fuses (docs/map.md)")
+
+    _confirmed = model_validator(mode="before")(_confirmed_from_status)
+
+
+class OcpEstimate(_Message):
+    """Optimal control parameters from K (eqs. 7 corrected, 8, 10): one record per sensor sample."""
+
+    soil_strength: Optional[float] = Field(description="K, null when there is no estimate")
+    soil_strength_std: Optional[float] = Field(description="1-sigma of K")
+    soil_class: Optional[str] = None
+    soil_class_confidence: Optional[float] = None
+    mu_T: Optional[float] = Field(description="Maximum net traction coefficient (eq. 8)")
+    S_T: Optional[float] = Field(description="Slip of maximum traction (eq. 7, sign corrected)")
+    S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10; null when the OCPs are "
+                                             "the wheel's learnt curve's, whose efficiency line nobody fitted)")
+    te_at_S_E: Optional[float] = Field(default=None, description="Tractive efficiency (eq. 9) at S_E, when defined")
+    curve: OcpCurve = Field(default="model", description=_CURVE_DOC)
+    mu_T_std: Optional[float] = Field(default=None, description="1-sigma of mu_T when the curve is learnt")
+    S_T_std: Optional[float] = Field(default=None, description="1-sigma of S_T when the curve is learnt")
+    status: EstimateStatus = Field(description=_STATUS_DOC)
+    reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
+    reason_code: ReasonCode = Field(default="none", description=_REASON_CODE_DOC)
+    confirmed: bool = Field(default=False, description=_CONFIRMED_DOC)
+    mu: Quad = Field(description="Observed net traction per wheel")
+    mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
+    slip: Quad = Field(description="Slip per wheel (eq. 1)")
+    held_for_s: Optional[float] = Field(default=None, description="Age of K, s (the soil estimate's held_for_s)")
+    unusable: tuple[str, str, str, str] = Field(
+        default=("", "", "", ""), description="Per wheel: why it informs no K now (the soil estimate's unusable)"
+    )
+
+    _confirmed = model_validator(mode="before")(_confirmed_from_status)
