@@ -1,9 +1,9 @@
 """The physics library never imports Zenoh (architecture: a pure library, usable offline).
 
-Every module of the ``soilocp`` package, its command modules included (the command line is
-composed above it, in ``soilocp.cli``), is imported in a fresh interpreter, which must end without
-``zenoh`` or the ``services`` floor in ``sys.modules``; and no file under ``soilocp/`` imports
-zenoh at module level.
+Every module of the ``soilocp`` package but the two floors above the library (the Zenoh services,
+``soilocp.services``, and the command line, ``soilocp.cli``), its command modules included, is imported
+in a fresh interpreter, which must end without ``zenoh`` or either floor in ``sys.modules``; and no file
+under ``soilocp/`` imports zenoh at module level.
 """
 
 from __future__ import annotations
@@ -17,20 +17,25 @@ from pathlib import Path
 import soilocp
 
 PACKAGE_DIR = Path(soilocp.__file__).resolve().parent
-EXCLUDED: tuple[str, ...] = ()
+#: the floors above the library, which may use the transport
+EXCLUDED: tuple[str, ...] = ("soilocp.services", "soilocp.cli")
 
 PROBE = r"""
 import importlib, json, pkgutil, sys
 import soilocp
 excluded = tuple(sys.argv[1:])
 names = []
-for info in pkgutil.walk_packages(soilocp.__path__, prefix="soilocp."):
-    if any(info.name == e or info.name.startswith(e + ".") for e in excluded):
-        continue
-    importlib.import_module(info.name)
-    names.append(info.name)
+def walk(path, prefix):  # pkgutil.walk_packages would import the excluded packages to look inside them
+    for info in pkgutil.iter_modules(path, prefix):
+        if any(info.name == e or info.name.startswith(e + ".") for e in excluded):
+            continue
+        module = importlib.import_module(info.name)
+        names.append(info.name)
+        if info.ispkg:
+            walk(module.__path__, info.name + ".")
+walk(soilocp.__path__, "soilocp.")
 print(json.dumps({"imported": names, "zenoh": sorted(m for m in sys.modules if m == "zenoh" or m.startswith("zenoh.")),
-                  "upper": sorted(m for m in sys.modules if m.split(".")[0] in ("services", "soilocp.cli"))}))
+                  "upper": sorted(m for m in sys.modules if any(m == e or m.startswith(e + ".") for e in excluded))}))
 """
 
 
