@@ -55,7 +55,7 @@ class BatchOcpService(OcpService):
         # the soil-strength service's opt-in map prior (map_prior / SOILOCP_MAP_PRIOR), the same feed and prior
         self.feed = None
         if cfg.map_prior is not None:
-            from soilocp.services.stages.soil_map_prior import MapPriorFeed
+            from soilocp.services.stages.map_prior_feed import MapPriorFeed
 
             self.feed = MapPriorFeed(self, cfg.map_prior, self.vids, pc.vehicle)
         self.batch = BatchPipeline(pc, len(self.vids), None if self.feed is None else [self.feed.priors[v] for v in self.vids])
