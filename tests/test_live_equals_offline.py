@@ -208,3 +208,73 @@ def _check_the_drive_exercises_the_feedback(lines: list[str], pc, url: str) -> N
     ks = [r["soil_strength"] for r in fed]
     assert any(k is not None and abs(k / 50.0 - 1) < 0.15 for k in ks[:1200])
     assert any(k is not None and abs(k / 80.0 - 1) < 0.15 for k in ks[1800:])
+
+
+class _Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _feedback(capacity: int = 4):
+    from types import SimpleNamespace
+
+    from soilocp.services.runtime.worker import Counters
+    from soilocp.services.stages.observer import SoilFeedback
+
+    events: list[tuple[str, int]] = []
+    clock = _Clock()
+    c = Counters()
+    fb = SoilFeedback(lambda s, _f: events.append(("step", s.seq)), lambda so: events.append(("feed", so.seq)), c,
+                      capacity=capacity, timeout_s=0.5, clock=clock)
+    pair = lambda n: (SimpleNamespace(seq=n), None)  # noqa: E731
+    soil = lambda n: SimpleNamespace(seq=n)  # noqa: E731
+    return fb, events, clock, c, pair, soil
+
+
+def test_each_sample_waits_for_the_k_of_the_sample_before():
+    """Sample n is stepped only after the soil estimate of sample n - 1 was fed, as offline."""
+    fb, events, _clock, c, pair, soil = _feedback()
+    fb.add_pair(*pair(0))
+    fb.add_pair(*pair(1))
+    fb.add_pair(*pair(2))
+    assert events == [("step", 0)] and fb.pending() == 2
+    fb.add_soil(soil(0))
+    assert events == [("step", 0), ("feed", 0), ("step", 1)]
+    fb.add_soil(soil(1))
+    fb.add_soil(soil(2))
+    assert events == [("step", 0), ("feed", 0), ("step", 1), ("feed", 1), ("step", 2), ("feed", 2)]
+    assert c.detail == {"soil_feed_late": 0, "soil_fed": 3} and fb.pending() == 0
+
+
+def test_a_soil_estimate_that_does_not_come_back_bounds_the_wait_and_is_counted():
+    """Past the timeout the sample is stepped at the last K (counted late) and the next ones do not wait until
+    a soil estimate comes again; an estimate older than the last fed is not fed; a full buffer steps the oldest."""
+    fb, events, clock, c, pair, soil = _feedback()
+    fb.add_pair(*pair(0))
+    fb.add_pair(*pair(1))
+    clock.t = 0.4
+    assert not fb.due(clock.t)
+    fb.drain()
+    assert events == [("step", 0)]
+    clock.t = 0.6
+    assert fb.due(clock.t)
+    fb.drain()  # the service's tick hands the worker this drain
+    assert events == [("step", 0), ("step", 1)] and c.detail["soil_feed_late"] == 1
+    fb.add_pair(*pair(2))  # not waiting now: stepped at once
+    assert events[-1] == ("step", 2) and c.detail["soil_feed_late"] == 1
+    fb.add_soil(soil(1))  # late, but newer than any fed: fed, and the samples wait again
+    fb.add_soil(soil(0))  # older than the last fed: not fed
+    assert events[-1] == ("feed", 1) and c.detail["soil_fed"] == 1
+    fb.add_pair(*pair(3))
+    assert events[-1] == ("feed", 1)  # waits for soil 2
+    fb.add_soil(soil(2))
+    assert events[-2:] == [("feed", 2), ("step", 3)]
+    for n in range(4, 8):  # soil 3 never comes: the buffer holds 4 ...
+        fb.add_pair(*pair(n))
+    assert events[-1] == ("step", 3) and fb.pending() == 4
+    fb.add_pair(*pair(8))  # ... the fifth steps them all, late once, and the samples stop waiting
+    fb.add_pair(*pair(9))
+    assert [e[1] for e in events if e[0] == "step"][-7:] == [3, 4, 5, 6, 7, 8, 9] and c.detail["soil_feed_late"] == 2
