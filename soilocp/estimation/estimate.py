@@ -1,10 +1,11 @@
 """Offline estimation: a sensor log (JSON Lines) in, one OCP record per valid sample out.
 
-The same validation as the live services, and the same kernels: each vehicle's chain is the compiled
-core's in one call per sample (:class:`soilocp.estimation.batch.BatchPipeline` with N = 1: the
-torque scale, observer, slip gate, soil update and OCPs of the stage services, without the messages
-between them; ``tests/test_batch.py`` checks it against the stages), or, for the paper's soil method,
-the stages themselves (:class:`soilocp.estimation.pipeline.VehiclePipeline`).  Invalid lines are
+The same validation as the live services, and the same chain: each vehicle's is the estimator's
+whole step, one core call per sample (:class:`soilocp.estimation.estimator.Estimator` with N = 1: the
+stage steps the live services run one each, called in order, without the messages between them),
+or, for the paper's soil method, those stage steps with their messages
+(:class:`soilocp.estimation.pipeline.VehiclePipeline`).  A fleet-map prior per vehicle is optional
+(``map_prior``).  Invalid lines are
 reported with their line number and skipped, never fatal.
 """
 

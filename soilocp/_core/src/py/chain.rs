@@ -1,10 +1,13 @@
-//! `soilocp._core.ChainCore`: the whole estimation chain of a bank of vehicles in one call per
-//! step, for the offline path and the batched service: the online torque scale, the observer, the
-//! slip gate, the soil-grid update with its records, the scale's feed of K back, and the OCPs
-//! (eqs. 7-10).  It holds the stage objects the Python side built (`ObserverCore`,
-//! `TorqueScaleCore`, `SlipGateBank`, `SoilGridBank`) and steps their state in place with the same
-//! kernels their own calls run, so a stage's calls and the chain's give the same numbers; nothing
-//! crosses the boundary between the stages.
+//! `soilocp._core.ChainCore`: the estimation chain of a bank of vehicles, assembled here once.
+//!
+//! Its stage steps are `observe` (the online torque scale and the observer), `update` (the slip
+//! gate, a map prior's informing wheels and the soil-grid update with its records) and `feed` (K
+//! and the slips back to the torque scale); its whole step `step` is those in order, then the OCPs
+//! (eqs. 7-10).  The offline path and the batched service call `step`; the live services call the
+//! stage steps one each (the observer service `observe` and `feed`, the soil-strength service
+//! `update`), passing the messages between them, so every path runs the same code in the same order.
+//! It holds the stage objects the Python side built (`ObserverCore`, `TorqueScaleCore`,
+//! `SlipGateBank`, `SoilGridBank`) and steps their state in place.
 
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -71,6 +74,29 @@ struct Stages<'a> {
     soil: &'a mut SoilGridBank,
     constants: &'a Constants,
     feed_soil: bool,
+}
+
+/// The stage objects of a chain, borrowed from Python for one call (`try_`: a stage object another
+/// thread holds now is a RuntimeError, not a panic).
+struct Held<'py> {
+    observer: PyRefMut<'py, ObserverCore>,
+    scale: Option<PyRefMut<'py, TorqueScaleCore>>,
+    gate: PyRefMut<'py, SlipGateBank>,
+    soil: PyRefMut<'py, SoilGridBank>,
+}
+
+impl Held<'_> {
+    /// The stages of the held objects, for one call.
+    fn stages<'a>(&'a mut self, constants: &'a Constants, feed_soil: bool) -> Stages<'a> {
+        Stages {
+            observer: self.observer.bank_mut(),
+            scale: self.scale.as_mut().map(|s| s.bank_mut()),
+            gate: &mut self.gate,
+            soil: &mut self.soil,
+            constants,
+            feed_soil,
+        }
+    }
 }
 
 /// What a step makes, before it becomes arrays.
@@ -178,6 +204,18 @@ impl Stages<'_> {
     }
 }
 
+impl ChainCore {
+    /// Its stage objects, borrowed for one call.
+    fn hold<'py>(&self, py: Python<'py>) -> PyResult<Held<'py>> {
+        Ok(Held {
+            observer: self.observer.bind(py).try_borrow_mut()?,
+            scale: self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?,
+            gate: self.gate.bind(py).try_borrow_mut()?,
+            soil: self.soil.bind(py).try_borrow_mut()?,
+        })
+    }
+}
+
 #[pymethods]
 impl ChainCore {
     /// The chain over the stage objects of one bank of N vehicles: the `observer`, the slip `gate`,
@@ -238,21 +276,10 @@ impl ChainCore {
         inputs: Inputs<'py>,
         informing: Option<PyReadonlyArray2<'py, bool>>,
     ) -> PyResult<ChainOut<'py>> {
-        // try_: a stage object another thread holds now is a RuntimeError, not a panic
-        let mut obs = self.observer.bind(py).try_borrow_mut()?;
-        let (vehicles, raws) = obs.raws(idx.as_ref(), &inputs)?;
+        let mut held = self.hold(py)?;
+        let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
         let informing = informing.map(|a| quads("informing", &a, vehicles.len())).transpose()?;
-        let mut scale = self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?;
-        let mut gate = self.gate.bind(py).try_borrow_mut()?;
-        let mut soil = self.soil.bind(py).try_borrow_mut()?;
-        let stages = Stages {
-            observer: obs.bank_mut(),
-            scale: scale.as_mut().map(|s| s.bank_mut()),
-            gate: &mut gate,
-            soil: &mut soil,
-            constants: &self.constants,
-            feed_soil: self.feed_soil,
-        };
+        let stages = held.stages(&self.constants, self.feed_soil);
         // the GIL is released for the step: a Zenoh callback can hand over the next samples meanwhile (the
         // stage objects stay borrowed: another thread that reads one of them now gets a RuntimeError, not a
         // half-stepped state)
@@ -261,7 +288,7 @@ impl ChainCore {
         Ok((
             blocks(py, &done.estimates),
             gate_arrays(py, &done.samples)?,
-            report_arrays(py, soil.reports(), &done.used),
+            report_arrays(py, held.soil.reports(), &done.used),
             (col(|x| x.mu_t), col(|x| x.s_t), col(|x| x.s_e), col(|x| x.te_at_s_e)),
         ))
     }
@@ -276,20 +303,9 @@ impl ChainCore {
         idx: Option<PyReadonlyArray1<'py, i64>>,
         inputs: Inputs<'py>,
     ) -> PyResult<(StepOut<'py>, Option<(Arr<'py>, Arr<'py>)>)> {
-        let mut obs = self.observer.bind(py).try_borrow_mut()?;
-        let (vehicles, raws) = obs.raws(idx.as_ref(), &inputs)?;
-        let mut scale = self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?;
-        let mut gate = self.gate.bind(py).try_borrow_mut()?;
-        let mut soil = self.soil.bind(py).try_borrow_mut()?;
-        let mut stages = Stages {
-            observer: obs.bank_mut(),
-            scale: scale.as_mut().map(|s| s.bank_mut()),
-            gate: &mut gate,
-            soil: &mut soil,
-            constants: &self.constants,
-            feed_soil: self.feed_soil,
-        };
-        let (estimates, scaled) = stages.observe(&vehicles, raws)?;
+        let mut held = self.hold(py)?;
+        let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
+        let (estimates, scaled) = held.stages(&self.constants, self.feed_soil).observe(&vehicles, raws)?;
         let scaled = scaled.map(|s| {
             let (m, sd): (Vec<f64>, Vec<f64>) = s.into_iter().unzip();
             (m.into_pyarray(py), sd.into_pyarray(py))
@@ -312,24 +328,21 @@ impl ChainCore {
         scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
         informing: Option<PyReadonlyArray2<'py, bool>>,
     ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
-        let mut obs = self.observer.bind(py).try_borrow_mut()?;
-        let mut scale = self.scale.as_ref().map(|s| s.bind(py).try_borrow_mut()).transpose()?;
-        let mut gate = self.gate.bind(py).try_borrow_mut()?;
-        let mut soil = self.soil.bind(py).try_borrow_mut()?;
-        let (samples, pending) = gate.run(&idx, &stamp, &rows)?;
+        let mut held = self.hold(py)?;
+        let (samples, pending) = held.gate.run(&idx, &stamp, &rows)?;
         let k = samples.len();
         let sig = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
         let informing = informing.map(|a| quads("informing", &a, k)).transpose()?;
-        let mut stages = Stages {
-            observer: obs.bank_mut(),
-            scale: scale.as_mut().map(|s| s.bank_mut()),
-            gate: &mut gate,
-            soil: &mut soil,
-            constants: &self.constants,
-            feed_soil: self.feed_soil,
-        };
-        let (samples, used, _) = stages.update(samples, pending, sig.as_deref(), informing.as_deref())?;
-        Ok((gate_arrays(py, &samples)?, report_arrays(py, soil.reports(), &used)))
+        let (samples, used, _) = held.stages(&self.constants, self.feed_soil).update(
+            samples,
+            pending,
+            sig.as_deref(),
+            informing.as_deref(),
+        )?;
+        Ok((
+            gate_arrays(py, &samples)?,
+            report_arrays(py, held.soil.reports(), &used),
+        ))
     }
 
     /// The soil stage's K (k,) (NaN: none reported, the last is kept) and slips (k, 4) of the vehicles
@@ -346,26 +359,19 @@ impl ChainCore {
         let ix = column("idx", &idx, n)?;
         let ks = column("k", &k, n)?;
         let slips = quads("slip", &slip, n)?;
-        let Some(scale) = self.scale.as_ref() else {
-            return Ok(());
-        };
-        let mut scale = scale.bind(py).try_borrow_mut()?;
-        let bank = scale.bank_mut();
+        let mut held = self.hold(py)?;
+        let n_veh = held.observer.bank_mut().filter.n_vehicles;
         let mut vehicles = Vec::with_capacity(n);
         for &g in &ix {
-            if g < 0 || g as usize >= bank.len() {
+            if g < 0 || g as usize >= n_veh {
                 return Err(PyValueError::new_err(format!(
-                    "idx {g}: not a vehicle index in [0, {})",
-                    bank.len()
+                    "idx {g}: not a vehicle index in [0, {n_veh})"
                 )));
             }
             vehicles.push(g as usize);
         }
-        if self.feed_soil {
-            for ((&g, &kv), s) in vehicles.iter().zip(&ks).zip(&slips) {
-                bank.feed_soil(g, kv, Some(*s));
-            }
-        }
+        held.stages(&self.constants, self.feed_soil)
+            .feed(&vehicles, &ks, &slips);
         Ok(())
     }
 
