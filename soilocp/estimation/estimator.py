@@ -122,10 +122,12 @@ class Estimator:
             raise ValueError(f"priors: {len(self.priors)} given for {n} vehicles")
         self.observer = ObserverBank(cfg.vehicle, cfg.observer, n)
         self.gate = SlipGate(cfg, n)
-        self.soil = SoilBank(cfg.constants, cfg.soil, n)
-        # the paper's rule (method "paper") replaces the grid update; it is not in the core
+        # the paper's rule (method "paper") replaces the grid update; it is not in the core, whose chain still
+        # holds a grid bank (of the default method's settings, never stepped then)
         self.paper = [PaperSoilEstimator(cfg.constants, cfg.soil) for _ in range(n)] \
             if cfg.soil.method == "paper" else None
+        self.soil = SoilBank(cfg.constants, cfg.soil if self.paper is None else
+                             cfg.soil.model_copy(update={"method": "bayes"}), n)
         self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, n, cfg.constants)
         self.curve = WheelCurve(cfg, n)  # the wheel's learnt curve and the OCP records' rule
         self.chain = _core.ChainCore(self.observer._core, self.gate.core, self.soil.core, cfg.constants.kernel,
