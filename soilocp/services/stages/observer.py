@@ -24,7 +24,6 @@ import time
 from collections import OrderedDict, deque
 from typing import Any, Callable, Optional
 
-from soilocp.schemas import keys
 from soilocp.schemas.pipeline import NormalForces, SoilEstimate
 from soilocp.schemas.sensor import SensorSample
 from soilocp.services.runtime.worker import Counters, WorkItem
@@ -182,11 +181,13 @@ class ObserverService(StageService):
     def declare(self, session, vehicle_id: str) -> None:
         super().declare(session, vehicle_id)
         if vehicle_id in self.feedback:
-            self.subscribe(session, keys.soil(vehicle_id), vehicle_id, "soil")
+            for inp in self.spec.feedback:  # the soil estimates
+                self.subscribe(session, inp.key(vehicle_id), vehicle_id, inp.kind)
 
     def handle(self, item: WorkItem) -> None:
         if item.kind == "soil":
-            self.feedback[item.vehicle_id].add_soil(SoilEstimate.model_validate_json(item.payload))
+            soil = self.spec.input_model("soil").model_validate_json(item.payload)
+            self.feedback[item.vehicle_id].add_soil(soil)
         elif item.kind == "feed_timeout":
             self.feedback[item.vehicle_id].drain()
         else:
