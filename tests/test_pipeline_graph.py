@@ -27,6 +27,12 @@ def test_rows_chain_output_to_input():
         produced.add(row.output("v1"))
         models[row.output("v1")] = row.output_model
     assert PIPELINE_SERVICES[-1] == "ocp" and BATCHED_STAGES == PIPELINE_SERVICES[1:-1]
+    # a feedback input comes from a later row, parsed with that row's model
+    for i, row in enumerate(PIPELINE):
+        for inp in row.feedback:
+            later = [r for r in PIPELINE[i + 1:] if r.output("v1") == inp.key("v1")]
+            assert later and later[0].output_model is inp.model, f"{row.name} feeds back {inp.key('v1')}"
+    assert [inp.kind for inp in BY_NAME["observer"].feedback] == ["soil"]
 
 
 @pytest.mark.parametrize("name", PIPELINE_SERVICES)

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import soilocp.estimation.batch as batch_module
+import soilocp.estimation.estimator as estimator_module
 import soilocp.estimation.pipeline as pipeline_module
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
@@ -123,7 +124,8 @@ def test_the_random_drives_exercise_learning():
 
 
 class _Checked(TorqueScaleBank):
-    """The product's bank, each call checked against the numpy reference fed the same inputs."""
+    """The product's bank with the numpy reference beside it, fed the same inputs (the estimator steps the
+    core's bank inside its chain calls: _checked_chain, _checked_observe)."""
 
     calls: list = []
 
@@ -133,51 +135,61 @@ class _Checked(TorqueScaleBank):
         self.slot = len(_Checked.calls)
         _Checked.calls.append([0, 0])
 
-    def apply(self, ix, inputs):
-        logged = np.array(inputs.wheel_torque, dtype=float, copy=True)
-        out, sigma = super().apply(ix, inputs)  # the stages' path (the chain steps the core itself: _checked_chain)
-        want_t, want_sigma = self.ref.apply_arrays(np.asarray(ix), inputs.stamp, inputs.specific_force_x, inputs.pitch,
-                                                   inputs.yaw_rate, inputs.wheel_speed, logged, inputs.ground_speed,
-                                                   inputs.normal_force)
-        assert (sigma is None) == (want_sigma is None)
-        assert _same(out.wheel_torque, want_t) and (sigma is None or _same(sigma, want_sigma))
-        assert _same(self.theta, self.ref.theta) and _same(self.P, self.ref.P)
-        _Checked.calls[-1][0] += 1
-        _Checked.calls[-1][1] += int(sigma is not None)
-        return out, sigma
-
-    def feed_soil(self, ix, soil_strength, slip=None):
-        super().feed_soil(ix, soil_strength, slip)
-        self.ref.feed_soil(np.asarray(ix), soil_strength, slip)
+    def check(self, ix, inputs):
+        """The reference takes the step's logged inputs; returns its relative 1-sigma (None: at the prior)."""
+        _, want_sigma = self.ref.apply_arrays(np.asarray(ix), inputs.stamp, inputs.specific_force_x, inputs.pitch,
+                                              inputs.yaw_rate, inputs.wheel_speed, inputs.wheel_torque,
+                                              inputs.ground_speed, inputs.normal_force)
+        _Checked.calls[self.slot][0] += 1
+        _Checked.calls[self.slot][1] += int(want_sigma is not None)
+        return want_sigma
 
 
-_chain_step = batch_module.BatchPipeline.step_all
+_chain_step = estimator_module.Estimator.step_all
+_observe = estimator_module.Estimator.observe
+_feed = estimator_module.Estimator.feed
 
 
 def _checked_chain(self, idx, samples, normal_forces):
-    """BatchPipeline.step_all, whose one core call steps the scale inside the chain: the reference takes the
+    """Estimator.step_all, whose one core call steps the scale inside the chain: the reference takes the
     same logged inputs first, the states must then be its to the bit, and it is fed the records' K and slips."""
     ix = np.asarray(idx)
-    inputs = pipeline_module.observer_inputs(samples, normal_forces)
     scale = self.scale
-    _, want_sigma = scale.ref.apply_arrays(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
-                                           inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed,
-                                           inputs.normal_force)
+    scale.check(ix, pipeline_module.observer_inputs(samples, normal_forces))
     ob, soils, ocps = _chain_step(self, idx, samples, normal_forces)
     assert _same(scale.theta, scale.ref.theta) and _same(scale.P, scale.ref.P)
     ks = np.array([np.nan if s.soil_strength is None else s.soil_strength for s in soils])
     scale.ref.feed_soil(ix, ks, np.array([s.slip for s in soils], dtype=float))
-    _Checked.calls[scale.slot][0] += 1
-    _Checked.calls[scale.slot][1] += int(want_sigma is not None)
     return ob, soils, ocps
+
+
+def _checked_observe(self, j, sample, forces):
+    """Estimator.observe (the observer stage): the scale's state and the torque scale the message carries are
+    the reference's to the bit."""
+    want_sigma = self.scale.check([j], pipeline_module.observer_inputs([sample], [forces.normal_force]))
+    out = _observe(self, j, sample, forces)
+    scale = self.scale
+    assert _same(scale.theta, scale.ref.theta) and _same(scale.P, scale.ref.P)
+    assert (out.torque_scale_std is None) == (want_sigma is None)
+    assert want_sigma is None or (out.torque_scale_std == want_sigma[0] and out.torque_scale == scale.ref.theta[j, 0])
+    return out
+
+
+def _checked_feed(self, j, soil):
+    """Estimator.feed (the soil estimate back to the scale): the reference is fed the same K and slips."""
+    _feed(self, j, soil)
+    if self.feeds_soil:
+        k = np.array([np.nan if soil.soil_strength is None else soil.soil_strength])
+        self.scale.ref.feed_soil(np.array([j]), k, np.array([soil.slip], dtype=float))
 
 
 @pytest.fixture()
 def checked(monkeypatch):
     _Checked.calls = []
-    monkeypatch.setattr(pipeline_module, "TorqueScaleBank", _Checked)
-    monkeypatch.setattr(batch_module, "TorqueScaleBank", _Checked)
-    monkeypatch.setattr(batch_module.BatchPipeline, "step_all", _checked_chain)
+    monkeypatch.setattr(estimator_module, "TorqueScaleBank", _Checked)
+    monkeypatch.setattr(estimator_module.Estimator, "step_all", _checked_chain)
+    monkeypatch.setattr(estimator_module.Estimator, "observe", _checked_observe)
+    monkeypatch.setattr(estimator_module.Estimator, "feed", _checked_feed)
     return _Checked.calls
 
 

@@ -467,6 +467,8 @@ def topics_page() -> tuple[str, int]:
         payload[_builder_name(keys, spec.output)] = (spec.output_model.__name__, spec.name)
         for inp in spec.inputs:
             readers.setdefault(_builder_name(keys, inp.key), []).append(spec.name)
+        for inp in spec.feedback:
+            readers.setdefault(_builder_name(keys, inp.key), []).append(f"{spec.name} (feedback)")
     builders = [(name, obj) for name, obj in vars(keys).items()
                 if callable(obj) and not name.startswith("_") and getattr(obj, "__qualname__", "").split(".")[0] in
                 ("_vehicle_key", "_service_key", "_fleet_selector")]

@@ -77,8 +77,9 @@ def import_cmd(bag, csv_specs, map_path, out, strict, no_progress):
     run_import(bag, csv_specs, map_path, out, strict=strict, progress=not no_progress)
 
 
-def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, full: bool = False):
-    """``soilocp estimate``: a sensor log (with its provenance file, if any) or, with ``map_path``, a bag."""
+def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, full: bool = False, map_prior=None):
+    """``soilocp estimate``: a sensor log (with its provenance file, if any) or, with ``map_path``, a bag;
+    ``map_prior(vehicle_id)``: a vehicle's fleet-map prior, or None."""
     from soilocp.export.estimate_out import estimate_to
     from soilocp.ingest import read_provenance
 
@@ -91,14 +92,15 @@ def estimate_source(sensors: str, map_path: Optional[str], out: str, cfg, *, ful
             raise BadInput(str(exc)) from None
         _check_drive(prov, cfg)
         withheld: dict[str, int] = {}
-        return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld), withheld)
+        return _said(estimate_to(sensors, out, cfg, full=full, provenance=prov, withheld=withheld,
+                                 map_prior=map_prior), withheld)
     with tempfile.TemporaryDirectory(prefix="soilocp-import-") as tmp:
         log = str(Path(tmp) / "sensors.jsonl")
         prov = _with_torque_constant(run_import(sensors, (), map_path, log, progress=sys.stderr.isatty()), cfg)
         _check_drive(prov, cfg)
         withheld = {}
         return _said(estimate_to(log, out, cfg, full=full, provenance=prov, label=f"{sensors} (imported)",
-                                 withheld=withheld), withheld)
+                                 withheld=withheld, map_prior=map_prior), withheld)
 
 
 def _with_torque_constant(prov, cfg):

@@ -40,7 +40,14 @@ def _numbers_table(title: str, columns: tuple[str, ...]) -> Table:
 @click.option("--no-compensation", is_flag=True, help="Observer without motion-resistance compensation (paper Figs. 11, 13)")
 @click.option("--method", type=click.Choice(["bayes", "paper"]), default=None, help="Soil-strength estimator")
 @click.option("--full", is_flag=True, help="Also write normal forces, gross traction, resistance, the filtered ground speed and its measured latency per record")
-def estimate(sensors, out, map_path, vehicle, torque_constant, constants, config, no_compensation, method, full):
+@click.option("--map-prior", "map_prior", metavar="STORE",
+              help="Start each vehicle's soil belief from this fleet soil map's cells (a map store URL, e.g. "
+                   "sqlite:PATH, as soilocp service map --store) on entering each, as the soil-strength service's "
+                   "map_prior (docs/map.md)")
+@click.option("--map-prior-min-count", "map_prior_min_count", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --map-prior: a cell seen by fewer estimates is not trusted (the service's map_prior.min_count)")
+def estimate(sensors, out, map_path, vehicle, torque_constant, constants, config, no_compensation, method, full,
+             map_prior, map_prior_min_count):
     """Run the whole chain on a sensor log: validate -> normal forces -> observer -> slip + K -> OCPs.
 
     Writes one JSON record per valid input sample.  Invalid lines are reported on stderr with
@@ -60,8 +67,9 @@ def estimate(sensors, out, map_path, vehicle, torque_constant, constants, config
     if method:
         soil = cfg.soil.model_copy(update={"method": method, **({"measurement": "net"} if method == "paper" else {})})
         cfg = cfg.model_copy(update={"soil": soil})
+    prior = None if map_prior is None else _store_prior(map_prior, cfg, map_prior_min_count)
     t0 = time.perf_counter()
-    summary = estimate_source(sensors, map_path, out, cfg, full=full)
+    summary = estimate_source(sensors, map_path, out, cfg, full=full, map_prior=prior)
     dt = time.perf_counter() - t0
     report_estimate(summary, sensors, out, dt, cfg, vehicle_given=vehicle is not None or _config_has_vehicle(config))
 
@@ -74,6 +82,23 @@ def _config_has_vehicle(config) -> bool:
         return "vehicle" in json.loads(Path(config).read_text(encoding="utf-8"))
     except (OSError, ValueError, TypeError):
         return False
+
+
+def _store_prior(url: str, cfg, min_count: int):
+    """``vehicle_id -> MapPrior`` over every cell of the map store ``url`` (read once, now), with the store's
+    cells (their size, H3 resolution) and the vehicle of ``cfg``."""
+    from soilocp.map.prior import MapPrior
+    from soilocp.map.store import open_store
+
+    try:
+        st = open_store(url)
+    except Exception as exc:
+        raise BadInput(f"--map-prior {url}: cannot open the map store: {exc}") from None
+    try:
+        cells, cell_config = st.all_cells(time.time()), st.cell_config
+    finally:
+        st.close()
+    return lambda _vid: MapPrior(cells, cell_config, vehicle=cfg.vehicle, min_count=min_count)
 
 
 def report_estimate(summary, sensors: str, out: str, dt: float, cfg, *, vehicle_given: bool) -> None:

@@ -1,10 +1,11 @@
 """Offline estimation: a sensor log (JSON Lines) in, one OCP record per valid sample out.
 
-The same validation as the live services, and the same kernels: each vehicle's chain is the compiled
-core's in one call per sample (:class:`soilocp.estimation.batch.BatchPipeline` with N = 1: the
-torque scale, observer, slip gate, soil update and OCPs of the stage services, without the messages
-between them; ``tests/test_batch.py`` checks it against the stages), or, for the paper's soil method,
-the stages themselves (:class:`soilocp.estimation.pipeline.VehiclePipeline`).  Invalid lines are
+The same validation as the live services, and the same chain: each vehicle's is the estimator's
+whole step, one core call per sample (:class:`soilocp.estimation.estimator.Estimator` with N = 1: the
+stage steps the live services run one each, called in order, without the messages between them),
+or, for the paper's soil method, those stage steps with their messages
+(:class:`soilocp.estimation.pipeline.VehiclePipeline`).  A fleet-map prior per vehicle is optional
+(``map_prior``).  Invalid lines are
 reported with their line number and skipped, never fatal.
 """
 
@@ -74,9 +75,9 @@ class _Chain:
 
     _ONE = np.zeros(1, dtype=np.int64)
 
-    def __init__(self, config: PipelineConfig):
+    def __init__(self, config: PipelineConfig, prior=None):
         self._solve = NormalForceSolver(config.vehicle)
-        self._batch = BatchPipeline(config, 1)
+        self._batch = BatchPipeline(config, 1, None if prior is None else [prior])
 
     def process_all(self, sample: SensorSample) -> tuple[list[float], Observed, SoilEstimate, OcpEstimate]:
         fz = self._solve(sample.specific_force)
@@ -90,8 +91,8 @@ class _Chain:
 class _Stages:
     """One vehicle's four stages with their messages (the paper's soil method, which the core's bank does not run)."""
 
-    def __init__(self, config: PipelineConfig):
-        self._pipe = VehiclePipeline(config)
+    def __init__(self, config: PipelineConfig, prior=None):
+        self._pipe = VehiclePipeline(config, prior)
 
     def process_all(self, sample: SensorSample) -> tuple[list[float], Observed, SoilEstimate, OcpEstimate]:
         nf, ob, so, oc = self._pipe.process_all(sample)
@@ -100,9 +101,10 @@ class _Stages:
         return list(nf.normal_force), seen, so, oc
 
 
-def vehicle_chain(config: PipelineConfig):
-    """The offline chain of one vehicle for ``config`` (module doc)."""
-    return _Chain(config) if config.soil.method == "bayes" else _Stages(config)
+def vehicle_chain(config: PipelineConfig, prior=None):
+    """The offline chain of one vehicle for ``config`` (module doc), with its fleet-map ``prior``
+    (:class:`soilocp.map.prior.MapPrior`, or None)."""
+    return _Chain(config, prior) if config.soil.method == "bayes" else _Stages(config, prior)
 
 
 def estimate_lines(
@@ -112,9 +114,13 @@ def estimate_lines(
     on_reject: Optional[Callable[[int, SampleRejected], None]] = None,
     full: bool = False,
     summary: Optional[EstimateSummary] = None,
+    map_prior: Optional[Callable[[str], object]] = None,
 ) -> Iterator[dict]:
-    """Yield one record (a dict) per valid sample; ``full`` adds the intermediate stage outputs."""
-    for _, rec in estimate_samples(lines, config, on_reject=on_reject, full=full, summary=summary):
+    """Yield one record (a dict) per valid sample; ``full`` adds the intermediate stage outputs;
+    ``map_prior(vehicle_id)``: a vehicle's fleet-map prior (:class:`soilocp.map.prior.MapPrior`, or None),
+    asked once per chain the vehicle starts."""
+    for _, rec in estimate_samples(lines, config, on_reject=on_reject, full=full, summary=summary,
+                                   map_prior=map_prior):
         yield rec
 
 
@@ -125,6 +131,7 @@ def estimate_samples(
     on_reject: Optional[Callable[[int, SampleRejected], None]] = None,
     full: bool = False,
     summary: Optional[EstimateSummary] = None,
+    map_prior: Optional[Callable[[str], object]] = None,
 ) -> Iterator[tuple[SensorSample, dict]]:
     """:func:`estimate_lines`, each record with the validated sensor sample it was estimated from
     (the MCAP export writes both, so the file carries the same channels as the live server)."""
@@ -147,12 +154,12 @@ def estimate_samples(
         summary.fit.add(sample, radius, mass, k_torque)
         pipe = pipelines.get(sample.vehicle_id)
         if pipe is None:
-            pipe = pipelines[sample.vehicle_id] = vehicle_chain(config)
+            pipe = pipelines[sample.vehicle_id] = vehicle_chain(config, map_prior and map_prior(sample.vehicle_id))
         try:
             nf, ob, so, oc = pipe.process_all(sample)
         except Exception as exc:  # no exception escapes a stage: restart this vehicle's chain, keep going
             summary.stage_errors.append((lineno, f"{type(exc).__name__}: {exc}"[:300]))
-            pipelines[sample.vehicle_id] = vehicle_chain(config)
+            pipelines[sample.vehicle_id] = vehicle_chain(config, map_prior and map_prior(sample.vehicle_id))
             continue
         if ob.reset_reason:
             summary.resets[ob.reset_reason] = summary.resets.get(ob.reset_reason, 0) + 1

@@ -17,7 +17,7 @@ from soilocp.estimation.pipeline import PipelineConfig
 
 def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *, full: bool = False,
                 provenance: Optional[Provenance] = None, err: IO[str] = sys.stderr, label: str | None = None,
-                withheld: Optional[dict[str, int]] = None) -> EstimateSummary:
+                withheld: Optional[dict[str, int]] = None, map_prior=None) -> EstimateSummary:
     """Run the chain on the sensor log ``sensors``; write ``out`` (``.mcap``: MCAP channels, else JSONL).
 
     In an MCAP, each record's sensor sample goes on the sensor channel just before the record's
@@ -25,7 +25,8 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
     rejections are reported on ``err``).  Withholding K leaves the sensors as they are.
 
     When the provenance says K is not identifiable, every record is written withheld and
-    ``withheld`` (if given) counts the statuses the chain itself had given."""
+    ``withheld`` (if given) counts the statuses the chain itself had given.  ``map_prior(vehicle_id)``:
+    a vehicle's fleet-map prior, or None (:func:`soilocp.estimation.estimate.estimate_samples`)."""
     summary = EstimateSummary()
     label = label or str(sensors)
     reason = provenance.withhold_reason() if provenance is not None else None
@@ -49,7 +50,8 @@ def estimate_to(sensors: str | Path, out: str | Path, config: PipelineConfig, *,
     try:
         # read capped: a line over the gateway's byte limit is skipped unread and rejected (too_large)
         with open(sensors, "rb") as fin:
-            for sample, rec in estimate_samples(capped_lines(fin), config, on_reject=report, full=full, summary=summary):
+            for sample, rec in estimate_samples(capped_lines(fin), config, on_reject=report, full=full, summary=summary,
+                                                    map_prior=map_prior):
                 if reason is not None:
                     withheld[rec["status"]] = withheld.get(rec["status"], 0) + 1
                     rec = withhold(rec, reason)

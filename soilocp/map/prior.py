@@ -4,13 +4,12 @@ soil belief starts over from the map's K for that cell, with the map's band
 vehicle's own wheels as usual; the map only replaces "nothing known" (or the last soil) at the
 moment the ground may have changed.  Until the rear axle has left the ground the front axle just
 left, the wheels whose contact patch is still there do not inform that belief: it is the new
-cell's, and they stand on another soil.  :func:`start_from_map` is the one step both estimators
-(``SoilStage``, ``BatchPipeline``) take.  docs/map.md measures what it buys."""
+cell's, and they stand on another soil.  The estimator takes a vehicle's prior as an input of its
+step (:class:`soilocp.estimation.estimator.Estimator`, ``priors``), on every path.  docs/map.md measures what it buys."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -117,28 +116,6 @@ class MapPrior:
         return on
 
 
-def start_from_map(priors: Sequence, bank, ix: np.ndarray, places: Sequence, inputs):
-    """The map's step for k vehicles stepped together (``SoilStage`` k = 1, ``BatchPipeline``):
-    vehicle j's belief (bank row ``ix[j]``) starts from the map when ``priors[j]`` (a
-    :class:`MapPrior`, or None: no map) says its front axle entered a mapped cell at ``places[j]``
-    (anything with ``position`` and ``geo``: the sample, the observer's output), and the wheels
-    still on the ground left behind are taken out of ``inputs.informative`` (:meth:`MapPrior.informing`).
-    Returns the inputs for :meth:`SoilBank.update` (``inputs`` itself when nothing is withheld)."""
-    informative = None
-    for j, (prior, place) in enumerate(zip(priors, places)):
-        if prior is None:
-            continue
-        start = prior(place)
-        if start is not None:
-            bank.start_belief(int(ix[j]), *start)
-        on = prior.informing(place)
-        if on is not None:
-            if informative is None:
-                informative = np.array(inputs.informative, dtype=bool, copy=True)
-            informative[j] &= on
-    return inputs if informative is None else replace(inputs, informative=informative)
-
-
 def map_prior_from_store(url: str, frame: str, bbox, now: float, **kw) -> MapPrior:
     """A :class:`MapPrior` from the cells of a store in a box (offline use)."""
     from soilocp.map.store import open_store
@@ -151,4 +128,4 @@ def map_prior_from_store(url: str, frame: str, bbox, now: float, **kw) -> MapPri
         st.close()
 
 
-__all__ = ["MapPrior", "map_prior_from_store", "start_from_map", "WGS84"]
+__all__ = ["MapPrior", "map_prior_from_store", "WGS84"]

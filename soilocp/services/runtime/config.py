@@ -70,6 +70,9 @@ class ServiceConfig(BaseModel):
     queue_size: int = Field(4096, ge=1, le=1_000_000, description="Worker queue bound; beyond it inputs are dropped")
     join_buffer: int = Field(256, ge=1, le=100_000, description="Observer: samples waiting for their normal forces")
     join_timeout_s: float = Field(0.2, gt=0, description="Observer: give up on a sample's normal forces after this")
+    soil_feed_timeout_s: float = Field(0.5, gt=0, description="Observer, when the torque scale models the motion "
+                                       "resistance at the soil's K: wait at most this long, s, for the soil estimate "
+                                       "of the sample before, then step with the last K")
     history_size: int = Field(1000, ge=1, le=1_000_000, description="OCP publisher: estimates kept for ?last / ?since")
     status_period_s: float = Field(1.0, gt=0, le=3600, description="Period of the health publication")
     max_payload_bytes: int = Field(MAX_PAYLOAD_BYTES, ge=256, description="Gateway: larger raw payloads are "

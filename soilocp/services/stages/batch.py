@@ -4,7 +4,8 @@ A drop-in for the four services ``normal-force``, ``observer``, ``soil-strength`
 one deployment (the gateway stays as it is): it subscribes to every vehicle's ``sensors/clean``,
 computes the normal forces of all pending samples in one call (:func:`soilocp.model.normal_force`'s
 solver, eqs. 21-25), steps all vehicles that have a sample together with
-:class:`soilocp.estimation.batch.BatchPipeline` (the compiled core's banks, one call per step for all of them), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same numbers as
+:class:`soilocp.estimation.estimator.Estimator` (the estimator's whole step, one core call for all of them, each
+vehicle's map prior an input of it), and publishes each ``OcpEstimate`` on ``soilocp/<vid>/ocp`` — the same numbers as
 the per-vehicle services and ``soilocp estimate`` (``tests/test_batch.py``).  It *is* the OCP
 publisher (subclass of :class:`~soilocp.services.stages.ocp.OcpService`: same queryable, history, stale
 reports, health on ``soilocp/<vid>/status/ocp``) and also holds the ``normal-force``,
@@ -31,7 +32,7 @@ import numpy as np
 
 from soilocp.schemas import keys
 from soilocp.schemas.sensor import SensorSample
-from soilocp.estimation.batch import BatchPipeline
+from soilocp.estimation.estimator import Estimator
 from soilocp.model.normal_force import NormalForceSolver
 
 from soilocp.services.runtime.process import exit_now
@@ -55,10 +56,10 @@ class BatchOcpService(OcpService):
         # the soil-strength service's opt-in map prior (map_prior / SOILOCP_MAP_PRIOR), the same feed and prior
         self.feed = None
         if cfg.map_prior is not None:
-            from soilocp.services.stages.soil_map_prior import MapPriorFeed
+            from soilocp.services.stages.map_prior_feed import MapPriorFeed
 
             self.feed = MapPriorFeed(self, cfg.map_prior, self.vids, pc.vehicle)
-        self.batch = BatchPipeline(pc, len(self.vids), None if self.feed is None else [self.feed.priors[v] for v in self.vids])
+        self.batch = Estimator(pc, len(self.vids), None if self.feed is None else [self.feed.priors[v] for v in self.vids])
         self.pending: dict[str, deque] = {vid: deque() for vid in self.vids}
         self.n_pending = 0
         self.max_pending = MAX_PENDING_PER_VEHICLE * len(self.vids)

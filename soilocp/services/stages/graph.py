@@ -45,9 +45,12 @@ class StageSpec:
     #: for the gateway, whose check is per vehicle and needs no physics.
     stage: Optional[Callable[[Any], Any]]
     summary: str
+    #: inputs from a later row that the stage feeds back into itself, taken only while it does
+    #: (``stage.feeds_soil``): the observer's torque scale models the motion resistance at the soil's K
+    feedback: tuple[StageInput, ...] = ()
 
     def input_model(self, kind: str) -> Optional[type[BaseModel]]:
-        for i in self.inputs:
+        for i in self.inputs + self.feedback:
             if i.kind == kind:
                 return i.model
         raise KeyError(f"stage {self.name} has no input of kind {kind!r}")
@@ -84,7 +87,8 @@ PIPELINE: tuple[StageSpec, ...] = (
               _normal_force_stage, "normal force per wheel (eqs. 21-25)"),
     StageSpec("observer", (StageInput("sample", keys.clean, SensorSample),
                            StageInput("forces", keys.normal_forces, NormalForces)), keys.observer, ObserverOutput,
-              _observer_stage, "Kalman observer of per-wheel traction (joins its inputs by seq)"),
+              _observer_stage, "Kalman observer of per-wheel traction (joins its inputs by seq)",
+              feedback=(StageInput("soil", keys.soil, SoilEstimate),)),
     StageSpec("soil-strength", (StageInput("observer", keys.observer, ObserverOutput),), keys.soil, SoilEstimate,
               _soil_stage, "soil strength K from slip and gross traction"),
     StageSpec("ocp", (StageInput("soil", keys.soil, SoilEstimate),), keys.ocp, OcpEstimate, _ocp_stage,

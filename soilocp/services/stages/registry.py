@@ -7,7 +7,7 @@ from soilocp.services.stages.gateway import GatewayService
 from soilocp.services.stages.graph import BY_NAME
 from soilocp.services.stages.observer import ObserverService
 from soilocp.services.stages.ocp import OcpService
-from soilocp.services.stages.soil_map_prior import SoilStrengthService
+from soilocp.services.stages.soil_strength import SoilStrengthService
 from soilocp.services.stages.stage_service import StageService
 
 SPECIAL: dict[str, type[StageService]] = {cls.name: cls for cls in (GatewayService, ObserverService, OcpService,

@@ -96,7 +96,7 @@ pub struct SlipGateBank {
 impl SlipGateBank {
     /// The step of the vehicles `idx` at `stamp` from their packed observer outputs `rows`: the
     /// samples, and a [`PendingGate`] to commit once the caller has accepted them.
-    fn run(
+    pub(crate) fn run(
         &self,
         idx: &PyReadonlyArray1<'_, i64>,
         stamp: &PyReadonlyArray1<'_, f64>,

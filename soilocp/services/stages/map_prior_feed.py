@@ -1,10 +1,11 @@
-"""The soil-strength service, with its belief started from a fleet soil map when asked
-(``map_prior`` in its config, or ``SOILOCP_MAP_PRIOR=<map id>``; docs/map.md §4).
+"""The cells of a fleet soil map around each vehicle, for a service that steps soil beliefs from a
+map prior (``map_prior`` in its config, or ``SOILOCP_MAP_PRIOR=<map id>``; docs/map.md §4): the
+soil-strength service (:mod:`soilocp.services.stages.soil_strength`) and the batched one
+(:mod:`soilocp.services.stages.batch`).
 
-Thin: the library's :class:`soilocp.map.prior.MapPrior` decides when the vehicle enters a mapped
-cell and hands the stage the map's K and band (``SoilStage(config, prior)``, as the offline path
-``VehiclePipeline(prior=...)``).  This adapter only keeps the prior's cells (:class:`MapPriorFeed`,
-also the batched service's, ``soilocp.services.stages.batch``): a thread asks the map service
+The library's :class:`soilocp.map.prior.MapPrior` decides when the vehicle enters a mapped cell and
+hands the estimator the map's K and band (``Estimator(config, n, priors)``, as the offline path
+``soilocp estimate --map-prior``).  :class:`MapPriorFeed` only keeps the prior's cells: a thread asks the map service
 (``soilmap/<map_id>/query``, :func:`soilocp.services.map.client.query_map`) for the box around the
 vehicle's last position, never the worker, which does not wait for the network.  Counted in the
 health detail: ``map_prior_entered`` (priors given), ``map_prior_cells``, ``map_prior_queries``,
@@ -16,12 +17,6 @@ import math
 import threading
 import time
 from typing import Optional
-
-from pydantic import BaseModel
-
-from soilocp.services.stages.config import pipeline_config
-from soilocp.services.stages.graph import BY_NAME
-from soilocp.services.stages.stage_service import StageService
 
 _M_PER_DEG = 111_320.0  # metres per degree of latitude (and of longitude at the equator)
 
@@ -114,27 +109,3 @@ class MapPriorFeed:
                 c.detail["map_prior_cells"] = len(self.priors[vid].cells)
                 owner.log.info("map_prior_cells", vehicle_id=vid, frame=where[0], cells=len(cells),
                                truncated=reply.truncated)
-
-
-class SoilStrengthService(StageService):
-    spec = BY_NAME["soil-strength"]
-
-    def __init__(self, cfg, log):
-        super().__init__(cfg, log)
-        self.feed: Optional[MapPriorFeed] = None
-        if cfg.map_prior is None:
-            return
-        from soilocp.estimation.pipeline import SoilStage
-
-        pc = pipeline_config(cfg)
-        self.feed = MapPriorFeed(self, cfg.map_prior, cfg.vehicle_ids, pc.vehicle)
-        for vid in cfg.vehicle_ids:
-            self.stages[vid] = SoilStage(pc, self.feed.priors[vid])
-
-    def accept(self, vehicle_id: str, kind: str, message: BaseModel) -> None:
-        if self.feed is None:
-            return super().accept(vehicle_id, kind, message)
-        self.feed.saw(vehicle_id, message)
-        before = self.feed.priors[vehicle_id].entered
-        super().accept(vehicle_id, kind, message)
-        self.feed.count(vehicle_id, message.seq, before)
