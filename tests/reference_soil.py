@@ -906,8 +906,9 @@ class ReferenceRecords:
                 status, reason = self._vouch(v, st, evidence, c_mean)
             if codes is not None and ident[j] and codes[j].any():
                 status, reason = _out_of_model(status, reason, codes[j], use[j].any(), rk is not None, hold, st)
-            if status == "not_observable":  # the data do not determine K now: no number (docs/method.md §12)
-                rk = rs = rl = None
+            below_floor = status == "model_mismatch" and reason.startswith("gross traction is below")
+            if status == "not_observable" or below_floor:  # no number: K not determined now (§12), or a belief
+                rk = rs = rl = None                            # truncated at the weakest soil (below the floor)
             if rk is not None and status != "model_mismatch":
                 rep.append((j, rk, rl))
             held_for = None if rk is None or hold.last_update is None else max(st - hold.last_update, 0.0)

@@ -356,7 +356,15 @@ impl StatusParams {
         if seen.identifiable && seen.unusable.iter().any(|&c| c != 0) {
             (status, why, args) = out_of_model(status, why, args, seen, used, est.is_some(), h, st);
         }
-        let k = if status == NOT_OBSERVABLE { None } else { est };
+        // not observable: the data do not determine K now; below the floor: the posterior is mostly
+        // beneath the weakest soil, so its median and spread are those of a truncated belief, not a
+        // band that holds the truth: no number either
+        let below_floor = status == MODEL_MISMATCH && why == reason::BELOW_FLOOR;
+        let k = if status == NOT_OBSERVABLE || below_floor {
+            None
+        } else {
+            est
+        };
         Report {
             status,
             reason: why,
