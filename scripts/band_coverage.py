@@ -1,0 +1,54 @@
+"""Where the truth lies against the K a record serves: in K ± 2 std read as a linear band (the robustness
+table's ``2-std cov``) and in the estimator's own band, 2 sigma in ln K (the record's std is K sinh sigma).
+
+The two agree where the band is narrow; where it is wide the belief is skewed and the linear band can miss a
+truth that the ln-K band holds.  Also counts the served K that are narrow (std/K < 0.5) yet more than 30 %
+off with the truth outside K ± 2 std: the confidently wrong numbers.
+
+    .venv/bin/python scripts/band_coverage.py --variant gnss-cruise --seeds 4
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from soilocp.estimation.estimate import estimate_lines
+from soilocp.estimation.pipeline import PipelineConfig
+from soilocp.sim.variants import get_variant
+
+
+def coverage(name: str, seed: int) -> str:
+    v = get_variant(name)
+    cfg = PipelineConfig()
+    pairs = list(v.simulate(seed, nominal=cfg.vehicle, constants=cfg.constants))
+    cfg = cfg.model_copy(update={"vehicle": v.known_vehicle(cfg.vehicle)})
+    truth = {(t.vehicle_id, t.seq): t.soil_strength for _, t in pairs}
+    k, sd, kt = (np.array(a, dtype=float) for a in zip(*[
+        (r["soil_strength"], r["soil_strength_std"], truth[(r["vehicle_id"], r["seq"])])
+        for r in estimate_lines([s.model_dump_json() for s, _ in pairs], cfg)
+        if r["soil_strength"] is not None and r["soil_strength_std"] is not None] or [((), (), ())]))
+    if not k.size:
+        return f"{name} seed {seed}: no record serves K"
+    linear = np.abs(k - kt) <= 2 * sd
+    in_ln = np.abs(np.log(k / kt)) <= 2 * np.arcsinh(sd / k)
+    narrow = sd / k < 0.5
+    wrong = narrow & (np.abs(k / kt - 1) > 0.3) & ~linear
+    return (f"{name} seed {seed}: {k.size} records with K; truth in K ± 2 std {linear.mean():.1%}, in the ln-K "
+            f"2-sigma band {in_ln.mean():.1%}; std/K median {np.median(sd / k):.2f}, narrow (< 0.5) {narrow.sum()}, "
+            f"confidently wrong {wrong.sum()}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variant", action="append", required=True, help="a variant of soilocp accuracy --robustness")
+    ap.add_argument("--seeds", type=int, default=1, help="seeds 0..N-1")
+    args = ap.parse_args()
+    for name in args.variant:
+        for seed in range(args.seeds):
+            print(coverage(name, seed))
+
+
+if __name__ == "__main__":
+    main()
