@@ -1,4 +1,4 @@
-"""The deployed processes carry only what they run (issue 28, item 7: resident memory).
+"""The deployed processes carry only what they run (resident memory).
 
 Checked on the real processes, as ``soilocp run`` and the bench start them: a native extension a
 process has imported is mapped in ``/proc/<pid>/maps`` (pydantic's core, numpy's), so the test sees
