@@ -161,17 +161,20 @@ class ObserverBlocks(NamedTuple):
         """The reset reasons (k,), "" where there was none."""
         return [RESET_REASONS[c - 1] if c else "" for c in self.codes.tolist()]
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        """The row ``name`` of its block (a view): its meaning is the ObserverOutput field of the same name."""
+        try:
+            block, row = ROWS[name]
+        except KeyError:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute or observer row {name!r}") from None
+        return self[block][row]
 
-def _name_rows() -> None:
-    for name, (b, r) in ROWS.items():
-        if hasattr(ObserverBlocks, name):  # a row named like a block or a tuple method would hide one of them
-            raise ImportError(f"soilocp._core's observer row {name!r} shadows ObserverBlocks.{name}")
-        # the row's meaning is written once, in the message it becomes
-        setattr(ObserverBlocks, name, property(lambda self, b=b, r=r: self[b][r],
-                                               doc=ObserverOutput.model_fields[name].description))
 
-
-_name_rows()
+# a row named like a block or a tuple method would be hidden by it (ObserverBlocks.__getattr__ sees only the names
+# the class lacks); ImportError, not assert, as above
+_shadowed = sorted(name for name in ROWS if hasattr(ObserverBlocks, name))
+if _shadowed:
+    raise ImportError(f"soilocp._core's observer rows {_shadowed} shadow ObserverBlocks attributes of the same names")
 
 
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBlocks, j: int,
