@@ -16,6 +16,8 @@
 
 use std::collections::VecDeque;
 
+use pyo3::prelude::*;
+
 /// The learner's settings (`soilocp.estimation.curve_config.CurveConfig` documents each).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Params {
@@ -67,7 +69,9 @@ struct Pair {
     mu: f64,
 }
 
-/// The fitted shape on the current soil and the OCPs that follow from it.
+/// The fitted shape mu(S) = a (1 - e^(-c3 S)) - c - b S on the current soil and the OCPs that follow from it:
+/// `soilocp._core.CurveFit` to Python, read-only.
+#[pyclass(frozen, get_all, name = "CurveFit", module = "soilocp._core")]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
     pub a: f64,
@@ -90,7 +94,7 @@ pub struct Fit {
     /// the fitted slips surround the peak (`below` and `beyond` >= `min_beyond`): not an extrapolation,
     /// nor an interpolation over a gap
     pub shown: bool,
-    /// stamp of the fit
+    /// stamp of the fit, s
     pub stamp: f64,
 }
 
@@ -523,10 +527,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn close(got: f64, want: f64, tol: f64) {
-        assert!((got - want).abs() <= tol, "got {got}, want {want} +- {tol}");
-    }
+    use crate::testing::close;
 
     /// eq. 6's shape of method.md §14's test tyre (C1 1.2, C2 0.015, C3 6.4, C5 -3, C6 3.5) at K = 100.
     fn tyre_shape() -> (f64, f64, f64, f64) {

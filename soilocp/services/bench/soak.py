@@ -67,7 +67,7 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
 
     from soilocp.schemas import keys
     from soilocp.schemas.messages import ServiceHealth
-    from soilocp.services.bench.live import Rig, _SEQ_RE, _sleep_until, open_client, proc_rss_mib
+    from soilocp.services.bench.live import Rig, _sleep_until, arrivals, open_client, proc_rss_mib
 
     vid = "soak"
     n_steps = int(round(duration * rate))
@@ -85,13 +85,6 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
     rss: dict[str, list[tuple[float, Optional[float]]]] = {}
     stop = threading.Event()
 
-    def _ocp(sample) -> None:
-        t = time.perf_counter()
-        m = _SEQ_RE.search(sample.payload.to_bytes())
-        if m:
-            with lock:
-                got[int(m.group(1))] = t
-
     try:
         rig.start()
         pids = {n: p for n, p in rig.pids().items() if n not in ("echo", "bench")}
@@ -107,7 +100,7 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
 
         with open_client(rig.endpoint) as session:
             rig.wait_ready(session, 120.0)
-            sub = session.declare_subscriber(keys.ocp(vid), _ocp)
+            sub = session.declare_subscriber(keys.ocp(vid), arrivals(got, lock))
             pub = session.declare_publisher(keys.raw(vid), congestion_control=zenoh.CongestionControl.BLOCK)
             payload(0)  # the first loop's payloads before the clock starts
             time.sleep(0.3)
