@@ -8,7 +8,6 @@ pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
-pub mod pairwise;
 pub mod py;
 pub mod slip;
 pub mod soil;

@@ -4,7 +4,7 @@
 //! (evidence, NIS, the systematic budget's sums), the scale profile, the scale's systematic term
 //! and the axle check.
 
-use crate::observer::numeric::np_sign as sign;
+use crate::observer::numeric::sign;
 use crate::soil::axles::{AxleCheck, AxleVerdict};
 use crate::soil::grid::Grid;
 use crate::soil::numeric::{grid_sum, row_top};

@@ -7,7 +7,7 @@
 //! soilocp.estimation.observer_bank.ObserverBankOutput that the gate reads, in the order of
 //! soilocp.estimation.slip_gate.GATE_FIELDS), so that a step is one array across the boundary.
 
-use crate::observer::numeric::{np_max, np_min};
+use crate::observer::numeric::{nan_max, nan_min};
 use crate::observer::vehicles::Estimate;
 use crate::slip;
 use crate::soil::bank::Sample;
@@ -292,7 +292,7 @@ impl SlipGateBank {
                 if refresh[w] {
                     // the slip path's middle; informative only where the wheel moved at both ends
                     slip[w] = 0.5 * (s0 + s1);
-                    scale[w] = np_min(scale0, scale1);
+                    scale[w] = nan_min(scale0, scale1);
                     observed[w] = d1 * i_gross[w];
                     if s0.abs() > 1.0 || s1.abs() > 1.0 {
                         unusable[w] = SLIP_BEYOND_EQ1;
@@ -334,9 +334,9 @@ impl SlipGateBank {
         let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
         let speed_sigma = cfg.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
         let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
-            let s = cfg.slip_sigma.hypot(speed_sigma / np_max(scale[w], 1e-3));
+            let s = cfg.slip_sigma.hypot(speed_sigma / nan_max(scale[w], 1e-3));
             if any_refresh && refresh[w] {
-                s.hypot(rim_sigma[w] / np_max(scale[w], 1e-3))
+                s.hypot(rim_sigma[w] / nan_max(scale[w], 1e-3))
             } else {
                 s
             }
