@@ -46,7 +46,7 @@ if not (set(GATE_QUADS) <= set(_quad_rows) and set(GATE_SCALARS) <= set(_flat_ro
 _QUAD_ROWS = np.array([_quad_rows.index(f) for f in GATE_QUADS])
 _FLAT_ROWS = np.array([_flat_rows.index(f) for f in GATE_SCALARS])
 # pack_message's two reads of a message: its quads' tuples, then its scalars (attrgetter of two names or more
-# returns a tuple; the core names 18 and 6)
+# returns a tuple; the core names 19 and 6)
 _quads_of, _scalars_of = attrgetter(*GATE_QUADS), attrgetter(*GATE_SCALARS)
 
 
