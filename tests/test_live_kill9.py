@@ -186,6 +186,6 @@ def test_every_deployment_restarts_what_dies():
     for compose in ("docker-compose.yml", "docker-compose.plain.yml"):
         services = yaml.safe_load((root / compose).read_text())["services"]
         assert services
-        for name, svc in soilocp.services.items():
+        for name, svc in services.items():
             want = "no" if name == "certs" else "unless-stopped"
             assert svc.get("restart") == want, (compose, name, svc.get("restart"))
