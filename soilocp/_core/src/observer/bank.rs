@@ -50,7 +50,7 @@ pub struct Settings {
 /// One vehicle's sample, as the bank takes it (the Python side has run the readings clock, the
 /// torque split, the encoder lead and the ground-speed latency).
 pub struct Sample {
-    /// s since the vehicle's last sample (NaN: its first), and dt^3 (numpy's power)
+    /// s since the vehicle's last sample (NaN: its first), and dt^3
     pub dt: f64,
     pub dt_cubed: f64,
     pub specific_force_x: f64,

@@ -49,8 +49,8 @@ impl Workspace {
 
 /// ZOH prediction over dt > 0 (eq. 34, exact because A is nilpotent, A A = 0):
 /// F = I + A dt, G = b dt + A b dt^2/2, Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3,
-/// x <- F x + G, P <- F P F^T + Q_d.  `q`: the diagonal of the (diagonal) Q; `dt_cubed`: dt^3 as
-/// the caller computed it (numpy's power, whose last bit differs from libm's on some dt).
+/// x <- F x + G, P <- F P F^T + Q_d.  `q`: the diagonal of the (diagonal) Q; `dt_cubed`: dt^3, made
+/// once per sample by the caller.
 #[allow(clippy::too_many_arguments)]
 pub fn predict(
     x: &mut [f64],

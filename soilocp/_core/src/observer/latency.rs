@@ -120,7 +120,7 @@ impl GroundSpeedLatency {
             let pair = f.integral.is_finite();
             let x = f.a_lp - f.a_then;
             let y = f.integral - (reading - f.read);
-            // numpy's where(pair, term, 0.0): a term is added either way
+            // a term is added either way (0 without a pair): one branch-free update
             f.sums[0] += if pair { x * y } else { 0.0 };
             f.sums[1] += if pair { x * x } else { 0.0 };
             f.sums[2] += if pair { y * y } else { 0.0 };

@@ -1,6 +1,6 @@
 //! The observer's continuous model (eq. 33) at one sample: A (n x n), b (n), H (7 x n) from
 //! eqs. 11-15 and 29 (soilocp.estimation.observer.model), and the resistance map of the `slip`
-//! structure (docs/method.md §11).  Operations in the order of the numpy definition.
+//! structure (docs/method.md §11).
 //!
 //! ```text
 //!     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w      (eqs. 13-15)
@@ -107,7 +107,7 @@ pub fn build(
         a[psi * n + i] = yaw_arm[i] * fz[i] / v.yaw_inertia;
         let lat_i = lat_arm[i] * fz[i];
         if l.n_lat == 1 {
-            lat_sum += lat_i; // numpy's sum of 4: in order
+            lat_sum += lat_i; // the four wheels in order
         } else {
             a[psi * n + lat + i] = -lat_i / v.yaw_inertia;
         }

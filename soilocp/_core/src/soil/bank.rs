@@ -472,9 +472,9 @@ impl SoilGridBank {
             b.scale_prior = sigma;
         }
         if !pairs.is_empty() || taken {
-            let (sigma, one_prior) = match s.scale_sigma {
-                Some(_) => (b.scale_prior, false),
-                None => (cfg.gross_scale_sigma, true),
+            let sigma = match s.scale_sigma {
+                Some(_) => b.scale_prior,
+                None => cfg.gross_scale_sigma,
             };
             b.scale_sys = scale_shift_with(
                 &b.profile[0],
@@ -483,7 +483,6 @@ impl SoilGridBank {
                 &self.nodes,
                 &grid.theta,
                 grid.dtheta,
-                one_prior,
                 &mut w.scale,
             );
         }

@@ -64,7 +64,7 @@ pub fn codes(
     half_track: f64,
     lim: &Limits,
 ) -> [i8; 4] {
-    // numpy's mean of two: their sum over the count
+    // each side's mean rim speed
     let (left, right) = ((rim[0] + rim[1]) / 2.0, (rim[2] + rim[3]) / 2.0);
     let (yaw, v) = (yaw_rate.abs(), body_speed.abs());
     let skid = (left * right < 0.0 && nan_min(left.abs(), right.abs()) > lim.rim_turning)
