@@ -11,7 +11,7 @@ reported with their line number and skipped, never fatal.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Iterator, NamedTuple, Optional
+from typing import Any, Callable, Iterable, Iterator, NamedTuple, Optional
 
 import numpy as np
 
@@ -105,17 +105,10 @@ def vehicle_chain(config: PipelineConfig):
     return _Chain(config) if config.soil.method == "bayes" else _Stages(config)
 
 
-def estimate_lines(
-    lines: Iterable[str],
-    config: PipelineConfig,
-    *,
-    on_reject: Optional[Callable[[int, SampleRejected], None]] = None,
-    full: bool = False,
-    summary: Optional[EstimateSummary] = None,
-) -> Iterator[dict]:
-    """Yield one record (a dict) per valid sample; ``full`` adds the intermediate stage outputs."""
-    for _, rec in estimate_samples(lines, config, on_reject=on_reject, full=full, summary=summary):
-        yield rec
+def estimate_lines(lines: Iterable[str], config: PipelineConfig, **options: Any) -> Iterator[dict]:
+    """Yield one record (a dict) per valid sample: :func:`estimate_samples` without the samples, with its
+    keyword options (``on_reject``, ``full``: the intermediate stage outputs too, ``summary``)."""
+    return (rec for _, rec in estimate_samples(lines, config, **options))
 
 
 def estimate_samples(

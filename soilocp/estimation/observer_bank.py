@@ -114,7 +114,7 @@ class ObserverInputs:
 #: The rows of the core's four output blocks, named by the core (soilocp/_core/src/py/observer.rs), in its
 #: order: floats (k, 4) and (k,), bools (k, 4) and (k,).  Each row is the ObserverOutput field of the same name
 #: and kind (checked below), so a row the core adds reaches the message, or the import fails.
-BLOCK_FIELDS = tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in ("quad", "flat", "bool_quad", "bool_flat"))
+BLOCK_FIELDS = tuple(tuple(names) for names in ObserverCore.block_fields)
 QUAD_FIELDS, FLAT_FIELDS, BOOL_QUAD_FIELDS, BOOL_FLAT_FIELDS = BLOCK_FIELDS
 #: Every core row by name: (block, row)
 ROWS = {name: (b, r) for b, names in enumerate(BLOCK_FIELDS) for r, name in enumerate(names)}
