@@ -105,9 +105,8 @@ def test_core_update_equals_the_numpy_reference(seed, steps, measurement, change
             _close(name, g, w)
         # the scale profile (systematic ln K 1-sigma, c's posterior mean and 1-sigma) is a softmax over c of
         # window sums: the core's exp is libm's (numpy's SIMD exp differs in the last bit), its weighted sums run
-        # in order where the reference calls BLAS, and the 1-sigmas are sqrt(E[x^2] - E[x]^2) of numbers of
-        # order 1, so they agree absolutely, not relatively (found: 1.05e-11 apart at a c 1-sigma of 2.6e-5,
-        # 2.9e-10 on a ln K 1-sigma of 0.016)
+        # in eight lanes where the reference calls BLAS, and the 1-sigmas are sqrt(E[x^2] - E[x]^2) of numbers of
+        # order 1: their rounding is absolute (of order 1e-16 / sigma), so they agree absolutely, not relatively
         _close("scale", scale, want["scale"], atol=1e-9)
 
 
