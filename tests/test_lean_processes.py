@@ -203,7 +203,7 @@ def test_key_functions_need_no_pydantic():
     with pytest.raises(AttributeError, match="no attribute 'NotAModel'"):
         import soilocp.schemas
 
-        schemas.NotAModel  # noqa: B018
+        soilocp.schemas.NotAModel  # noqa: B018
 
 
 def test_zenoh_settings_are_configurable_and_checked():
