@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Equivalence of two checkouts of soilocp, shown on every drive the product is judged on (issue 28,
-item 4): the same sensor logs go through ``soilocp estimate`` of a git ref (default ``main``, checked
+"""Equivalence of two checkouts of soilocp, shown on every drive the product is judged on (a port or a
+refactoring must keep the records): the same sensor logs go through ``soilocp estimate`` of a git ref (default ``main``, checked
 out in a temporary ``git worktree`` and installed in its own venv) and of this working tree, and
 every output record is compared field by field.
 

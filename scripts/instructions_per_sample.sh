@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Instructions per sample of the offline chain (soilocp.estimation.estimate.estimate_lines), counted by
-# valgrind's callgrind: a figure that does not depend on how busy the machine is (issue 11).
+# valgrind's callgrind: a figure that does not depend on how busy the machine is.
 # Ir(n = N2 samples) - Ir(n = N1 samples), divided by N2 - N1: start-up and imports cancel out.
 #   scripts/instructions_per_sample.sh [PYTHON] [N1] [N2]      (default .venv/bin/python 200 300)
 set -euo pipefail

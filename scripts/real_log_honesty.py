@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Count the estimator's statuses on the shared real logs in the conditions eq. 1 and the
-longitudinal traction law do not describe (issue 27; docs/robustness.md, "Honest on real logs").
+longitudinal traction law do not describe (docs/robustness.md, "Honest on real logs").
 
 The conditions are detected from the RAW sensor fields of each sample (ground speed V, each wheel's
 rim speed R_w omega, the wheel-speed signs of the left and right sides, the yaw rate, the torque

@@ -37,10 +37,10 @@ def _threads(pid: int) -> dict[str, tuple[str, int]]:
 
 def run_once(rate: float, duration: float) -> None:
     from soilocp.services.bench.live import Rig, drive, open_client
-    from soilocp.services.bench.run import _clone, _payloads
+    from soilocp.services.bench.measure import clone_payloads, payloads
     from soilocp.services.bench.stages import simulate_drive
 
-    payloads = _payloads(simulate_drive("bench", duration + 1.0, rate=rate))
+    drive_payloads = payloads(simulate_drive("bench", duration + 1.0, rate=rate))
     rig = Rig.standard(["cpu"])
     rig.start()
     try:
@@ -48,7 +48,7 @@ def run_once(rate: float, duration: float) -> None:
             rig.wait_ready(session, 90.0)
             pids = {n: p for n, p in rig.pids().items() if n not in ("echo", "bench")}
             before = {n: _threads(p) for n, p in pids.items()}
-            res = drive(session, {"cpu": _clone(payloads, "bench", "cpu")}, rate, duration)
+            res = drive(session, {"cpu": clone_payloads(drive_payloads, "bench", "cpu")}, rate, duration)
             after = {n: _threads(p) for n, p in pids.items()}
     finally:
         rig.stop()

@@ -31,7 +31,7 @@ from soilocp.model.vehicle import VehicleParams
 
 def travel_direction(v_wheel: np.ndarray, travel_speed: float) -> np.ndarray:
     """Smoothed sign of each wheel's travel, in [-1, 1]: motion resistance opposes travel (§11)."""
-    # minimum / maximum rather than np.clip: the same values, a third of the call overhead (issue 11)
+    # minimum / maximum rather than np.clip: the same values, a third of the call overhead
     return np.minimum(np.maximum(v_wheel / travel_speed, -1.0), 1.0)
 
 
@@ -146,7 +146,7 @@ def discretize(A: np.ndarray, b: np.ndarray, Qc: np.ndarray, dt: float, method: 
         Qd = Qc * dt + (AQ + AQ.T) * (dt * dt / 2.0) + AQ @ A.T * (dt**3 / 3.0)
         return F, G, Qd
     if method == "expm":
-        import scipy.linalg  # the checking path only: not loaded in every service process (issue 11, memory)
+        import scipy.linalg  # the checking path only: not loaded in every service process (memory)
 
         aug = np.zeros((n + 1, n + 1))
         aug[:n, :n] = A
@@ -583,7 +583,7 @@ def anchor_wheel_speeds(x: np.ndarray, P: np.ndarray, z: np.ndarray, rejected: n
     Below ``anchor_speed`` (m/s, rim and ground) the wheel equation (eq. 13) is stiff (docs/method.md §10)
     and the traction state that balances the torque is itself poorly known (a stall: slip ~1, any soil):
     the prediction leaves the encoder within a step, the gate rejects the encoder, and the filtered speed
-    ran away (7 rad/s against 0.48, issue 27) and fed K a wrong slip.  The encoder is the one measurement
+    ran away (a stalled wheel read as spinning) and fed K a wrong slip.  The encoder is the one measurement
     of the wheel's speed; the gate protects against its outliers at speed, not at a stall."""
     L = layout
     away = np.abs(x[:, L.omega] - z[:, 2:6]) * wheel_radius > anchor_speed / 3.0

@@ -18,7 +18,7 @@ def _amplitude(k: np.ndarray, c: ModelConstants) -> np.ndarray:
 
 
 # One-sided (s >= 0) printed curves and their derivatives.  Each returns (value, d/ds, d/dK), or
-# (value, None, None) with ``derivs=False`` (the OCPs need values only: issue 11's hot path).
+# (value, None, None) with ``derivs=False`` (the OCPs need values only, on the hot path).
 def _gross_pos(s, k, c, derivs=True):
     amp = _amplitude(k, c)
     e = np.exp(-c.C3 * s)

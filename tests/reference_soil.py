@@ -1,4 +1,4 @@
-"""The soil-grid update as numpy wrote it before the compiled core (issue 28): the reference that
+"""The soil-grid update as numpy wrote it before the compiled core: the reference that
 tests/test_soil_core.py checks :class:`soilocp._core.SoilGridBank` against (hypothesis property tests).
 Not part of the product: the product's update is the core's (soilocp/_core/src/soil/).  Below it, the
 slip gate and the wheels' usability codes as numpy wrote them (:class:`ReferenceSlipGate`), which

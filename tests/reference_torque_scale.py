@@ -1,4 +1,4 @@
-"""A plain numpy reference of the online torque scale (issue 27 item 5; docs/method.md §15): the
+"""A plain numpy reference of the online torque scale (docs/method.md §15): the
 product's numpy kernel as it was before the port to the compiled core (main at 86852cb,
 soilocp/estimation/torque_scale.py, with eq. TC, eq. 4 summed and eq. 20 written out as
 soilocp/model/force_balance.py and soilocp/model/normal_force.py had them).  Kept here only so that

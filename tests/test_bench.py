@@ -147,7 +147,7 @@ def test_compare_cli_renders_saved_reports_and_rejects_a_bad_baseline(tmp_path):
 
 @pytest.mark.parametrize("argv", [["service", "observer"], ["router"]])
 def test_process_commands_load_no_heavy_module(argv):
-    """The deployed processes (issue 11, memory): ``soilocp service NAME`` / ``soilocp router``
+    """The deployed processes (resident memory): ``soilocp service NAME`` / ``soilocp router``
     register only the services area's commands, and the stage services, with every stage built,
     load no scipy / rich / matplotlib / filterpy (the cli with any other command still registers every area)."""
     code = ("import sys; import soilocp.cli.entry as entry; group = entry.command_group(sys.argv[1:]); "

@@ -1,6 +1,6 @@
 """The documentation: the MkDocs site over docs/ builds with --strict (no broken link or anchor,
 no page left out of the nav), and the README stays a first-visit page whose commands and links
-are real (issue 29)."""
+are real."""
 
 from __future__ import annotations
 

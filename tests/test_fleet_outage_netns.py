@@ -9,7 +9,7 @@ access control on the fleet router; certificates made by `soilocp certs init`), 
 uses the dashboard's certificate.  The vehicle<->fleet link is cut for 15-30 s (longer than the
 10 s lease, so both ends drop the session) and restored, several times in a row, while a
 recorder at the fleet subscribes to everything the vehicle publishes (so the fleet link's queue
-is full soon after each cut: the case where a blocked uplink used to stall the vehicle router).  After each
+is full soon after each cut: a blocked uplink must not stall the vehicle router).  After each
 restore every vehicle's OCPs must be fresh at the fleet (a query answered `stale: false` and a
 new OCP publication received) within RECOVERY_LIMIT_S; the distribution of recovery times is
 printed, and so is how often a consumer on the vehicle itself saw its OCPs stale during the

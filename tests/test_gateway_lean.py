@@ -1,4 +1,5 @@
-"""The gateway process is lean and refuses an oversized payload before parsing it (issue 28, item 7)."""
+"""The gateway process is lean and refuses an oversized payload before parsing it: its resident memory
+stays small, and a flood of huge messages cannot make it allocate."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The deployed processes carry only what they run (issue 28, item 7: resident memory).
+"""The deployed processes carry only what they run (resident memory).
 
 Checked on the real processes, as ``soilocp run`` and the bench start them: a native extension a
 process has imported is mapped in ``/proc/<pid>/maps`` (pydantic's core, numpy's), so the test sees
@@ -80,7 +80,7 @@ def _wait_alive(endpoint: str, service: str, timeout: float = 90.0) -> None:
 
 def test_router_process_maps_neither_pydantic_nor_numpy():
     """The router only forwards bytes: a running ``soilocp router`` has not imported pydantic (the
-    message models) or numpy.  It used to load both through the services' command module."""
+    message models) or numpy: its command is registered apart from the services' command module, which loads both."""
     port = _free_port()
     router = _start(["router", "--listen", f"tcp/127.0.0.1:{port}"], {"SOILOCP_LOG_LEVEL": "warning"})
     try:

@@ -13,9 +13,8 @@ from soilocp.estimation.observer import (
     ObserverConfig,
     StateLayout,
     continuous_process_noise,
-    observability_rank,
 )
-from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs
+from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs, observability_rank
 from soilocp.model.vehicle import DEFAULT_VEHICLE as V
 
 

@@ -1,5 +1,5 @@
-"""Issue 27's robustness rows and verdicts: every row counts its `ok` records more than 30 % off
-(none allowed); rows where K is limited or not identifiable are judged by their band and their
+"""The robustness rows of the drives beyond straight forward traction (reverse, skid turns, payload and motor
+changes, a slope, a stall) and their verdicts: every row counts its `ok` records more than 30 % off (none allowed); rows where K is limited or not identifiable are judged by their band and their
 reason, not by the K error."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ def _row(**kw):
     return row
 
 
-def test_the_issue_27_rows_exist_with_their_identifiability():
+def test_the_robustness_rows_exist_with_their_identifiability():
     want = {"reverse": "yes", "reverse-braking": "yes", "skid-spot-turn": "no", "skid-arcs": "yes",
             "payload+25-accel-brake": "yes", "payload+25": "limited", "motor+8-accel-brake": "yes",
             "motor+8": "limited", "slope-cruise-12": "no", "stall-draft": "no"}

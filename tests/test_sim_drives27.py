@@ -1,4 +1,4 @@
-"""The simulator's drives of issue 27, measured against their own truth: travel backwards (eq. 1
+"""The simulator's drives beyond straight forward traction, measured against their own truth: travel backwards (eq. 1
 for the direction of travel, resistance opposing backward travel), a skid steer turning on the
 spot, a speed set-point that accelerates and brakes, a descent, a stall under a draft."""
 

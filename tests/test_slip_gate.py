@@ -120,14 +120,16 @@ def test_core_gate_equals_the_numpy_gate_step_by_step_on_a_drive(variant):
 def test_packed_rows_follow_the_core_layout():
     from soilocp import _core
 
-    assert len(GATE_FIELDS) == 24 and _core.SlipGateBank.columns == 18 * 4 + 6
+    # the observer's 17 per-wheel rows and the gate's 2 flags, 4 columns each, then 6 per-vehicle numbers
+    cols = _core.SlipGateBank.columns
+    assert len(GATE_FIELDS) == 25 and cols == 19 * 4 + 6
     gate = SlipGate(PipelineConfig(), 2)
     with pytest.raises(ValueError, match="rows"):
-        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, 77)))
+        gate.step(np.array([0]), np.array([0.0]), np.zeros((1, cols - 1)))
     with pytest.raises(ValueError, match="twice"):
-        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, 78)))
+        gate.step(np.array([1, 1]), np.zeros(2), np.zeros((2, cols)))
     with pytest.raises(ValueError, match="out of range"):
-        gate.step(np.array([2]), np.zeros(1), np.zeros((1, 78)))
+        gate.step(np.array([2]), np.zeros(1), np.zeros((1, cols)))
 
 
 def test_a_rejected_wheel_speed_informs_no_k():
@@ -164,6 +166,7 @@ def test_a_rejected_wheel_speed_informs_no_k():
 def test_the_blocks_and_the_messages_pack_alike():
     """pack_output on a bank step's blocks (the batched path) and pack_message on each vehicle's message (the
     soil service's) give the same rows, every column the observer row of its name."""
+    from soilocp import _core
     from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs, observer_message
 
     bank = ObserverBank(DEFAULT_VEHICLE, None, 3)
@@ -175,7 +178,7 @@ def test_the_blocks_and_the_messages_pack_alike():
             rng.uniform(3.0, 5.0, (k, 4)), rng.uniform(0.0, 8.0, (k, 4)),
             np.where(rng.random(k) < 0.3, np.nan, rng.uniform(0.5, 0.8, k)), np.full((k, 4), 150.0)))
         rows = pack_output(out)
-        assert rows.shape == (k, 78) and rows.dtype == np.float64 and rows.flags.c_contiguous
+        assert rows.shape == (k, _core.SlipGateBank.columns) and rows.dtype == np.float64 and rows.flags.c_contiguous
         for j in range(k):
             msg = observer_message("v", n, 1.0 + 0.01 * n, out, j)
             assert list(rows[j]) == list(pack_message(msg)), (n, j)

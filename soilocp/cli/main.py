@@ -2,7 +2,7 @@
 
 The long-running processes (``soilocp service NAME``, ``soilocp router``) start through
 :mod:`soilocp.cli.process` instead (``soilocp.cli.entry`` chooses), so that the six processes of a
-deployment do not carry the offline tools' imports (issue 11: resident memory).
+deployment do not carry the offline tools' imports (each process's resident memory).
 """
 
 from __future__ import annotations

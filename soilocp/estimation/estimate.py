@@ -12,7 +12,7 @@ reported with their line number and skipped, never fatal.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Iterator, NamedTuple, Optional
+from typing import Any, Callable, Iterable, Iterator, NamedTuple, Optional
 
 import numpy as np
 
@@ -107,21 +107,11 @@ def vehicle_chain(config: PipelineConfig, prior=None):
     return _Chain(config, prior) if config.soil.method == "bayes" else _Stages(config, prior)
 
 
-def estimate_lines(
-    lines: Iterable[str],
-    config: PipelineConfig,
-    *,
-    on_reject: Optional[Callable[[int, SampleRejected], None]] = None,
-    full: bool = False,
-    summary: Optional[EstimateSummary] = None,
-    map_prior: Optional[Callable[[str], object]] = None,
-) -> Iterator[dict]:
-    """Yield one record (a dict) per valid sample; ``full`` adds the intermediate stage outputs;
-    ``map_prior(vehicle_id)``: a vehicle's fleet-map prior (:class:`soilocp.map.prior.MapPrior`, or None),
-    asked once per chain the vehicle starts."""
-    for _, rec in estimate_samples(lines, config, on_reject=on_reject, full=full, summary=summary,
-                                   map_prior=map_prior):
-        yield rec
+def estimate_lines(lines: Iterable[str], config: PipelineConfig, **options: Any) -> Iterator[dict]:
+    """Yield one record (a dict) per valid sample: :func:`estimate_samples` without the samples, with its
+    keyword options (``on_reject``, ``full``: the intermediate stage outputs too, ``summary``, ``map_prior``:
+    a vehicle's fleet-map prior by its id)."""
+    return (rec for _, rec in estimate_samples(lines, config, **options))
 
 
 def estimate_samples(

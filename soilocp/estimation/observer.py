@@ -10,7 +10,7 @@ The paper's state (eq. 26) is [mu_1..4, mu_xR_1..4, mu_yR_1..4, psi_dot, omega_1
 measurements [V_x_dot, psi_dot, omega_1..4] (eq. 28).  It is not observable: each wheel equation
 (eq. 13) sees only mu_i + mu_xR_i, the accelerometer (eq. 29) sees sum(mu_i Fz_i), and the yaw
 equation (eq. 11) one more mix, so 17 states face 6 independent measurement directions and the
-observability matrix has rank 10 (see :func:`observability_rank`).
+observability matrix has rank 10 (see :func:`soilocp.estimation.observer_bank.observability_rank`).
 
 The default ``structure="shared"`` makes the estimate determined: one longitudinal resistance
 coefficient mu_xR shared by the four wheels (the wheels run on the same soil at similar slip), and
@@ -46,8 +46,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from soilocp.estimation.observer_config import ObserverConfig, Structure
-from soilocp.model.constants import STANDARD_GRAVITY
-from soilocp.model.vehicle import VehicleParams
 
 
 @dataclass(frozen=True)
@@ -138,42 +136,6 @@ def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.nda
     c = cfg
     return np.diag(layout.per_state(c.q_mu, c.q_resistance, c.q_resistance_slope, c.q_lateral, c.q_wheel_speed,
                                     c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
-
-
-def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, slips=None, tol: float = 1e-9) -> int:
-    """Rank of the observability matrix [H_0; H_1 F_0; H_2 F_1 F_0; ...] of the discretised model, with the
-    core's own A and H (``ObserverCore.model``, soilocp/_core/src/observer/model.rs) and F = I + A dt (eq. 34,
-    exact: A is nilpotent).
-
-    ``slips`` is a sequence of per-wheel slip vectors, one per step (cycled), for the ``slip``
-    structure whose model varies with slip; by default a traction test's pattern.  With the
-    paper's full state (``per_wheel``) the rank is below the state dimension (docs/method.md §7);
-    ``slip``, ``shared`` and ``none`` are fully observable (``slip`` only while the wheels' slips
-    vary, as in a traction test: at one constant slip pattern its two resistance coefficients
-    merge into one).
-    """
-    from soilocp.estimation.observer_bank import ObserverBank  # the core's bank (a module that imports this one)
-
-    layout = StateLayout.of(structure)
-    core = ObserverBank(vehicle, ObserverConfig(structure=structure), 1)._core
-    fz = np.full(4, vehicle.mass * STANDARD_GRAVITY / 4) if fz is None else np.asarray(fz, float)
-    if slips is None:
-        # a traction test: rear wheels (1, 4) sweep driving slip, front wheels (2, 3) brake
-        slips = [(0.3, -0.1, -0.1, 0.3), (0.1, -0.05, -0.05, 0.1), (0.5, -0.2, -0.2, 0.5)]
-    blocks, Phi = [], np.eye(layout.n)
-    for k in range(layout.n):
-        # the state whose wheels run at these slips (eq. 1) at 1 m/s straight ahead: the resistance map's prior
-        s = np.asarray(slips[k % len(slips)], float)
-        x = np.zeros(layout.n)
-        x[layout.v] = 1.0
-        x[layout.omega] = np.where(s >= 0, 1.0 / (1.0 - np.minimum(s, 0.99)), 1.0 + s) / vehicle.wheel_radius
-        A, _, H = core.model(x.tolist(), fz.tolist(), [0.0] * 4, 0.0)
-        blocks.append(H @ Phi)
-        Phi = (np.eye(layout.n) + A * 0.01) @ Phi
-    O = np.vstack(blocks)
-    # scale rows so that the tolerance is relative
-    O = O / np.maximum(np.linalg.norm(O, axis=1, keepdims=True), 1e-300)
-    return int(np.linalg.matrix_rank(O, tol=tol))
 
 
 def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:

@@ -52,7 +52,9 @@ from soilocp.schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
+from soilocp.estimation.observer_config import Structure
 from soilocp.model.checks import check_count, check_index
+from soilocp.model.constants import STANDARD_GRAVITY
 from soilocp.model.vehicle import VehicleParams
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -112,7 +114,7 @@ class ObserverInputs:
 #: The rows of the core's four output blocks, named by the core (soilocp/_core/src/py/observer.rs), in its
 #: order: floats (k, 4) and (k,), bools (k, 4) and (k,).  Each row is the ObserverOutput field of the same name
 #: and kind (checked below), so a row the core adds reaches the message, or the import fails.
-BLOCK_FIELDS = tuple(tuple(getattr(ObserverCore, f"{b}_fields")) for b in ("quad", "flat", "bool_quad", "bool_flat"))
+BLOCK_FIELDS = tuple(tuple(names) for names in ObserverCore.block_fields)
 QUAD_FIELDS, FLAT_FIELDS, BOOL_QUAD_FIELDS, BOOL_FLAT_FIELDS = BLOCK_FIELDS
 #: Every core row by name: (block, row)
 ROWS = {name: (b, r) for b, names in enumerate(BLOCK_FIELDS) for r, name in enumerate(names)}
@@ -159,17 +161,20 @@ class ObserverBlocks(NamedTuple):
         """The reset reasons (k,), "" where there was none."""
         return [RESET_REASONS[c - 1] if c else "" for c in self.codes.tolist()]
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        """The row ``name`` of its block (a view): its meaning is the ObserverOutput field of the same name."""
+        try:
+            block, row = ROWS[name]
+        except KeyError:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute or observer row {name!r}") from None
+        return self[block][row]
 
-def _name_rows() -> None:
-    for name, (b, r) in ROWS.items():
-        if hasattr(ObserverBlocks, name):  # a row named like a block or a tuple method would hide one of them
-            raise ImportError(f"soilocp._core's observer row {name!r} shadows ObserverBlocks.{name}")
-        # the row's meaning is written once, in the message it becomes
-        setattr(ObserverBlocks, name, property(lambda self, b=b, r=r: self[b][r],
-                                               doc=ObserverOutput.model_fields[name].description))
 
-
-_name_rows()
+# a row named like a block or a tuple method would be hidden by it (ObserverBlocks.__getattr__ sees only the names
+# the class lacks); ImportError, not assert, as above
+_shadowed = sorted(name for name in ROWS if hasattr(ObserverBlocks, name))
+if _shadowed:
+    raise ImportError(f"soilocp._core's observer rows {_shadowed} shadow ObserverBlocks attributes of the same names")
 
 
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBlocks, j: int,
@@ -271,3 +276,37 @@ class ObserverBank:
         except TypeError:  # not float arrays: converted (or refused, naming the field) by the check, then again
             inputs.check()
             return call(ix, inputs)
+
+
+def observability_rank(structure: Structure, vehicle: VehicleParams, fz=None, slips=None, tol: float = 1e-9) -> int:
+    """Rank of the observability matrix [H_0; H_1 F_0; H_2 F_1 F_0; ...] of the discretised model, with the
+    core's own A and H (``ObserverCore.model``, soilocp/_core/src/observer/model.rs) and F = I + A dt (eq. 34,
+    exact: A is nilpotent).
+
+    ``slips`` is a sequence of per-wheel slip vectors, one per step (cycled), for the ``slip``
+    structure whose model varies with slip; by default a traction test's pattern.  With the
+    paper's full state (``per_wheel``) the rank is below the state dimension (docs/method.md §7);
+    ``slip``, ``shared`` and ``none`` are fully observable (``slip`` only while the wheels' slips
+    vary, as in a traction test: at one constant slip pattern its two resistance coefficients
+    merge into one).
+    """
+    layout = StateLayout.of(structure)
+    core = ObserverBank(vehicle, ObserverConfig(structure=structure), 1)._core
+    fz = np.full(4, vehicle.mass * STANDARD_GRAVITY / 4) if fz is None else np.asarray(fz, float)
+    if slips is None:
+        # a traction test: rear wheels (1, 4) sweep driving slip, front wheels (2, 3) brake
+        slips = [(0.3, -0.1, -0.1, 0.3), (0.1, -0.05, -0.05, 0.1), (0.5, -0.2, -0.2, 0.5)]
+    blocks, Phi = [], np.eye(layout.n)
+    for k in range(layout.n):
+        # the state whose wheels run at these slips (eq. 1) at 1 m/s straight ahead: the resistance map's prior
+        s = np.asarray(slips[k % len(slips)], float)
+        x = np.zeros(layout.n)
+        x[layout.v] = 1.0
+        x[layout.omega] = np.where(s >= 0, 1.0 / (1.0 - np.minimum(s, 0.99)), 1.0 + s) / vehicle.wheel_radius
+        A, _, H = core.model(x.tolist(), fz.tolist(), [0.0] * 4, 0.0)
+        blocks.append(H @ Phi)
+        Phi = (np.eye(layout.n) + A * 0.01) @ Phi
+    O = np.vstack(blocks)
+    # scale rows so that the tolerance is relative
+    O = O / np.maximum(np.linalg.norm(O, axis=1, keepdims=True), 1e-300)
+    return int(np.linalg.matrix_rank(O, tol=tol))

@@ -52,8 +52,8 @@ class ObserverConfig(BaseModel):
     max_gap: float = Field(0.5, gt=0, description="A time step longer than this (s) re-initialises the filter")
     anchor_speed: float = Field(
         0.3, ge=0, description="m/s: below this rim and ground speed, a wheel-speed reading the gate rejects re-anchors "
-        "that wheel's speed state to it (a stall under torque: the stiff wheel equation with a wrong traction state "
-        "drove a filtered speed to 7 rad/s against a true 0.48, docs/method.md §17); 0 = off"
+        "that wheel's speed state to it (at a stall under torque the wheel equation is stiff, and with a wrong traction "
+        "state it drives the filtered speed away from the encoder's, docs/method.md §17); 0 = off"
     )
     full_rate_share: float = Field(
         0.5, gt=0, lt=1, description="A reading stream whose value changes come at consecutive samples more often than "

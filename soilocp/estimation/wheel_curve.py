@@ -27,7 +27,7 @@ loads none.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Optional, Sequence
 
 from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
 
@@ -49,6 +49,25 @@ LEARNT_REASON = ("OCPs from the traction curve this drive showed (S_T {s_t:.2f} 
 #: Why a calibrated curve's OCPs beyond its soils are not served as ok.
 BEYOND_REASON = ("K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({lo:.0f}...{hi:.0f}): its "
                  "OCPs are extrapolated; drive the calibration on this soil too")
+
+
+def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model", bands=(None, None),
+                status: Optional[str] = None, reason: Optional[str] = None,
+                reason_code: Optional[str] = None) -> OcpEstimate:
+    """An OcpEstimate from a soil estimate and its K's (mu_T, S_T, S_E, TE at S_E) in the core's order
+    (:data:`soilocp.model.ocp_values.OCP_NAMES`; NaN: none); ``curve`` says where they come from, ``bands`` is
+    (mu_T's, S_T's) 1-sigma of a learnt curve, ``status``, ``reason`` and ``reason_code`` replace the soil
+    estimate's (:class:`WheelCurve` decides them)."""
+    have = soil.soil_strength is not None
+    mu_t, s_t, s_e, te = (None if not have or math.isnan(v) else float(v) for v in values)
+    return OcpEstimate(
+        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
+        soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
+        soil_class_confidence=soil.soil_class_confidence, status=status or soil.status,
+        reason=soil.reason if reason is None else reason, reason_code=reason_code or soil.reason_code, mu=soil.mu,
+        mu_determined=soil.mu_determined, slip=soil.slip, mu_T=mu_t, S_T=s_t, S_E=s_e, te_at_S_E=te,
+        curve=curve, mu_T_std=bands[0], S_T_std=bands[1], held_for_s=soil.held_for_s, unusable=soil.unusable,
+    )
 
 
 class WheelCurve:
@@ -83,8 +102,6 @@ class WheelCurve:
     def record(self, j: int, soil: SoilEstimate, values: Sequence[float]) -> OcpEstimate:
         """Vehicle ``j``'s OCP record: the soil estimate, the model's (mu_T, S_T, S_E, TE at S_E) at its K
         (:data:`soilocp.model.ocp_values.OCP_NAMES`' order; NaN: none), and the learnt curve where it holds."""
-        from soilocp.estimation.ocp_stage import ocp_message
-
         fit = self.fit(j, soil)
         k = soil.soil_strength
         if k is None or (self.checked and self.k_range is None):
@@ -92,17 +109,17 @@ class WheelCurve:
         if not self.checked and fit is not None and fit.shown:
             s_t_std, mu_t_std = self.bands(fit)
             why = LEARNT_REASON.format(s_t=fit.s_t, s_t_std=s_t_std, mu_t=fit.mu_t, mu_t_std=mu_t_std)
-            return _flagged(ocp_message, soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
+            return _flagged(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
                             curve="learnt", bands=(mu_t_std, s_t_std))
         if not self.checked:
-            return _flagged(ocp_message, soil, values, UNCHECKED_REASON, "curve_unchecked", curve="unchecked")
+            return _flagged(soil, values, UNCHECKED_REASON, "curve_unchecked", curve="unchecked")
         lo, hi = self.k_range
         if not lo <= k <= hi:
-            return _flagged(ocp_message, soil, values, BEYOND_REASON.format(k=k, lo=lo, hi=hi), "curve_extrapolated")
+            return _flagged(soil, values, BEYOND_REASON.format(k=k, lo=lo, hi=hi), "curve_extrapolated")
         return ocp_message(soil, values)
 
 
-def _flagged(ocp_message, soil: SoilEstimate, values, why: str, code: str, **kw) -> OcpEstimate:
+def _flagged(soil: SoilEstimate, values, why: str, code: str, **kw) -> OcpEstimate:
     """The OCP record of a curve that keeps it from being ok: ``uncertain`` where the soil estimate was ok, its
     reason after the soil estimate's, and the reason code the soil estimate's own where it is flagged already (that
     reason comes first), else ``code``."""

@@ -31,8 +31,9 @@ import numpy as np
 from soilocp.schemas.sensor import SensorSample
 from soilocp.ingest.align import NS, Provenance, Stream, pick, samples_from_aligned, tick_count
 from soilocp.ingest.mapfile import TopicMap
-from soilocp.ingest.rosbag_import import (EXPECTED_TYPES, BagIssues, TopicReader, convert_message, message_stamp,
-                                          note_identifiability, topic_stream)
+from soilocp.ingest.rosbag_import import (EXPECTED_TYPES, convert_message, message_stamp, note_identifiability,
+                                          topic_stream)
+from soilocp.ingest.topic_reader import BagIssues, TopicReader
 
 #: s of data time another stream may run ahead of a silent one before that one is given up for a tick
 DEFAULT_LAG_S = 0.5

@@ -13,6 +13,7 @@ import numpy as np
 from soilocp.schemas.position import FRAME_PATTERN
 
 from soilocp.ingest.align import Stream
+from soilocp.ingest.topic_reader import BagImportError
 
 _FRAME_RE = re.compile(FRAME_PATTERN)
 
@@ -48,8 +49,6 @@ def read_position(key: str, r, msg, st: int) -> None:
 def position_stream(key: str, r, tmap) -> Stream:
     """The optional stream of a position reader (values position_x/_y/_heading/_frame, or
     latitude/longitude); an empty one when every message was dropped."""
-    from soilocp.ingest.rosbag_import import BagImportError
-
     st, rows = r.in_order()
     m = getattr(tmap, key)
     if key == "position":

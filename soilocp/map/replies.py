@@ -27,16 +27,13 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Optional
+from collections.abc import Callable, Sequence
+from typing import Optional
 
 import numpy as np
 from pydantic_core import to_json
 
 from soilocp.map.fusion import BAND_Z
-
-if TYPE_CHECKING:
-    from soilocp.map.store import MapStore
 
 _FIXED = ("cell", "cx", "cy", "K", "count", "last_seen", "vehicles")
 _AGED = ("log_k_std", "K_lo", "K_hi")
@@ -128,19 +125,25 @@ class _Frame:
 
 
 class ReplyCache:
-    """Box replies of one store, for one caller at a time (the map service holds a lock)."""
+    """Box replies of one store, for one caller at a time (the map service holds a lock).
 
-    def __init__(self, store: "MapStore", age_step_s: float = 1.0):
+    ``changed_cells(since)`` reads the store's commit number and the cells changed since a number
+    (:meth:`soilocp.map.store.MapStore.changed_cells`); ``ageing_rate`` is the fused variance's growth in
+    ln K per hour (:class:`soilocp.map.fusion.FusionConfig`)."""
+
+    def __init__(self, changed_cells: Callable[[int], tuple[int, list[tuple]]], ageing_rate: float,
+                 age_step_s: float = 1.0):
         if not (math.isfinite(age_step_s) and age_step_s > 0):
             raise ValueError(f"age_step_s = {age_step_s!r}: the ageing clock's step must be a positive number of seconds")
-        self.store = store
+        self.changed_cells = changed_cells
+        self.ageing_rate = ageing_rate
         self.age_step_s = age_step_s
         self.version = -1
         self.frames: dict[str, _Frame] = {}
 
     def refresh(self) -> None:
         """Take in the cells changed since the last refresh (all of them the first time)."""
-        version, rows = self.store.changed_cells(self.version)
+        version, rows = self.changed_cells(self.version)
         for frame, cell, *rest in rows:
             f = self.frames.get(frame)
             if f is None:
@@ -159,7 +162,7 @@ class ReplyCache:
         if f.stale:
             f.build()
         if at not in f.aged:
-            f.age(at, self.store.fusion.ageing_rate / 3600.0)
+            f.age(at, self.ageing_rate / 3600.0)
 
     def warm(self, now: Optional[float], ahead_s: float = 0.25) -> None:
         """Between queries: take in the last commits and lay out every frame for the clock's step

@@ -28,6 +28,7 @@ from soilocp.schemas.map import MapCell
 
 from soilocp.map.cells import CellConfig
 from soilocp.map.fusion import FusionConfig, Observation, aged_columns, cells_of_columns, fuse_cells
+from soilocp.map.replies import ReplyCache
 
 _TABLES = [
     "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
@@ -209,11 +210,9 @@ class MapStore:
         (no read of the store: the caller knows nothing was committed since the last read)."""
         return self._replies().columns_json(frame, bbox, now, limit, ready_only)
 
-    def _replies(self):
-        from soilocp.map.replies import ReplyCache
-
+    def _replies(self) -> ReplyCache:
         if self._reply_cache is None:
-            self._reply_cache = ReplyCache(self)
+            self._reply_cache = ReplyCache(self.changed_cells, self.fusion.ageing_rate)
         return self._reply_cache
 
     def prepare_replies(self, now: Optional[float] = None) -> None:

@@ -51,16 +51,11 @@ fn main() {
     let steps: usize = std::env::args().nth(1).map_or(100_000, |s| s.parse().unwrap());
     let t = std::time::Instant::now();
     for i in 0..steps {
-        let t = i as f64 * 0.01;
-        let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
-        for w in 0..4 {
-            sample.wheel_speed_z[w] = 5.0 + 1.5 * (0.3 * t + w as f64).sin() + noise(w);
-            sample.torque[w] = 3.0 + 2.0 * (0.5 * t + w as f64).cos();
-            sample.normal_force[w] = 150.0 + 20.0 * (0.2 * t + w as f64).sin();
-        }
+        let d = drive(i);
+        (sample.wheel_speed_z, sample.torque, sample.normal_force) = (d.wheel_speed, d.wheel_torque, d.normal_force);
         sample.wheel_speed = sample.wheel_speed_z;
-        sample.ground_speed_z = 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0;
-        sample.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
+        sample.ground_speed_z = d.ground_speed;
+        sample.specific_force_x = d.specific_force_x;
         std::hint::black_box(bank.step(0, &sample));
     }
     println!(
@@ -99,23 +94,33 @@ fn main() {
     };
     let t = std::time::Instant::now();
     for i in 0..steps {
-        let t = i as f64 * 0.01;
-        let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
-        raw.stamp = t;
-        for w in 0..4 {
-            raw.wheel_speed[w] = 5.0 + 1.5 * (0.3 * t + w as f64).sin() + noise(w);
-            // a torque stream held for 5 samples (a slow driver): the refresh pairs run
-            if i % 5 == 0 {
-                raw.wheel_torque[w] = 3.0 + 2.0 * (0.5 * t + w as f64).cos();
-            }
-            raw.normal_force[w] = 150.0 + 20.0 * (0.2 * t + w as f64).sin();
+        let held = raw.wheel_torque;
+        raw = drive(i);
+        // a torque stream held for 5 samples (a slow driver): the refresh pairs run
+        if i % 5 != 0 {
+            raw.wheel_torque = held;
         }
-        raw.ground_speed = 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0;
-        raw.specific_force_x = 0.06 * (0.3 * t).cos() + noise(6);
         std::hint::black_box(whole.step(0, &raw));
     }
     println!(
         "whole step: {:.2} us per step",
         t.elapsed().as_secs_f64() / steps as f64 * 1e6
     );
+}
+
+/// Step `i` of the drive (100 Hz): speeds, torques and forces that keep changing, with a little noise.
+fn drive(i: usize) -> Raw {
+    let t = i as f64 * 0.01;
+    let noise = |k: usize| (((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0 - 0.5) * 0.06;
+    let wheel = |w: usize, f: fn(f64) -> f64, rate: f64| f(rate * t + w as f64);
+    Raw {
+        stamp: t,
+        specific_force_x: 0.06 * (0.3 * t).cos() + noise(6),
+        yaw_rate: 0.0,
+        pitch: 0.0,
+        wheel_speed: std::array::from_fn(|w| 5.0 + 1.5 * wheel(w, f64::sin, 0.3) + noise(w)),
+        wheel_torque: std::array::from_fn(|w| 3.0 + 2.0 * wheel(w, f64::cos, 0.5)),
+        ground_speed: 0.7 + 0.2 * (0.3 * t).sin() + noise(5) / 3.0,
+        normal_force: std::array::from_fn(|w| 150.0 + 20.0 * wheel(w, f64::sin, 0.2)),
+    }
 }

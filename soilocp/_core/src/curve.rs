@@ -16,6 +16,8 @@
 
 use std::collections::VecDeque;
 
+use pyo3::prelude::*;
+
 /// The learner's settings (`soilocp.estimation.curve_config.CurveConfig` documents each).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Params {
@@ -67,7 +69,9 @@ struct Pair {
     mu: f64,
 }
 
-/// The fitted shape on the current soil and the OCPs that follow from it.
+/// The fitted shape mu(S) = a (1 - e^(-c3 S)) - c - b S on the current soil and the OCPs that follow from it:
+/// `soilocp._core.CurveFit` to Python, read-only.
+#[pyclass(frozen, get_all, name = "CurveFit", module = "soilocp._core")]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
     pub a: f64,
@@ -90,7 +94,7 @@ pub struct Fit {
     /// the fitted slips surround the peak (`below` and `beyond` >= `min_beyond`): not an extrapolation,
     /// nor an interpolation over a gap
     pub shown: bool,
-    /// stamp of the fit
+    /// stamp of the fit, s
     pub stamp: f64,
 }
 
@@ -332,63 +336,47 @@ impl Bins {
     }
 }
 
-/// x with m x = v (3 x 3, Gaussian elimination with partial pivoting); None if singular.
-fn solve3(mut m: [[f64; 3]; 3], mut v: [f64; 3]) -> Option<[f64; 3]> {
-    let scale = m.iter().flatten().fold(0.0f64, |acc, x| acc.max(x.abs()));
-    for col in 0..3 {
-        let piv = (col..3).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
-        if m[piv][col].abs() <= 1e-12 * scale.max(f64::MIN_POSITIVE) {
-            return None;
-        }
-        m.swap(col, piv);
-        v.swap(col, piv);
-        let pivot = m[col];
-        for row in col + 1..3 {
-            let f = m[row][col] / pivot[col];
-            for (x, p) in m[row].iter_mut().zip(pivot.iter()).skip(col) {
-                *x -= f * p;
-            }
-            v[row] -= f * v[col];
-        }
-    }
-    let mut x = [0.0f64; 3];
-    for row in (0..3).rev() {
-        let tail: f64 = (row + 1..3).map(|k| m[row][k] * x[k]).sum();
-        x[row] = (v[row] - tail) / m[row][row];
-    }
-    Some(x)
+/// x with m x = v (3 x 3); None if singular.
+fn solve3(m: [[f64; 3]; 3], v: [f64; 3]) -> Option<[f64; 3]> {
+    gauss_jordan(m, v.map(|x| [x]), 1e-12).map(|x| x.map(|[x]| x))
 }
 
-/// Inverse of a symmetric positive definite 4 x 4 matrix (Gauss-Jordan); None if singular.
-fn invert4(mut a: [[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
-    let mut inv = [[0.0f64; 4]; 4];
-    for (i, row) in inv.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
+/// Inverse of a symmetric positive definite 4 x 4 matrix; None if singular.
+fn invert4(a: [[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
+    let identity = std::array::from_fn(|i| std::array::from_fn(|k| if i == k { 1.0 } else { 0.0 }));
+    gauss_jordan(a, identity, 1e-14)
+}
+
+/// X with A X = B (A n x n, B n x m) by Gauss-Jordan elimination with partial pivoting; None when a
+/// pivot is at most `tol` times A's largest entry (singular to working precision).
+fn gauss_jordan<const N: usize, const M: usize>(
+    mut a: [[f64; N]; N],
+    mut b: [[f64; M]; N],
+    tol: f64,
+) -> Option<[[f64; M]; N]> {
     let scale = a.iter().flatten().fold(0.0f64, |acc, x| acc.max(x.abs()));
-    for col in 0..4 {
-        let piv = (col..4).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if a[piv][col].abs() <= 1e-14 * scale.max(f64::MIN_POSITIVE) {
+    for col in 0..N {
+        let piv = (col..N).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        if a[piv][col].abs() <= tol * scale.max(f64::MIN_POSITIVE) {
             return None;
         }
         a.swap(col, piv);
-        inv.swap(col, piv);
+        b.swap(col, piv);
         let d = a[col][col];
-        for k in 0..4 {
-            a[col][k] /= d;
-            inv[col][k] /= d;
-        }
-        for row in 0..4 {
-            if row != col {
-                let f = a[row][col];
-                for k in 0..4 {
-                    a[row][k] -= f * a[col][k];
-                    inv[row][k] -= f * inv[col][k];
-                }
+        a[col].iter_mut().for_each(|x| *x /= d);
+        b[col].iter_mut().for_each(|x| *x /= d);
+        let (pivot_a, pivot_b) = (a[col], b[col]);
+        for row in (0..N).filter(|&row| row != col) {
+            let f = a[row][col];
+            for (x, p) in a[row].iter_mut().zip(&pivot_a) {
+                *x -= f * p;
+            }
+            for (x, p) in b[row].iter_mut().zip(&pivot_b) {
+                *x -= f * p;
             }
         }
     }
-    Some(inv)
+    Some(b)
 }
 
 /// The lag-1 autocorrelation of the residuals of each wheel's consecutive pairs, pooled; in [0, 0.99].
@@ -523,10 +511,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn close(got: f64, want: f64, tol: f64) {
-        assert!((got - want).abs() <= tol, "got {got}, want {want} +- {tol}");
-    }
+    use crate::testing::close;
 
     /// eq. 6's shape of method.md §14's test tyre (C1 1.2, C2 0.015, C3 6.4, C5 -3, C6 3.5) at K = 100.
     fn tyre_shape() -> (f64, f64, f64, f64) {

@@ -8,10 +8,11 @@ pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
-pub mod pairwise;
 pub mod py;
 pub mod slip;
 pub mod soil;
+#[cfg(test)]
+mod testing;
 pub mod torque_scale;
 pub mod traction;
 
@@ -45,6 +46,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<py::chain::ChainCore>()?;
     // the wheel's own traction curve, learnt where the drive shows it
     m.add_class::<py::curve::CurveBank>()?;
-    m.add_class::<py::curve::CurveFit>()?;
+    m.add_class::<curve::Fit>()?;
     Ok(())
 }

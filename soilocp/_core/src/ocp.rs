@@ -90,12 +90,9 @@ pub fn ocp(k: f64, c: &Constants) -> Ocp {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::close;
 
     const C: Constants = Constants::PAPER;
-
-    fn close(got: f64, want: f64, tol: f64) {
-        assert!((got - want).abs() <= tol, "got {got}, want {want} (tol {tol})");
-    }
 
     /// docs/method.md, "Test vectors: the OCP table".
     #[test]

@@ -8,7 +8,7 @@
 //!   braking one, in the body frame; [`travel_slip`] turns it into the wheel's direction of travel
 //!   (the print is for forward travel only).
 
-use crate::observer::numeric::{np_max, np_sign as sign};
+use crate::observer::numeric::{nan_max, sign};
 
 /// m/s: below this the ground under a wheel does not move of its own, and the wheel's direction of
 /// travel is its rim's.
@@ -18,13 +18,13 @@ pub const V_STILL: f64 = 0.02;
 /// speed R_w omega and the ground speed under the wheel V (m/s).  NaN in, NaN out (numpy's rules).
 #[inline]
 pub fn slip(rim: f64, ground: f64, floor: f64) -> f64 {
-    (rim - ground) / np_max(scale(rim, ground), floor)
+    (rim - ground) / nan_max(scale(rim, ground), floor)
 }
 
 /// max(|R_w omega|, |V|): the measure eq. 1's deadband (§6) is judged on.
 #[inline]
 pub fn scale(rim: f64, ground: f64) -> f64 {
-    np_max(rim.abs(), ground.abs())
+    nan_max(rim.abs(), ground.abs())
 }
 
 /// The wheel's direction of travel d, +-1 (§17): the sign of the ground speed under it, or of its rim

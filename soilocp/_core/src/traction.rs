@@ -166,12 +166,9 @@ pub fn tractive_efficiency(s: f64, k: f64, c: &Constants) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::close;
 
     const C: Constants = Constants::PAPER;
-
-    fn close(got: f64, want: f64, tol: f64) {
-        assert!((got - want).abs() <= tol, "got {got}, want {want} (tol {tol})");
-    }
 
     /// docs/method.md, "Values of the curves" (default constants, outside the bridge).
     #[test]

@@ -15,7 +15,7 @@ from typing import Any
 
 from soilocp.schemas import keys
 
-from soilocp.services.bench.live import _SEQ_RE, Rig, _paced, _sleep_until, _wait_all, open_client, summarize
+from soilocp.services.bench.live import Rig, _paced, _sleep_until, _wait_all, arrivals, open_client, summarize
 
 CONTROL_HOPS = 8  # raw, clean, normal_forces, observer, soil, ocp, control/slip: client->router->client hops
 
@@ -38,18 +38,11 @@ def control_loop_latency(payloads: list[tuple[int, bytes]], rate: float, duratio
     got: dict[int, float] = {}
     lock = threading.Lock()
 
-    def _setpoint(sample) -> None:
-        t = time.perf_counter()
-        m = _SEQ_RE.search(sample.payload.to_bytes())
-        if m:
-            with lock:
-                got.setdefault(int(m.group(1)), t)
-
     try:
         rig.start()
         with open_client(rig.endpoint) as session:
             rig.wait_ready(session, 90.0)
-            sub = session.declare_subscriber(keys.control_slip(vid), _setpoint)
+            sub = session.declare_subscriber(keys.control_slip(vid), arrivals(got, lock, first=True))
             pub = session.declare_publisher(keys.raw(vid), congestion_control=zenoh.CongestionControl.BLOCK)
             try:
                 time.sleep(0.3)

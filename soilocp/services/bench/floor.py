@@ -2,7 +2,7 @@
 
 The live rows of ``soilocp bench`` (one vehicle at 100 Hz and 1 kHz, the control loop, the
 vehicles x 100 Hz ladder) are measured three times, with the same code (``measure_latency``,
-``control_loop_latency``, ``measure_scale`` of :mod:`soilocp.services.bench.run`), the same rates, drives,
+``control_loop_latency``, ``measure_scale`` of :mod:`soilocp.services.bench.measure`), the same rates, drives,
 statistics and ladder, on rigs of the same process graph and keys:
 
 * ``real``: the deployed services (``Rig.standard`` / ``Rig.batched`` / ``control_rig``);
@@ -29,7 +29,6 @@ import json
 import math
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -37,8 +36,10 @@ from typing import Any, Optional
 
 import click
 
-from soilocp.services.bench.run import (LADDER, RIGS, TARGETS, _clone, _f, _payloads, json_safe, live_drives, live_durations,
-                                machine_info, measure_latency, measure_scale)
+from soilocp.services.bench.measure import (LADDER, RIGS, TARGETS, clone_payloads, ladder_up_to, live_drives,
+                                            live_durations, measure_latency, measure_scale, payloads)
+from soilocp.services.bench.report import console as bench_console
+from soilocp.services.bench.report import fmt, machine_info, write_report
 
 VARIANTS = ("bare", "zenoh", "messages", "real")
 LINKS = ("client", "peer")
@@ -182,7 +183,7 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
                               "command": "soilocp bench --floor" + (" --quick" if quick else "")}
     report["machine"]["cpu_share_start"] = cpu_share()["share"]
     s100, s1k = live_drives(quick, log)
-    p100, p1k = _payloads(s100), _payloads(s1k)
+    p100, p1k = payloads(s100), payloads(s1k)
     work = Path(tempfile.mkdtemp(prefix="soilocp-floor-"))
     try:  # the relays read their recorded outputs from here; removed when the rows are done
         templates = work / "templates.json"
@@ -202,7 +203,7 @@ def run_floor(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         for v in (variants if control else []):
             log(f"bench: control loop latency, {v}")
             try:
-                report["control_loop"][v] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100,
+                report["control_loop"][v] = control_loop_latency(clone_payloads(p100, "bench", "bench"), 100.0, d_100,
                                                                  make_rig=_control_rig(v, templates))
             except RuntimeError as exc:
                 report["control_loop"][v] = {"error": str(exc)}
@@ -293,16 +294,16 @@ def cpu_per_sample_us(procs: dict[str, Any], rate_hz: float = 1000.0) -> Optiona
 def _cpu(procs: Optional[dict[str, Any]]) -> str:
     if not procs:
         return "-"
-    return " ".join(f"{n}={_f(p.get('cpu_percent'), '.0f')}" for n, p in procs.items() if n != "echo")
+    return " ".join(f"{n}={fmt(p.get('cpu_percent'), '.0f')}" for n, p in procs.items() if n != "echo")
 
 
 def render_floor(report: dict[str, Any], console) -> None:
     from rich.table import Table
 
     m = report["machine"]
-    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} "
-                  f"-> {_f(m.get('load_end', [float('nan')])[0])}; a busy thread got {_f(m.get('cpu_share_start'))} "
-                  f"of a core at the start, {_f(m.get('cpu_share_end'))} at the end")
+    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {fmt(m['load_start'][0])} "
+                  f"-> {fmt(m.get('load_end', [float('nan')])[0])}; a busy thread got {fmt(m.get('cpu_share_start'))} "
+                  f"of a core at the start, {fmt(m.get('cpu_share_end'))} at the end")
     console.print("message sizes, bytes: " + ", ".join(f"{k} {v}" for k, v in report.get("message_bytes", {}).items()))
     lat = {(r["pipeline"], r["variant"], r["rate_hz"]): r for r in report["latency"]}
     for pipe in report["pipelines"]:
@@ -320,14 +321,14 @@ def render_floor(report: dict[str, Any], console) -> None:
             rb = b["result"] if b else {}
             sc = report["scale"][pipe].get(v, {"steps": [], "max_vehicles": "-", "max_vehicles_no_drop": "-"})
             top = _top_step(sc)
-            cells = [v, _f(ra.get("p50")), _f(ra.get("p99")), _f(a["baseline"]["p99"]) if a else "-",
-                     _f(cpu_us_per_sample_of(a), ".0f"), _f(rb.get("p50")), _f(rb.get("p99")), str(rb.get("drops", "-")),
-                     _f(cpu_per_sample_us(b["processes"]) if b else None, ".0f"), str(sc["max_vehicles"]),
+            cells = [v, fmt(ra.get("p50")), fmt(ra.get("p99")), fmt(a["baseline"]["p99"]) if a else "-",
+                     fmt(cpu_us_per_sample_of(a), ".0f"), fmt(rb.get("p50")), fmt(rb.get("p99")), str(rb.get("drops", "-")),
+                     fmt(cpu_per_sample_us(b["processes"]) if b else None, ".0f"), str(sc["max_vehicles"]),
                      str(sc["max_vehicles_no_drop"]),
-                     f"{_f(top['result']['p99'])} ({top['vehicles']})" if top and "result" in top else "-"]
+                     f"{fmt(top['result']['p99'])} ({top['vehicles']})" if top and "result" in top else "-"]
             if pipe == "standard":
                 cl = report["control_loop"].get(v, {})
-                cells += ["-", "-"] if "error" in cl or not cl else [_f(cl["p50"]), _f(cl["p99"])]
+                cells += ["-", "-"] if "error" in cl or not cl else [fmt(cl["p50"]), fmt(cl["p99"])]
             t.add_row(*cells)
         console.print(t)
         rt = report.get("ratios", {}).get(pipe)
@@ -342,7 +343,7 @@ def render_floor(report: dict[str, Any], console) -> None:
                 t.add_column(k.replace("100hz_", "100 Hz ").replace("1khz_", "1 kHz ").replace("control_", "control "),
                              justify="right", no_wrap=True)
             for v, r in rt.items():
-                t.add_row(v, *[_f(r.get(k)) + ("x" if r.get(k) is not None else "") for k in keys_])
+                t.add_row(v, *[fmt(r.get(k)) + ("x" if r.get(k) is not None else "") for k in keys_])
             console.print(t)
         t = Table(title=f"CPU % of one core per process, {pipe} pipeline (1 kHz: % x 10 = µs per sample; "
                         "CPU µs/sample above: their sum over router and stages)",
@@ -360,7 +361,7 @@ def render_floor(report: dict[str, Any], console) -> None:
     tm = report.get("targets_met", {})
     console.print("targets met: " + "; ".join(
         f"{k}: " + ", ".join(f"{n}={'yes' if ok else 'NO'}" for n, ok in met.items()) for k, met in tm.items()))
-    console.print(f"floor run took {_f(report.get('elapsed_s'), '.0f')} s")
+    console.print(f"floor run took {fmt(report.get('elapsed_s'), '.0f')} s")
 
 
 def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], ladder: Optional[list[int]],
@@ -371,8 +372,7 @@ def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], la
                        links=links or None, control=control)
     render_floor(report, console)
     if json_out:
-        Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
-        console.print(f"report written to {json_out}")
+        write_report(report, json_out, console)
     return report
 
 
@@ -390,16 +390,11 @@ def floor_command(quick: bool, json_out: Optional[str], pipelines: list[str], la
 @click.option("--report", "saved", type=click.Path(dir_okay=False, exists=True), help="Render a saved report.")
 def floor_cmd(quick, json_out, pipelines, variants, links, no_control, max_vehicles, saved) -> None:
     """The floor of the live rows: the real pipeline next to its relays (no math; no messages)."""
-    from rich.console import Console
-
-    console = Console(width=200) if not sys.stdout.isatty() else Console()
+    console = bench_console()
     if saved:
         render_floor(json.loads(Path(saved).read_text()), console)
         return
-    ladder = None
-    if max_vehicles is not None:
-        ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-    floor_command(quick, json_out, list(pipelines), ladder, list(variants) or None, console, list(links) or None,
+    floor_command(quick, json_out, list(pipelines), ladder_up_to(quick, max_vehicles), list(variants) or None, console, list(links) or None,
                   control=not no_control)
 
 

@@ -231,14 +231,7 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400, *,
         buf[0:len(body)] = body
         return buf
 
-    def _pong(sample) -> None:
-        t = time.perf_counter()
-        m = _SEQ_RE.search(sample.payload.to_bytes())
-        if m:
-            with lock:
-                got[int(m.group(1))] = t
-
-    sub = session.declare_subscriber(PONG_KEY, _pong)
+    sub = session.declare_subscriber(PONG_KEY, arrivals(got, lock))
     pub = session.declare_publisher(PING_KEY, congestion_control=zenoh.CongestionControl.BLOCK, express=express)
     try:
         # warm the path (and wait for the echo's subscription to be known to the router)
@@ -262,6 +255,23 @@ def ping_pong(session, rate: float, duration: float, payload_size: int = 400, *,
     st = summarize(rtt)
     st.update(sent=len(sent), lost=len(sent) - len(rtt), rate_hz=rate)
     return st
+
+
+def arrivals(got: dict[int, float], lock: threading.Lock, first: bool = False):
+    """A subscriber callback that records into ``got`` when each message arrived (``time.perf_counter``), by the
+    ``seq`` of its JSON; ``first``: only a seq's first arrival."""
+
+    def record(sample) -> None:
+        t = time.perf_counter()
+        m = _SEQ_RE.search(sample.payload.to_bytes())
+        if m:
+            with lock:
+                if first:
+                    got.setdefault(int(m.group(1)), t)
+                else:
+                    got[int(m.group(1))] = t
+
+    return record
 
 
 def _wait_all(pred, timeout: float) -> None:

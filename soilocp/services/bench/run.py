@@ -26,64 +26,18 @@ from __future__ import annotations
 import json
 import math
 import os
-import platform
-import sys
 import time
 from pathlib import Path
 from typing import Any, Optional
 
 import click
 
+from soilocp.services.bench.measure import (LADDER, RIGS, TARGETS, clone_payloads, ladder_up_to, live_drives,
+                                            live_durations, measure_latency, measure_scale, payloads)
+from soilocp.services.bench.report import console as bench_console
+from soilocp.services.bench.report import fmt, json_safe, machine_info, write_report
+
 HOPS = {"standard": 6, "batched": 3}  # client -> router -> client hops on a sample's critical path
-# the performance targets: chain CPU per sample (median), offline replay, one vehicle at 100 Hz and 1 kHz on the
-# standard pipeline, vehicles x 100 Hz on the batched one, resident memory of router + 5 services
-TARGETS = {"chain_cpu_us": 100.0, "replay_x": 100.0, "p50_ms_100hz": 1.5, "p99_ms_100hz": 3.0, "p99_ms_1khz": 5.0,
-           "scale_p99_ms": 10.0, "vehicles_100hz": 100, "rss_mib_total": 300.0}
-LADDER = (1, 2, 5, 10, 20, 50, 100, 200)
-
-
-def _standard_rig(vehicle_ids):
-    from soilocp.services.bench.live import Rig
-
-    return Rig.standard(vehicle_ids)
-
-
-def _batched_rig(vehicle_ids):
-    from soilocp.services.bench.live import Rig
-
-    return Rig.batched(vehicle_ids)
-
-
-#: The rig of each live pipeline: ``make_rig(vehicle_ids) -> Rig``
-RIGS = {"standard": _standard_rig, "batched": _batched_rig}
-
-
-def machine_info() -> dict[str, Any]:
-    model = "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        from importlib.metadata import version
-
-        zv = version("eclipse-zenoh")
-    except Exception:  # pragma: no cover - not installed as a distribution
-        zv = None
-    return {"nproc": os.cpu_count(), "cpu_model": model, "load_start": list(os.getloadavg()),
-            "python": platform.python_version(), "zenoh": zv, "platform": platform.platform()}
-
-
-def _clone(payloads: list[tuple[int, bytes]], base_vid: str, vid: str) -> list[tuple[int, bytes]]:
-    old, new = f'"vehicle_id":"{base_vid}"'.encode(), f'"vehicle_id":"{vid}"'.encode()
-    return [(seq, p.replace(old, new, 1)) for seq, p in payloads]
-
-
-def _payloads(samples) -> list[tuple[int, bytes]]:
-    return [(s.seq, s.model_dump_json().encode()) for s in samples]
 
 
 def batch_available() -> bool:
@@ -93,21 +47,6 @@ def batch_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def live_durations(quick: bool) -> tuple[float, float, float]:
-    """Seconds of the live rows: one vehicle at 100 Hz, at 1 kHz, and each step of the ladder."""
-    return (2.0, 1.0, 1.5) if quick else (20.0, 10.0, 8.0)
-
-
-def live_drives(quick: bool, log=print):
-    """The simulated drives the live rows publish: 100 Hz (long enough for any row) and 1 kHz."""
-    from soilocp.services.bench.stages import simulate_drive
-
-    d_100, d_1k, d_scale = live_durations(quick)
-    s100 = simulate_drive("bench", max(d_100, d_scale) + 1.0)
-    log(f"bench: simulating {d_1k + 1:.1f} s at 1 kHz")
-    return s100, simulate_drive("bench", d_1k + 1.0, rate=1000.0)
 
 
 def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder: Optional[list[int]] = None,
@@ -135,7 +74,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
         report["batch_stages"] = batch_costs(drive_samples, counts, steps=100 if quick else 300)
 
     s100, s1k = live_drives(quick, log)
-    p100, p1k = _payloads(s100), _payloads(s1k)
+    p100, p1k = payloads(s100), payloads(s1k)
 
     # 2 + 4. latency of one vehicle, with the ping-pong baseline, per pipeline
     report["latency"] = []
@@ -147,7 +86,7 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
 
     log("bench: control loop latency (controller service, ocp_traction)")
     try:
-        report["control_loop"] = control_loop_latency(_clone(p100, "bench", "bench"), 100.0, d_100)
+        report["control_loop"] = control_loop_latency(clone_payloads(p100, "bench", "bench"), 100.0, d_100)
     except RuntimeError as exc:
         report["control_loop"] = {"error": str(exc)}
 
@@ -158,68 +97,6 @@ def run_bench(quick: bool = False, pipelines: Optional[list[str]] = None, ladder
     report["elapsed_s"] = time.monotonic() - t_start
     report["verdict"] = verdict(report)
     return report
-
-
-def measure_latency(make_rig, label: str, p100, p1k, d_100: float, d_1k: float, quick: bool, log=print
-                    ) -> list[dict[str, Any]]:
-    """One vehicle at 100 Hz then 1 kHz through one rig (``make_rig(vehicle_ids)``), each after its
-    ping-pong baseline on the same router; rows of the report's ``latency``."""
-    from soilocp.services.bench.live import CpuWindow, drive, open_client, ping_pong
-
-    rows = []
-    rig = make_rig(["lat100", "lat1k"])
-    log(f"bench: latency, {label} pipeline")
-    try:
-        rig.start()
-        with open_client(rig.endpoint) as session:
-            rig.wait_ready(session, 90.0)
-            for rate, dur, vid, pl in ((100.0, d_100, "lat100", p100), (1000.0, d_1k, "lat1k", p1k)):
-                base = ping_pong(session, rate, min(dur, 1.0 if quick else 5.0))
-                win = CpuWindow(rig.pids())
-                res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
-                rows.append({"pipeline": label, "rate_hz": rate, "vehicles": 1, "result": res, "baseline": base,
-                             "processes": win.finish()})
-    finally:
-        rig.stop()
-    return rows
-
-
-def measure_scale(make_rig, label: str, p100, ladder, d_scale: float, quick: bool, log=print) -> dict[str, Any]:
-    """Vehicles x 100 Hz through fresh rigs, up the ``ladder`` until a count is not carried; the
-    report's ``scale[label]``."""
-    from soilocp.services.bench.live import CpuWindow, drive, open_client, ping_pong
-
-    steps = []
-    best = 0  # most vehicles with p99 < 10 ms and no drop (the target's criterion)
-    sustained = 0  # most vehicles carried without a drop, whatever the latency (throughput)
-    for n in ladder:
-        vids = [f"v{i:03d}" for i in range(n)]
-        rig = make_rig(vids)
-        log(f"bench: scale, {label} pipeline, {n} vehicle(s) x 100 Hz")
-        try:
-            rig.start()
-            with open_client(rig.endpoint) as session:
-                rig.wait_ready(session, 120.0)
-                base = ping_pong(session, 100.0 * n, 1.0 if quick else 3.0)
-                win = CpuWindow(rig.pids())
-                res = drive(session, {v: _clone(p100, "bench", v) for v in vids}, 100.0, d_scale)
-                procs = win.finish()
-        except RuntimeError as exc:
-            steps.append({"vehicles": n, "ok": False, "error": str(exc)})
-            break
-        finally:
-            rig.stop()
-        carried = (res["drops"] == 0 and res["rejections"] == 0
-                   and res["offered_per_s"] >= 0.95 * res["target_per_s"])
-        ok = carried and res["p99"] < TARGETS["scale_p99_ms"]
-        steps.append({"vehicles": n, "ok": ok, "carried": carried, "result": res, "baseline": base,
-                      "processes": procs})
-        if ok and best == sustained:
-            best = n
-        if not carried:
-            break  # on a shared machine the p99 can fail at any count: step on while nothing is lost
-        sustained = n
-    return {"steps": steps, "max_vehicles": best, "max_vehicles_no_drop": sustained}
 
 
 def verdict(report: dict[str, Any]) -> dict[str, Any]:
@@ -245,23 +122,14 @@ def verdict(report: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-# ----------------------------------------------------------------------------------------------
-# output
-# ----------------------------------------------------------------------------------------------
-def _f(x: Any, spec: str = ".2f") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return format(x, spec)
-
-
 def render(report: dict[str, Any], console) -> None:
     from rich.table import Table
 
     m = report["machine"]
-    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} "
-                  f"-> {_f(m.get('load_end', [float('nan')])[0])}, python {m['python']}, zenoh {m['zenoh']}")
-    console.print(f"share of a core a busy thread of the bench got: {_f(m.get('cpu_share_start'))} at the start, "
-                  f"{_f(m.get('cpu_share_end'))} at the end (1.00 = idle machine; wall-clock figures scale with it, "
+    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {fmt(m['load_start'][0])} "
+                  f"-> {fmt(m.get('load_end', [float('nan')])[0])}, python {m['python']}, zenoh {m['zenoh']}")
+    console.print(f"share of a core a busy thread of the bench got: {fmt(m.get('cpu_share_start'))} at the start, "
+                  f"{fmt(m.get('cpu_share_end'))} at the end (1.00 = idle machine; wall-clock figures scale with it, "
                   "CPU figures do not)")
 
     t = Table(title="1. stage cost in process, µs per sample (real simulated drive): wall clock and thread CPU time",
@@ -269,14 +137,14 @@ def render(report: dict[str, Any], console) -> None:
     for c in ("stage", "wall median", "wall p99", "CPU median", "CPU p99", "n"):
         t.add_column(c, justify="left" if c == "stage" else "right")
     for name, st in report["stages"].items():
-        t.add_row(name, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), _f(st.get("cpu_p50"), ".0f"),
-                  _f(st.get("cpu_p99"), ".0f"), str(st["n"]))
+        t.add_row(name, fmt(st["p50"], ".0f"), fmt(st["p99"], ".0f"), fmt(st.get("cpu_p50"), ".0f"),
+                  fmt(st.get("cpu_p99"), ".0f"), str(st["n"]))
     console.print(t)
     rp = report["replay"]
-    console.print(f"offline replay (estimate_lines): {rp['samples']} samples in {_f(rp['seconds'])} s = "
-                  f"{_f(rp['samples_per_s'], '.0f')} samples/s = {_f(rp['x_real_time'], '.1f')}x real time at 100 Hz "
-                  f"(per CPU second: {_f(rp.get('samples_per_cpu_s'), '.0f')} samples = "
-                  f"{_f(rp.get('x_real_time_cpu'), '.1f')}x real time)")
+    console.print(f"offline replay (estimate_lines): {rp['samples']} samples in {fmt(rp['seconds'])} s = "
+                  f"{fmt(rp['samples_per_s'], '.0f')} samples/s = {fmt(rp['x_real_time'], '.1f')}x real time at 100 Hz "
+                  f"(per CPU second: {fmt(rp.get('samples_per_cpu_s'), '.0f')} samples = "
+                  f"{fmt(rp.get('x_real_time_cpu'), '.1f')}x real time)")
     if "batch_stages" in report:
         t = Table(title="batched observer + soil + OCP (soilocp.estimation.batch), µs per vehicle-sample: the whole "
                   "step, and its estimation math alone (normal forces + the one chain call)", title_justify="left")
@@ -284,8 +152,8 @@ def render(report: dict[str, Any], console) -> None:
                   "math CPU p99"):
             t.add_column(c, justify="right")
         for n, st in report["batch_stages"].items():
-            t.add_row(n, _f(st["p50"], ".0f"), _f(st["p99"], ".0f"), _f(st.get("cpu_p50"), ".0f"),
-                      _f(st.get("cpu_p99"), ".0f"), _f(st.get("math_cpu_p50"), ".1f"), _f(st.get("math_cpu_p99"), ".1f"))
+            t.add_row(n, fmt(st["p50"], ".0f"), fmt(st["p99"], ".0f"), fmt(st.get("cpu_p50"), ".0f"),
+                      fmt(st.get("cpu_p99"), ".0f"), fmt(st.get("math_cpu_p50"), ".1f"), fmt(st.get("math_cpu_p99"), ".1f"))
         console.print(t)
 
     t = Table(title="2. sample -> OCP latency over Zenoh, ms (baseline: ping-pong through the same router)",
@@ -295,9 +163,9 @@ def render(report: dict[str, Any], console) -> None:
         t.add_column(c, justify="left" if c == "pipeline" else "right", no_wrap=True)
     for row in report["latency"]:
         r, b = row["result"], row["baseline"]
-        t.add_row(row["pipeline"], f"{row['rate_hz']:.0f} Hz", _f(r["p50"]), _f(r["p90"]), _f(r["p99"]), _f(r["max"]),
-                  str(r["sent"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]),
-                  _f(HOPS[row["pipeline"]] / 2 * b["p50"]))
+        t.add_row(row["pipeline"], f"{row['rate_hz']:.0f} Hz", fmt(r["p50"]), fmt(r["p90"]), fmt(r["p99"]), fmt(r["max"]),
+                  str(r["sent"]), str(r["drops"]), str(r["rejections"]), fmt(b["p50"]), fmt(b["p99"]),
+                  fmt(HOPS[row["pipeline"]] / 2 * b["p50"]))
     console.print(t)
 
     from soilocp.services.bench.compare import NOT_PIPELINE, pipeline_rss_mib
@@ -306,17 +174,17 @@ def render(report: dict[str, Any], console) -> None:
         if row["rate_hz"] != 100.0 or not row.get("processes"):
             continue
         pr = row["processes"]
-        each = " ".join(f"{n}={_f(v.get('rss_mib'), '.0f')}/{_f(v.get('pss_mib'), '.0f')}" for n, v in pr.items()
+        each = " ".join(f"{n}={fmt(v.get('rss_mib'), '.0f')}/{fmt(v.get('pss_mib'), '.0f')}" for n, v in pr.items()
                         if n not in NOT_PIPELINE)
         console.print(f"memory, {row['pipeline']} pipeline, MiB RSS/PSS per process: {each}; in all RSS "
-                      f"{_f(pipeline_rss_mib(pr), '.0f')} (target <= {TARGETS['rss_mib_total']:.0f}), PSS "
-                      f"{_f(pipeline_rss_mib(pr, 'pss_mib'), '.0f')} (shared pages counted once)")
+                      f"{fmt(pipeline_rss_mib(pr), '.0f')} (target <= {TARGETS['rss_mib_total']:.0f}), PSS "
+                      f"{fmt(pipeline_rss_mib(pr, 'pss_mib'), '.0f')} (shared pages counted once)")
 
     cl = report.get("control_loop")
     if cl:
         console.print("5. control loop, sample -> slip set-point (pipeline + controller service, 100 Hz), ms: "
                       + (cl["error"] if "error" in cl else
-                         f"p50 {_f(cl['p50'])}, p90 {_f(cl['p90'])}, p99 {_f(cl['p99'])}, max {_f(cl['max'])}; "
+                         f"p50 {fmt(cl['p50'])}, p90 {fmt(cl['p90'])}, p99 {fmt(cl['p99'])}, max {fmt(cl['max'])}; "
                          f"{cl['sent']} sent, {cl['drops']} without a set-point ({cl['hops']} hops)"))
 
     for pipe, sc in report["scale"].items():
@@ -331,15 +199,15 @@ def render(report: dict[str, Any], console) -> None:
                 t.add_row(str(st["vehicles"]), "no", *["-"] * 8, st.get("error", "")[:60], "-")
                 continue
             r, b, pr = st["result"], st["baseline"], st["processes"]
-            cpu = " ".join(f"{n}={_f(v['cpu_percent'], '.0f')}" for n, v in pr.items() if n != "echo")
+            cpu = " ".join(f"{n}={fmt(v['cpu_percent'], '.0f')}" for n, v in pr.items() if n != "echo")
             rss = sum(v["rss_mib"] or 0.0 for n, v in pr.items() if n not in ("echo", "bench"))
-            t.add_row(str(st["vehicles"]), "yes" if st["ok"] else "NO", _f(r["offered_per_s"], ".0f"), _f(r["p50"]),
-                      _f(r["p99"]), _f(r["max"]), str(r["drops"]), str(r["rejections"]), _f(b["p50"]), _f(b["p99"]), cpu,
-                      _f(rss, ".0f"))
+            t.add_row(str(st["vehicles"]), "yes" if st["ok"] else "NO", fmt(r["offered_per_s"], ".0f"), fmt(r["p50"]),
+                      fmt(r["p99"]), fmt(r["max"]), str(r["drops"]), str(r["rejections"]), fmt(b["p50"]), fmt(b["p99"]), cpu,
+                      fmt(rss, ".0f"))
         console.print(t)
     v = report["verdict"]
     console.print("targets: " + ", ".join(f"{k}={'met' if ok else 'NOT met'}" for k, ok in v.items()))
-    console.print(f"bench took {_f(report['elapsed_s'], '.0f')} s")
+    console.print(f"bench took {fmt(report['elapsed_s'], '.0f')} s")
 
 
 @click.command("bench")
@@ -369,12 +237,10 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
           compare_to: Optional[str], saved: Optional[str], map_row: bool = False, floor: bool = False,
           links: tuple[str, ...] = (), soak_s: Optional[float] = None, soak_rate: float = 100.0) -> None:
     """Latency, throughput and scale of the live pipeline, and the cost of each stage."""
-    from rich.console import Console
-
     if soak_s is not None:  # hours of driving (services/bench/soak.py)
         from soilocp.services.bench.soak import render_soak, soak_command
 
-        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        console = bench_console()
         if saved:
             render_soak(json.loads(Path(saved).read_text()), console)
             return
@@ -388,27 +254,27 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
             raise click.UsageError("--floor compares the real pipeline with its relays in one run: it takes neither "
                                    "--compare nor --map (run those without --floor)")
 
-        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        console = bench_console()
         if saved:
             render_floor(json.loads(Path(saved).read_text()), console)
             return
-        ladder = None if max_vehicles is None else [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-        floor_command(quick, json_out, list(pipelines), ladder, None, console, list(links) or None)
+        floor_command(quick, json_out, list(pipelines), ladder_up_to(quick, max_vehicles), None, console,
+                      list(links) or None)
         return
 
     if map_row:  # the map's own section (services/bench/map.py)
         from soilocp.services.bench.map import render_map, run_map_bench
 
-        console = Console(width=200) if not sys.stdout.isatty() else Console()
+        console = bench_console()
         row = {"machine": machine_info(), "map": run_map_bench(quick, log=lambda m: console.print(m, style="dim"))}
         render_map(row["map"], console)
         if json_out:
-            Path(json_out).write_text(json.dumps(json_safe(row), indent=1, allow_nan=False))
+            write_report(row, json_out)
         return
 
     from soilocp.services.bench.compare import compare, load_report, render_compare
 
-    console = Console(width=200) if not sys.stdout.isatty() else Console()
+    console = bench_console()
     try:  # a bad baseline fails before minutes of measuring, naming the file
         base = load_report(compare_to) if compare_to else None
         report = load_report(saved) if saved else None
@@ -420,30 +286,15 @@ def bench(quick: bool, json_out: Optional[str], pipelines: tuple[str, ...], max_
         else:
             render(report, console)
         return
-    ladder = None
-    if max_vehicles is not None:
-        if max_vehicles < 1:
-            raise click.BadParameter(f"{max_vehicles!r}: must be >= 1", param_hint="--max-vehicles")
-        ladder = [n for n in ((1, 2) if quick else LADDER) if n <= max_vehicles] or [1]
-    report = run_bench(quick, list(pipelines) or None, ladder, log=lambda m: console.print(m, style="dim"))
+    if max_vehicles is not None and max_vehicles < 1:
+        raise click.BadParameter(f"{max_vehicles!r}: must be >= 1", param_hint="--max-vehicles")
+    report = run_bench(quick, list(pipelines) or None, ladder_up_to(quick, max_vehicles), log=lambda m: console.print(m, style="dim"))
     render(report, console)
     if base is not None:
         report["compare"] = {"baseline": str(compare_to), "rows": compare(base, json_safe(report))}
         render_compare(report["compare"]["rows"], console, compare_to)
     if json_out:
-        Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
-        console.print(f"report written to {json_out}")
-
-
-def json_safe(obj: Any) -> Any:
-    """The report with NaN / inf (an empty statistic) as null: strict JSON for other tools."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    return obj
+        write_report(report, json_out, console)
 
 
 COMMANDS = [bench]

@@ -20,12 +20,12 @@ latency figures (the report gives the load); the memory and the counts do not de
 
 from __future__ import annotations
 
-import json
 import os
 import threading
 import time
-from pathlib import Path
 from typing import Any, Optional
+
+from soilocp.services.bench.report import fmt, machine_info, write_report
 
 SOAK_TARGETS = {"rss_growth_mib": 5.0, "p99_last_over_first": 1.2, "drops": 0}
 LOOP_S = 120.0
@@ -67,8 +67,7 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
 
     from soilocp.schemas import keys
     from soilocp.schemas.messages import ServiceHealth
-    from soilocp.services.bench.live import Rig, _SEQ_RE, _sleep_until, open_client, proc_rss_mib
-    from soilocp.services.bench.run import machine_info
+    from soilocp.services.bench.live import Rig, _sleep_until, arrivals, open_client, proc_rss_mib
 
     vid = "soak"
     n_steps = int(round(duration * rate))
@@ -86,13 +85,6 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
     rss: dict[str, list[tuple[float, Optional[float]]]] = {}
     stop = threading.Event()
 
-    def _ocp(sample) -> None:
-        t = time.perf_counter()
-        m = _SEQ_RE.search(sample.payload.to_bytes())
-        if m:
-            with lock:
-                got[int(m.group(1))] = t
-
     try:
         rig.start()
         pids = {n: p for n, p in rig.pids().items() if n not in ("echo", "bench")}
@@ -108,7 +100,7 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
 
         with open_client(rig.endpoint) as session:
             rig.wait_ready(session, 120.0)
-            sub = session.declare_subscriber(keys.ocp(vid), _ocp)
+            sub = session.declare_subscriber(keys.ocp(vid), arrivals(got, lock))
             pub = session.declare_publisher(keys.raw(vid), congestion_control=zenoh.CongestionControl.BLOCK)
             payload(0)  # the first loop's payloads before the clock starts
             time.sleep(0.3)
@@ -195,23 +187,21 @@ def run_soak(duration: float, rate: float = 100.0, log=print) -> dict[str, Any]:
 def render_soak(report: dict[str, Any], console) -> None:
     from rich.table import Table
 
-    from soilocp.services.bench.run import _f
-
     m = report["machine"]
-    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {_f(m['load_start'][0])} -> "
-                  f"{_f(m.get('load_end', [float('nan')])[0])}; warm-up {report['warmup_s']:.0f} s")
+    console.print(f"{report['command']} — {m['nproc']} CPU(s), {m['cpu_model']}, load {fmt(m['load_start'][0])} -> "
+                  f"{fmt(m.get('load_end', [float('nan')])[0])}; warm-up {report['warmup_s']:.0f} s")
     la = report["latency"]
-    console.print(f"sample -> OCP latency after the warm-up, ms: p50 {_f(la['all_p50'])}, p99 {_f(la['all_p99'])}; "
-                  f"p99 of the first tenth {_f(la['first_tenth_p99'])} (n={la['first_tenth_n']}), of the last "
-                  f"{_f(la['last_tenth_p99'])} (n={la['last_tenth_n']}): x{_f(la['last_over_first'])}")
+    console.print(f"sample -> OCP latency after the warm-up, ms: p50 {fmt(la['all_p50'])}, p99 {fmt(la['all_p99'])}; "
+                  f"p99 of the first tenth {fmt(la['first_tenth_p99'])} (n={la['first_tenth_n']}), of the last "
+                  f"{fmt(la['last_tenth_p99'])} (n={la['last_tenth_n']}): x{fmt(la['last_over_first'])}")
     console.print(f"samples sent {report['sent']}, without an OCP {report['drops']}; observer resets by reason "
                   f"{report['observer_resets']}")
     t = Table(title="resident memory per process, MiB", title_justify="left")
     for c in ("process", "start", "after warm-up", "end", "max", "growth after warm-up"):
         t.add_column(c, justify="left" if c == "process" else "right")
     for n, r in report["rss"].items():
-        t.add_row(n, _f(r["start_mib"], ".1f"), _f(r["after_warmup_mib"], ".1f"), _f(r["end_mib"], ".1f"),
-                  _f(r["max_mib"], ".1f"), _f(r["growth_mib"], "+.2f"))
+        t.add_row(n, fmt(r["start_mib"], ".1f"), fmt(r["after_warmup_mib"], ".1f"), fmt(r["end_mib"], ".1f"),
+                  fmt(r["max_mib"], ".1f"), fmt(r["growth_mib"], "+.2f"))
     console.print(t)
     console.print("health: " + "; ".join(f"{n} " + " ".join(f"{k}={v}" for k, v in h.items())
                                           for n, h in report["health"].items()))
@@ -219,11 +209,8 @@ def render_soak(report: dict[str, Any], console) -> None:
 
 
 def soak_command(duration: float, rate: float, json_out: Optional[str], console) -> dict[str, Any]:
-    from soilocp.services.bench.run import json_safe
-
     report = run_soak(duration, rate, log=lambda msg: console.print(msg, style="dim"))
     render_soak(report, console)
     if json_out:
-        Path(json_out).write_text(json.dumps(json_safe(report), indent=1, allow_nan=False))
-        console.print(f"report written to {json_out}")
+        write_report(report, json_out, console)
     return report

@@ -41,7 +41,7 @@ HOPS = 6  # raw, clean, normal_forces, observer, soil, ocp: the standard pipelin
 def run_setting(name: str, p100, p1k, d100: float, d1k: float, log=print) -> dict[str, Any]:
     """One fresh rig under setting ``name``: 100 Hz then 1 kHz, each with its floor."""
     from soilocp.services.bench.live import Rig, drive, open_client, ping_pong
-    from soilocp.services.bench.run import _clone
+    from soilocp.services.bench.measure import clone_payloads
 
     spec = SETTINGS[name]
     rig = Rig.standard(["lat100", "lat1k"])
@@ -53,7 +53,7 @@ def run_setting(name: str, p100, p1k, d100: float, d1k: float, log=print) -> dic
             rig.wait_ready(session, 120.0)
             for rate, dur, vid, pl in ((100.0, d100, "lat100", p100), (1000.0, d1k, "lat1k", p1k)):
                 base = ping_pong(session, rate, 3.0 if rate == 100.0 else 2.0)
-                res = drive(session, {vid: _clone(pl, "bench", vid)}, rate, dur)
+                res = drive(session, {vid: clone_payloads(pl, "bench", vid)}, rate, dur)
                 key = "100hz" if rate == 100.0 else "1khz"
                 out[key] = {"p50": res["p50"], "p99": res["p99"], "max": res["max"], "sent": res["sent"],
                             "drops": res["drops"], "floor_p50": HOPS / 2 * base["p50"], "ping_p99": base["p99"]}
@@ -114,11 +114,11 @@ def main() -> None:
     if unknown:
         ap.error(f"--settings: unknown {unknown}; known: {', '.join(SETTINGS)}")
 
-    from soilocp.services.bench.run import _payloads
+    from soilocp.services.bench.measure import payloads
     from soilocp.services.bench.stages import simulate_drive
 
-    p100 = _payloads(simulate_drive("bench", args.duration + 1.0))
-    p1k = _payloads(simulate_drive("bench", args.duration_1k + 1.0, rate=1000.0))
+    p100 = payloads(simulate_drive("bench", args.duration + 1.0))
+    p1k = payloads(simulate_drive("bench", args.duration_1k + 1.0, rate=1000.0))
     results: list[dict[str, Any]] = []
     t0 = time.monotonic()
     for run in range(args.runs):

@@ -18,8 +18,6 @@ sample's stamp closes the loop, and ``now - published`` is the control-loop late
 from __future__ import annotations
 
 import math
-import threading
-import time
 from collections import OrderedDict
 from typing import Iterator, Optional
 
@@ -27,26 +25,24 @@ import numpy as np
 
 from soilocp.schemas.messages import SlipSetpoint
 from soilocp.control import OcpSetPoint, SetPoint, WheelTorqueLoop, make_policy
+from soilocp.services.control.setpoints import LatestSetpoint
 
 SENT_MEMORY = 4096  # samples whose publish time is remembered for the latency
 
 
-class SetpointInbox:
-    """Latest set-point (thread-safe; the Zenoh callback only stores) and the loop latencies."""
+class SetpointInbox(LatestSetpoint):
+    """Latest slip set-point (:class:`LatestSetpoint`) and the loop latencies."""
+
+    message = SlipSetpoint
 
     def __init__(self, vehicle_id: str, control: str, stale_timeout_s: float):
         policy = make_policy(control, stale_timeout_s=stale_timeout_s)  # ValueError: bad name
-        self.vehicle_id, self.control, self.stale_timeout_s = vehicle_id, control, float(stale_timeout_s)
+        super().__init__(vehicle_id)
+        self.control, self.stale_timeout_s = control, float(stale_timeout_s)
         self.fallback: Optional[float] = policy.fallback if isinstance(policy, OcpSetPoint) else None
         self._policy = policy
-        self._lock = threading.Lock()
-        self._latest: Optional[SlipSetpoint] = None
-        self._latest_wall: Optional[float] = None
         self._sent: OrderedDict[float, float] = OrderedDict()  # sample stamp -> publish time
         self.latencies_ms: list[float] = []
-        self.received = 0
-        self.bad = 0
-        self.sources: dict[str, int] = {}
 
     def sent(self, stamp: float, wall: float) -> None:
         with self._lock:
@@ -54,32 +50,16 @@ class SetpointInbox:
             while len(self._sent) > SENT_MEMORY:
                 self._sent.popitem(last=False)
 
-    def offer(self, payload: bytes, wall: Optional[float] = None) -> None:
-        wall = time.perf_counter() if wall is None else wall
-        try:
-            sp = SlipSetpoint.model_validate_json(payload)
-        except ValueError:
-            with self._lock:
-                self.bad += 1
-            return
-        if sp.vehicle_id != self.vehicle_id:
-            with self._lock:
-                self.bad += 1
-            return
-        with self._lock:
-            self._latest, self._latest_wall = sp, wall
-            self.received += 1
-            self.sources[sp.source] = self.sources.get(sp.source, 0) + 1
-            if sp.stamp is not None and sp.stamp in self._sent:
-                self.latencies_ms.append((wall - self._sent.pop(sp.stamp)) * 1e3)
-                if len(self.latencies_ms) > 100_000:
-                    del self.latencies_ms[:50_000]
+    def taken(self, sp: SlipSetpoint, wall: float) -> None:
+        if sp.stamp is not None and sp.stamp in self._sent:
+            self.latencies_ms.append((wall - self._sent.pop(sp.stamp)) * 1e3)
+            if len(self.latencies_ms) > 100_000:
+                del self.latencies_ms[:50_000]
 
     def current(self, now: Optional[float] = None) -> SetPoint:
         """The set-point in force: the latest received, or the fallback if it is too old / none."""
-        now = time.perf_counter() if now is None else now
-        with self._lock:
-            sp, wall = self._latest, self._latest_wall
+        now = self.clock() if now is None else now
+        sp, wall = self.latest()
         if sp is None or wall is None or now - wall > self.stale_timeout_s:
             if self.fallback is not None:
                 why = "no set-point yet" if sp is None else f"no set-point for {now - wall:.3f} s"

@@ -16,7 +16,6 @@ against a curve the estimator was not given.
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,8 @@ from typing import Iterator, Optional
 
 from soilocp.schemas import keys
 from soilocp.schemas.messages import DriveSetpoint
+
+from soilocp.services.control.setpoints import LatestSetpoint
 
 #: tyres by name (the true constants live in soilocp.sim.variants)
 TYRE_NAMES = ("paper", "slow", "grippy", "vector")
@@ -79,42 +80,22 @@ class DriveState:
     slip: Optional[float]
 
 
-class DriveInbox:
-    """The latest calibration-drive set-point (thread-safe: the Zenoh callback only stores it)."""
+class DriveInbox(LatestSetpoint):
+    """The latest calibration-drive set-point (:class:`LatestSetpoint`), counted by phase."""
 
     key = staticmethod(keys.control_drive)
     control = "calibrate-drive"
+    message = DriveSetpoint
+    clock = staticmethod(time.monotonic)
 
-    def __init__(self, vehicle_id: str):
-        self.vehicle_id = vehicle_id
-        self._lock = threading.Lock()
-        self._latest: Optional[DriveSetpoint] = None
-        self._wall: Optional[float] = None
-        self.received = 0
-        self.bad = 0
-        self.sources: dict[str, int] = {}
-
-    def offer(self, payload: bytes, wall: Optional[float] = None) -> None:
-        wall = time.monotonic() if wall is None else wall
-        try:
-            sp = DriveSetpoint.model_validate_json(payload)
-        except ValueError:
-            with self._lock:
-                self.bad += 1
-            return
-        with self._lock:
-            if sp.vehicle_id != self.vehicle_id:
-                self.bad += 1
-                return
-            self._latest, self._wall = sp, wall
-            self.received += 1
-            self.sources[sp.phase] = self.sources.get(sp.phase, 0) + 1
+    @staticmethod
+    def source(sp: DriveSetpoint) -> str:
+        return sp.phase
 
     def current(self, now: Optional[float] = None) -> DriveState:
         """The set-point in force: the latest, or standstill if there is none or it is older than its timeout."""
-        now = time.monotonic() if now is None else now
-        with self._lock:
-            sp, wall = self._latest, self._wall
+        now = self.clock() if now is None else now
+        sp, wall = self.latest()
         if sp is None:
             return DriveState(0.0, "none", None)
         if now - wall > sp.timeout_s:

@@ -7,11 +7,11 @@ import os
 from pathlib import Path
 from typing import Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from soilocp.schemas.map import MAP_ID_PATTERN
 
-from soilocp.services.runtime.config import DEFAULT_ENDPOINT, ConfigError, Endpoints, env_settings
+from soilocp.services.runtime.config import DEFAULT_ENDPOINT, ConfigError, Endpoints, env_settings, validated
 from soilocp.map.cells import CellConfig
 from soilocp.map.fusion import FusionConfig
 
@@ -69,9 +69,4 @@ def load_map_config(config_path: Optional[str], overrides: dict[str, Any],
             values["fusion"] = {**values.get("fusion", {}), k: v}
         else:
             values[k] = list(v) if isinstance(v, tuple) else v
-    try:
-        return MapServiceConfig.model_validate(values)
-    except ValidationError as exc:
-        err = exc.errors(include_url=False)[0]
-        loc = ".".join(str(p) for p in err.get("loc", ())) or "<config>"
-        raise ConfigError(f"invalid setting {loc}={err.get('input')!r} for the map service: {err.get('msg')}") from None
+    return validated(MapServiceConfig, values, "the map service")

@@ -146,14 +146,17 @@ def load_service_config(
     for k, v in (overrides or {}).items():
         if v is not None and v != () and v != []:
             values[k] = list(v) if isinstance(v, tuple) else v
+    return validated(ServiceConfig, values, f"service {service}", f" (config file {path})" if path else "")
+
+
+def validated(model: type[BaseModel], values: dict[str, Any], what: str, where: str = "") -> Any:
+    """``model`` of ``values``; ConfigError naming the first bad setting, its value, ``what`` it is for, why, and
+    ``where`` the values came from."""
     try:
-        return ServiceConfig.model_validate(values)
+        return model.model_validate(values)
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]
         loc = ".".join(str(p) for p in err.get("loc", ())) or "<config>"
-        raise ConfigError(
-            f"invalid setting {loc}={err.get('input')!r} for service {service}: {err.get('msg')}"
-            + (f" (config file {path})" if path else "")
-        ) from None
+        raise ConfigError(f"invalid setting {loc}={err.get('input')!r} for {what}: {err.get('msg')}{where}") from None
 
 

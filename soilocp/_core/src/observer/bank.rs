@@ -8,7 +8,7 @@
 use super::kalman::{condition, gated_update, predict, Workspace};
 use super::layout::{Layout, N_MEAS};
 use super::model::{build, init, resistance_map, Vehicle};
-use super::numeric::{matmul, matvec, np_max, np_sum};
+use super::numeric::{matmul, matvec, nan_max};
 
 /// Reset reasons, in the order of soilocp.estimation.observer_bank.RESET_REASONS (code = index + 1).
 pub const RESET_REASONS: [&str; 5] = [
@@ -50,7 +50,7 @@ pub struct Settings {
 /// One vehicle's sample, as the bank takes it (the Python side has run the readings clock, the
 /// torque split, the encoder lead and the ground-speed latency).
 pub struct Sample {
-    /// s since the vehicle's last sample (NaN: its first), and dt^3 (numpy's power)
+    /// s since the vehicle's last sample (NaN: its first), and dt^3
     pub dt: f64,
     pub dt_cubed: f64,
     pub specific_force_x: f64,
@@ -169,7 +169,7 @@ impl FilterBank {
         x.fill(0.0);
         x[l.omega()..l.v()].copy_from_slice(&s.wheel_speed);
         x[l.v()] = if s.ground_speed.is_nan() {
-            np_sum(&s.wheel_speed) / 4.0 * self.vehicle.wheel_radius
+            s.wheel_speed.iter().sum::<f64>() / 4.0 * self.vehicle.wheel_radius
         } else {
             s.ground_speed
         };
@@ -347,7 +347,7 @@ impl FilterBank {
             for c in 0..n {
                 row[c] = jp[i * n + c] * j[i * n + c];
             }
-            out.gross_var[i] = np_max(np_sum(&row[..n]), st.variance_floor);
+            out.gross_var[i] = nan_max(row[..n].iter().sum(), st.variance_floor);
             out.mu_var[i] = p[i * n + i];
             out.gross[i] = x[i] + out.resistance[i];
         }

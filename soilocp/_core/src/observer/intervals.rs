@@ -17,7 +17,7 @@
 //! scatter of T / (R_w Fz) about a straight line in time within it, and the slip path as uncertain
 //! by R_w |d omega_dot| tau / 8 (`rim_sigma`).
 
-use super::numeric::np_max;
+use super::numeric::nan_max;
 
 /// s: intervals are sums or differences of stamps, so a 10 Hz stream's 0.1 s reads 0.1 - 1e-15 as
 /// often as not; the interval bounds are taken this much wider.
@@ -294,12 +294,12 @@ fn close(st: &IntervalSettings, iv: &Interval, s: &WheelSample, w: usize, out: &
     // the gross traction's course within the interval off a straight line in time: the slip path's
     // average (Simpson's rule on a straight path) does not see it, so it is that much less certain
     let [n, t, tt, y, ty, yy] = iv.line;
-    let n1 = np_max(n, 1.0);
+    let n1 = nan_max(n, 1.0);
     let sxx = tt - t * t / n1;
     let sxy = ty - t * y / n1;
     let syy = yy - y * y / n1;
     let fitted = if sxx > 0.0 { sxy * sxy / sxx } else { 0.0 };
-    var += np_max(syy - fitted, 0.0) / n1;
+    var += nan_max(syy - fitted, 0.0) / n1;
     out.interval[w] = iv.span;
     out.gross[w] = gross;
     out.gross_var[w] = var;

@@ -4,7 +4,7 @@
 //! Matrices are row-major slices; `n` is the state size, [`N_MEAS`] the measurement rows.
 
 use super::layout::N_MEAS;
-use super::numeric::{clip, matmul, matmul_bt, matvec, np_max, np_min, np_sum};
+use super::numeric::{clip, matmul, matmul_bt, matvec, nan_max, nan_min};
 
 /// Scratch matrices of one step, allocated once per bank.
 pub struct Workspace {
@@ -49,8 +49,8 @@ impl Workspace {
 
 /// ZOH prediction over dt > 0 (eq. 34, exact because A is nilpotent, A A = 0):
 /// F = I + A dt, G = b dt + A b dt^2/2, Q_d = Q dt + (A Q + Q A^T) dt^2/2 + A Q A^T dt^3/3,
-/// x <- F x + G, P <- F P F^T + Q_d.  `q`: the diagonal of the (diagonal) Q; `dt_cubed`: dt^3 as
-/// the caller computed it (numpy's power, whose last bit differs from libm's on some dt).
+/// x <- F x + G, P <- F P F^T + Q_d.  `q`: the diagonal of the (diagonal) Q; `dt_cubed`: dt^3, made
+/// once per sample by the caller.
 #[allow(clippy::too_many_arguments)]
 pub fn predict(
     x: &mut [f64],
@@ -109,7 +109,7 @@ pub fn outlier_variance(innov: f64, hph: f64, r: f64, gate_sigma: f64, keep: boo
     if keep {
         r
     } else {
-        np_max(r, innov * innov / (gate_sigma * gate_sigma) - hph)
+        nan_max(r, innov * innov / (gate_sigma * gate_sigma) - hph)
     }
 }
 
@@ -140,14 +140,14 @@ pub fn gated_update(
     for i in 0..m {
         innov[i] = z[i] - hx[i];
     }
-    // H P H^T's diagonal as numpy's ((H @ P) * H).sum(axis=-1)
+    // H P H^T's diagonal: each row of H P times the row of H, summed
     matmul(h, p, &mut ws.pht, m, n, n);
     let mut hph = [0.0; N_MEAS];
     for i in 0..m {
         for j in 0..n {
             ws.v[j] = ws.pht[i * n + j] * h[i * n + j];
         }
-        hph[i] = np_sum(&ws.v[..n]);
+        hph[i] = ws.v[..n].iter().sum();
     }
     let gate2 = gate_sigma * gate_sigma;
     let mut keep = [false; N_MEAS];
@@ -278,13 +278,13 @@ pub fn condition(x: &mut [f64], p: &mut [f64], lower: &[f64], upper: &[f64], flo
     let mut sd = [0.0; 19];
     let mut var = [0.0; 19];
     for i in 0..n {
-        var[i] = np_min(np_max(p[i * n + i], floor), ceiling);
+        var[i] = nan_min(nan_max(p[i * n + i], floor), ceiling);
         sd[i] = var[i].sqrt();
     }
     for i in 0..n {
         for j in 0..n {
             let lim = (0.9999 * sd[i]) * sd[j];
-            p[i * n + j] = np_max(np_min(p[i * n + j], lim), -lim);
+            p[i * n + j] = nan_max(nan_min(p[i * n + j], lim), -lim);
         }
         p[i * n + i] = var[i];
     }

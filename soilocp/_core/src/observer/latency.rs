@@ -13,7 +13,7 @@
 //! [0, `max_latency`]; the observer then fuses V_read + tau a.  The integral is a trapezoid (the
 //! rectangle at each sample's end reads dt / 2 of latency: 25 ms at 20 Hz).
 
-use super::numeric::{clip, np_max};
+use super::numeric::{clip, nan_max};
 
 /// t-statistic of the fitted latency above which it is used.
 pub const MIN_T: f64 = 3.0;
@@ -120,7 +120,7 @@ impl GroundSpeedLatency {
             let pair = f.integral.is_finite();
             let x = f.a_lp - f.a_then;
             let y = f.integral - (reading - f.read);
-            // numpy's where(pair, term, 0.0): a term is added either way
+            // a term is added either way (0 without a pair): one branch-free update
             f.sums[0] += if pair { x * y } else { 0.0 };
             f.sums[1] += if pair { x * x } else { 0.0 };
             f.sums[2] += if pair { y * y } else { 0.0 };
@@ -128,7 +128,7 @@ impl GroundSpeedLatency {
             if pair {
                 let [sxy, sxx, syy, n] = f.sums;
                 let tau = sxy / sxx;
-                let t_stat = tau * (sxx * np_max(n - 1.0, 1.0) / np_max(syy - tau * sxy, 1e-30)).sqrt();
+                let t_stat = tau * (sxx * nan_max(n - 1.0, 1.0) / nan_max(syy - tau * sxy, 1e-30)).sqrt();
                 let determined = sxx > MIN_SPREAD * MIN_SPREAD && n > MIN_PAIRS && t_stat > MIN_T;
                 f.latency = if determined { clip(tau, 0.0, max_latency) } else { 0.0 };
             }

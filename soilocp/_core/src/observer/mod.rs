@@ -3,7 +3,7 @@
 //!
 //! `layout` names the state's indices, `model` builds A, b, H (eq. 33) and the resistance map,
 //! `kalman` holds predict (eq. 34), the gated/Huber update (eq. 35, Joseph form) and the
-//! conditioning, `numeric` numpy's NaN and summation rules the kernels mirror, `bank` the state of
+//! conditioning, `numeric` the NaN rules the divergence guard needs and the fused products, `bank` the state of
 //! N vehicles (x, P, gate counters, resets with reasons, re-anchoring, divergence guard).
 //! Around the filter, `readings` tells which raw readings are new measurements, `wheel_inputs`
 //! splits a skid-steer side's torque and leads an interval-mean encoder speed, `latency` measures

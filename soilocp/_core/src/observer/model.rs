@@ -1,6 +1,6 @@
 //! The observer's continuous model (eq. 33) at one sample: A (n x n), b (n), H (7 x n) from
 //! eqs. 11-15 and 29 (soilocp.estimation.observer.model), and the resistance map of the `slip`
-//! structure (docs/method.md §11).  Operations in the order of the numpy definition.
+//! structure (docs/method.md §11).
 //!
 //! ```text
 //!     omega_i_dot = (T_i - R_w (mu_i + mu_xR_i) Fz_i) / I_w      (eqs. 13-15)
@@ -10,7 +10,7 @@
 //! ```
 
 use super::layout::{Layout, N_MEAS};
-use super::numeric::{np_max, np_min};
+use super::numeric::{nan_max, nan_min};
 
 /// The vehicle's constants the model uses (soilocp.model.vehicle.VehicleParams).
 #[derive(Clone, Copy, Debug)]
@@ -44,7 +44,7 @@ pub const ROVER: Vehicle = Vehicle {
 /// The travel direction of each wheel, smoothed over `travel_speed` (§11): clip(v / s, -1, 1).
 #[inline]
 pub fn smoothed_direction(v_wheel: f64, travel_speed: f64) -> f64 {
-    np_min(np_max(v_wheel / travel_speed, -1.0), 1.0)
+    nan_min(nan_max(v_wheel / travel_speed, -1.0), 1.0)
 }
 
 /// The resistance map M (4 x n_res, row-major) at state x (ObserverBank.maps): for `slip`,
@@ -61,7 +61,7 @@ pub fn resistance_map(l: &Layout, v: &Vehicle, x: &[f64], travel_speed: f64, bri
                 let slip = crate::slip::slip(rim, ground, 0.05);
                 let d = smoothed_direction(ground, travel_speed);
                 let a = slip.abs();
-                out[2 * i] = if bridge > 0.0 { d * np_min(a / bridge, 1.0) } else { d };
+                out[2 * i] = if bridge > 0.0 { d * nan_min(a / bridge, 1.0) } else { d };
                 out[2 * i + 1] = a * d;
             }
         }
@@ -107,7 +107,7 @@ pub fn build(
         a[psi * n + i] = yaw_arm[i] * fz[i] / v.yaw_inertia;
         let lat_i = lat_arm[i] * fz[i];
         if l.n_lat == 1 {
-            lat_sum += lat_i; // numpy's sum of 4: in order
+            lat_sum += lat_i; // the four wheels in order
         } else {
             a[psi * n + lat + i] = -lat_i / v.yaw_inertia;
         }

@@ -1,20 +1,14 @@
-//! The arithmetic rules of numpy that the observer's numbers depend on, so that the port gives
-//! the numbers of the numpy kernel it replaced (scripts/equivalence.py):
+//! The arithmetic rules the observer's numbers depend on:
 //!
-//! * `np.minimum` / `np.maximum` propagate a NaN (Rust's `f64::min` drops it, and the divergence
-//!   guard must see it);
-//! * `ndarray.sum` over a contiguous axis is numpy's pairwise sum (8 accumulators from 8 terms);
-//! * a matrix product (`@`, OpenBLAS dgemm) is, for each entry, one fused multiply-add per term in
-//!   index order from 0 (checked against numpy 2.4 / OpenBLAS on 14 x 14 and 7 x 14 stacks: every
-//!   entry equal);
-//! * a matrix-vector product (`@` with a (n, 1) right side, OpenBLAS dgemv) accumulates in 4
-//!   lanes; [`matvec`] follows the order that matched most entries (48 of 56 on random 14 x 14
-//!   products; sparse rows, most of ours, differ less): not bit-identical, hence the documented
-//!   tolerance of scripts/equivalence.py.
+//! * a NaN must reach the divergence guard: [`nan_min`] / [`nan_max`] propagate it (Rust's `f64::min`
+//!   drops it), and [`sign`] keeps a zero's sign and a NaN as they came;
+//! * a matrix product is, for each entry, one fused multiply-add per term in index order from 0
+//!   ([`matmul`]; [`matvec`] is its one-column case): one rounding per term, the same numbers on every
+//!   machine with FMA, and the zeros of our sparse matrices skipped.
 
-/// `np.sign(x)`: -1, 0 or +1; 0.0, -0.0 and NaN as they came.
+/// -1, 0 or +1; 0.0, -0.0 and NaN as they came.
 #[inline]
-pub fn np_sign(x: f64) -> f64 {
+pub fn sign(x: f64) -> f64 {
     if x > 0.0 {
         1.0
     } else if x < 0.0 {
@@ -24,9 +18,9 @@ pub fn np_sign(x: f64) -> f64 {
     }
 }
 
-/// `np.minimum(a, b)`: NaN if either is NaN.
+/// The smaller of a and b, NaN if either is NaN.
 #[inline]
-pub fn np_min(a: f64, b: f64) -> f64 {
+pub fn nan_min(a: f64, b: f64) -> f64 {
     if a.is_nan() || b.is_nan() {
         f64::NAN
     } else if a < b {
@@ -36,9 +30,9 @@ pub fn np_min(a: f64, b: f64) -> f64 {
     }
 }
 
-/// `np.maximum(a, b)`: NaN if either is NaN.
+/// The larger of a and b, NaN if either is NaN.
 #[inline]
-pub fn np_max(a: f64, b: f64) -> f64 {
+pub fn nan_max(a: f64, b: f64) -> f64 {
     if a.is_nan() || b.is_nan() {
         f64::NAN
     } else if a > b {
@@ -48,17 +42,14 @@ pub fn np_max(a: f64, b: f64) -> f64 {
     }
 }
 
-/// `np.minimum(np.maximum(x, lo), hi)`.
+/// x inside [lo, hi], NaN if x is NaN.
 #[inline]
 pub fn clip(x: f64, lo: f64, hi: f64) -> f64 {
-    np_min(np_max(x, lo), hi)
+    nan_min(nan_max(x, lo), hi)
 }
 
-/// numpy's pairwise summation of a contiguous run (`a.sum()`): [`crate::pairwise::pairwise_sum`].
-pub use crate::pairwise::pairwise_sum as np_sum;
-
 /// C (m x p) = A (m x q) B (q x p), row-major, each entry's terms by fused multiply-adds in
-/// order l = 0..q from 0.0 (dgemm's order).  A term whose a_il is 0 is skipped: it
+/// order l = 0..q from 0.0.  A term whose a_il is 0 is skipped: it
 /// adds an exact zero (our A, H, F and J are mostly zeros); only a non-finite b_lj behind a zero
 /// a_il would have made the entry NaN, and the bank's divergence guard checks the state and P.
 pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
@@ -71,7 +62,7 @@ pub fn matmul(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize)
     matmul_body(a, b, c, m, q, p);
 }
 
-/// C (m x p) = A (m x q) B^T with B given as (p x q), as numpy's `X @ Y.T`: B transposed into
+/// C (m x p) = A (m x q) B^T with B given as (p x q): B transposed into
 /// `scratch` (at least q x p), then [`matmul`].
 #[allow(clippy::too_many_arguments)]
 pub fn matmul_bt(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize, scratch: &mut [f64]) {
@@ -83,33 +74,19 @@ pub fn matmul_bt(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usi
     matmul(a, &scratch[..q * p], c, m, q, p);
 }
 
-/// [`matvec`]'s order: y (m) = A (m x q) x (q), row-major (module doc): four lanes of fused
-/// multiply-adds over the first q - q % 4 terms, combined as (l0 + l2) + (l1 + l3), plus the
-/// remaining terms summed in order.
+/// y (m) = A (m x q) x (q), row-major: [`matmul`] of one column.
 pub fn matvec(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU has the FMA instructions (checked on the line above)
-        unsafe { matvec_fma(a, x, y, m, q) };
-        return;
-    }
-    matvec_body(a, x, y, m, q);
+    matmul(a, x, y, m, q, 1);
 }
 
 // `f64::mul_add` is one instruction where the compiler may use FMA, and a call to libm's fma
-// (software, tens of ns) where it may not, as on the baseline x86-64 target: the products are
+// (software, tens of ns) where it may not, as on the baseline x86-64 target: the product is
 // compiled twice, the FMA copy chosen at run time.  Both round each fused product once: the same
 // numbers.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "fma")]
 unsafe fn matmul_fma(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q: usize, p: usize) {
     matmul_body(a, b, c, m, q, p);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "fma")]
-unsafe fn matvec_fma(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
-    matvec_body(a, x, y, m, q);
 }
 
 #[inline(always)]
@@ -161,31 +138,6 @@ fn matmul_rows<const P: usize>(a: &[f64], b: &[f64], c: &mut [f64], m: usize, q:
     }
 }
 
-#[inline(always)]
-fn matvec_body(a: &[f64], x: &[f64], y: &mut [f64], m: usize, q: usize) {
-    let whole = q - q % 4;
-    for i in 0..m {
-        let row = &a[i * q..(i + 1) * q];
-        let mut lanes = [0.0; 4];
-        for l in 0..whole {
-            lanes[l % 4] = row[l].mul_add(x[l], lanes[l % 4]);
-        }
-        let mut s = if whole > 0 {
-            (lanes[0] + lanes[2]) + (lanes[1] + lanes[3])
-        } else {
-            0.0
-        };
-        let mut tail = 0.0;
-        for l in whole..q {
-            tail += row[l] * x[l];
-        }
-        if q > whole {
-            s += tail;
-        }
-        y[i] = s;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -229,20 +181,10 @@ mod tests {
 
     #[test]
     fn min_max_propagate_nan() {
-        assert!(np_min(f64::NAN, 1.0).is_nan() && np_min(1.0, f64::NAN).is_nan());
-        assert!(np_max(f64::NAN, 1.0).is_nan() && clip(f64::NAN, -1.0, 1.0).is_nan());
+        assert!(nan_min(f64::NAN, 1.0).is_nan() && nan_min(1.0, f64::NAN).is_nan());
+        assert!(nan_max(f64::NAN, 1.0).is_nan() && clip(f64::NAN, -1.0, 1.0).is_nan());
         assert_eq!(clip(3.0, -1.5, 1.5), 1.5);
         assert_eq!(clip(-3.0, -1.5, 1.5), -1.5);
-    }
-
-    #[test]
-    fn pairwise_sum_groups_like_numpy() {
-        // 1e16 + 1 + 1 ... : sequential summation loses every 1, numpy's 8 lanes keep them
-        // (np.array([1e16] + [1.0] * 9).sum() == 1.0000000000000008e16 with numpy 2.4)
-        let mut a = vec![1e16];
-        a.extend([1.0; 9]);
-        assert_eq!(np_sum(&a), 1.0000000000000008e16);
-        assert_eq!(np_sum(&[0.1, 0.2, 0.3]), 0.1 + 0.2 + 0.3);
     }
 
     #[test]

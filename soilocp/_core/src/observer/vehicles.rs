@@ -7,7 +7,7 @@ use super::bank::{FilterBank, Sample};
 use super::intervals::{IntervalSettings, Pairs, RefreshIntervals, WheelSample};
 use super::latency::{exp_terms, GroundSpeedLatency};
 use super::layout::N_MEAS;
-use super::numeric::np_max;
+use super::numeric::nan_max;
 use super::readings::{ReadingClock, CHANNELS};
 use super::wheel_inputs::{encoder_lead, split_side_torque, wheel_acceleration};
 
@@ -209,7 +209,7 @@ impl ObserverBank {
         // NaN at a vehicle's first sample
         let dt = r.stamp - last;
         let first = last.is_nan();
-        let fz: [f64; 4] = std::array::from_fn(|w| np_max(r.normal_force[w], LIFT_OFF_FORCE));
+        let fz: [f64; 4] = std::array::from_fn(|w| nan_max(r.normal_force[w], LIFT_OFF_FORCE));
         let mut raw = [0.0; CHANNELS];
         raw[..4].copy_from_slice(&r.wheel_speed);
         raw[4] = r.ground_speed;

@@ -1,8 +1,8 @@
 //! Argument checks the bindings share: a (k,) or a (k, 4) array of a step's k vehicles (and, for the
-//! observer's inputs, every entry finite), refused with a ValueError that names the argument and what it
-//! came with.
+//! observer's inputs, every entry finite), two arrays that broadcast together, refused with a ValueError
+//! that names the argument and what it came with.
 
-use numpy::ndarray::{ArrayView1, ArrayView2};
+use numpy::ndarray::{ArrayView1, ArrayView2, ArrayViewD, IxDyn};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -61,4 +61,33 @@ pub fn check_finite_quads(name: &str, a: &ArrayView2<'_, f64>, k: usize) -> PyRe
         )));
     }
     Ok(())
+}
+
+/// Both arrays as views of their common shape (numpy's broadcasting), or an error naming them.
+pub fn broadcast<'a>(
+    names: (&str, &str),
+    a: &'a ArrayViewD<'_, f64>,
+    b: &'a ArrayViewD<'_, f64>,
+) -> PyResult<(ArrayViewD<'a, f64>, ArrayViewD<'a, f64>)> {
+    let (sa, sb) = (a.shape(), b.shape());
+    let n = sa.len().max(sb.len());
+    let dim = |s: &[usize], i: usize| if i + s.len() >= n { s[i + s.len() - n] } else { 1 };
+    let fail = || {
+        PyValueError::new_err(format!(
+            "{} (shape {sa:?}) and {} (shape {sb:?}) do not broadcast together",
+            names.0, names.1
+        ))
+    };
+    let shape: Vec<usize> = (0..n)
+        .map(|i| match (dim(sa, i), dim(sb, i)) {
+            (x, y) if x == y || y == 1 => Ok(x),
+            (1, y) => Ok(y),
+            _ => Err(fail()),
+        })
+        .collect::<PyResult<_>>()?;
+    let shape = IxDyn(&shape);
+    Ok((
+        a.broadcast(shape.clone()).ok_or_else(fail)?,
+        b.broadcast(shape).ok_or_else(fail)?,
+    ))
 }

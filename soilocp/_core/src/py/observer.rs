@@ -347,25 +347,16 @@ impl ObserverCore {
         ))
     }
 
-    /// The names of the step's output blocks' rows, in order.
+    /// The names of the rows of the step's four output blocks, in order: floats per wheel, floats per
+    /// vehicle, bools per wheel, bools per vehicle.
     #[classattr]
-    fn quad_fields() -> Vec<&'static str> {
-        QUAD_NAMES.to_vec()
-    }
-
-    #[classattr]
-    fn flat_fields() -> Vec<&'static str> {
-        FLAT_NAMES.to_vec()
-    }
-
-    #[classattr]
-    fn bool_quad_fields() -> Vec<&'static str> {
-        BOOL_QUADS.to_vec()
-    }
-
-    #[classattr]
-    fn bool_flat_fields() -> Vec<&'static str> {
-        BOOL_FLATS.to_vec()
+    fn block_fields() -> [Vec<&'static str>; 4] {
+        [
+            QUAD_NAMES.to_vec(),
+            FLAT_NAMES.to_vec(),
+            BOOL_QUADS.to_vec(),
+            BOOL_FLATS.to_vec(),
+        ]
     }
 
     /// N: below this normal force a wheel is lifted off (its force is clamped to it).

@@ -3,7 +3,7 @@
 //! same names (soilocp.model.slip, soilocp.estimation.wheel_usability) and their callers off the
 //! soil stage (the control loop, the torque scale, the simulator's checks).
 
-use numpy::ndarray::{Array2, ArrayD, ArrayViewD, IxDyn, Zip};
+use numpy::ndarray::{Array2, ArrayD, Zip};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -11,37 +11,26 @@ use pyo3::prelude::*;
 use crate::slip;
 use crate::soil::usability::{self, Limits};
 
-use super::args::quads;
+use super::args::{broadcast, quads};
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
-/// Both arrays as views of their common shape (numpy's broadcasting), or an error naming them.
-fn broadcast<'a>(
+/// `f` of every pair of two arrays that broadcast together (names: theirs, for the error), as two arrays.
+fn map_pairs<'py>(
+    py: Python<'py>,
     names: (&str, &str),
-    a: &'a ArrayViewD<'_, f64>,
-    b: &'a ArrayViewD<'_, f64>,
-) -> PyResult<(ArrayViewD<'a, f64>, ArrayViewD<'a, f64>)> {
-    let (sa, sb) = (a.shape(), b.shape());
-    let n = sa.len().max(sb.len());
-    let dim = |s: &[usize], i: usize| if i + s.len() >= n { s[i + s.len() - n] } else { 1 };
-    let fail = || {
-        PyValueError::new_err(format!(
-            "{} (shape {sa:?}) and {} (shape {sb:?}) do not broadcast",
-            names.0, names.1
-        ))
-    };
-    let shape: Vec<usize> = (0..n)
-        .map(|i| match (dim(sa, i), dim(sb, i)) {
-            (x, y) if x == y || y == 1 => Ok(x),
-            (1, y) => Ok(y),
-            _ => Err(fail()),
-        })
-        .collect::<PyResult<_>>()?;
-    let shape = IxDyn(&shape);
-    Ok((
-        a.broadcast(shape.clone()).ok_or_else(fail)?,
-        b.broadcast(shape).ok_or_else(fail)?,
-    ))
+    a: &PyReadonlyArrayDyn<'py, f64>,
+    b: &PyReadonlyArrayDyn<'py, f64>,
+    f: impl Fn(f64, f64) -> (f64, f64),
+) -> PyResult<(Arr<'py>, Arr<'py>)> {
+    let (a, b) = (a.as_array(), b.as_array());
+    let (a, b) = broadcast(names, &a, &b)?;
+    let mut x = ArrayD::<f64>::zeros(a.raw_dim());
+    let mut y = ArrayD::<f64>::zeros(a.raw_dim());
+    Zip::from(&mut x).and(&mut y).and(&a).and(&b).for_each(|x, y, &a, &b| {
+        (*x, *y) = f(a, b);
+    });
+    Ok((x.into_pyarray(py), y.into_pyarray(py)))
 }
 
 /// Eq. 1 with the floor of docs/method.md §10 (crate::slip::slip) from wheel speeds omega (rad/s),
@@ -55,20 +44,16 @@ pub fn slip_ratio<'py>(
     wheel_radius: f64,
     floor: f64,
 ) -> PyResult<(Arr<'py>, Arr<'py>)> {
-    let (w, v) = (wheel_speed.as_array(), ground_speed.as_array());
-    let (w, v) = broadcast(("wheel_speed", "ground_speed"), &w, &v)?;
-    let mut s = ArrayD::<f64>::zeros(w.raw_dim());
-    let mut scale = ArrayD::<f64>::zeros(w.raw_dim());
-    Zip::from(&mut s)
-        .and(&mut scale)
-        .and(&w)
-        .and(&v)
-        .for_each(|s, c, &w, &v| {
+    map_pairs(
+        py,
+        ("wheel_speed", "ground_speed"),
+        &wheel_speed,
+        &ground_speed,
+        |w, v| {
             let rim = w * wheel_radius;
-            *s = slip::slip(rim, v, floor);
-            *c = slip::scale(rim, v);
-        });
-    Ok((s.into_pyarray(py), scale.into_pyarray(py)))
+            (slip::slip(rim, v, floor), slip::scale(rim, v))
+        },
+    )
 }
 
 /// Eq. 1 in each wheel's direction of travel (docs/method.md §17, crate::slip::travel_slip) from rim
@@ -80,14 +65,9 @@ pub fn travel_slip<'py>(
     ground: PyReadonlyArrayDyn<'py, f64>,
     floor: f64,
 ) -> PyResult<(Arr<'py>, Arr<'py>)> {
-    let (r, g) = (rim.as_array(), ground.as_array());
-    let (r, g) = broadcast(("rim", "ground"), &r, &g)?;
-    let mut s = ArrayD::<f64>::zeros(r.raw_dim());
-    let mut d = ArrayD::<f64>::zeros(r.raw_dim());
-    Zip::from(&mut s).and(&mut d).and(&r).and(&g).for_each(|s, d, &r, &g| {
-        (*s, *d) = slip::travel_slip(r, g, floor);
-    });
-    Ok((s.into_pyarray(py), d.into_pyarray(py)))
+    map_pairs(py, ("rim", "ground"), &rim, &ground, |r, g| {
+        slip::travel_slip(r, g, floor)
+    })
 }
 
 /// The unusable code (k, 4) per wheel (docs/method.md §17, crate::soil::usability::codes) from the

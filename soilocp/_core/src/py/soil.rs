@@ -258,7 +258,7 @@ impl SlipGateBank {
     /// The names of a packed row's per-wheel fields, in order (four columns each).
     #[classattr]
     fn quad_fields() -> Vec<&'static str> {
-        gate::QUAD_NAMES.to_vec()
+        gate::quad_names()
     }
 
     /// The names of a packed row's per-vehicle fields, in order, after the quads.

@@ -4,7 +4,7 @@
 //! (evidence, NIS, the systematic budget's sums), the scale profile, the scale's systematic term
 //! and the axle check.
 
-use crate::observer::numeric::np_sign as sign;
+use crate::observer::numeric::sign;
 use crate::soil::axles::{AxleCheck, AxleVerdict};
 use crate::soil::grid::Grid;
 use crate::soil::numeric::{grid_sum, row_top};
@@ -472,9 +472,9 @@ impl SoilGridBank {
             b.scale_prior = sigma;
         }
         if !pairs.is_empty() || taken {
-            let (sigma, one_prior) = match s.scale_sigma {
-                Some(_) => (b.scale_prior, false),
-                None => (cfg.gross_scale_sigma, true),
+            let sigma = match s.scale_sigma {
+                Some(_) => b.scale_prior,
+                None => cfg.gross_scale_sigma,
             };
             b.scale_sys = scale_shift_with(
                 &b.profile[0],
@@ -483,7 +483,6 @@ impl SoilGridBank {
                 &self.nodes,
                 &grid.theta,
                 grid.dtheta,
-                one_prior,
                 &mut w.scale,
             );
         }

@@ -3,7 +3,7 @@
 //! side makes from the soil table (soilocp.estimation.soil_state.class_bounds) with the names.
 
 extern "C" {
-    /// The C library's erf: the one CPython's math.erf calls, which the numpy classification used.
+    /// The C library's erf (Rust's standard library has none).
     #[link_name = "erf"]
     fn libm_erf(x: f64) -> f64;
 }

@@ -7,35 +7,64 @@
 //! soilocp.estimation.observer_bank.ObserverBankOutput that the gate reads, in the order of
 //! soilocp.estimation.slip_gate.GATE_FIELDS), so that a step is one array across the boundary.
 
-use crate::observer::numeric::{np_max, np_min};
-use crate::observer::vehicles::Estimate;
+use crate::observer::numeric::{nan_max, nan_min};
+use crate::observer::vehicles::{Estimate, QUAD_NAMES as OBSERVER_QUADS};
 use crate::slip;
 use crate::soil::bank::Sample;
 use crate::soil::usability::{self, Limits, SLIP_BEYOND_EQ1};
 
-/// The per-wheel fields of a packed row, four columns each from `4 * index`.
+/// The per-wheel fields of a packed row, four columns each from `4 * index`: the observer's rows
+/// ([`OBSERVER_QUADS`], in their order, each found by its name when compiled), then the gate's two flags.
 pub mod quad {
-    pub const MU: usize = 0;
-    pub const MU_VAR: usize = 1;
-    pub const GROSS: usize = 2;
-    pub const GROSS_VAR: usize = 3;
-    pub const WHEEL_SPEED: usize = 4;
-    pub const NORMAL_FORCE: usize = 5;
-    pub const SPEED_AGE: usize = 6;
-    pub const TORQUE_AGE: usize = 7;
-    pub const INTERVAL: usize = 8;
-    pub const INTERVAL_GROSS: usize = 9;
-    pub const INTERVAL_GROSS_VAR: usize = 10;
-    pub const INTERVAL_RIM_START: usize = 11;
-    pub const INTERVAL_RIM_END: usize = 12;
-    pub const INTERVAL_GROUND_START: usize = 13;
-    pub const INTERVAL_GROUND_END: usize = 14;
-    pub const INTERVAL_RIM_SIGMA: usize = 15;
+    use super::OBSERVER_QUADS;
+
+    /// The index of the observer's row `name` (a name that is no row does not compile).
+    const fn row(name: &str) -> usize {
+        let mut i = 0;
+        while i < OBSERVER_QUADS.len() {
+            if same(OBSERVER_QUADS[i].as_bytes(), name.as_bytes()) {
+                return i;
+            }
+            i += 1;
+        }
+        panic!("not a row of the observer's output");
+    }
+
+    const fn same(a: &[u8], b: &[u8]) -> bool {
+        if a.len() != b.len() {
+            return false;
+        }
+        let mut i = 0;
+        while i < a.len() {
+            if a[i] != b[i] {
+                return false;
+            }
+            i += 1;
+        }
+        true
+    }
+
+    pub const MU: usize = row("mu");
+    pub const MU_VAR: usize = row("mu_var");
+    pub const GROSS: usize = row("gross");
+    pub const GROSS_VAR: usize = row("gross_var");
+    pub const WHEEL_SPEED: usize = row("wheel_speed");
+    pub const NORMAL_FORCE: usize = row("normal_force");
+    pub const SPEED_AGE: usize = row("speed_age");
+    pub const TORQUE_AGE: usize = row("torque_age");
+    pub const INTERVAL: usize = row("interval");
+    pub const INTERVAL_GROSS: usize = row("interval_gross");
+    pub const INTERVAL_GROSS_VAR: usize = row("interval_gross_var");
+    pub const INTERVAL_RIM_START: usize = row("interval_rim_start");
+    pub const INTERVAL_RIM_END: usize = row("interval_rim_end");
+    pub const INTERVAL_GROUND_START: usize = row("interval_ground_start");
+    pub const INTERVAL_GROUND_END: usize = row("interval_ground_end");
+    pub const INTERVAL_RIM_SIGMA: usize = row("interval_rim_sigma");
     /// bool (0 / 1)
-    pub const INTERVAL_LEARNING: usize = 16;
+    pub const INTERVAL_LEARNING: usize = OBSERVER_QUADS.len();
     /// bool (0 / 1)
-    pub const SPEED_REJECTED: usize = 17;
-    pub const COUNT: usize = 18;
+    pub const SPEED_REJECTED: usize = OBSERVER_QUADS.len() + 1;
+    pub const COUNT: usize = OBSERVER_QUADS.len() + 2;
 }
 
 /// The per-vehicle fields of a packed row, one column each after the quads.
@@ -53,27 +82,13 @@ pub mod scalar {
     pub const COUNT: usize = 6;
 }
 
+/// The names of the gate's own per-wheel flags, after the observer's rows ([`quad`]).
+pub const FLAG_NAMES: [&str; 2] = ["interval_learning", "speed_rejected"];
+
 /// The names of the per-wheel fields, in [`quad`]'s order (soilocp.estimation.slip_gate.GATE_QUADS).
-pub const QUAD_NAMES: [&str; quad::COUNT] = [
-    "mu",
-    "mu_var",
-    "gross",
-    "gross_var",
-    "wheel_speed",
-    "normal_force",
-    "speed_age",
-    "torque_age",
-    "interval",
-    "interval_gross",
-    "interval_gross_var",
-    "interval_rim_start",
-    "interval_rim_end",
-    "interval_ground_start",
-    "interval_ground_end",
-    "interval_rim_sigma",
-    "interval_learning",
-    "speed_rejected",
-];
+pub fn quad_names() -> Vec<&'static str> {
+    OBSERVER_QUADS.iter().chain(&FLAG_NAMES).copied().collect()
+}
 
 /// The names of the per-vehicle fields, in [`scalar`]'s order (soilocp.estimation.slip_gate.GATE_SCALARS).
 pub const SCALAR_NAMES: [&str; scalar::COUNT] = [
@@ -94,28 +109,12 @@ pub const COLUMNS: usize = scalar::GROUND_SPEED + scalar::COUNT;
 pub fn row_of(e: &Estimate) -> [f64; COLUMNS] {
     let p = &e.pairs;
     let flag = |b: bool| if b { 1.0 } else { 0.0 };
-    let quads: [(usize, [f64; 4]); quad::COUNT] = [
-        (quad::MU, e.mu),
-        (quad::MU_VAR, e.mu_var),
-        (quad::GROSS, e.gross),
-        (quad::GROSS_VAR, e.gross_var),
-        (quad::WHEEL_SPEED, e.wheel_speed),
-        (quad::NORMAL_FORCE, e.normal_force),
-        (quad::SPEED_AGE, e.speed_age()),
-        (quad::TORQUE_AGE, e.torque_age()),
-        (quad::INTERVAL, p.interval),
-        (quad::INTERVAL_GROSS, p.gross),
-        (quad::INTERVAL_GROSS_VAR, p.gross_var),
-        (quad::INTERVAL_RIM_START, p.rim_start),
-        (quad::INTERVAL_RIM_END, p.rim_end),
-        (quad::INTERVAL_GROUND_START, p.ground_start),
-        (quad::INTERVAL_GROUND_END, p.ground_end),
-        (quad::INTERVAL_RIM_SIGMA, p.rim_sigma),
-        (quad::INTERVAL_LEARNING, p.active.map(flag)),
-        (quad::SPEED_REJECTED, e.speed_rejected.map(flag)),
-    ];
+    let quads = e
+        .quads()
+        .into_iter()
+        .chain([p.active.map(flag), e.speed_rejected.map(flag)]);
     let mut row = [0.0; COLUMNS];
-    for (f, q) in quads {
+    for (f, q) in quads.enumerate() {
         row[4 * f..4 * f + 4].copy_from_slice(&q);
     }
     row[scalar::GROUND_SPEED] = e.ground_speed;
@@ -292,7 +291,7 @@ impl SlipGateBank {
                 if refresh[w] {
                     // the slip path's middle; informative only where the wheel moved at both ends
                     slip[w] = 0.5 * (s0 + s1);
-                    scale[w] = np_min(scale0, scale1);
+                    scale[w] = nan_min(scale0, scale1);
                     observed[w] = d1 * i_gross[w];
                     if s0.abs() > 1.0 || s1.abs() > 1.0 {
                         unusable[w] = SLIP_BEYOND_EQ1;
@@ -334,9 +333,9 @@ impl SlipGateBank {
         let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
         let speed_sigma = cfg.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
         let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
-            let s = cfg.slip_sigma.hypot(speed_sigma / np_max(scale[w], 1e-3));
+            let s = cfg.slip_sigma.hypot(speed_sigma / nan_max(scale[w], 1e-3));
             if any_refresh && refresh[w] {
-                s.hypot(rim_sigma[w] / np_max(scale[w], 1e-3))
+                s.hypot(rim_sigma[w] / nan_max(scale[w], 1e-3))
             } else {
                 s
             }
@@ -437,30 +436,16 @@ mod tests {
 
     #[test]
     fn names_follow_the_column_indices() {
-        use quad::*;
-        let quads = [
-            (MU, "mu"),
-            (MU_VAR, "mu_var"),
-            (GROSS, "gross"),
-            (GROSS_VAR, "gross_var"),
-            (WHEEL_SPEED, "wheel_speed"),
-            (NORMAL_FORCE, "normal_force"),
-            (SPEED_AGE, "speed_age"),
-            (TORQUE_AGE, "torque_age"),
-            (INTERVAL, "interval"),
-            (INTERVAL_GROSS, "interval_gross"),
-            (INTERVAL_GROSS_VAR, "interval_gross_var"),
-            (INTERVAL_RIM_START, "interval_rim_start"),
-            (INTERVAL_RIM_END, "interval_rim_end"),
-            (INTERVAL_GROUND_START, "interval_ground_start"),
-            (INTERVAL_GROUND_END, "interval_ground_end"),
-            (INTERVAL_RIM_SIGMA, "interval_rim_sigma"),
-            (INTERVAL_LEARNING, "interval_learning"),
-            (SPEED_REJECTED, "speed_rejected"),
-        ];
-        assert_eq!(quads.len(), COUNT);
-        for (i, name) in quads {
-            assert_eq!(QUAD_NAMES[i], name);
+        let names = quad_names();
+        assert_eq!(names.len(), quad::COUNT);
+        for (i, name) in [
+            (quad::MU, "mu"),
+            (quad::GROSS, "gross"),
+            (quad::INTERVAL_RIM_SIGMA, "interval_rim_sigma"),
+            (quad::INTERVAL_LEARNING, "interval_learning"),
+            (quad::SPEED_REJECTED, "speed_rejected"),
+        ] {
+            assert_eq!(names[i], name);
         }
         let scalars = [
             (scalar::GROUND_SPEED, "ground_speed"),
@@ -473,7 +458,7 @@ mod tests {
         for (i, name) in scalars {
             assert_eq!(SCALAR_NAMES[i - scalar::GROUND_SPEED], name);
         }
-        assert_eq!(COLUMNS, 4 * QUAD_NAMES.len() + SCALAR_NAMES.len());
+        assert_eq!(COLUMNS, 4 * quad::COUNT + SCALAR_NAMES.len());
     }
 
     fn params() -> GateParams {

@@ -1,8 +1,6 @@
-//! numpy's reductions, written out so that the soil update adds in numpy's order: `np.sum`
-//! along a contiguous row is a pairwise sum (8 accumulators in blocks of up to 128), `np.cumsum`
-//! is sequential, `np.interp` interpolates from the last node at or below x.
-
-pub use crate::pairwise::pairwise_sum;
+//! The soil update's reductions over the grid: sums in eight lanes, the cumulative sum in order,
+//! linear interpolation from the last node at or below x (beyond the ends: the end values), the
+//! extremes of a row.
 
 /// The mid-point CDF of a belief, `np.cumsum(p) - 0.5 * p`, into `out`.
 #[inline(always)]
@@ -53,46 +51,23 @@ pub fn row_max(a: &[f64]) -> f64 {
     m
 }
 
-/// [`pairwise_sum`] without its recursion for a row of up to 256 values whose two halves are
-/// one block each (numpy's split: the first half a multiple of 8, both at most 128; the grid's
-/// 241 nodes are 120 + 121): the same additions in the same order, in a function that inlines
-/// into the soil step's AVX2 copy (bank.rs).  Other lengths: [`pairwise_sum`] itself.
+/// The sum of a row in eight lanes (vector registers), combined pairwise at the end, then the
+/// last n % 8 values in order: one pass, and a rounding error that grows with n / 8.
 #[inline(always)]
 pub fn grid_sum(a: &[f64]) -> f64 {
-    let n = a.len();
-    if n <= 128 {
-        return pairwise_block(a);
-    }
-    let n2 = n / 2 - (n / 2) % 8;
-    if n - n2 > 128 {
-        return pairwise_sum(a);
-    }
-    pairwise_block(&a[..n2]) + pairwise_block(&a[n2..])
-}
-
-/// numpy's pairwise sum of at most 128 values (`pairwise_sum`'s two lower branches).
-#[inline(always)]
-fn pairwise_block(a: &[f64]) -> f64 {
-    let n = a.len();
-    if n < 8 {
-        let mut r = -0.0;
-        for &x in a {
-            r += x;
-        }
-        return r;
-    }
-    let mut r: [f64; 8] = std::array::from_fn(|j| a[j]);
-    let whole = n - n % 8;
-    for c in a[8..whole].chunks_exact(8) {
+    let chunks = a.chunks_exact(8);
+    let rest = chunks.remainder();
+    let mut r = [0.0f64; 8];
+    for c in chunks {
         for (rj, &x) in r.iter_mut().zip(c) {
             *rj += x;
         }
     }
-    let mut res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-    for &x in &a[whole..] {
-        res += x;
+    let mut sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    for &x in rest {
+        sum += x;
     }
-    res
+    sum
 }
 
 /// The largest value of a row, NaN if any is NaN: `np.max`'s value (the tests hold it to
@@ -150,17 +125,12 @@ mod tests {
     use super::*;
 
     #[test]
-    fn pairwise_sum_orders_like_numpy() {
-        // 1e16 + 1 + ... : the order decides which units are absorbed
-        let mut a = vec![1.0; 25];
-        a[0] = 1e16;
-        // blocks: r0 = 1e16 + 1 + 1 (indices 0, 8, 16), r1..r7 = 3 each; + a[24]
-        let want = ((((1e16 + 1.0) + 1.0) + 3.0) + (3.0 + 3.0)) + ((3.0 + 3.0) + (3.0 + 3.0)) + 1.0;
-        assert_eq!(pairwise_sum(&a), want);
-        assert_eq!(pairwise_sum(&[1.0, 2.0, 3.0]), 6.0);
+    fn grid_sum_adds_every_value() {
+        assert_eq!(grid_sum(&[]), 0.0);
+        assert_eq!(grid_sum(&[1.0, 2.0, 3.0]), 6.0);
         let long: Vec<f64> = (0..241).map(|i| i as f64 * 0.1).collect();
         let exact: f64 = (0..241).map(|i| i as f64).sum::<f64>() * 0.1;
-        assert!((pairwise_sum(&long) - exact).abs() < 1e-9);
+        assert!((grid_sum(&long) - exact).abs() < 1e-9);
     }
 
     #[test]
@@ -199,27 +169,6 @@ mod tests {
             }
         }
         assert_eq!(row_min_ignoring_nan(&[f64::NAN; 5]), f64::INFINITY);
-    }
-
-    /// grid_sum adds as pairwise_sum at every length (inlined halves up to 256, else the recursion).
-    #[test]
-    fn grid_sum_is_pairwise_sum() {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let row: Vec<f64> = (0..600)
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.3) * 10f64.powi((x % 30) as i32 - 15)
-            })
-            .collect();
-        for n in 0..600 {
-            assert_eq!(
-                grid_sum(&row[..n]).to_bits(),
-                pairwise_sum(&row[..n]).to_bits(),
-                "n = {n}"
-            );
-        }
     }
 
     #[test]

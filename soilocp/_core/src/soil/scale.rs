@@ -32,7 +32,7 @@ fn profile_argmin_from(f: &[f64], low: f64, theta: &[f64], dtheta: f64) -> (f64,
     let (y0, y1, y2) = (f[i - 1], f[i], f[i + 1]);
     let curv = y0 - 2.0 * y1 + y2;
     let off = if curv > 0.0 { 0.5 * (y0 - y2) / curv } else { 0.0 };
-    let off = off.clamp(-0.5, 0.5); // NaN stays NaN, as numpy's minimum / maximum
+    let off = off.clamp(-0.5, 0.5); // NaN stays NaN
     (theta[i] + off * dtheta, y1 - 0.25 * (y0 - y2) * off)
 }
 
@@ -64,10 +64,6 @@ fn misfit_row(cv: f64, s_hh: &[f64], two_oh: &[f64], row: &mut [f64]) -> f64 {
 /// M(c) = min_theta c (c S_hh - 2 S_oh); c's posterior is its prior times exp(-M / 2), and the
 /// systematic 1-sigma the root mean square of theta*(c) - theta*(1) under it.
 ///
-/// `matmul_means`: c's moments as the reference computes them with a single prior 1-sigma for
-/// all vehicles (`post @ c`, BLAS, added here in order) rather than per vehicle (`np.sum`,
-/// pairwise): the two orders differ by rounding only.
-///
 /// `w`: the caller's scratch rows (no allocation per step).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -78,7 +74,6 @@ pub fn scale_shift_with(
     nodes: &ScaleNodes,
     theta: &[f64],
     dtheta: f64,
-    matmul_means: bool,
     w: &mut ScaleScratch,
 ) -> [f64; 3] {
     if sigma <= 0.0 {
@@ -125,14 +120,7 @@ pub fn scale_shift_with(
     w.pc.extend(post.iter().zip(c).map(|(&p, &cv)| p * cv));
     w.pc2.clear();
     w.pc2.extend(post.iter().zip(c).map(|(&p, &cv)| p * (cv * cv)));
-    let (c_mean, c2) = if matmul_means {
-        (
-            w.pc.iter().fold(0.0, |a, &b| a + b),
-            w.pc2.iter().fold(0.0, |a, &b| a + b),
-        )
-    } else {
-        (grid_sum(&w.pc), grid_sum(&w.pc2))
-    };
+    let (c_mean, c2) = (grid_sum(&w.pc), grid_sum(&w.pc2));
     [
         grid_sum(&w.shift2).sqrt(),
         c_mean,
@@ -197,7 +185,6 @@ mod tests {
                 &nodes(),
                 &theta,
                 1.0,
-                true,
                 &mut ScaleScratch::default()
             ),
             [0.0, 1.0, 0.05]
@@ -210,7 +197,6 @@ mod tests {
                 &nodes(),
                 &theta,
                 1.0,
-                true,
                 &mut ScaleScratch::default()
             ),
             [0.0, 1.0, 0.0]
@@ -224,16 +210,7 @@ mod tests {
         // h(theta) = theta, obs = 2: S_oh = w obs h, S_hh = w h^2 with w = 100
         let s_oh: Vec<f64> = theta.iter().map(|t| 100.0 * 2.0 * t).collect();
         let s_hh: Vec<f64> = theta.iter().map(|t| 100.0 * t * t).collect();
-        let [sys, mean, sd] = scale_shift_with(
-            &s_oh,
-            &s_hh,
-            0.05,
-            &nodes(),
-            &theta,
-            0.1,
-            false,
-            &mut ScaleScratch::default(),
-        );
+        let [sys, mean, sd] = scale_shift_with(&s_oh, &s_hh, 0.05, &nodes(), &theta, 0.1, &mut ScaleScratch::default());
         assert!((mean - 1.0).abs() < 0.02 && sd < 0.06 && sys > 0.0, "{sys} {mean} {sd}");
     }
 }

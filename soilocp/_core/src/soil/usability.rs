@@ -2,7 +2,7 @@
 //! wheel, 0 where it may inform K.  The names and the reason text of the codes stay in Python
 //! (soilocp.estimation.wheel_usability.REASONS, EXPLAIN, describe).
 
-use crate::observer::numeric::np_min;
+use crate::observer::numeric::nan_min;
 
 /// The longitudinal model describes the wheel.
 pub const USABLE: i8 = 0;
@@ -64,10 +64,10 @@ pub fn codes(
     half_track: f64,
     lim: &Limits,
 ) -> [i8; 4] {
-    // numpy's mean of two: their sum over the count
+    // each side's mean rim speed
     let (left, right) = ((rim[0] + rim[1]) / 2.0, (rim[2] + rim[3]) / 2.0);
     let (yaw, v) = (yaw_rate.abs(), body_speed.abs());
-    let skid = (left * right < 0.0 && np_min(left.abs(), right.abs()) > lim.rim_turning)
+    let skid = (left * right < 0.0 && nan_min(left.abs(), right.abs()) > lim.rim_turning)
         || (yaw > lim.yaw_turning && v < yaw * half_track);
     let mut code = [USABLE; 4];
     for w in 0..4 {

@@ -5,7 +5,6 @@
 //! torque-scale state ([`crate::torque_scale::bank`]).
 
 use crate::constants::Constants;
-use crate::pairwise::pairwise_sum;
 use crate::traction;
 
 /// The vehicle's numbers eq. TC reads: mass m (kg, the vehicle file's), one wheel's inertia I_w
@@ -89,11 +88,11 @@ pub fn longitudinal_balance_split(
 /// travel (§17: in reverse the resistance pushes the body forwards).  Modelled, not a slow state:
 /// eq. 4's C5 / K term makes it negative below K ~ 125, and at small slip it grows with |S|, i.e.
 /// with the acceleration that identifies k (docs/robustness.md).  The four terms add in wheel
-/// order (numpy's sum of a row of four).
+/// order.
 #[inline]
 pub fn modelled_resistance(slip: &[f64; 4], k: f64, normal_force: &[f64; 4], direction: f64, c: &Constants) -> f64 {
     let terms: [f64; 4] = std::array::from_fn(|j| normal_force[j] * traction::resistance(slip[j], k, c).value);
-    direction * pairwise_sum(&terms)
+    direction * terms.iter().sum::<f64>()
 }
 
 #[cfg(test)]

@@ -9,8 +9,7 @@
 
 use crate::constants::Constants;
 use crate::normal_force::{gravity_from_attitude, STANDARD_GRAVITY};
-use crate::observer::numeric::np_max;
-use crate::pairwise::pairwise_sum;
+use crate::observer::numeric::nan_max;
 use crate::slip;
 use crate::torque_scale::balance::{longitudinal_balance_split, modelled_resistance, Body};
 use crate::torque_scale::kalman::ScaleState;
@@ -113,8 +112,8 @@ impl TorqueScaleBank {
     /// mean and 1-sigma after this sample.
     pub fn step(&mut self, i: usize, s: &Sample) -> (f64, f64) {
         let (p, r) = (&self.params, self.body.wheel_radius);
-        let w_sum = pairwise_sum(&s.wheel_speed);
-        let t_sum = pairwise_sum(&s.torque);
+        let w_sum: f64 = s.wheel_speed.iter().sum();
+        let t_sum: f64 = s.torque.iter().sum();
         let g_x = gravity_from_attitude(0.0, s.pitch, STANDARD_GRAVITY)[0];
         let speed = if s.ground_speed.is_nan() {
             w_sum / 4.0 * r
@@ -210,8 +209,8 @@ impl TorqueScaleBank {
         if p.state_sigma == p.prior_sigma {
             return sd;
         }
-        let m = np_max(sd, 1e-12);
-        let info = np_max(1.0 / (m * m) - 1.0 / p.state_var, 0.0);
+        let m = nan_max(sd, 1e-12);
+        let info = nan_max(1.0 / (m * m) - 1.0 / p.state_var, 0.0);
         1.0 / (1.0 / p.prior_var + info).sqrt()
     }
 

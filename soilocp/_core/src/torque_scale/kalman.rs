@@ -96,8 +96,7 @@ impl ScaleState {
     /// under the wheels changed within it, one axle after the other, so its mean F_MR is neither
     /// the old soil's nor the new one's.  Its sign still counts (the jump test stays on), but the
     /// shadow restarts from the reset state, without the window's b: carried into the contrast with
-    /// the next window of the other sign, that b was read as k (reverse-braking: k 0.993 -> 0.986
-    /// for 1.00 on the simulator's exact data).
+    /// the next window of the other sign, that b would be read as a change of k.
     pub fn jump(&mut self, h: [f64; 2], y: f64, sign: u8, p: &Params) {
         self.p[0][1] = 0.0;
         self.p[1][0] = 0.0;

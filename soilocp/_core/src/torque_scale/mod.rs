@@ -8,8 +8,8 @@
 //! filter with its Schmidt update; [`bank`] the state of N vehicles, one call per step.
 //! `crate::py::torque_scale` binds the bank to Python.
 //!
-//! The arithmetic follows the numpy kernel it replaced operation by operation (its einsum orders,
-//! numpy's pairwise sums), so that the port gives its numbers to the last bit: the torques it
+//! The arithmetic follows the numpy kernel it replaced operation by operation (its einsum orders;
+//! sums of four in wheel order), so that the port gives its numbers to the last bit: the torques it
 //! scales feed the observer, whose gates turn a 1e-16 difference into a changed status thousands
 //! of samples later (docs/core-observer.md).
 
