@@ -42,7 +42,7 @@ def test_every_row_runs_as_a_stage_service(name):
 def test_compose_deploys_the_rows_of_the_graph(compose):
     services = yaml.safe_load((ROOT / compose).read_text())["services"]
     per_vehicle: dict[str, list[str]] = {}
-    for svc_name, svc in soilocp.services.items():
+    for svc_name, svc in services.items():
         cmd = svc.get("command") or []
         if len(cmd) >= 2 and cmd[0] == "service" and cmd[1] in PIPELINE_SERVICES:
             vehicle = svc_name[: -len(cmd[1]) - 1]
