@@ -206,6 +206,8 @@ def _run_kills(tmp_path, victims: list[str], interval_s: float, duration_s: floa
         assert f"soilocp run: {name} exited" in text, text[-3000:]
     seqs = [q for _t, q, _s in ocps]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), "OCPs out of order or repeated"
+    print(f"OCPs: {len(seqs)} received of seqs {seqs[0]}..{seqs[-1]}: {seqs[-1] - seqs[0] + 1 - len(seqs)} samples "
+          f"without an OCP over {len(victims)} kills")
     _check_fleet_status(rows.get(vid), victims, results, t_status)
     _check_map_kept_every_ack(store, acks)
     return results
