@@ -1,11 +1,14 @@
 """``soilocp run``: the whole system on one machine, as separate OS processes, with a live view.
 
-Starts ``soilocp router``, the five pipeline services and the source (synthetic vehicle or a log
-replay), each as ``python -m soilocp.cli ...`` with its own log file, watches the vehicle's keys
+Starts ``soilocp router``, the five pipeline services (with ``--map-store``, the fleet soil map
+service too) and the source (synthetic vehicle or a log replay), each as
+``python -m soilocp.cli ...`` with its own log file, watches the vehicle's keys
 from a client session of its own (OCPs, rejections, status, liveliness) and shows a live table
 (rich) on a terminal, or a plain line every few seconds without one.  Ctrl-C / SIGTERM stop
 everything: SIGTERM to each child in reverse order, wait, SIGKILL after a timeout.  The exit
-status is non-zero if any process died or failed to stop.
+status is non-zero if any process died or failed to stop.  With ``--restart`` a process that dies
+is started again instead, and the restarts are answered on the vehicle's supervisor key for the
+fleet tools (:mod:`soilocp.services.supervisor.restarts`).
 """
 
 from __future__ import annotations
