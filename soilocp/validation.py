@@ -210,6 +210,13 @@ class SampleValidator:
     its old session, whereas a recorded stream replayed at a high rate beside the live one (50 old
     samples arrive between two live ones at 5 kHz) would otherwise be taken for a restart, and every
     replayed sample after it fed downstream.  Offline (no arrival time) the run alone decides.
+
+    ``conflicts`` counts the samples refused for their order (old, duplicate, earlier stamp, or a
+    jump far ahead) that arrived less than ``restart_quiet_s`` after an accepted one.  One source on
+    an in-order link never sends such a sample while its own stream is live, and a restarted source
+    comes back after its old session went quiet; so a conflict means a second publisher on the
+    vehicle's key: a forger with a valid sample of this vehicle (whichever of the two streams is
+    ahead, the other one's samples are refused) or a replay beside the live stream.  Live only.
     """
 
     #: A sample further ahead of the last accepted one than this (seq, stamp in s) is refused as out_of_range
@@ -226,6 +233,7 @@ class SampleValidator:
         self.last_seq: Optional[int] = None
         self.last_stamp: Optional[float] = None
         self.restarts = 0
+        self.conflicts = 0
         self._run: list[tuple[int, float]] = []  # consecutive ordered rejected samples (the latest restart_after)
         self._accepted_at: Optional[float] = None  # arrival time of the last accepted sample (live)
 
@@ -236,6 +244,8 @@ class SampleValidator:
             self._check_order(sample)
         except SampleRejected as rej:
             candidate = rej.code in ("old_seq", "stamp_backwards") or getattr(rej, "jump", False)
+            if (candidate or rej.code == "duplicate_seq") and self._live(received_at):
+                self.conflicts += 1  # a second publisher on this vehicle's key (class doc)
             if candidate and self._extends_run(sample):
                 self._run.append((sample.seq, sample.stamp))
                 if len(self._run) >= self.restart_after and self._quiet(received_at):
@@ -252,6 +262,11 @@ class SampleValidator:
         self.last_seq = sample.seq
         self.last_stamp = sample.stamp
         self._accepted_at = received_at
+
+    def _live(self, received_at: Optional[float]) -> bool:
+        """A sample accepted less than ``restart_quiet_s`` before ``received_at`` (live only)."""
+        return received_at is not None and self._accepted_at is not None \
+            and received_at - self._accepted_at < self.restart_quiet_s
 
     def _quiet(self, received_at: Optional[float]) -> bool:
         if received_at is None or self._accepted_at is None:

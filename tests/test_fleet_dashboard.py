@@ -90,6 +90,43 @@ def test_state_fresh_stale_offline_and_rejections_from_gateway_health():
     assert st.rows()[0]["rejections"] == 7  # the gateway's own count includes rejections before we listened
 
 
+def test_state_restarts_from_the_supervisor_and_a_second_source_from_the_gateway():
+    """The supervisor's report: per process restarted (or died) its count, and its last restart's age
+    as of now (the report's age plus the time since it arrived); an older report of the same
+    supervisor does not replace a newer one.  The gateway's source_conflicts flag a second source."""
+    from soilocp.schemas.messages import SupervisedProcess, SupervisorStatus
+    from soilocp.services.fleet.commands import restarts_text
+
+    clock = Clock()
+    st = FleetState(clock=clock)
+    st.set_alive("rover1", "gateway", True)
+    (row,) = st.rows()
+    assert row["restarts_total"] is None and row["restarts"] is None and restarts_text(row) == "-"
+    assert row["second_source"] is False and row["source_conflicts"] == 0
+
+    def report(t, ocp_restarts, age):
+        return SupervisorStatus(vehicle_id="rover1", pid=7, host="h", restart=True, time=t, processes=[
+            SupervisedProcess(name="router", pid=10, state="running", restarts=0),
+            SupervisedProcess(name="ocp", pid=11, state="running", restarts=ocp_restarts, last_restart_age_s=age,
+                              last_exit=-9),
+            SupervisedProcess(name="observer", pid=12, state="died", restarts=0, last_exit=1)])
+
+    st.set_supervisor(report(clock.t, 2, 1.5))
+    clock.t += 3.0
+    st.set_supervisor(report(clock.t - 10.0, 1, 0.5))  # older: ignored
+    (row,) = st.rows()
+    assert row["restarts_total"] == 2 and set(row["restarts"]) == {"ocp", "observer"}, row
+    assert row["restarts"]["ocp"] == {"restarts": 2, "state": "running", "pid": 11, "last_exit": -9,
+                                      "last_restart_age_s": pytest.approx(4.5)}
+    assert restarts_text(row) == "2, ocp 4.5 s ago, died: observer"
+    h = ServiceHealth(service="gateway", vehicle_id="rover1", pid=1, host="h", state="running", uptime_s=1,
+                      received=10, published=3, rejected=7, dropped=0, errors=0, queue_depth=0, time=clock.t,
+                      detail={"rejected_old_seq": 7, "source_conflicts": 6})
+    st.set_health(h)
+    (row,) = st.rows()
+    assert row["second_source"] is True and row["source_conflicts"] == 6
+
+
 def test_state_reconcile_removes_a_service_only_after_consecutive_misses():
     st = FleetState(clock=Clock())
     st.reconcile_alive([("v1", s) for s in PIPELINE_SERVICES], misses=2)

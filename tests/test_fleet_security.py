@@ -319,6 +319,61 @@ def test_vehicle_ocps_reach_dashboard_and_fleet_cli_over_tls(fleet, tmp_path):
     assert codes == {"rover1": 143, "dashboard": 0}, (codes, procs.log_text("rover1")[-1500:])
 
 
+def test_forged_samples_of_another_vehicle_never_reach_its_gateway(fleet, tmp_path):
+    """rover1 as deployed: its router links to the secure fleet router with rover1's certificate, its
+    gateway and its sensor driver are plain clients of that router.  On the fleet router, rover2 (a
+    fleet certificate of another vehicle) and the intruder (the fleet's CA, named in no policy) publish
+    valid samples of rover1 on rover1's raw key, ahead of rover1's own.  The fleet router refuses them:
+    the gateway's clean output is exactly rover1's samples in order (a forged one let in would be
+    accepted, being ahead, and refuse every later sample of rover1), and its health counts no rejection
+    and no second source.  rover1's samples sent after the forged ones are the control."""
+    import zenoh
+
+    from soilocp.services.bench.stages import simulate_drive
+    from zenoh_helpers import client, endpoint
+
+    drive = simulate_drive("rover1", 1.0)
+    own = [s.model_dump_json().encode() for s in drive[:60]]
+    forged = [s.model_copy(update={"seq": s.seq + 10_000, "stamp": s.stamp + 100.0}).model_dump_json().encode()
+              for s in drive[:60]]
+    vep = endpoint(free_port())
+    procs = Procs(tmp_path / "logs")
+    clean = Inbox()
+    try:
+        procs.spawn("rover1-router", ["router", "--listen", vep],
+                    env={"SOILOCP_ROUTER_CONNECT": fleet.ep, **fleet.env("rover1")})
+        procs.spawn("gateway", ["service", "gateway", "--vehicle-id", "rover1", "--connect", vep])
+        with client(vep) as driver, fleet.session("dashboard") as dash, fleet.session("rover2") as r2, \
+                fleet.session("intruder") as intruder:
+            driver.declare_subscriber("soilocp/rover1/sensors/clean", clean)
+            # the vehicle is on the fleet (its gateway's token seen through the fleet router)
+            assert wait_for(lambda: [r for r in dash.liveliness().get("soilocp/rover1/alive/gateway", timeout=1.0)
+                                     if r.ok is not None], 60), procs.log_text("rover1-router")[-2000:]
+            time.sleep(1.0)
+            pubs = {name: s.declare_publisher("soilocp/rover1/sensors/raw",
+                                              congestion_control=zenoh.CongestionControl.BLOCK)
+                    for name, s in (("rover1", driver), ("rover2", r2), ("intruder", intruder))}
+            for k in range(40):
+                pubs["rover1"].put(own[k])
+                pubs["rover2"].put(forged[k])
+                pubs["intruder"].put(forged[k])
+                time.sleep(0.01)
+            for k in range(40, 60):  # the control: rover1's own samples after the forged ones
+                pubs["rover1"].put(own[k])
+                time.sleep(0.01)
+            assert wait_for(lambda: len(clean.items) >= 60, 30), (len(clean.items), procs.tail("gateway"))
+            time.sleep(GRACE_S)
+            (health,) = [json.loads(p) for p in _replies(driver, "soilocp/rover1/status/gateway")]
+        seqs = [json.loads(p)["seq"] for _k, p in clean.items]
+        assert seqs == [s.seq for s in drive[:60]], seqs
+        assert health["received"] == 60 and health["rejected"] == 0, health
+        assert health["detail"].get("source_conflicts", 0) == 0, health
+        print(f"rover1's gateway: {health['received']} received, {health['rejected']} rejected; the 80 forged "
+              "samples (rover2, intruder) refused by the fleet router")
+    finally:
+        procs.close(timeout=20.0)
+
+
 def test_security_settings_fail_with_a_clear_message(tmp_path):
     from soilocp.services.router import router_settings
     from soilocp.services.runtime.config import ConfigError

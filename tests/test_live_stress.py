@@ -147,6 +147,9 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
     print(f"flood: good-stream latency ms, before the flood {lat_clean}, during it {lat_flood}; p99 ratio "
           f"{lat_flood.get('p99', float('nan')) / lat_clean.get('p99', float('nan')):.2f}")
     print(f"flood: gateway RSS MiB before {rss0:.1f}, peak {rss_peak[0]:.1f}, after {rss1:.1f}")
+    conflicts = h1.detail.get("source_conflicts", 0) - h0.detail.get("source_conflicts", 0)
+    print(f"flood: refused for their order while the good stream was live (a second source): {conflicts}")
+    assert conflicts > 0, "the flood's replayed samples were not seen as a second source"
     assert len(during) > 200, "the flood did not overlap the good stream"
     assert not lost, f"{len(lost)} good samples lost, e.g. {lost[:10]}"
     assert all(q >= SEQ0 for q in ocp_seqs), "a hostile sample reached the OCPs"

@@ -97,6 +97,37 @@ def test_scattered_stragglers_never_open_a_new_session():
     assert v.restarts == 0 and v.last_seq == 99
 
 
+def test_a_second_publisher_is_counted_as_a_conflict_and_a_restart_is_not():
+    """Live (arrival times given): a forger interleaved with the vehicle's stream, behind it or ahead
+    of it, makes ordering refusals while the accepted stream is live: counted in ``conflicts``.  The
+    vehicle alone, and the vehicle restarting (its new session begins after the old one went quiet),
+    make none."""
+    def drive(v, seqs, t0):  # at 100 Hz from arrival time t0
+        for k, q in enumerate(seqs):
+            try:
+                v.check(sample(q, q * 0.01), received_at=t0 + k * 0.01)
+            except SampleRejected:
+                pass
+
+    v = SampleValidator(restart_after=5, restart_quiet_s=0.5)
+    drive(v, range(1, 201), 100.0)  # the vehicle alone, 100 Hz
+    drive(v, range(1, 101), 103.0)  # it restarts 1 s after its last sample: seq from 1 again
+    assert v.conflicts == 0 and v.restarts == 1
+
+    behind = SampleValidator(restart_after=5, restart_quiet_s=0.5)
+    ahead = SampleValidator(restart_after=5, restart_quiet_s=0.5)
+    for k in range(1, 101):
+        t = 200.0 + k * 0.01
+        behind.check(sample(1000 + k, 10 + k * 0.01), received_at=t)
+        with pytest.raises(SampleRejected):  # a forger replaying the vehicle's samples 0.5 s late
+            behind.check(sample(1000 + k - 50, 10 + (k - 50) * 0.01), received_at=t + 0.002)
+        ahead.check(sample(5000 + k, 50 + k * 0.01), received_at=t)  # a forger ahead of the vehicle
+        with pytest.raises(SampleRejected):
+            ahead.check(sample(1000 + k, 10 + k * 0.01), received_at=t + 0.002)  # the vehicle's own
+    assert behind.conflicts == 100 and ahead.conflicts == 100
+    assert behind.restarts == 0 and ahead.restarts == 0
+
+
 def test_parse_sample_names_field_and_value():
     with pytest.raises(SampleRejected) as exc:
         parse_sample('{"vehicle_id": "r1", "seq": -1}')

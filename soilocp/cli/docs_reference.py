@@ -432,12 +432,12 @@ def records_page() -> tuple[str, int, int]:
 #: an unknown one).
 KEY_KIND = {
     "raw": "public", "ocp": "public", "control_slip": "public", "control_drive": "public", "rejected": "public",
-    "alive": "public",
+    "alive": "public", "supervisor": "public",
     "clean": "internal", "normal_forces": "internal", "observer": "internal", "soil": "internal",
     "status": "internal",
     "vehicle_alive_all": "selector", "vehicle_status_all": "selector", "any_vehicle_ocp": "selector",
     "any_vehicle_raw": "selector", "any_vehicle_alive": "selector", "any_vehicle_status": "selector",
-    "any_vehicle_rejected": "selector", "any_vehicle_soil": "selector",
+    "any_vehicle_rejected": "selector", "any_vehicle_soil": "selector", "any_vehicle_supervisor": "selector",
 }
 #: Payloads of the keys the pipeline graph (soilocp.services.stages.graph) does not declare.
 OTHER_PAYLOADS = {
@@ -447,6 +447,7 @@ OTHER_PAYLOADS = {
     "status": ("ServiceHealth", "every service (also answered as a query)"),
     "control_slip": ("SlipSetpoint", "controller"),
     "control_drive": ("DriveSetpoint", "soilocp calibrate-drive"),
+    "supervisor": ("SupervisorStatus", "soilocp run (also answered as a query)"),
 }
 MAP_TAILS = {
     "cells": ("MapCellUpdate", "map service", "cells whose estimate changed"),

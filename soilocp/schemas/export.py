@@ -14,7 +14,8 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from soilocp.schemas.map import MapCellUpdate, MapQueryReply, MapRejection, MapStatus
-from soilocp.schemas.messages import DriveSetpoint, OcpReply, Rejection, ServiceHealth, SlipSetpoint
+from soilocp.schemas.messages import (DriveSetpoint, OcpReply, Rejection, ServiceHealth, SlipSetpoint,
+                                      SupervisorStatus)
 from soilocp.schemas.pipeline import NormalForces, ObserverOutput, OcpEstimate, SoilEstimate
 from soilocp.schemas.sensor import SENSOR_SCHEMA_ID, SensorSample
 
@@ -32,6 +33,7 @@ MESSAGE_MODELS: dict[type[BaseModel], str] = {
     DriveSetpoint: "soilocp/<vid>/control/drive",
     Rejection: "soilocp/<vid>/rejected",
     ServiceHealth: "soilocp/<vid>/status/<service> (publication and queryable reply)",
+    SupervisorStatus: "soilocp/<vid>/supervisor (publication and queryable reply)",
     MapCellUpdate: "soilmap/<map_id>/cells",
     MapQueryReply: "soilmap/<map_id>/query (queryable reply)",
     MapRejection: "soilmap/<map_id>/rejected",

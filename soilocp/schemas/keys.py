@@ -16,6 +16,8 @@ Public keys (a contract for other programs, see ``docs/services.md``)::
     soilocp/<vid>/control/slip         SlipSetpoint JSON: wheel slip set-points of the controller service
     soilocp/<vid>/control/drive        DriveSetpoint JSON: speed and slip set-points of a calibration drive
                                        (on each OCP, and the safe fallback while the OCPs are stale)
+    soilocp/<vid>/supervisor           SupervisorStatus JSON: the processes ``soilocp run`` runs for the
+                                       vehicle and their restarts (at each restart; queryable)
 
 Internal keys (between the services of one vehicle; stable, documented, but not a promise)::
 
@@ -108,6 +110,7 @@ control_slip = _vehicle_key("control/slip", "Wheel slip set-points of the contro
 control_drive = _vehicle_key("control/drive", "Speed and slip set-points of a calibration drive (soilocp calibrate-drive)")
 rejected = _vehicle_key("rejected", "Rejections of the gateway")
 alive = _service_key("alive", "Liveliness token of one service")
+supervisor = _vehicle_key("supervisor", "The supervisor of soilocp run: its processes and their restarts")
 
 # --- internal ---------------------------------------------------------------------------------
 clean = _vehicle_key("sensors/clean", "Validated samples from the gateway")
@@ -124,6 +127,7 @@ any_vehicle_raw = _fleet_selector("sensors/raw", "Every vehicle's raw sensor inp
 any_vehicle_alive = _fleet_selector("alive/*", "Every liveliness token of the fleet")
 any_vehicle_status = _fleet_selector("status/*", "Every status key of the fleet")
 any_vehicle_rejected = _fleet_selector("rejected", "Every vehicle's rejections")
+any_vehicle_supervisor = _fleet_selector("supervisor", "Every vehicle's supervisor status")
 
 
 # --- parsing ----------------------------------------------------------------------------------

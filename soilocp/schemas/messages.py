@@ -84,6 +84,34 @@ class ServiceHealth(_ServiceMessage):
     time: float = Field(description="Wall-clock time of this report, s since the Unix epoch")
 
 
+ProcessState = Literal["running", "restarted", "died", "stopped", "done", "killed"]
+
+
+class SupervisedProcess(_ServiceMessage):
+    """One process a supervisor runs, under its name (the latest process of that name)."""
+
+    name: str = Field(description="The process's name in the run: router, gateway, ..., map, vehicle")
+    pid: Optional[int] = Field(description="Its process id (null: not started)")
+    state: ProcessState = Field(description="running; died (not restarted); stopped, done or killed at the end")
+    restarts: int = Field(ge=0, description="How often the supervisor started it again after it died")
+    last_restart_age_s: Optional[float] = Field(
+        default=None, ge=0, description="Seconds from its last restart to this report (null: never restarted)")
+    last_exit: Optional[int] = Field(
+        default=None, description="Exit status of the process that died last (negative: killed by that signal)")
+
+
+class SupervisorStatus(_ServiceMessage):
+    """What the supervisor of ``soilocp run`` runs for one vehicle and what it restarted
+    (``soilocp/<vid>/supervisor``: published at each restart and answered as a query)."""
+
+    vehicle_id: VehicleId
+    pid: int = Field(description="The supervisor's process id")
+    host: str
+    restart: bool = Field(description="Processes that die are restarted (soilocp run --restart); else the run stops")
+    processes: list[SupervisedProcess]
+    time: float = Field(description="Wall-clock time of this report, s since the Unix epoch")
+
+
 class OcpReply(_ServiceMessage):
     """Answer of the OCP queryable ``soilocp/<vid>/ocp`` (``?last=N`` / ``?since=STAMP`` add a history)."""
 

@@ -206,10 +206,15 @@ def _ros_domain(value) -> int:
                    "(then give --listen another port for soilocp's own router).")
 @click.option("--ros2-domain", type=int, help="ROS domain id for --ros2 / --ros2-in; default $ROS_DOMAIN_ID or 0.")
 @click.option("--restart", is_flag=True, help="Restart a router or service that dies (at most 5 times a minute each) "
-                                              "instead of stopping the run.")
+                                              "instead of stopping the run; `soilocp fleet status` shows the restarts.")
+@click.option("--map-store", metavar="URL",
+              help="Also run the fleet soil map service on this store (sqlite:PATH or postgresql://user@host/db), "
+                   "fed by the vehicle's soil estimates (they carry places when the vehicle has a pose: "
+                   "SOILOCP_START_POSE for --synthetic; docs/map.md).")
+@click.option("--map-id", default="fleet", show_default=True, help="With --map-store: the map's id (keys soilmap/<id>/...).")
 def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pipeline_config, vehicle_path,
             torque_constant, stale_timeout, seed, log_dir, plain, control, foxglove_addr, ros2_out, ros2_in, ros2_connect,
-            ros2_domain, restart=False) -> None:
+            ros2_domain, restart=False, map_store=None, map_id="fleet") -> None:
     """Start the router, the five services and a source as separate processes; show live OCPs.
 
     Ends with the OCP records per status and reason code, each with its next step, and says what any
@@ -251,6 +256,9 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
             get_scenario(scenario)  # ValueError listing the known scenarios
         if duration is not None and duration <= 0:
             raise ValueError(f"--duration {duration!r}: must be > 0 s")
+        keys.check_map_id(map_id)
+        if map_store is not None and not map_store.strip():
+            raise ValueError("--map-store: empty; give sqlite:PATH or postgresql://user@host/db")
         if speed < 0:
             raise ValueError(f"--speed {speed!r}: must be >= 0")
         if foxglove_addr is not None:
@@ -273,7 +281,7 @@ def run_cmd(scenario, replay, map_path, speed, vehicle_id, duration, listen, pip
                       listen=list(listen) or None, pipeline_config=pipeline_config, stale_timeout=stale_timeout,
                       seed=seed, log_dir=log_dir, plain=plain, control=control, foxglove=foxglove_addr,
                       ros2_out=ros2_out, ros2_in=ros2_in, ros2_connect=ros2_eps, ros2_domain=ros2_domain,
-                      restart=restart)
+                      restart=restart, map_store=map_store, map_id=map_id)
     try:
         code = run_system(opts)
     except ValueError as exc:  # the Foxglove port is taken: nothing was started

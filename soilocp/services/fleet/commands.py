@@ -47,7 +47,8 @@ def fleet_table(rows: list[dict[str, Any]], title: str):
     from rich.text import Text
 
     t = Table(title=title, title_justify="left")
-    for name in ("vehicle", "services", "K ± std", "soil class", "mu_T", "S_T", "S_E", "status", "age", "rej"):
+    for name in ("vehicle", "services", "K ± std", "soil class", "mu_T", "S_T", "S_E", "status", "age", "rej",
+                 "restarts"):
         t.add_column(name, no_wrap=True,
                      justify="right" if name in ("K ± std", "mu_T", "S_T", "S_E", "age", "rej") else "left")
     colours = {"fresh": "green", "stale": "yellow", "no estimate": "dim"}
@@ -66,9 +67,29 @@ def fleet_table(rows: list[dict[str, Any]], title: str):
         if r["soil_class"] and r["soil_class_confidence"] is not None:
             cls += f" ({r['soil_class_confidence']:.2f})"
         status = r["status"] + (f" / {r['estimate_status']}" if r["estimate_status"] and r["status"] != "stale" else "")
+        rej = Text(str(r["rejections"]))
+        if r["second_source"]:
+            rej = Text(f"{r['rejections']} (2nd source: {r['source_conflicts']})", style="red")
         t.add_row(r["vehicle_id"], svc, k, cls, _fmt(r["mu_T"]), _fmt(r["S_T"]), _fmt(r["S_E"]),
-                  Text(status, style=colours.get(r["status"], "")), _age(r["age_s"]), str(r["rejections"]))
+                  Text(status, style=colours.get(r["status"], "")), _age(r["age_s"]), rej, restarts_text(r))
     return t
+
+
+def restarts_text(row: dict[str, Any]) -> str:
+    """The ``restarts`` cell: total, and the process restarted last with how long ago
+    ("3, ocp 12.0 s ago"); "-" without a supervisor report."""
+    if row.get("restarts_total") is None:
+        return "-"
+    per = row.get("restarts") or {}
+    died = [n for n, p in per.items() if p["state"] == "died"]
+    timed = [(p["last_restart_age_s"], n) for n, p in per.items() if p["last_restart_age_s"] is not None]
+    out = str(row["restarts_total"])
+    if timed:
+        age, name = min(timed)
+        out += f", {name} {_age(age)} ago"
+    if died:
+        out += ", died: " + ",".join(died)
+    return out
 
 
 def _install_stop(stop: threading.Event) -> dict:

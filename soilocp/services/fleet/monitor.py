@@ -11,7 +11,8 @@ Sources (all keys from :mod:`soilocp.schemas.keys`):
 * ``soilocp/*/status/*``: ServiceHealth of each service (the gateway's ``rejected`` counter is
   the vehicle's rejection count);
 * ``soilocp/*/rejected``: rejections as they happen (live view; counted when no gateway health
-  is known).
+  is known);
+* ``soilocp/*/supervisor``: what the supervisor of ``soilocp run`` restarted (query and publication).
 
 :class:`FleetState` holds everything under one lock and turns it into plain JSON rows; it never
 touches Zenoh.  :class:`FleetMonitor` feeds it: the Zenoh callbacks only put the raw payload in a
@@ -30,7 +31,7 @@ from pydantic import ValidationError
 
 from soilocp.schemas import keys
 from soilocp.services.runtime.process import undeclare_all
-from soilocp.schemas.messages import OcpReply, Rejection, ServiceHealth
+from soilocp.schemas.messages import OcpReply, Rejection, ServiceHealth, SupervisorStatus
 from soilocp.schemas.pipeline import OcpEstimate
 
 from soilocp.services.fleet.state import FleetState
@@ -61,7 +62,8 @@ def query_fleet(session, state: FleetState, timeout: float, *, misses: int = 1) 
     # on the query's own wildcard key, which the default consolidation would fold into one reply).
     every = zenoh.ConsolidationMode.NONE
     for selector, model, apply in ((keys.any_vehicle_ocp(), OcpReply, state.add_reply),
-                                   (keys.any_vehicle_status(), ServiceHealth, state.set_health)):
+                                   (keys.any_vehicle_status(), ServiceHealth, state.set_health),
+                                   (keys.any_vehicle_supervisor(), SupervisorStatus, state.set_supervisor)):
         for r in session.get(selector, timeout=timeout, consolidation=every):
             if r.ok is None:
                 continue
@@ -119,6 +121,7 @@ class FleetMonitor:
             s.declare_subscriber(keys.any_vehicle_ocp(), on_data("ocp")),
             s.declare_subscriber(keys.any_vehicle_status(), on_data("status")),
             s.declare_subscriber(keys.any_vehicle_rejected(), on_data("rejected")),
+            s.declare_subscriber(keys.any_vehicle_supervisor(), on_data("supervisor")),
         ]
         return self
 
@@ -142,6 +145,8 @@ class FleetMonitor:
                 st.add_estimate(OcpEstimate.model_validate_json(data), wall)
             elif kind == "status":
                 st.set_health(ServiceHealth.model_validate_json(data), wall)
+            elif kind == "supervisor":
+                st.set_supervisor(SupervisorStatus.model_validate_json(data), wall)
             elif kind == "rejected":
                 vid, _rest = keys.split_key(key)
                 try:

@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable, Optional
 import numpy as np
 
 from soilocp.services.stages.graph import PIPELINE_SERVICES
-from soilocp.schemas.messages import OcpReply, ServiceHealth
+from soilocp.schemas.messages import OcpReply, ServiceHealth, SupervisorStatus
 from soilocp.schemas.pipeline import OcpEstimate
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import net_traction
@@ -50,6 +50,8 @@ class _Vehicle:
     publisher_says_stale: Optional[bool] = None
     ocp_count: int = 0
     health: dict[str, ServiceHealth] = field(default_factory=dict)
+    supervisor: Optional[SupervisorStatus] = None
+    supervisor_wall: float = 0.0  # when that report arrived (its ages are as of then)
     rejections_seen: int = 0
     last_seen: float = 0.0
     history: deque = field(default_factory=lambda: deque(maxlen=HISTORY_POINTS))
@@ -202,6 +204,14 @@ class FleetState:
             if h.service == "ocp" and h.stale is not None:
                 v.publisher_says_stale = h.stale
 
+    def set_supervisor(self, st: SupervisorStatus, now: Optional[float] = None) -> None:
+        """The report of the vehicle's ``soilocp run`` supervisor (the newer of two reports wins)."""
+        now = self.clock() if now is None else now
+        with self._lock:
+            v = self._vehicle(st.vehicle_id, now)
+            if v.supervisor is None or st.pid != v.supervisor.pid or st.time >= v.supervisor.time:
+                v.supervisor, v.supervisor_wall = st, now
+
     def add_rejection(self, vid: str, now: Optional[float] = None) -> None:
         now = self.clock() if now is None else now
         with self._lock:
@@ -243,6 +253,16 @@ class FleetState:
         missing = [s for s in PIPELINE_SERVICES if s not in v.alive]
         gw = v.health.get("gateway")
         rejections = max(v.rejections_seen, gw.rejected if gw is not None else 0)
+        conflicts = gw.detail.get("source_conflicts") if gw is not None else None
+        conflicts = int(conflicts) if isinstance(conflicts, (int, float)) and not isinstance(conflicts, bool) else 0
+        restarts, restarts_total = None, None
+        if v.supervisor is not None:
+            since = max(0.0, now - v.supervisor_wall)
+            restarts = {p.name: {"restarts": p.restarts, "state": p.state, "pid": p.pid, "last_exit": p.last_exit,
+                                 "last_restart_age_s": None if p.last_restart_age_s is None
+                                 else round(p.last_restart_age_s + since, 3)}
+                        for p in v.supervisor.processes if p.restarts or p.state == "died"}
+            restarts_total = sum(p.restarts for p in v.supervisor.processes)
         if not v.alive:
             state = "offline"
         elif missing:
@@ -272,6 +292,14 @@ class FleetState:
             "seq": est.seq if est else None,
             "stamp": est.stamp if est else None,
             "rejections": rejections,
+            # ordering refusals of samples that arrived while the vehicle's accepted stream was live: a
+            # second publisher on its raw key (soilocp.validation.SampleValidator.conflicts)
+            "source_conflicts": conflicts,
+            "second_source": conflicts > 0,
+            # the supervisor of `soilocp run`: restarts in all, and per process that restarted or died
+            # (null: no supervisor report, e.g. services run by systemd)
+            "restarts_total": restarts_total,
+            "restarts": restarts,
             "ocp_received": v.ocp_count,
             "first_seen": v.first_seen,
             "last_seen": v.last_seen,

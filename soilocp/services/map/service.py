@@ -246,7 +246,8 @@ class MapService:
                     self._dirty.set()
                     log.warning("query_prepare_failed", error=f"{type(exc).__name__}: {exc}"[:300])
             token = session.liveliness().declare_token(mk("alive"))
-            log.info("running", map_id=cfg.map_id, store=_public_url(self.store.url), cells=self._n_cells)
+            log.info("running", map_id=cfg.map_id, store=_public_url(self.store.url), cells=self._n_cells,
+                     pid=os.getpid())
             next_status = 0.0
             while not self.stop.wait(0.05):
                 now = time.time()

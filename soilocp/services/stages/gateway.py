@@ -107,10 +107,14 @@ class GatewayService(StageService):
         vid = item.vehicle_id
         c = self.counters[vid]
         c.last_input_wall = item.wall
-        result = self.checkers[vid].check(item.payload, item.key, item.wall)
+        checker = self.checkers[vid]
+        conflicts = checker.validator.conflicts
+        result = checker.check(item.payload, item.key, item.wall)
         if isinstance(result, Rejection):
             c.rejected += 1
             c.bump(f"rejected_{result.code}")
+            if checker.validator.conflicts != conflicts:  # a second publisher on the key (SampleValidator)
+                c.bump("source_conflicts")
             if c.rejected <= 50 or c.rejected % 100 == 0:  # a flood of garbage must not flood the log
                 self.log.warning("rejected", vehicle_id=vid, code=result.code, seq=result.seq,
                                  message=result.message[:300], rejected_total=c.rejected)

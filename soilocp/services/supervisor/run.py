@@ -1,11 +1,14 @@
 """``soilocp run``: the whole system on one machine, as separate OS processes, with a live view.
 
-Starts ``soilocp router``, the five pipeline services and the source (synthetic vehicle or a log
-replay), each as ``python -m soilocp.cli ...`` with its own log file, watches the vehicle's keys
+Starts ``soilocp router``, the five pipeline services (with ``--map-store``, the fleet soil map
+service too) and the source (synthetic vehicle or a log replay), each as
+``python -m soilocp.cli ...`` with its own log file, watches the vehicle's keys
 from a client session of its own (OCPs, rejections, status, liveliness) and shows a live table
 (rich) on a terminal, or a plain line every few seconds without one.  Ctrl-C / SIGTERM stop
 everything: SIGTERM to each child in reverse order, wait, SIGKILL after a timeout.  The exit
-status is non-zero if any process died or failed to stop.
+status is non-zero if any process died or failed to stop.  With ``--restart`` a process that dies
+is started again instead, and the restarts are answered on the vehicle's supervisor key for the
+fleet tools (:mod:`soilocp.services.supervisor.restarts`).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from soilocp.services.supervisor.liveliness import wait_alive
 from soilocp.services.supervisor.log_watch import LogWatch
 from soilocp.services.supervisor.monitor import Monitor
 from soilocp.services.supervisor.processes import STOP_TIMEOUT_S, Child, ProcessGroup
+from soilocp.services.supervisor.restarts import RestartBook
 from soilocp.services.supervisor.table import drop_lines, live_table, plain_line, summary_tables
 from soilocp.estimation.next_steps import status_table, verdict
 
@@ -63,6 +67,8 @@ class RunOptions:
     ros2_connect: Optional[list[str]] = None  # the robot's Zenoh router (rmw_zenohd)
     ros2_domain: int = 0
     restart: bool = False  # a router or service that dies is restarted (RESTART_MAX a RESTART_WINDOW_S), not fatal
+    map_store: Optional[str] = None  # also run the fleet soil map service on this store (sqlite:PATH, postgresql://)
+    map_id: str = "fleet"
 
 
 def client_endpoints(listen: list[str]) -> list[str]:
@@ -112,6 +118,7 @@ def run_system(opts: RunOptions) -> int:
         console.print(f"soilocp run: Foxglove WebSocket server on {fox.url} (layout: docs/foxglove/soilocp-layout.json)")
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     group = ProcessGroup(log_dir)
+    book = RestartBook(opts.vehicle_id, group, opts.restart)
     monitor = Monitor(opts.vehicle_id, opts.stale_timeout)
     session = None
     failures: list[str] = []
@@ -127,6 +134,11 @@ def run_system(opts: RunOptions) -> int:
         for ep in listen:
             router_args += ["--listen", ep]
         group.start("router", router_args)
+        if opts.map_store:
+            margs = ["service", "map", "--map-id", opts.map_id, "--store", opts.map_store, "--log-level", "info"]
+            for ep in connect:
+                margs += ["--connect", ep]
+            group.start("map", margs)
         for name in PIPELINE_SERVICES:
             args = ["service", name, *common]
             if name == "ocp":
@@ -163,6 +175,7 @@ def run_system(opts: RunOptions) -> int:
             failures.append(str(seen[0]))
         if session is not None and not seen:  # None: interrupted, or a process died while connecting
             monitor.attach(session)
+            book.attach(session)
             if fox is not None:
                 fox.attach(session)
             # wait until every pipeline service holds its token (or one dies, or says it cannot start)
@@ -178,6 +191,9 @@ def run_system(opts: RunOptions) -> int:
             if missing and not dead and not seen and not stop.is_set():
                 failures.append(f"services not alive after {opts.startup_timeout_s:.0f} s: "
                                 + ",".join(sorted(s for _v, s in missing)))
+            if opts.map_store and not failures and not stop.is_set() and not _map_alive(
+                    session, opts.map_id, opts.startup_timeout_s, stop, lambda: group.dead() or blocked()):
+                failures.append(f"map service (map id {opts.map_id}) not alive; see {log_dir / 'map.log'}")
             if not failures and not stop.is_set():
                 vargs = ["service", "vehicle", *common, "--speed", str(opts.speed), "--wait-timeout", "10"]
                 if opts.ros2_in:
@@ -197,7 +213,7 @@ def run_system(opts: RunOptions) -> int:
                               + (f"scenario {opts.scenario}" if opts.scenario else f"replay {opts.replay}"
                                  if opts.replay else f"from ROS 2 topics ({opts.ros2_in})"))
                 watch = LogWatch(log_dir, [vehicle.name], {})
-                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive, watch)
+                failures += _watch(opts, group, vehicle, monitor, stop, t_drive, console, interactive, watch, book)
     finally:
         snap_running = monitor.snapshot()  # what the table showed last, before anything stops
         if session is not None and not failures:
@@ -210,6 +226,7 @@ def run_system(opts: RunOptions) -> int:
         snap = monitor.snapshot()  # final counters: the services' "stopping" health reports
         snap.update({k: snap_running[k] for k in ("est", "age", "stale", "rate", "alive")})
         monitor.detach()
+        book.detach()
         if fox is not None:
             fox.close()
             fox.log.stream.close()
@@ -309,21 +326,36 @@ def _final_health(session, group: ProcessGroup, vehicle: Optional[Child], monito
         pass
 
 
-def _restart(group: ProcessGroup, child: Child, restarts: dict[str, list[float]], now: float) -> bool:
-    """Start ``child``'s command again under its name, unless it has died too often lately (False)."""
+def _map_alive(session, map_id: str, timeout: float, stop: threading.Event, dead) -> bool:
+    """Wait until the map service holds its liveliness token (False: timeout, stop, or ``dead()``)."""
+    deadline = time.monotonic() + timeout
+    key = keys.map_key(map_id, "alive")
+    while time.monotonic() < deadline and not stop.is_set() and not dead():
+        if any(r.ok is not None for r in session.liveliness().get(key, timeout=1.0)):
+            return True
+        stop.wait(0.1)
+    return False
+
+
+def _restart(group: ProcessGroup, child: Child, restarts: dict[str, list[float]], now: float,
+             book: Optional[RestartBook] = None) -> bool:
+    """Start ``child``'s command again under its name, unless it has died too often lately (False);
+    ``book`` records the restart for the fleet tools."""
     recent = [t for t in restarts.get(child.name, []) if now - t < RESTART_WINDOW_S]
     if len(recent) >= RESTART_MAX:
         return False
     child.outcome = "restarted"
     group.start_argv(child.name, child.argv)
     restarts[child.name] = [*recent, now]
+    if book is not None:
+        book.record(child.name, child.proc.returncode if child.proc else None)
     return True
 
 
 def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monitor, stop: threading.Event,
-           t_drive: float, console, interactive: bool, watch: Optional[LogWatch] = None) -> list[str]:
+           t_drive: float, console, interactive: bool, watch: Optional[LogWatch], book: RestartBook) -> list[str]:
     """The live loop; returns failures (processes that died, or a source that says it cannot start:
-    ``watch`` reads its log)."""
+    ``watch`` reads its log).  With ``opts.restart`` what dies is started again and ``book`` records it."""
     from rich.live import Live
 
     failures: list[str] = []
@@ -344,9 +376,9 @@ def _watch(opts: RunOptions, group: ProcessGroup, vehicle: Child, monitor: Monit
                 if child is vehicle and rc == 0:
                     child.outcome = "done"
                     source_done_at = now
-                elif opts.restart and child is not vehicle and _restart(group, child, restarts, now):
+                elif opts.restart and child is not vehicle and _restart(group, child, restarts, now, book):
                     console.print(f"soilocp run: {child.name} exited (exit {rc}); restarted as pid "
-                                  f"{group.procs[child.name].pid} (restart {len(restarts[child.name])})")
+                                  f"{group.procs[child.name].pid} (restart {book.count(child.name)})")
                 else:
                     child.outcome = "died"
                     failures.append(f"{child.name} died (exit {rc}); see {child.log_path}")
