@@ -269,14 +269,27 @@ def _settings_sections(model: type[BaseModel], instance: Optional[BaseModel], pr
         yield from _settings_sections(sub, value, key + ".", f"`{key}`")
 
 
+def _audience(field: Any) -> str:
+    """"internal" for a setting the compiled core declares an internal constant of the method, else "user"."""
+    extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
+    return extra.get("audience", "user")
+
+
 def _settings_table(leaves: list[tuple[str, Any, Any]], *, required_if_no_default: bool = True) -> tuple[str, int]:
-    rows, undocumented = [], 0
+    """The user settings' table, then (where the core declares some) the internal constants'."""
+    rows: dict[str, list] = {"user": [], "internal": []}
+    undocumented = 0
     for key, field, value in leaves:
         undocumented += not field.description
         default = "required" if (field.is_required() and required_if_no_default) else _code(_json_value(value))
-        rows.append([_code(key), _type_name(field.annotation), default, _bounds(field),
-                     _esc(field.description) if field.description else NO_DESCRIPTION])
-    return _table(["setting", "type", "default", "bounds", "description"], rows), undocumented
+        rows[_audience(field)].append([_code(key), _type_name(field.annotation), default, _bounds(field),
+                                       _esc(field.description) if field.description else NO_DESCRIPTION])
+    head = ["setting", "type", "default", "bounds", "description"]
+    text = _table(head, rows["user"]) if rows["user"] else ""
+    if rows["internal"]:
+        text += ("\nInternal constants of the method (declared in the compiled core with the reason for their "
+                 "value; a config file may still set them, to study the method):\n\n" + _table(head, rows["internal"]))
+    return text, undocumented
 
 
 def settings_page() -> tuple[str, int, int]:

@@ -12,13 +12,14 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
+use crate::codes::{self, Code, SetBy};
 use crate::constants::Constants;
 use crate::soil::bank::{self, Sample};
 use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
-use crate::soil::status::{self, Report, StatusBank};
+use crate::soil::status::{Report, StatusBank};
 use crate::soil::usability::{self, Limits};
 use crate::traction::Kind;
 
@@ -286,6 +287,15 @@ impl SlipGateBank {
     }
 }
 
+/// The names of the codes the soil stage sets (the first rows of a table of crate::codes).
+fn soil_names(table: &[Code]) -> Vec<&'static str> {
+    table
+        .iter()
+        .take_while(|c| c.set_by == SetBy::Soil)
+        .map(|c| c.name)
+        .collect()
+}
+
 /// The grid Bayes soil filters of N vehicles (docs/method.md §9, §11, §16).
 #[pyclass(module = "soilocp._core")]
 pub struct SoilGridBank {
@@ -454,16 +464,16 @@ pub(crate) struct Inputs<'py> {
 
 #[pymethods]
 impl SoilGridBank {
-    /// The records' status codes' names, code -> name.
+    /// The status codes' names this bank's records carry, code -> name (crate::codes).
     #[classattr]
     fn status_names() -> Vec<&'static str> {
-        status::STATUS_NAMES.to_vec()
+        soil_names(codes::status::TABLE)
     }
 
-    /// The records' reason codes' names, code -> name (the Python side words each).
+    /// The reason codes' names this bank's records carry, code -> name (the Python side words each).
     #[classattr]
     fn reason_names() -> Vec<&'static str> {
-        status::reason::NAMES.to_vec()
+        soil_names(codes::reason::TABLE)
     }
 
     /// The wheels' unusable codes' names, code -> name ("": usable).
@@ -475,7 +485,8 @@ impl SoilGridBank {
     /// The bank of `n_vehicles` from `constants`, the `measurement` ("gross" or "net"), the grid as
     /// numpy made it (theta = ln K nodes, k_grid = e^theta, amp = C1 (1 - e^{-C2 K})), the scale
     /// profile's nodes (z in 1-sigma units, their log prior), the weakest fitted soil's K / 2
-    /// (`k_floor`) and SoilConfig's numbers (`params`, names of crate::soil::params::Params).
+    /// (`k_floor`) and the soil settings (`params`, by the names of
+    /// crate::soil::params::Params; a missing one takes its default).
     #[new]
     #[allow(clippy::too_many_arguments)]
     fn py_new(
@@ -655,11 +666,12 @@ impl SoilGridBank {
         Ok((gate_arrays(py, &samples)?, report_arrays(py, &self.reports, &used)))
     }
 
-    /// The records' settings (names of crate::soil::status::StatusBank::NAMES): from now on each
-    /// step also makes its vehicles' records (`report`, `step_gated`).
-    fn set_status(&mut self, params: HashMap<String, f64>) -> PyResult<()> {
+    /// Make records from now on: each step also makes its vehicles' records (`report`,
+    /// `step_gated`), with the bank's settings and the grid's ln K `span`.
+    fn set_status(&mut self, span: f64) -> PyResult<()> {
         let n = self.inner.vehicles.len();
-        self.status = Some(StatusBank::from_map(&params, n).map_err(PyValueError::new_err)?);
+        let bank = StatusBank::new(self.inner.cfg.clone(), span, n).map_err(PyValueError::new_err)?;
+        self.status = Some(bank);
         Ok(())
     }
 
