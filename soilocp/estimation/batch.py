@@ -54,7 +54,7 @@ class BatchPipeline:
         self.gate = SlipGate(cfg, self.n_vehicles)
         self.soil = SoilBank(cfg.constants, cfg.soil, self.n_vehicles)
         self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, self.n_vehicles,
-                                     cfg.constants)
+                                     cfg.constants, slip_floor=cfg.slip_floor, gravity=cfg.observer.gravity)
         self.curve = WheelCurve(cfg, self.n_vehicles)  # the wheel's learnt curve and the OCP records' rule
         # the whole chain in one core call per step, over the banks above (their state); the map prior's
         # hook runs between the gate and the update, so with priors the stages are called one by one

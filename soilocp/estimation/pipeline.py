@@ -86,7 +86,7 @@ class ObserverStage:
         self.bank = ObserverBank(config.vehicle, config.observer, 1)
         self.torque_constant = config.torque_constant
         self.scale = TorqueScaleBank(config.vehicle, config.torque_scale, config.soil.gross_scale_sigma, 1,
-                                     config.constants)
+                                     config.constants, slip_floor=config.slip_floor, gravity=config.observer.gravity)
 
     def step(self, sample: SensorSample, forces: NormalForces) -> ObserverOutput:
         """One predict + gated update of the observer (eqs. 26-35 with the §7 state).
