@@ -79,7 +79,7 @@ class SlipGate:
             slip_sigma=soil.slip_sigma, speed_sigma=soil.speed_sigma, gate_smoothing=soil.gate_smoothing,
             fresh_age=soil.fresh_age, max_input_age=soil.max_input_age, min_load_fraction=soil.min_load_fraction,
             stall_speed=limits.stall_speed, gross_idle=limits.gross_idle, rim_stopped=limits.rim_stopped,
-            moving=limits.moving, rim_turning=limits.rim_turning, yaw_turning=limits.yaw_turning,
+            rim_turning=limits.rim_turning, yaw_turning=limits.yaw_turning,
         )
         self.core = _core.SlipGateBank(int(n_vehicles), wheel_y, soil.measurement == "gross",
                                        {k: float(x) for k, x in params.items()})

@@ -6,6 +6,7 @@ use pyo3::prelude::*;
 
 use crate::settings::{Audience, Kind, Spec};
 use crate::soil::params::Params as SoilParams;
+use crate::soil::usability::Limits;
 use crate::torque_scale::params::Settings as TorqueScaleSettings;
 
 /// One declaration as Python sees it: (name, "float" | "int", default, {"gt" | "ge" | "lt" |
@@ -38,15 +39,16 @@ fn row(s: &Spec) -> Row {
     (s.name, kind, s.default, bounds, s.unit, audience, doc)
 }
 
-/// The declarations of the settings group `group` ("soil", "torque_scale"), in order.
+/// The declarations of the settings group `group` ("soil", "torque_scale", "usability"), in order.
 #[pyfunction]
 pub fn settings_schema(group: &str) -> PyResult<Vec<Row>> {
     let specs: &[Spec] = match group {
         SoilParams::GROUP => SoilParams::SPECS,
         TorqueScaleSettings::GROUP => TorqueScaleSettings::SPECS,
+        Limits::GROUP => Limits::SPECS,
         other => {
             return Err(PyValueError::new_err(format!(
-                "no settings group {other:?} (have: soil, torque_scale)"
+                "no settings group {other:?} (have: soil, torque_scale, usability)"
             )))
         }
     };

@@ -170,7 +170,7 @@ impl SlipGateBank {
     /// soilocp.estimation.wheel_usability.UsabilityLimits).
     #[new]
     fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
-        const NAMES: [&str; 19] = [
+        const NAMES: [&str; 18] = [
             "wheel_radius",
             "half_track",
             "static_load",
@@ -187,7 +187,6 @@ impl SlipGateBank {
             "stall_speed",
             "gross_idle",
             "rim_stopped",
-            "moving",
             "rim_turning",
             "yaw_turning",
         ];
@@ -222,14 +221,14 @@ impl SlipGateBank {
             fresh_age: get("fresh_age")?,
             max_input_age: get("max_input_age")?,
             min_load_fraction: get("min_load_fraction")?,
-            limits: Limits {
-                stall_speed: get("stall_speed")?,
-                gross_idle: get("gross_idle")?,
-                rim_stopped: get("rim_stopped")?,
-                moving: get("moving")?,
-                rim_turning: get("rim_turning")?,
-                yaw_turning: get("yaw_turning")?,
-            },
+            limits: Limits::from_map(
+                &params
+                    .iter()
+                    .filter(|(k, _)| Limits::SPECS.iter().any(|s| s.name == k.as_str()))
+                    .map(|(k, v)| (k.clone(), *v))
+                    .collect(),
+            )
+            .map_err(PyValueError::new_err)?,
         };
         let inner = gate::SlipGateBank::new(cfg, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(SlipGateBank { inner })

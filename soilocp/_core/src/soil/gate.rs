@@ -266,7 +266,17 @@ impl SlipGateBank {
         };
         let mut observed: [f64; 4] = std::array::from_fn(|w| direction[w] * measure[w]);
         let mut variance = measure_var.map(|v| v * cfg.shared);
-        let mut unusable = usability::codes(&slip, &rim, &v_wheel, v_body, yaw, &gross, cfg.half_track, &cfg.limits);
+        let mut unusable = usability::codes(
+            &slip,
+            &rim,
+            &v_wheel,
+            v_body,
+            yaw,
+            &gross,
+            cfg.half_track,
+            &cfg.limits,
+            cfg.slip_deadband,
+        );
         // a slow stream's refresh: the pair from the readings (eq. 13 integrated over a held speed's
         // interval, or at a held torque's refresh) instead of the observer's prediction through the
         // held value; gross only
