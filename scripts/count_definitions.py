@@ -28,7 +28,7 @@ from collections import Counter
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-GROUPS = ("soil", "torque_scale")
+GROUPS = ("soil", "torque_scale", "usability", "curve")
 
 
 def files(rev: str | None, suffix: str, under: str) -> dict[str, str]:
@@ -43,13 +43,16 @@ def files(rev: str | None, suffix: str, under: str) -> dict[str, str]:
 
 
 def setting_names() -> dict[str, list[str]]:
-    """group -> the setting names counted: the core's declarations and the Python models' own fields."""
+    """group -> the setting names counted: the core's declarations and the Python models' own fields (the
+    current tree's: a commit's count looks for the same names)."""
     from soilocp import _core
     from soilocp.estimation.soil_config import SoilConfig
+    from soilocp.estimation.curve_config import CurveConfig
     from soilocp.estimation.torque_scale_config import TorqueScaleConfig
+    from soilocp.estimation.wheel_usability import UsabilityLimits
 
     out = {}
-    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig)):
+    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig, UsabilityLimits, CurveConfig)):
         names = [n for n, *_ in _core.settings_schema(group)]
         out[group] = names + [n for n in model.model_fields if n not in names]
     return out

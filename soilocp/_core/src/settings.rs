@@ -142,7 +142,7 @@ macro_rules! settings_struct {
         }
     ) => {
         $(#[$meta])*
-        #[derive(Clone, Debug, PartialEq)]
+        #[derive(Clone, Copy, Debug, PartialEq)]
         pub struct $name {
             $(
                 $(#[doc = $doc])+

@@ -4,6 +4,7 @@
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use crate::curve::Params as CurveParams;
 use crate::settings::{Audience, Kind, Spec};
 use crate::soil::params::Params as SoilParams;
 use crate::soil::usability::Limits;
@@ -39,16 +40,17 @@ fn row(s: &Spec) -> Row {
     (s.name, kind, s.default, bounds, s.unit, audience, doc)
 }
 
-/// The declarations of the settings group `group` ("soil", "torque_scale", "usability"), in order.
+/// The declarations of the settings group `group` ("soil", "torque_scale", "usability", "curve"), in order.
 #[pyfunction]
 pub fn settings_schema(group: &str) -> PyResult<Vec<Row>> {
     let specs: &[Spec] = match group {
         SoilParams::GROUP => SoilParams::SPECS,
         TorqueScaleSettings::GROUP => TorqueScaleSettings::SPECS,
         Limits::GROUP => Limits::SPECS,
+        CurveParams::GROUP => CurveParams::SPECS,
         other => {
             return Err(PyValueError::new_err(format!(
-                "no settings group {other:?} (have: soil, torque_scale, usability)"
+                "no settings group {other:?} (have: soil, torque_scale, usability, curve)"
             )))
         }
     };

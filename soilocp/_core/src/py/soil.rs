@@ -166,11 +166,11 @@ pub(crate) struct PendingGate {
 impl SlipGateBank {
     /// The gate of `n_vehicles`: each wheel's lateral position `wheel_y` (4,) m, whether the soil
     /// update compares `gross` traction (else net), and the numbers of `params` (names of
-    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by their names in
-    /// soilocp.estimation.wheel_usability.UsabilityLimits).
+    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by the names of
+    /// crate::soil::usability::Limits, a missing one at its default).
     #[new]
     fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
-        const NAMES: [&str; 18] = [
+        const NAMES: [&str; 13] = [
             "wheel_radius",
             "half_track",
             "static_load",
@@ -184,13 +184,9 @@ impl SlipGateBank {
             "fresh_age",
             "max_input_age",
             "min_load_fraction",
-            "stall_speed",
-            "gross_idle",
-            "rim_stopped",
-            "rim_turning",
-            "yaw_turning",
         ];
-        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str())) {
+        let limit = |k: &str| Limits::SPECS.iter().any(|s| s.name == k);
+        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str()) && !limit(k)) {
             return Err(PyValueError::new_err(format!("gate params: unknown field {k:?}")));
         }
         let get = |name: &str| -> PyResult<f64> {
@@ -224,7 +220,7 @@ impl SlipGateBank {
             limits: Limits::from_map(
                 &params
                     .iter()
-                    .filter(|(k, _)| Limits::SPECS.iter().any(|s| s.name == k.as_str()))
+                    .filter(|(k, _)| limit(k))
                     .map(|(k, v)| (k.clone(), *v))
                     .collect(),
             )
@@ -669,7 +665,7 @@ impl SoilGridBank {
     /// `step_gated`), with the bank's settings and the grid's ln K `span`.
     fn set_status(&mut self, span: f64) -> PyResult<()> {
         let n = self.inner.vehicles.len();
-        let bank = StatusBank::new(self.inner.cfg.clone(), span, n).map_err(PyValueError::new_err)?;
+        let bank = StatusBank::new(self.inner.cfg, span, n).map_err(PyValueError::new_err)?;
         self.status = Some(bank);
         Ok(())
     }

@@ -118,7 +118,7 @@ impl Params {
             }
         }
         Ok(Params {
-            s: s.clone(),
+            s: *s,
             scale_walk_var: s.scale_walk * s.scale_walk,
             resistance_walk_var: s.resistance_walk * s.resistance_walk,
             force_var: s.force_sigma * s.force_sigma,
