@@ -23,9 +23,6 @@ spec.loader.exec_module(count_definitions)
 
 #: settings still written in more than one place, each with why (what remains of the work)
 KNOWN = {
-    # the slip gate's parameters (SlipGateBank's name list and GateParams) still take these by hand
-    **{n: "slip gate" for n in ("slip_sigma", "speed_sigma", "gate_smoothing", "fresh_age", "max_input_age",
-                                "min_load_fraction")},
     # two switches of one name, each defined once: torque_scale.enabled and curve.enabled
     "enabled": "two settings",
     # calibrate-torque's own settings (soilocp.analysis.torque_constant), other settings of the same name

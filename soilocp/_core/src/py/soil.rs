@@ -166,11 +166,12 @@ pub(crate) struct PendingGate {
 impl SlipGateBank {
     /// The gate of `n_vehicles`: each wheel's lateral position `wheel_y` (4,) m, whether the soil
     /// update compares `gross` traction (else net), and the numbers of `params` (names of
-    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by the names of
-    /// crate::soil::usability::Limits, a missing one at its default).
+    /// crate::soil::gate::GateParams but wheel_y, gross, soil and limits; the soil settings and the
+    /// usability limits by the names of crate::soil::params::Params and crate::soil::usability::Limits,
+    /// a missing one at its default).
     #[new]
     fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
-        const NAMES: [&str; 13] = [
+        const NAMES: [&str; 7] = [
             "wheel_radius",
             "half_track",
             "static_load",
@@ -178,15 +179,13 @@ impl SlipGateBank {
             "lift_off_force",
             "slip_deadband",
             "slip_floor",
-            "slip_sigma",
-            "speed_sigma",
-            "gate_smoothing",
-            "fresh_age",
-            "max_input_age",
-            "min_load_fraction",
         ];
         let limit = |k: &str| Limits::SPECS.iter().any(|s| s.name == k);
-        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str()) && !limit(k)) {
+        let soil = |k: &str| Params::SPECS.iter().any(|s| s.name == k);
+        if let Some(k) = params
+            .keys()
+            .find(|k| !NAMES.contains(&k.as_str()) && !limit(k) && !soil(k))
+        {
             return Err(PyValueError::new_err(format!("gate params: unknown field {k:?}")));
         }
         let get = |name: &str| -> PyResult<f64> {
@@ -211,12 +210,14 @@ impl SlipGateBank {
             lift_off_force: get("lift_off_force")?,
             slip_deadband: get("slip_deadband")?,
             slip_floor: get("slip_floor")?,
-            slip_sigma: get("slip_sigma")?,
-            speed_sigma: get("speed_sigma")?,
-            gate_smoothing: get("gate_smoothing")?,
-            fresh_age: get("fresh_age")?,
-            max_input_age: get("max_input_age")?,
-            min_load_fraction: get("min_load_fraction")?,
+            soil: Params::from_map(
+                &params
+                    .iter()
+                    .filter(|(k, _)| soil(k))
+                    .map(|(k, v)| (k.clone(), *v))
+                    .collect(),
+            )
+            .map_err(PyValueError::new_err)?,
             limits: Limits::from_map(
                 &params
                     .iter()
