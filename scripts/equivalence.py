@@ -8,6 +8,16 @@ every output record is compared field by field.
     scripts/equivalence.py --ref HEAD~3 --quick  # 8 s drives: a fast check while porting
     scripts/equivalence.py --ref-python /tmp/main/.venv/bin/python   # reuse an env of the ref
     scripts/equivalence.py --keep /tmp/eq --max-minutes 60            # reuse inputs; a time budget
+    scripts/equivalence.py --record /work/eq-baseline                 # record this checkout's outputs once
+    scripts/equivalence.py --against /work/eq-baseline                # the working tree vs a recording
+
+A recording (``--record DIR``) holds the sensor logs it was made from (``inputs/``), one gzip-compressed
+JSONL of ``soilocp estimate`` per drive (``outputs/``) and ``manifest.json`` (the commit, the tree of
+``soilocp/`` at it, each drive's arguments, summary line and the SHA-256 of its input).  ``--against DIR``
+estimates the same inputs with the working tree and compares within the per-field tolerances of
+RECORDED_TOLERANCE instead of bit for bit, and lists every change of status or reason code with its
+count: the recording replaces a second install of an older ref once the estimator stops reproducing
+the old rounding.
 
 The drives:
 
@@ -295,6 +305,278 @@ def report(results: list[Result], ref: str, elapsed: float) -> str:
     return "\n".join(lines)
 
 
+# --- a recording of one checkout's outputs, and the working tree compared against it ------------------
+
+#: field -> (relative tolerance, absolute tolerance, why), for ``--against``.  A field not named here
+#: takes RECORDED_DEFAULT.  The tolerances allow what a change of floating-point evaluation order (a
+#: sum in another order, libm's exp for numpy's, a fused multiply-add) leaves after a whole drive, and
+#: no more: a change of a setting's value or of the math shows far above them.
+RECORDED_DEFAULT: tuple[float, float, str] = (
+    1e-6, 1e-9, "last-bit differences of a reordered sum, carried and amplified by the observer's and the "
+    "grid's recursions over a drive (about 1e3 x the 1e-12 of one step at most), with margin")
+RECORDED_TOLERANCE: dict[str, tuple[float, float, str]] = {
+    # the posterior's median and band on the ln K grid: interpolated between grid nodes, so a change in the
+    # belief of 1e-9 moves them continuously, but a node's weight near a tie may move the interpolation's
+    # bracket; a 1e-4 relative error in K is 100x below anything the accuracy table prints
+    **{f: (1e-4, 1e-9, "posterior quantiles on the ln K grid: continuous in the belief, but bracketed by "
+                       "grid nodes; 1e-4 of K is 100x below the accuracy table's printed digit")
+       for f in ("k", "k_low", "k_high", "K", "K_low", "K_high", "log_k_sigma", "k_sigma")},
+    # confidences and probabilities near 0 and 1 (sums of exponentials of a log-belief): compared absolutely
+    **{f: (1e-6, 1e-6, "a probability: 1e-6 absolute is far below any threshold it is compared with")
+       for f in ("confidence", "class_confidence", "change_probability", "p_change")},
+}
+STATUS_FIELDS = ("status", "reason_code")
+
+
+def _tolerance(name: str) -> tuple[float, float, str]:
+    return RECORDED_TOLERANCE.get(name, RECORDED_DEFAULT)
+
+
+def git_out(*args: str) -> str:
+    r = subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True)
+    return r.stdout.strip() if r.returncode == 0 else ""
+
+
+def sha256(path: Path) -> str:
+    import hashlib
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _localise(drive: Drive, inputs: Path, root: Path) -> dict:
+    """The drive as the manifest holds it: every file it reads (log, vehicle file) copied under
+    ``inputs`` and named relative to the recording's root, so that the recording stands alone."""
+    def local(path: Path) -> str:
+        path = Path(path)
+        if root not in path.resolve().parents:
+            dest = inputs / (f"{drive.group}-{path.name}" if drive.group == "warthog" or path.suffix == ".json"
+                             else path.name)
+            if not dest.exists():
+                shutil.copy2(path, dest)
+            path = dest
+        return str(path.resolve().relative_to(root.resolve()))
+    args = list(drive.estimate_args)
+    for i, a in enumerate(args[:-1]):
+        if a == "--vehicle":
+            args[i + 1] = local(Path(args[i + 1]))
+    sensors = local(drive.sensors)
+    return {"name": drive.name, "group": drive.group, "sensors": sensors,
+            "sensors_sha256": sha256(root / sensors), "estimate_args": args}
+
+
+def record(root: Path, duration: float | None, jobs: int, only: str | None) -> int:
+    """Record this checkout's outputs of every drive under ``root`` (see the module's doc)."""
+    import gzip
+    t0 = time.time()
+    inputs, outputs = root / "inputs", root / "outputs"
+    inputs.mkdir(parents=True, exist_ok=True)
+    outputs.mkdir(parents=True, exist_ok=True)
+    print(f"equivalence: recording {REPO} into {root}", file=sys.stderr)
+    drives = make_drives(sys.executable, REPO, inputs, duration, jobs)
+    if only:
+        drives = [d for d in drives if only in d.group or only in d.name]
+    entries = [_localise(d, inputs, root) for d in drives]
+
+    def one(entry: dict) -> dict:
+        stem = entry["name"].replace(" ", "_")
+        tmp_out = outputs / f"{stem}.jsonl"
+        d = Drive(entry["name"], entry["group"], root / entry["sensors"],
+                  [str(root / a) if a.startswith("inputs/") else a for a in entry["estimate_args"]])
+        summary = estimate(sys.executable, REPO, d, tmp_out)
+        with open(tmp_out, "rb") as src, gzip.open(outputs / f"{stem}.jsonl.gz", "wb", compresslevel=6) as dst:
+            data = src.read()
+            dst.write(data)
+        tmp_out.unlink()
+        print(f"equivalence: recorded {entry['group']} / {entry['name']}", file=sys.stderr, flush=True)
+        return {**entry, "output": f"outputs/{stem}.jsonl.gz", "records": data.count(b"\n"), "summary": summary}
+
+    with ThreadPoolExecutor(max(1, jobs)) as ex:
+        recorded = list(ex.map(one, entries))
+    manifest = {
+        "commit": git_out("rev-parse", "HEAD"),
+        "soilocp_tree": git_out("rev-parse", "HEAD:soilocp"),
+        "uncommitted": git_out("status", "--porcelain", "--", "soilocp", "pyproject.toml").splitlines(),
+        "duration": duration, "python": sys.version.split()[0],
+        "recorded_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seconds": round(time.time() - t0),
+        "drives": recorded,
+    }
+    (root / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    print(f"equivalence: {len(recorded)} drives recorded in {time.time() - t0:.0f} s at {manifest['commit'][:9]}",
+          file=sys.stderr)
+    return 0
+
+
+@dataclass
+class Against:
+    """One drive of the working tree against its recording."""
+    entry: dict
+    records: tuple[int, int] = (0, 0)
+    numbers: int = 0
+    over: int = 0
+    shape_diffs: int = 0
+    worst: dict = field(default_factory=dict)   # field -> largest |a - b| / (rel tol * scale + abs tol)
+    transitions: dict = field(default_factory=dict)  # (field, old, new) -> count
+    examples: list[str] = field(default_factory=list)
+    error: str = ""
+
+    @property
+    def status_changes(self) -> int:
+        return sum(self.transitions.values())
+
+    @property
+    def verdict(self) -> str:
+        if self.error:
+            return "ERROR"
+        if self.over or self.shape_diffs or self.records[0] != self.records[1]:
+            return "OUTSIDE"
+        return "within" + (" (statuses differ)" if self.status_changes else "")
+
+
+def _walk_tol(a, b, path: str, res: Against, line: int, skip_numbers: bool) -> None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            res.shape_diffs += 1
+            _ex(res, f"line {line} {path}: keys {sorted(a.keys() ^ b.keys())} on one side only")
+        for k in sorted(a.keys() & b.keys()):
+            _walk_tol(a[k], b[k], f"{path}.{k}" if path else k, res, line, skip_numbers)
+    elif isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            res.shape_diffs += 1
+            _ex(res, f"line {line} {path}: {len(a)} vs {len(b)} items")
+        for i, (x, y) in enumerate(zip(a, b)):
+            _walk_tol(x, y, f"{path}[{i}]", res, line, skip_numbers)
+    elif (isinstance(a, (int, float)) and not isinstance(a, bool)
+          and isinstance(b, (int, float)) and not isinstance(b, bool)):
+        res.numbers += 1
+        if skip_numbers or a == b or (math.isnan(a) and math.isnan(b)):
+            return
+        name = path.split(".")[-1].split("[")[0]
+        rel, ab, _ = _tolerance(name)
+        allowed = rel * max(abs(a), abs(b)) + ab
+        ratio = abs(a - b) / allowed
+        if ratio > res.worst.get(name, 0.0):
+            res.worst[name] = ratio
+        if ratio > 1:
+            res.over += 1
+            _ex(res, f"line {line} {path}: {a!r} vs {b!r} ({ratio:.1f} x its tolerance)")
+    elif a != b or type(a) is not type(b):
+        name = path.split(".")[-1]
+        if name in STATUS_FIELDS or skip_numbers:
+            return  # counted as a status change by the caller; the record's other texts follow its status
+        res.shape_diffs += 1
+        _ex(res, f"line {line} {path}: {a!r} vs {b!r}")
+
+
+def _ex(res: Against, text: str) -> None:
+    if len(res.examples) < 5:
+        res.examples.append(text)
+
+
+def _statuses(rec, prefix: str = "") -> dict[str, object]:
+    """The status and reason code fields of a record, at any depth (a record may nest the soil's)."""
+    out: dict[str, object] = {}
+    if isinstance(rec, dict):
+        for k, v in rec.items():
+            p = f"{prefix}.{k}" if prefix else k
+            if k in STATUS_FIELDS and not isinstance(v, (dict, list)):
+                out[p] = v
+            elif isinstance(v, dict):
+                out.update(_statuses(v, p))
+    return out
+
+
+def against_one(root: Path, entry: dict, outdir: Path) -> Against:
+    import gzip
+    res = Against(entry)
+    try:
+        sensors = root / entry["sensors"]
+        if sha256(sensors) != entry["sensors_sha256"]:
+            raise RuntimeError(f"{sensors} is not the log the recording was made from (SHA-256 differs)")
+        d = Drive(entry["name"], entry["group"], sensors,
+                  [str(root / a) if a.startswith("inputs/") else a for a in entry["estimate_args"]])
+        new_out = outdir / (entry["name"].replace(" ", "_") + ".jsonl")
+        estimate(sys.executable, REPO, d, new_out)
+        with gzip.open(root / entry["output"], "rt") as fa, open(new_out) as fb:
+            la, lb = fa.read().splitlines(), fb.read().splitlines()
+        res.records = (len(la), len(lb))
+        for i, (x, y) in enumerate(zip(la, lb), 1):
+            a, b = json.loads(x), json.loads(y)
+            sa, sb = _statuses(a), _statuses(b)
+            changed = False
+            for k in sa.keys() | sb.keys():
+                if sa.get(k) != sb.get(k):
+                    changed = True
+                    key = (k, sa.get(k), sb.get(k))
+                    res.transitions[key] = res.transitions.get(key, 0) + 1
+            # a record whose status changed: its numbers follow the new status (K held or withdrawn), so
+            # they are reported by the status change, not compared
+            _walk_tol(a, b, "", res, i, skip_numbers=changed)
+    except Exception as exc:  # one failing drive is a row of the report, not the end of it
+        res.error = str(exc)[-400:]
+    print(f"equivalence: {entry['group']} / {entry['name']}: {res.verdict}", file=sys.stderr, flush=True)
+    return res
+
+
+def against_report(results: list[Against], manifest: dict, elapsed: float) -> str:
+    head = ("group", "drive", "records", "numbers", "worst field (x tol)", "over tol", "status changes", "verdict")
+    rows = []
+    for r in results:
+        wf = max(r.worst, key=r.worst.get) if r.worst else ""
+        recs = f"{r.records[0]}" if r.records[0] == r.records[1] else f"{r.records[0]} vs {r.records[1]}"
+        rows.append((r.entry["group"], r.entry["name"], recs, str(r.numbers),
+                     f"{wf} ({r.worst[wf]:.2g})" if wf else "-", str(r.over), str(r.status_changes), r.verdict))
+    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
+    fmt = lambda row: "| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |"  # noqa: E731
+    lines = [fmt(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *map(fmt, rows), ""]
+    n_in = sum(r.verdict.startswith("within") for r in results)
+    n_rec = sum(r.records[1] for r in results)
+    lines.append(f"working tree vs the recording of {manifest['commit'][:9]}: {n_in}/{len(results)} drives within "
+                 f"tolerance; {sum(r.numbers for r in results)} numbers over {n_rec} records; "
+                 f"{sum(r.status_changes for r in results)} status/reason changes; {elapsed:.0f} s")
+    total: dict = {}
+    for r in results:
+        for k, n in r.transitions.items():
+            total[k] = total.get(k, 0) + n
+    if total:
+        lines.append("status and reason changes (field: recorded -> now: records, drives):")
+        for (f, old, new), n in sorted(total.items(), key=lambda kv: -kv[1]):
+            drives = [r.entry["name"] for r in results if (f, old, new) in r.transitions]
+            lines.append(f"  {f}: {old} -> {new}: {n} records in {len(drives)} drives ({', '.join(drives[:6])}"
+                         f"{', ...' if len(drives) > 6 else ''})")
+    worst: dict[str, float] = {}
+    for r in results:
+        for k, v in r.worst.items():
+            worst[k] = max(worst.get(k, 0.0), v)
+    if worst:
+        lines.append("largest difference per field, in units of its tolerance (rel, abs):")
+        for k, v in sorted(worst.items(), key=lambda kv: -kv[1])[:15]:
+            rel, ab, _ = _tolerance(k)
+            lines.append(f"  {k}: {v:.3g} x ({rel:g}, {ab:g})")
+    for r in results:
+        for ex in ([r.error] if r.error else []) + r.examples:
+            lines.append(f"  {r.entry['name']}: {ex}")
+    return "\n".join(lines)
+
+
+def against(root: Path, jobs: int, only: str | None, keep: str | None) -> int:
+    t0 = time.time()
+    manifest = json.loads((root / "manifest.json").read_text())
+    entries = [e for e in manifest["drives"] if not only or only in e["group"] or only in e["name"]]
+    outdir = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="soilocp-against-"))
+    outdir.mkdir(parents=True, exist_ok=True)
+    try:
+        with ThreadPoolExecutor(max(1, jobs)) as ex:
+            results = list(ex.map(lambda e: against_one(root, e, outdir), entries))
+    finally:
+        if not keep:
+            shutil.rmtree(outdir, ignore_errors=True)
+    print(against_report(results, manifest, time.time() - t0))
+    return 0 if all(r.verdict.startswith("within") for r in results) else 1
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ref", default="main", help="git ref to compare the working tree with (default: main)")
@@ -306,7 +588,15 @@ def main() -> int:
     ap.add_argument("--only", help="only drives whose group or name contains this text")
     ap.add_argument("--max-minutes", type=float, help="start no drive after this many minutes (the rest are "
                                                       "reported as not run, and the exit status is 1)")
+    ap.add_argument("--record", metavar="DIR", help="record this checkout's inputs and outputs of every drive in DIR "
+                                                    "(no ref, no comparison)")
+    ap.add_argument("--against", metavar="DIR", help="compare the working tree with the recording in DIR, within "
+                                                     "RECORDED_TOLERANCE, listing every status change")
     args = ap.parse_args()
+    if args.record:
+        return record(Path(args.record).resolve(), 8.0 if args.quick else None, args.jobs, args.only)
+    if args.against:
+        return against(Path(args.against).resolve(), args.jobs, args.only, args.keep)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so that `finally` removes the worktree
     t0 = time.time()
     tmp = Path(tempfile.mkdtemp(prefix="soilocp-equivalence-"))

@@ -585,11 +585,11 @@ def travel_direction(rim: np.ndarray, ground: np.ndarray) -> np.ndarray:
 
 def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
                     yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
-                    limits: UsabilityLimits = UsabilityLimits()) -> np.ndarray:
+                    limits: UsabilityLimits = UsabilityLimits(), deadband: float = 0.15) -> np.ndarray:
     """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
     :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
     the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
-    F_GT / W) and the half-track (c + d) / 2 in m."""
+    F_GT / W), the half-track (c + d) / 2 in m and the slip deadband (m/s: above it the body moves)."""
     lim = limits
     code = np.zeros(slip.shape, dtype=np.int8)
     left, right = rim[:, :2].mean(axis=1), rim[:, 2:].mean(axis=1)
@@ -598,7 +598,7 @@ def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_
             | ((yaw > lim.yaw_turning) & (v < yaw * half_track)))
     powered = np.abs(gross) > lim.gross_idle
     code[(v[:, None] < lim.stall_speed) & powered] = STALL
-    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > lim.moving)] = STOPPED_UNPOWERED
+    code[(np.abs(rim) < lim.rim_stopped) & ~powered & (np.abs(ground) > deadband)] = STOPPED_UNPOWERED
     code[np.abs(slip) > 1.0] = SLIP_BEYOND_EQ1
     code[skid] = SKID_TURN  # a skid turn explains the rest (an in-place turn is also V ~ 0 under torque)
     return code
@@ -636,7 +636,8 @@ class ReferenceSlipGate:
             observed, var = direction * ob.gross, ob.gross_var * self._shared
         else:
             observed, var = direction * ob.mu, ob.mu_var * self._shared
-        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track)
+        unusable = wheel_usability(slip, rim, v_wheel, ob.ground_speed, ob.yaw_rate, ob.gross, self._half_track,
+                                   deadband=cfg.slip_deadband)
         # a slow stream's refresh: the pair from the readings (soilocp/_core/src/observer/intervals.rs: eq. 13
         # integrated over a held speed's interval, or at a held torque's refresh) instead of the observer's
         # prediction through the held value; gross only

@@ -60,8 +60,9 @@ class ReferenceTorqueScale:
     ``apply_arrays`` is the product's ``apply`` on the observer inputs' arrays."""
 
     def __init__(self, vehicle: VehicleParams, cfg, prior_sigma: float, n_vehicles: int,
-                 constants: ModelConstants = DEFAULT_CONSTANTS):
+                 constants: ModelConstants = DEFAULT_CONSTANTS, *, slip_floor: float = FLOOR, gravity: float = G):
         self.vehicle, self.cfg, self.prior_sigma, self.constants = vehicle, cfg, float(prior_sigma), constants
+        self.slip_floor, self.gravity = float(slip_floor), float(gravity)
         wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
         self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
         n = n_vehicles
@@ -117,12 +118,12 @@ class ReferenceTorqueScale:
         stamp = np.asarray(stamp, dtype=float)
         w_sum = np.asarray(wheel_speed, dtype=float).sum(axis=1)
         t_sum = np.asarray(torque, dtype=float).sum(axis=1)
-        g_x = gravity_from_attitude(0.0, np.asarray(pitch, dtype=float), G)[..., 0]
+        g_x = gravity_from_attitude(0.0, np.asarray(pitch, dtype=float), self.gravity)[..., 0]
         spd = np.asarray(speed, dtype=float)
         spd = np.where(np.isnan(spd), w_sum / 4.0 * v.wheel_radius, spd)
         rim = np.asarray(wheel_speed, dtype=float) * v.wheel_radius
         gs = spd[:, None]
-        slip = (rim - gs) / np.maximum(np.maximum(np.abs(rim), np.abs(gs)), FLOOR)
+        slip = (rim - gs) / np.maximum(np.maximum(np.abs(rim), np.abs(gs)), self.slip_floor)
         if normal_force is None or not cfg.model_resistance:
             f_mr = np.zeros(stamp.shape)
         else:

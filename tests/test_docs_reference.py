@@ -26,7 +26,7 @@ def test_generator_writes_every_page_and_check_passes_on_them(tmp_path):
     gen = subprocess.run([sys.executable, "-m", "soilocp.cli.docs_reference", "--out", str(out)],
                          cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert gen.returncode == 0, gen.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["cli.md", "records.md", "settings.md", "topics.md"]
+    assert sorted(p.name for p in out.iterdir()) == ["cli.md", "codes.md", "records.md", "settings.md", "topics.md"]
     check = subprocess.run([sys.executable, "-m", "soilocp.cli.docs_reference", "--out", str(out), "--check"],
                            cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert check.returncode == 0, check.stderr

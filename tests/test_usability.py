@@ -203,10 +203,12 @@ def test_run_replay_uses_the_logs_vehicle_id_and_ends_with_the_reason_table(tmp_
     assert n > 0
 
 
-def test_the_no_estimate_page_lists_every_reason_code():
-    page = (Path(__file__).resolve().parents[1] / "docs" / "from-no-estimate-to-ok.md").read_text()
-    listed = {line.split("`")[1] for line in page.splitlines() if line.startswith("| `")}
+def test_the_codes_page_lists_every_reason_code_and_the_no_estimate_page_links_it():
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    page = (docs / "reference" / "codes.md").read_text()
+    listed = {line.split("`")[1] for line in page.split("## Reason codes")[1].splitlines() if line.startswith("| `")}
     assert listed == set(REASON_CODES)
+    assert "(reference/codes.md)" in (docs / "from-no-estimate-to-ok.md").read_text()
 
 
 def test_a_torque_constant_lifts_only_the_unknown_current_scale_from_the_provenance():

@@ -32,6 +32,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from soilocp.estimation.settings_model import core_values
 from soilocp import _core
 from soilocp.estimation.curve_config import CurveConfig
 from soilocp.estimation.estimate import EstimateSummary, estimate_lines
@@ -84,9 +85,7 @@ class DriveFit:
 def soil_pairs(records: Iterable[dict], source: str, curve: CurveConfig, min_pairs: int) -> list[SoilPairs]:
     """The informative (slip, net traction) pairs of a drive's estimate records, split into soils where the
     core's curve learner sees a change, each soil with at least ``min_pairs`` pairs."""
-    bank = _core.CurveBank(1, curve.window, curve.change_window, curve.change_shift, curve.change_pairs,
-                           curve.slip_min, curve.slip_max, curve.min_pairs, curve.min_beyond, curve.peak_span,
-                           curve.interval)
+    bank = _core.CurveBank(1, core_values(curve, "curve"))
     rows: list[tuple[int, float, float, float, int]] = []
     for r in records:
         used = tuple(bool(i and d) for i, d in zip(r["informative"], r["mu_determined"]))

@@ -8,7 +8,9 @@
   default, bounds and description;
 * ``records.md``: every field of the sensor log, the estimate record and the messages (the pydantic
   models of ``schemas``);
-* ``topics.md``: every Zenoh key (``soilocp.schemas.keys``), its payload and who publishes it.
+* ``topics.md``: every Zenoh key (``soilocp.schemas.keys``), its payload and who publishes it;
+* ``codes.md``: every status and reason code of a record, from the compiled core's tables, with its
+  next step.
 
 ``--check`` writes nothing and exits 1 when a committed page differs from what the code gives
 (``tests/test_docs_reference.py`` runs the same comparison).  A setting or field without a description
@@ -269,14 +271,27 @@ def _settings_sections(model: type[BaseModel], instance: Optional[BaseModel], pr
         yield from _settings_sections(sub, value, key + ".", f"`{key}`")
 
 
+def _audience(field: Any) -> str:
+    """"internal" for a setting the compiled core declares an internal constant of the method, else "user"."""
+    extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
+    return extra.get("audience", "user")
+
+
 def _settings_table(leaves: list[tuple[str, Any, Any]], *, required_if_no_default: bool = True) -> tuple[str, int]:
-    rows, undocumented = [], 0
+    """The user settings' table, then (where the core declares some) the internal constants'."""
+    rows: dict[str, list] = {"user": [], "internal": []}
+    undocumented = 0
     for key, field, value in leaves:
         undocumented += not field.description
         default = "required" if (field.is_required() and required_if_no_default) else _code(_json_value(value))
-        rows.append([_code(key), _type_name(field.annotation), default, _bounds(field),
-                     _esc(field.description) if field.description else NO_DESCRIPTION])
-    return _table(["setting", "type", "default", "bounds", "description"], rows), undocumented
+        rows[_audience(field)].append([_code(key), _type_name(field.annotation), default, _bounds(field),
+                                       _esc(field.description) if field.description else NO_DESCRIPTION])
+    head = ["setting", "type", "default", "bounds", "description"]
+    text = _table(head, rows["user"]) if rows["user"] else ""
+    if rows["internal"]:
+        text += ("\nInternal constants of the method (declared in the compiled core with the reason for their "
+                 "value; a config file may still set them, to study the method):\n\n" + _table(head, rows["internal"]))
+    return text, undocumented
 
 
 def settings_page() -> tuple[str, int, int]:
@@ -534,6 +549,27 @@ def _what(fn: Any) -> str:
     return (fn.__doc__ or "").split(":")[0].strip()
 
 
+# --- the statuses and reason codes ----------------------------------------------------------------
+
+def codes_page() -> tuple[str, int]:
+    """The records' statuses and reason codes, from the compiled core's tables (soilocp/_core/src/codes.rs,
+    through soilocp.schemas.codes), each reason with its next step; (page, codes)."""
+    from soilocp.estimation.next_steps import NEXT_STEPS
+    from soilocp.schemas.codes import REASONS, STATUSES
+
+    who = {"soil": "soil stage", "publisher": "live publisher", "ocp": "OCP stage"}
+    out = [HEADER.format(cmd=REGENERATE), "# Statuses and reason codes\n\n",
+           "Every soil and OCP record carries a `status` and a machine-readable `reason_code` (its `reason` words "
+           "the same with its numbers). Both are defined once, in the compiled core; this page is generated from "
+           "that definition. What to do about each: [from no_estimate to ok](../from-no-estimate-to-ok.md).\n\n",
+           "## Statuses\n\n",
+           _table(["status", "set by", "meaning"],
+                  [[_code(n), who[by], _esc(m)] for n, (by, m) in STATUSES.items()]), "\n## Reason codes\n\n",
+           _table(["reason_code", "set by", "meaning", "next step"],
+                  [[_code(n), who[by], _esc(m), _esc(NEXT_STEPS[n])] for n, (by, m) in REASONS.items()])]
+    return "".join(out), len(STATUSES) + len(REASONS)
+
+
 # --- writing and checking -------------------------------------------------------------------------
 
 def pages() -> dict[str, str]:
@@ -542,10 +578,11 @@ def pages() -> dict[str, str]:
     settings, n_set, n_set_undoc = settings_page()
     records, n_fields, n_fields_undoc = records_page()
     topics, n_keys = topics_page()
+    codes, _ = codes_page()
     print(f"reference: {n_opts} options ({n_opts_undoc} without a description), {n_set} settings "
           f"({n_set_undoc} without a description), {n_fields} record fields ({n_fields_undoc} without a "
           f"description), {n_keys} keys", file=sys.stderr)
-    return {"cli.md": cli, "settings.md": settings, "records.md": records, "topics.md": topics}
+    return {"cli.md": cli, "settings.md": settings, "records.md": records, "topics.md": topics, "codes.md": codes}
 
 
 def differences(out_dir: Path) -> list[str]:

@@ -25,6 +25,7 @@ from soilocp import _core
 from soilocp.estimation.observer_bank import (BOOL_FLAT_FIELDS, BOOL_QUAD_FIELDS, FLAT_FIELDS, LIFT_OFF_FORCE, QUAD_FIELDS,
                                              ObserverBlocks)
 from soilocp.estimation.soil_state import SoilInputs
+from soilocp.estimation.settings_model import core_values
 from soilocp.estimation.wheel_usability import UsabilityLimits
 
 __all__ = ["GATE_FIELDS", "SlipGate", "pack_message", "pack_output"]
@@ -79,10 +80,7 @@ class SlipGate:
             shared=2.0 if v.drive == "per_side" else 1.0,
             lift_off_force=LIFT_OFF_FORCE,
             slip_deadband=config.slip_deadband, slip_floor=config.slip_floor,
-            slip_sigma=soil.slip_sigma, speed_sigma=soil.speed_sigma, gate_smoothing=soil.gate_smoothing,
-            fresh_age=soil.fresh_age, max_input_age=soil.max_input_age, min_load_fraction=soil.min_load_fraction,
-            stall_speed=limits.stall_speed, gross_idle=limits.gross_idle, rim_stopped=limits.rim_stopped,
-            moving=limits.moving, rim_turning=limits.rim_turning, yaw_turning=limits.yaw_turning,
+            **core_values(soil, "soil"), **core_values(limits, "usability"),
         )
         self.core = _core.SlipGateBank(int(n_vehicles), wheel_y, soil.measurement == "gross",
                                        {k: float(x) for k, x in params.items()})

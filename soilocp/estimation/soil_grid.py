@@ -1,7 +1,7 @@
 """The ln K grid of the Bayes soil estimator (docs/method.md §9, §11) and the compiled bank of beliefs
 on it (:class:`soilocp._core.SoilGridBank`, soilocp/_core/src/soil/): the grid's nodes, the slip-independent
-factor of the traction curve on them, the scale profile's nodes, and the settings the per-sample update
-reads, handed to the core once."""
+factor of the traction curve on them, the scale profile's nodes, and the soil settings, handed to the core
+once."""
 
 from __future__ import annotations
 
@@ -11,18 +11,12 @@ import numpy as np
 
 from soilocp import _core
 from soilocp.model.constants import ModelConstants
+from soilocp.estimation.settings_model import core_values
 from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.soil_state import class_bounds
 
-#: m/s: the speed the terrain-change hazard assumes when a caller gives none (a typical rover's)
-UNKNOWN_SPEED = 1.0
 #: nodes of the common gross-traction scale c over +-4 of its 1-sigma (the band's scale profile, §9)
 SCALE_NODES = 25
-#: the SoilConfig fields the core's update reads (crate::soil::params::Params)
-_CORE_FIELDS = ("slip_min", "slip_max", "slip_snr", "observable_max_gross_sigma", "q_log_k", "change_per_metre",
-                "change_evidence", "stay_forgetting", "model_sigma", "outlier_prob", "temper", "temper_interval",
-                "temper_max", "evidence_window", "gross_scale_sigma", "hold_after", "axle_mismatch_z",
-                "axle_scale_sigma", "mismatch_min_evidence")
 
 
 class LogKGrid:
@@ -47,7 +41,6 @@ class LogKGrid:
         libm's differ in the last bit)."""
         c, cfg = self.c, self.cfg
         z = np.linspace(-4.0, 4.0, SCALE_NODES)
-        params = {name: float(getattr(cfg, name)) for name in _CORE_FIELDS}
-        params["unknown_speed"] = UNKNOWN_SPEED
         return _core.SoilGridBank(c.kernel, n_vehicles, self.kind, self.theta, self.k_grid,
-                                  c.C1 * -np.expm1(-c.C2 * self.k_grid), z, -0.5 * z**2, self.k_floor, params)
+                                  c.C1 * -np.expm1(-c.C2 * self.k_grid), z, -0.5 * z**2, self.k_floor,
+                                  core_values(cfg, "soil"))

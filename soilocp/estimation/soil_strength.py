@@ -36,17 +36,17 @@ from typing import Optional, get_args
 
 import numpy as np
 
-from soilocp.schemas.pipeline import REASON_CODES, RECORD_REASON_CODES
+from soilocp.schemas.pipeline import REASON_CODES
 from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
 from soilocp.estimation.soil_config import SoilConfig, Status
 from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
-from soilocp.estimation.soil_grid import UNKNOWN_SPEED, LogKGrid
+from soilocp.estimation.soil_grid import LogKGrid
 from soilocp.estimation.wheel_usability import REASONS, describe
 
-__all__ = ["UNKNOWN_SPEED", "BayesSoilEstimator", "PaperSoilEstimator", "SoilBank", "SoilInputs"]
+__all__ = ["BayesSoilEstimator", "PaperSoilEstimator", "SoilBank", "SoilInputs"]
 
 
 
@@ -121,12 +121,7 @@ class SoilBank:
         self.core = self.grid.bank(n)
         self.k_floor = self.grid.k_floor
         # the records (held / withdrawn K, status and reason codes, soilocp/_core/src/soil/status.rs)
-        self.core.set_status({name: float(v) for name, v in (
-            ("hold_after", cfg.hold_after), ("expire_after", cfg.expire_after),
-            ("uncertain_log_sigma", cfg.uncertain_log_sigma), ("q_log_k", cfg.q_log_k),
-            ("radius_sigma", cfg.radius_sigma), ("evidence_window", cfg.evidence_window),
-            ("mismatch_min_evidence", cfg.mismatch_min_evidence), ("mismatch_nis", cfg.mismatch_nis),
-            ("axle_mismatch_z", cfg.axle_mismatch_z), ("span", self.grid.span))})
+        self.core.set_status(self.grid.span)
         #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
@@ -240,94 +235,84 @@ class SoilBank:
         """The reason text of the core's reason code ``why`` (soilocp/_core/src/soil/status.rs, ``reason``) and
         its numbers ``args``; ``unusable``: the wheels' unusable codes (4,) (the out-of-model reasons word them)."""
         cfg, (a0, a1, a2, _) = self.cfg, args
-        if why == _R_NOT_YET:
+        if why == _R["not_yet"]:
             return "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min
-        if why == _R_STAMP_BACKWARDS:
+        if why == _R["stamp_backwards"]:
             return "stamp went backwards (source restarted): estimate withdrawn"
-        if why == _R_WITHDRAWN:
+        if why == _R["withdrawn"]:
             return f"slip uninformative for {a0:.1f} s: estimate withdrawn"
-        if why == _R_HOLDING:
+        if why == _R["holding"]:
             return f"slip uninformative for {a0:.1f} s: holding the last estimate"
-        if why == _R_WIDE:
+        if why == _R["wide"]:
             return f"ln K 1-sigma {a0:.2f} > {cfg.uncertain_log_sigma}: K poorly determined"
-        if why in (_R_SYSTEMATIC_SCALE, _R_SYSTEMATIC_SCALE_CALIBRATE):
+        if why in (_R["systematic_scale"], _R["systematic_scale_calibrate"]):
             # the data's scale without its posterior spread: across drives it moves by more than that
             # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
             reason = (f"ln K 1-sigma {a0:.2f}, mostly systematic: the torque scale (1 +- "
                       f"{a1:.2f} assumed; these data lean to {a2:.2f}) moves K this much "
                       "where the traction curve is flat in K")
-            if why == _R_SYSTEMATIC_SCALE_CALIBRATE:
+            if why == _R["systematic_scale_calibrate"]:
                 reason += "; the data suggest a wrong torque constant: soilocp calibrate-torque"
             return reason
-        if why == _R_SYSTEMATIC_RADIUS:
+        if why == _R["systematic_radius"]:
             return (f"ln K 1-sigma {a0:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
                     "uncertainty moves these small slips, and K, this much")
-        if why == _R_NOT_IDENTIFIABLE:
+        if why == _R["not_identifiable"]:
             return ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
                     "with it; wheel odometry cannot stand in)")
-        if why == _R_AXLES:
+        if why == _R["axles"]:
             return (f"the front and rear axles read different soils (K {math.exp(a0):.0f} front, "
                     f"{math.exp(a1):.0f} rear; {a2:.1f} sigma apart, and most of the last "
                     f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
                     "constant are off")
-        if why == _R_NIS:
+        if why == _R["nis"]:
             return (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {a0:.1f} "
                     f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
-        if why == _R_BELOW_FLOOR:
+        if why == _R["below_floor"]:
             return (f"gross traction is below what the model's weakest soil gives at this slip (K under "
                     f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
-        if why in (_R_GROUND_STALE, _R_READINGS_HELD):
+        if why in (_R["ground_stale"], _R["readings_held"]):
             since = "yet" if math.isnan(a0) else f"for {a0:.1f} s"
-            if why == _R_GROUND_STALE:
+            if why == _R["ground_stale"]:
                 return (f"slip is informative but the ground speed is stale: no new reading for more than "
                         f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
             return (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
                     f"both {since} (sensor refresh too slow to measure traction)")
-        if why == _R_UNDETERMINED:
+        if why == _R["undetermined"]:
             return "slip is informative but the wheel torque balance does not determine gross traction"
-        if why == _R_LEANS:
+        if why == _R["leans"]:
             return (f"these data lean to a torque scale of {a0:.2f} (1 +- {a1:.2f} assumed): K is limited by the "
                     "torque scale, which a drive at constant speed cannot tell apart from K (accelerate or brake, "
                     "or soilocp calibrate-torque)")
-        if why == _R_AXLE_WINDOW:
+        if why == _R["axle_window"]:
             return (f"the front and rear axles read different soils for most of the last "
                     f"{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
                     "centre of mass) or an axle's torque constant may be off")
-        if why == _R_EVIDENCE:
+        if why == _R["evidence"]:
             return (f"K from {a0:.1f} s of informative slip since the last change or hold: the "
                     f"model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok")
         # the wheels the longitudinal model does not describe (docs/method.md §17, docs/robustness.md "Skid turns")
         text = describe(unusable)
-        if why == _R_OUT_SKID:
+        if why == _R["out_skid"]:
             return f"{text}: no K while it lasts"
-        if why == _R_OUT_NO_WHEEL:
+        if why == _R["out_no_wheel"]:
             return f"{text}: no wheel informs K"
-        if why == _R_OUT_HOLDING:
+        if why == _R["out_holding"]:
             return f"{text}: no wheel informs K; holding the estimate of {a0:.1f} s ago"
-        if why == _R_OUT_OTHERS:
+        if why == _R["out_others"]:
             return f"{text}; K from the other wheels"
         raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
 
-#: the core's status codes (soilocp/_core/src/soil/status.rs), code -> name, checked against the schema's
-_STATUSES: tuple[Status, ...] = tuple(getattr(_core.SoilGridBank, "status_names", ()))
-#: the core's reason codes (status.rs, ``reason::NAMES``) by name
-_R = {name: code for code, name in enumerate(getattr(_core.SoilGridBank, "reason_names", ()))}
-#: code -> name, as the records' reason_code (soilocp.schemas.pipeline.REASON_CODES: the core's, and RECORD_REASON_CODES)
-_REASON_NAMES: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "reason_names", ()))
-if (set(_STATUSES) != set(get_args(Status)) or _R.get("none") != 0
-        or set(_REASON_NAMES) | set(RECORD_REASON_CODES) != set(REASON_CODES)):
-    raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not the schema's "
-                      "(soilocp.schemas.pipeline: EstimateStatus, REASON_CODES), or its reason 0 is not 'none': rebuild the "
-                      "core (make setup)")
-(_R_NONE, _R_NOT_YET, _R_STAMP_BACKWARDS, _R_WITHDRAWN, _R_HOLDING, _R_WIDE, _R_SYSTEMATIC_SCALE,
- _R_SYSTEMATIC_SCALE_CALIBRATE, _R_SYSTEMATIC_RADIUS, _R_NOT_IDENTIFIABLE, _R_AXLES, _R_NIS, _R_BELOW_FLOOR,
- _R_GROUND_STALE, _R_READINGS_HELD, _R_UNDETERMINED, _R_LEANS, _R_AXLE_WINDOW, _R_EVIDENCE, _R_OUT_SKID,
- _R_OUT_NO_WHEEL, _R_OUT_HOLDING, _R_OUT_OTHERS) = (_R[name] for name in (
-    "none", "not_yet", "stamp_backwards", "withdrawn", "holding", "wide", "systematic_scale",
-    "systematic_scale_calibrate", "systematic_radius", "not_identifiable", "axles", "nis", "below_floor",
-    "ground_stale", "readings_held", "undetermined", "leans", "axle_window", "evidence", "out_skid",
-    "out_no_wheel", "out_holding", "out_others"))
+#: the soil stage's status and reason codes, code -> name (soilocp/_core/src/codes.rs, the one definition)
+_STATUSES: tuple[Status, ...] = tuple(_core.SoilGridBank.status_names)
+_REASON_NAMES: tuple[str, ...] = tuple(_core.SoilGridBank.reason_names)
+#: reason name -> code
+_R = {name: code for code, name in enumerate(_REASON_NAMES)}
+if _STATUSES != get_args(Status) or not set(_REASON_NAMES) <= set(REASON_CODES):
+    raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not those of "
+                      "soilocp.schemas.codes: rebuild the core (make setup) and regenerate the module "
+                      "(python -m soilocp.cli.generate_codes)")
 
 
 class BayesSoilEstimator:
@@ -345,14 +330,14 @@ class BayesSoilEstimator:
     def update(self, stamp: float, slip, observed, variance, informative, slip_sigma=None,
                gate_slip=None, gate_sigma=None, held=None, speed=None) -> SoilState:
         """Fuse one sample: arrays (4,) as :meth:`SoilBank.update` (``slip_sigma`` default
-        ``cfg.slip_sigma``; ``speed`` the ground speed in m/s, default ``UNKNOWN_SPEED``)."""
+        ``cfg.slip_sigma``; ``speed`` the ground speed in m/s, default ``cfg.unknown_speed``)."""
         slip, obs, var = _checked_quads(slip=slip, observed=observed, variance=variance)
         s_sig = np.full(4, self.cfg.slip_sigma) if slip_sigma is None else np.asarray(slip_sigma, dtype=float)
         row = (lambda a, default, dtype=float: (default if a is None else np.asarray(a, dtype=dtype))[None])
         inputs = SoilInputs(slip[None], row(informative, None, bool), obs[None], var[None], s_sig[None],
                             row(gate_slip, slip), row(gate_sigma, s_sig), row(held, np.zeros(4, dtype=bool), bool),
                             np.zeros(1, dtype=bool), np.ones(1, dtype=bool),
-                            np.array([UNKNOWN_SPEED if speed is None else speed], dtype=float), None, None)
+                            np.array([self.cfg.unknown_speed if speed is None else speed], dtype=float), None, None)
         return self.bank.update(np.zeros(1, dtype=int), [stamp], inputs)[0]
 
 

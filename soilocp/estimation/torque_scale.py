@@ -49,7 +49,8 @@ import dataclasses
 import numpy as np
 
 from soilocp import _core
-from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
+from soilocp.model.constants import DEFAULT_CONSTANTS, STANDARD_GRAVITY, ModelConstants
+from soilocp.estimation.settings_model import core_values
 from soilocp.estimation.torque_scale_config import TorqueScaleConfig
 from soilocp.model.slip import DEFAULT_FLOOR
 from soilocp.model.vehicle import VehicleParams
@@ -60,7 +61,10 @@ class TorqueScaleBank:
     vehicle in ``ix`` (the observer's inputs) and steps them in one call."""
 
     def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int,
-                 constants: ModelConstants = DEFAULT_CONSTANTS):
+                 constants: ModelConstants = DEFAULT_CONSTANTS, *, slip_floor: float = DEFAULT_FLOOR,
+                 gravity: float = STANDARD_GRAVITY):
+        """``slip_floor``: eq. 1's floor (the pipeline's ``slip_floor``, which the slip gate reads too);
+        ``gravity``: m/s^2, the balance's slope term (the observer's ``gravity``)."""
         self.vehicle, self.cfg, self.prior_sigma, self.constants = vehicle, cfg, float(prior_sigma), constants
         # the state's own prior (wider where the mass is as uncertain as the motor constant); the soil estimator's
         # band keeps prior_sigma until a window informs k
@@ -71,19 +75,12 @@ class TorqueScaleBank:
         # soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
         self.k_default = float(np.median(list(constants.soils.values())))
         self._n = n_vehicles
-        # the squares as Python takes them (pow), so that the state's variances are tests/reference_torque_scale.py's to the bit.
-        # An inactive bank (disabled, or no prior) has no state: k = 1 +- prior_sigma always
+        # an inactive bank (disabled, or no prior) has no state: k = 1 +- prior_sigma always
         self._core = None if not self.active else _core.TorqueScaleCore(
-            constants.kernel, n_vehicles, vehicle.mass, vehicle.wheel_inertia, vehicle.wheel_radius, {
-                "window": cfg.window, "min_speed": cfg.min_speed, "max_yaw_rate": cfg.max_yaw_rate,
-                "max_gap": cfg.max_gap, "min_accel": cfg.min_accel, "max_slip": cfg.max_slip,
-                "scale_walk_var": cfg.scale_walk**2, "resistance_walk_var": cfg.resistance_walk**2,
-                "force_var": cfg.force_sigma**2, "resistance_var": cfg.resistance_sigma**2,
-                "jump_var": cfg.resistance_jump**2,
-                "state_sigma": self.state_sigma, "state_var": self.state_sigma**2,
-                "prior_sigma": self.prior_sigma, "prior_var": self.prior_sigma**2,
-                "k_default": self.k_default, "slip_floor": DEFAULT_FLOOR,
-                "model_resistance": float(cfg.model_resistance)})
+            constants.kernel, n_vehicles, vehicle.mass, vehicle.wheel_inertia, vehicle.wheel_radius,
+            core_values(cfg, "torque_scale"), state_sigma=self.state_sigma, prior_sigma=self.prior_sigma,
+            k_default=self.k_default, slip_floor=float(slip_floor), gravity=float(gravity),
+            model_resistance=bool(cfg.model_resistance))
 
     @property
     def theta(self) -> np.ndarray:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence
 
+from soilocp.estimation.settings_model import core_values
 from soilocp.schemas.pipeline import OcpEstimate, SoilEstimate
 
 from soilocp import _core
@@ -80,8 +81,7 @@ class WheelCurve:
         #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
         kr = config.constants.k_range
         self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
-        self.bank = _core.CurveBank(n_vehicles, c.window, c.change_window, c.change_shift, c.change_pairs, c.slip_min,
-                                    c.slip_max, c.min_pairs, c.min_beyond, c.peak_span, c.interval) \
+        self.bank = _core.CurveBank(n_vehicles, core_values(c, "curve")) \
             if c.enabled and not self.checked else None  # a checked curve keeps its own OCPs: nothing to learn
 
     def fit(self, j: int, soil: SoilEstimate):

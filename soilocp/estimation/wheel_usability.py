@@ -26,11 +26,11 @@ soil/gate.rs); :data:`REASONS` names them, :func:`describe` words them, and the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from soilocp import _core
+from soilocp.estimation.settings_model import core_values, model_from_core
+from soilocp.model.constants import DEFAULT_DEADBAND
 
 #: code -> name, 0 = usable: soilocp/_core/src/soil/usability.rs's table
 REASONS: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "unusable_names", ()))
@@ -49,16 +49,10 @@ EXPLAIN = {
                "model does not describe",
 }
 
-@dataclass(frozen=True)
-class UsabilityLimits:
-    """Thresholds of :func:`wheel_usability` (docs/method.md §17)."""
-
-    stall_speed: float = 0.1  # m/s: |V| below this with a torque is a stall (the issue's closed-loop stall: V < 0.1)
-    gross_idle: float = 0.05  # |gross traction| at most this: no torque acts on the wheel
-    rim_stopped: float = 0.02  # m/s: a rim slower than this stands
-    moving: float = 0.15  # m/s: the body moves (eq. 1's deadband)
-    rim_turning: float = 0.05  # m/s: a side's rim turns
-    yaw_turning: float = 0.1  # rad/s
+#: Thresholds of :func:`wheel_usability` (docs/method.md §17), declared in the compiled core
+#: (soilocp/_core/src/soil/usability.rs); whether the body moves is the pipeline's ``slip_deadband``.
+UsabilityLimits = model_from_core("UsabilityLimits", "usability", __name__,
+                                  "Thresholds of wheel_usability (docs/method.md §17).")
 
 
 def travel_slip(rim, ground, floor: float):
@@ -74,17 +68,16 @@ def travel_slip(rim, ground, floor: float):
 
 def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
                     yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
-                    limits: UsabilityLimits = UsabilityLimits()) -> np.ndarray:
+                    limits: UsabilityLimits = UsabilityLimits(), deadband: float = DEFAULT_DEADBAND) -> np.ndarray:
     """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
     :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
     the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
-    F_GT / W) and the half-track (c + d) / 2 in m.  The compiled core's (soilocp/_core/src/soil/usability.rs),
+    F_GT / W), the half-track (c + d) / 2 in m and the slip deadband in m/s (the pipeline's
+    ``slip_deadband``: above it the body moves).  The compiled core's (soilocp/_core/src/soil/usability.rs),
     which the slip gate runs."""
     f = (lambda a: np.asarray(a, dtype=float))
-    lim = limits
     return _core.wheel_usability(f(slip), f(rim), f(ground), f(body_speed).reshape(-1), f(yaw_rate).reshape(-1),
-                                 f(gross), float(half_track), (lim.stall_speed, lim.gross_idle, lim.rim_stopped,
-                                                               lim.moving, lim.rim_turning, lim.yaw_turning))
+                                 f(gross), float(half_track), core_values(limits, "usability"), float(deadband))
 
 
 def describe(codes) -> str:

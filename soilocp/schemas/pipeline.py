@@ -11,6 +11,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from soilocp.schemas.codes import REASONS, STATUSES
 from soilocp.schemas.position import EstimatePlace, GeoPosition, MapPosition
 from soilocp.schemas.sensor import VehicleId
 
@@ -19,7 +20,6 @@ PIPELINE_SCHEMA_VERSION = 1
 Quad = tuple[float, float, float, float]
 BoolQuad = tuple[bool, bool, bool, bool]
 
-#: Status of a soil / OCP record (see soilocp.estimation.soil_strength); ``stale`` is set by the live publisher.
 #: Where an OCP record's mu_T and S_T come from (soilocp.estimation.wheel_curve).
 OcpCurve = Literal["model", "learnt", "unchecked"]
 _CURVE_DOC = (
@@ -28,48 +28,16 @@ _CURVE_DOC = (
     "(a traction sweep), with its band in mu_T_std and S_T_std. unchecked: K and the paper's constants, which nobody "
     "checked for this wheel: such OCPs are never served as ok (the status says uncertain, the reason why)"
 )
-EstimateStatus = Literal["ok", "uncertain", "holding", "no_estimate", "not_observable", "model_mismatch", "stale"]
-_STATUS_DOC = (
-    "ok | uncertain (wide band, reason says why) | holding (slip uninformative, last estimate held) | no_estimate | "
-    "not_observable (the data do not determine K) | model_mismatch (the model does not explain the data: the traction "
-    "curve, or the axles read different soils) | "
-    "stale (live publisher: inputs stopped)"
-)
+#: Status of a soil / OCP record, with its meaning: the compiled core's (soilocp.schemas.codes, generated from
+#: soilocp/_core/src/codes.rs); ``stale`` is set by the live publisher.
+EstimateStatus = Literal[tuple(STATUSES)]  # type: ignore[valid-type]
+_STATUS_DOC = " | ".join(f"{name} ({meaning})" for name, (_, meaning) in STATUSES.items())
 
-#: Machine-readable reason of a soil / OCP record, with its meaning: the compiled core's reason codes
-#: (soilocp/_core/src/soil/status.rs; soilocp.estimation.soil_strength refuses to load a core whose codes are
-#: not these) and the live publisher's ``stale``.  The record's ``reason`` words the same reason with its numbers.
-REASON_CODES: dict[str, str] = {
-    "none": "no reason: the estimate is ok (or a record written before reason codes existed)",
-    "not_yet": "slip has not been informative yet: no K so far",
-    "stamp_backwards": "the stamps went backwards (source restarted): estimate withdrawn",
-    "withdrawn": "slip uninformative for longer than hold_after + expire_after: estimate withdrawn",
-    "holding": "slip uninformative now: the last K is held",
-    "wide": "K's band is wider than uncertain_log_sigma: K poorly determined",
-    "systematic_scale": "K's band is mostly the torque constant's uncertainty",
-    "systematic_scale_calibrate": "K's band is mostly the torque constant's, and the data suggest a wrong constant",
-    "systematic_radius": "K's band is mostly the wheel radius's uncertainty at these small slips",
-    "not_identifiable": "no independent ground speed (or a log that cannot identify K): slip and K not identifiable",
-    "axles": "the front and rear axles read different soils (normal forces or an axle's torque constant off)",
-    "nis": "the traction curve does not explain the (slip, traction) pairs at any K",
-    "below_floor": "traction below what the weakest soil gives at this slip (torque scale or units?)",
-    "ground_stale": "slip is informative but the ground speed reading is stale",
-    "readings_held": "slip is informative but the wheel speed / torque readings are held (refresh too slow)",
-    "undetermined": "slip is informative but the torque balance does not determine gross traction",
-    "leans": "the data lean to another torque scale, which a drive at constant speed cannot tell from K",
-    "axle_window": "the axles read different soils for most of the evidence window",
-    "evidence": "K from too few seconds of informative slip for the model checks: not yet ok",
-    "out_skid": "wheels in a skid turn (outside the longitudinal model): no K while it lasts",
-    "out_no_wheel": "no wheel inside the longitudinal model (stall, slip beyond eq. 1, stopped unpowered)",
-    "out_holding": "no wheel inside the longitudinal model: the last K is held",
-    "out_others": "some wheels outside the longitudinal model: K from the others",
-    "stale": "live publisher: no input for longer than stale_timeout_s",
-    "curve_unchecked": "OCP record: the OCPs rest on the paper's traction curve, which nobody checked for this wheel",
-    "curve_learnt": "OCP record: the OCPs are the traction curve this drive showed, not checked by a calibration",
-    "curve_extrapolated": "OCP record: K is beyond the soils the wheel's calibration was fitted over",
-}
-#: the codes set after the soil stage: the live publisher's and the OCP record's (the others are the core's)
-RECORD_REASON_CODES = ("stale", "curve_unchecked", "curve_learnt", "curve_extrapolated")
+#: Machine-readable reason of a soil / OCP record, name -> meaning: the compiled core's (soilocp.schemas.codes).
+#: The record's ``reason`` words the same reason with its numbers.
+REASON_CODES: dict[str, str] = {name: meaning for name, (_, meaning) in REASONS.items()}
+#: the codes set after the soil stage: the live publisher's and the OCP record's (the others are the soil stage's)
+RECORD_REASON_CODES = tuple(name for name, (set_by, _) in REASONS.items() if set_by != "soil")
 ReasonCode = Literal[tuple(REASON_CODES)]  # type: ignore[valid-type]
 _REASON_CODE_DOC = ("Machine-readable reason (group and count by it; 'reason' words it with numbers): "
                     + "; ".join(f"{k}: {v}" for k, v in REASON_CODES.items()))

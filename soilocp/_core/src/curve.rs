@@ -18,45 +18,34 @@ use std::collections::VecDeque;
 
 use pyo3::prelude::*;
 
-/// The learner's settings (`soilocp.estimation.curve_config.CurveConfig` documents each).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Params {
-    /// s: pairs older than this are dropped
-    pub window: f64,
-    /// s: the recent pairs whose mean residual tells a change of soil
-    pub change_window: f64,
-    /// mean residual of the recent pairs (traction coefficient) beyond which the soil changed
-    pub change_shift: f64,
-    /// recent pairs needed to judge a change
-    pub change_pairs: usize,
-    /// |S| below this is not used (the zero-slip bridge, eq. 1's noise)
-    pub slip_min: f64,
-    /// |S| above this is not used (a spinning or locked wheel)
-    pub slip_max: f64,
-    /// pairs of the current soil needed before a fit
-    pub min_pairs: usize,
-    /// pairs on each side of the fitted S_T, within `peak_span` of it, for the peak to count as shown
-    pub min_beyond: usize,
-    /// slip distance from S_T within which `min_beyond` pairs on each side show the bend
-    pub peak_span: f64,
-    /// s between two fits
-    pub interval: f64,
-}
+use crate::settings::settings_struct;
 
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            window: 8.0,
-            change_window: 0.5,
-            change_shift: 0.04,
-            change_pairs: 20,
-            slip_min: 0.02,
-            slip_max: 0.95,
-            min_pairs: 200,
-            min_beyond: 40,
-            peak_span: 0.1,
-            interval: 0.5,
-        }
+settings_struct! {
+    /// The learner's settings (soilocp.estimation.curve_config.CurveConfig is built from these
+    /// declarations).
+    pub struct Params("curve") {
+        /// Pairs older than this are dropped: the (slip, traction) pairs of the last window are fitted.
+        window: Float = 8.0, Internal, "s", [gt 0.0];
+        /// The recent pairs whose mean departure from the fitted curve tells a change of soil.
+        change_window: Float = 0.5, Internal, "s", [gt 0.0];
+        /// Mean departure of those pairs' traction coefficient from the curve beyond which the soil
+        /// changed (the pairs are dropped and the fit starts over).
+        change_shift: Float = 0.04, Internal, "", [gt 0.0];
+        /// Recent pairs needed to judge a change of soil.
+        change_pairs: Int = 20.0, Internal, "", [ge 1.0];
+        /// |slip| below this is not fitted (the zero-slip bridge, eq. 1's noise).
+        slip_min: Float = 0.02, Internal, "", [ge 0.0];
+        /// |slip| above this is not fitted (a spinning or locked wheel).
+        slip_max: Float = 0.95, Internal, "", [gt 0.0];
+        /// Pairs of the current soil needed before a fit.
+        min_pairs: Int = 200.0, Internal, "", [ge 5.0];
+        /// Pairs on each side of the fitted S_T, within peak_span of it, for the peak to count as
+        /// shown (else the curve past the data is an extrapolation).
+        min_beyond: Int = 40.0, Internal, "", [ge 1.0];
+        /// Slip distance from S_T within which min_beyond pairs on each side show the bend.
+        peak_span: Float = 0.1, Internal, "", [gt 0.0];
+        /// Time between two fits (and at once after a change of soil).
+        interval: Float = 0.5, Internal, "s", [ge 0.0];
     }
 }
 
@@ -191,7 +180,7 @@ impl CurveLearner {
             let n = recent.len();
             // a shift beyond the noise the fit leaves, and beyond change_shift
             let shift = p.change_shift.max(CHANGE_RMS * f.rms);
-            if n >= p.change_pairs && (recent.iter().sum::<f64>() / n as f64).abs() > shift {
+            if n as f64 >= p.change_pairs && (recent.iter().sum::<f64>() / n as f64).abs() > shift {
                 // the change's moment: the split of the recent residuals (newest first) whose two means differ
                 // the most, weighted by their counts; the pairs before it are the old soil's
                 let total: f64 = recent.iter().sum();
@@ -418,7 +407,7 @@ const PASSES: usize = 3;
 /// their median absolute deviation), so that the few pairs of a soil the wheels just left (a rear
 /// axle still on it) weigh nothing.  None when there are too few pairs or the fit has no peak.
 fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
-    if pairs.len() < p.min_pairs.max(5) {
+    if (pairs.len() as f64) < p.min_pairs.max(5.0) {
         return None;
     }
     let mut weights = vec![1.0; pairs.len()];
@@ -503,7 +492,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         beyond,
         slip_top,
         rms: (wrss / sum_w.max(1e-12)).sqrt(),
-        shown: below >= p.min_beyond && beyond >= p.min_beyond,
+        shown: below as f64 >= p.min_beyond && beyond as f64 >= p.min_beyond,
         stamp,
     })
 }

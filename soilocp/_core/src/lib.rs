@@ -3,12 +3,14 @@
 //! f64; `py` binds them to Python as `soilocp._core` (arrays in, arrays out, one call per step).
 //! Nothing here imports the Python package above it.
 
+pub mod codes;
 pub mod constants;
 pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
 pub mod py;
+pub mod settings;
 pub mod slip;
 pub mod soil;
 #[cfg(test)]
@@ -21,6 +23,9 @@ use pyo3::prelude::*;
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<constants::Constants>()?;
+    m.add_function(wrap_pyfunction!(py::codes::status_codes, m)?)?;
+    m.add_function(wrap_pyfunction!(py::codes::reason_codes, m)?)?;
+    m.add_function(wrap_pyfunction!(py::settings::settings_schema, m)?)?;
     m.add_class::<py::normal_force::NormalForceSolver>()?;
     m.add_function(wrap_pyfunction!(py::traction::traction_curve, m)?)?;
     m.add_function(wrap_pyfunction!(py::traction::traction_value, m)?)?;

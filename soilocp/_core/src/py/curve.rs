@@ -1,6 +1,8 @@
 //! `soilocp._core.CurveBank`: the wheel-curve learners of N vehicles (crate::curve), one call per
 //! sample of one vehicle.  Floats in and out: the OCP publisher, which runs it, loads no numpy.
 
+use std::collections::HashMap;
+
 use pyo3::exceptions::{PyIndexError, PyValueError};
 use pyo3::prelude::*;
 
@@ -26,47 +28,17 @@ impl CurveBank {
 
 #[pymethods]
 impl CurveBank {
-    /// N learners with the settings of `soilocp.estimation.curve_config.CurveConfig`.
+    /// N learners with the curve `settings` (by the names of crate::curve::Params; a missing one
+    /// takes its default).
     #[new]
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (n_vehicles, window, change_window, change_shift, change_pairs, slip_min, slip_max, min_pairs, min_beyond, peak_span, interval))]
-    fn new(
-        n_vehicles: usize,
-        window: f64,
-        change_window: f64,
-        change_shift: f64,
-        change_pairs: usize,
-        slip_min: f64,
-        slip_max: f64,
-        min_pairs: usize,
-        min_beyond: usize,
-        peak_span: f64,
-        interval: f64,
-    ) -> PyResult<Self> {
-        let checks = [
-            ("window", window > 0.0),
-            ("change_window", change_window > 0.0),
-            ("change_shift", change_shift > 0.0),
-            ("slip_min", slip_min >= 0.0),
-            ("slip_max", slip_max > slip_min),
-            ("interval", interval >= 0.0),
-            ("peak_span", peak_span > 0.0),
-        ];
-        if let Some((name, _)) = checks.iter().find(|(_, ok)| !ok) {
-            return Err(PyValueError::new_err(format!("curve setting {name} is out of range")));
+    fn new(n_vehicles: usize, settings: HashMap<String, f64>) -> PyResult<Self> {
+        let params = Params::from_map(&settings).map_err(PyValueError::new_err)?;
+        if params.slip_max <= params.slip_min {
+            return Err(PyValueError::new_err(format!(
+                "curve settings: slip_max = {} must exceed slip_min = {}",
+                params.slip_max, params.slip_min
+            )));
         }
-        let params = Params {
-            window,
-            change_window,
-            change_shift,
-            change_pairs,
-            slip_min,
-            slip_max,
-            min_pairs,
-            min_beyond,
-            peak_span,
-            interval,
-        };
         Ok(CurveBank {
             learners: vec![CurveLearner::new(params); n_vehicles],
         })

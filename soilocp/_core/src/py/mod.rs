@@ -3,10 +3,12 @@
 
 pub mod args;
 pub mod chain;
+pub mod codes;
 pub mod curve;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
+pub mod settings;
 pub mod slip;
 pub mod soil;
 pub mod torque_scale;

@@ -7,6 +7,7 @@ use numpy::ndarray::{Array2, ArrayD, Zip};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use std::collections::HashMap;
 
 use crate::slip;
 use crate::soil::usability::{self, Limits};
@@ -72,8 +73,8 @@ pub fn travel_slip<'py>(
 
 /// The unusable code (k, 4) per wheel (docs/method.md §17, crate::soil::usability::codes) from the
 /// travel-frame slip, rim speeds and ground speeds under the wheels (k, 4), the body's ground speed
-/// and yaw rate (k,), the gross traction (k, 4), the half-track (m) and the limits (stall_speed,
-/// gross_idle, rim_stopped, moving, rim_turning, yaw_turning).
+/// and yaw rate (k,), the gross traction (k, 4), the half-track (m), the usability `limits` (by the
+/// names of crate::soil::usability::Limits; a missing one takes its default) and the slip `deadband` (m/s).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 pub fn wheel_usability<'py>(
@@ -85,7 +86,8 @@ pub fn wheel_usability<'py>(
     yaw_rate: PyReadonlyArray1<'py, f64>,
     gross: PyReadonlyArray2<'py, f64>,
     half_track: f64,
-    limits: (f64, f64, f64, f64, f64, f64),
+    limits: HashMap<String, f64>,
+    deadband: f64,
 ) -> PyResult<Bound<'py, PyArray2<i8>>> {
     let k = slip.as_array().nrows();
     let (s, r, g, gr) = (
@@ -102,17 +104,10 @@ pub fn wheel_usability<'py>(
             y.len()
         )));
     }
-    let lim = Limits {
-        stall_speed: limits.0,
-        gross_idle: limits.1,
-        rim_stopped: limits.2,
-        moving: limits.3,
-        rim_turning: limits.4,
-        yaw_turning: limits.5,
-    };
+    let lim = Limits::from_map(&limits).map_err(PyValueError::new_err)?;
     let mut out = Array2::<i8>::zeros((k, 4));
     for j in 0..k {
-        let c = usability::codes(&s[j], &r[j], &g[j], v[j], y[j], &gr[j], half_track, &lim);
+        let c = usability::codes(&s[j], &r[j], &g[j], v[j], y[j], &gr[j], half_track, &lim, deadband);
         for w in 0..4 {
             out[[j, w]] = c[w];
         }

@@ -12,13 +12,14 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
+use crate::codes::{self, Code, SetBy};
 use crate::constants::Constants;
 use crate::soil::bank::{self, Sample};
 use crate::soil::gate::{self, GateParams};
 use crate::soil::grid::Grid;
 use crate::soil::params::Params;
 use crate::soil::scale::ScaleNodes;
-use crate::soil::status::{self, Report, StatusBank};
+use crate::soil::status::{Report, StatusBank};
 use crate::soil::usability::{self, Limits};
 use crate::traction::Kind;
 
@@ -165,11 +166,12 @@ pub(crate) struct PendingGate {
 impl SlipGateBank {
     /// The gate of `n_vehicles`: each wheel's lateral position `wheel_y` (4,) m, whether the soil
     /// update compares `gross` traction (else net), and the numbers of `params` (names of
-    /// crate::soil::gate::GateParams but wheel_y and gross; the usability limits by their names in
-    /// soilocp.estimation.wheel_usability.UsabilityLimits).
+    /// crate::soil::gate::GateParams but wheel_y, gross, soil and limits; the soil settings and the
+    /// usability limits by the names of crate::soil::params::Params and crate::soil::usability::Limits,
+    /// a missing one at its default).
     #[new]
     fn py_new(n_vehicles: usize, wheel_y: [f64; 4], gross: bool, params: HashMap<String, f64>) -> PyResult<Self> {
-        const NAMES: [&str; 19] = [
+        const NAMES: [&str; 7] = [
             "wheel_radius",
             "half_track",
             "static_load",
@@ -177,20 +179,13 @@ impl SlipGateBank {
             "lift_off_force",
             "slip_deadband",
             "slip_floor",
-            "slip_sigma",
-            "speed_sigma",
-            "gate_smoothing",
-            "fresh_age",
-            "max_input_age",
-            "min_load_fraction",
-            "stall_speed",
-            "gross_idle",
-            "rim_stopped",
-            "moving",
-            "rim_turning",
-            "yaw_turning",
         ];
-        if let Some(k) = params.keys().find(|k| !NAMES.contains(&k.as_str())) {
+        let limit = |k: &str| Limits::SPECS.iter().any(|s| s.name == k);
+        let soil = |k: &str| Params::SPECS.iter().any(|s| s.name == k);
+        if let Some(k) = params
+            .keys()
+            .find(|k| !NAMES.contains(&k.as_str()) && !limit(k) && !soil(k))
+        {
             return Err(PyValueError::new_err(format!("gate params: unknown field {k:?}")));
         }
         let get = |name: &str| -> PyResult<f64> {
@@ -215,20 +210,22 @@ impl SlipGateBank {
             lift_off_force: get("lift_off_force")?,
             slip_deadband: get("slip_deadband")?,
             slip_floor: get("slip_floor")?,
-            slip_sigma: get("slip_sigma")?,
-            speed_sigma: get("speed_sigma")?,
-            gate_smoothing: get("gate_smoothing")?,
-            fresh_age: get("fresh_age")?,
-            max_input_age: get("max_input_age")?,
-            min_load_fraction: get("min_load_fraction")?,
-            limits: Limits {
-                stall_speed: get("stall_speed")?,
-                gross_idle: get("gross_idle")?,
-                rim_stopped: get("rim_stopped")?,
-                moving: get("moving")?,
-                rim_turning: get("rim_turning")?,
-                yaw_turning: get("yaw_turning")?,
-            },
+            soil: Params::from_map(
+                &params
+                    .iter()
+                    .filter(|(k, _)| soil(k))
+                    .map(|(k, v)| (k.clone(), *v))
+                    .collect(),
+            )
+            .map_err(PyValueError::new_err)?,
+            limits: Limits::from_map(
+                &params
+                    .iter()
+                    .filter(|(k, _)| limit(k))
+                    .map(|(k, v)| (k.clone(), *v))
+                    .collect(),
+            )
+            .map_err(PyValueError::new_err)?,
         };
         let inner = gate::SlipGateBank::new(cfg, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(SlipGateBank { inner })
@@ -284,6 +281,15 @@ impl SlipGateBank {
     fn lp_stamp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         Array1::from_vec(self.inner.lp_stamp.clone()).into_pyarray(py)
     }
+}
+
+/// The names of the codes the soil stage sets (the first rows of a table of crate::codes).
+fn soil_names(table: &[Code]) -> Vec<&'static str> {
+    table
+        .iter()
+        .take_while(|c| c.set_by == SetBy::Soil)
+        .map(|c| c.name)
+        .collect()
 }
 
 /// The grid Bayes soil filters of N vehicles (docs/method.md §9, §11, §16).
@@ -454,16 +460,16 @@ pub(crate) struct Inputs<'py> {
 
 #[pymethods]
 impl SoilGridBank {
-    /// The records' status codes' names, code -> name.
+    /// The status codes' names this bank's records carry, code -> name (crate::codes).
     #[classattr]
     fn status_names() -> Vec<&'static str> {
-        status::STATUS_NAMES.to_vec()
+        soil_names(codes::status::TABLE)
     }
 
-    /// The records' reason codes' names, code -> name (the Python side words each).
+    /// The reason codes' names this bank's records carry, code -> name (the Python side words each).
     #[classattr]
     fn reason_names() -> Vec<&'static str> {
-        status::reason::NAMES.to_vec()
+        soil_names(codes::reason::TABLE)
     }
 
     /// The wheels' unusable codes' names, code -> name ("": usable).
@@ -475,7 +481,8 @@ impl SoilGridBank {
     /// The bank of `n_vehicles` from `constants`, the `measurement` ("gross" or "net"), the grid as
     /// numpy made it (theta = ln K nodes, k_grid = e^theta, amp = C1 (1 - e^{-C2 K})), the scale
     /// profile's nodes (z in 1-sigma units, their log prior), the weakest fitted soil's K / 2
-    /// (`k_floor`) and SoilConfig's numbers (`params`, names of crate::soil::params::Params).
+    /// (`k_floor`) and the soil settings (`params`, by the names of
+    /// crate::soil::params::Params; a missing one takes its default).
     #[new]
     #[allow(clippy::too_many_arguments)]
     fn py_new(
@@ -655,11 +662,12 @@ impl SoilGridBank {
         Ok((gate_arrays(py, &samples)?, report_arrays(py, &self.reports, &used)))
     }
 
-    /// The records' settings (names of crate::soil::status::StatusBank::NAMES): from now on each
-    /// step also makes its vehicles' records (`report`, `step_gated`).
-    fn set_status(&mut self, params: HashMap<String, f64>) -> PyResult<()> {
+    /// Make records from now on: each step also makes its vehicles' records (`report`,
+    /// `step_gated`), with the bank's settings and the grid's ln K `span`.
+    fn set_status(&mut self, span: f64) -> PyResult<()> {
         let n = self.inner.vehicles.len();
-        self.status = Some(StatusBank::from_map(&params, n).map_err(PyValueError::new_err)?);
+        let bank = StatusBank::new(self.inner.cfg, span, n).map_err(PyValueError::new_err)?;
+        self.status = Some(bank);
         Ok(())
     }
 

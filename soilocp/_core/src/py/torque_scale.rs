@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use crate::constants::Constants;
 use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank::{self, Sample};
-use crate::torque_scale::params::Params;
+use crate::torque_scale::params::{Derived, Params, Settings};
 
 use super::args::{check_len, check_quads};
 
@@ -132,19 +132,38 @@ impl TorqueScaleCore {
 #[pymethods]
 impl TorqueScaleCore {
     /// The bank of `n_vehicles` from the traction law's `constants`, the vehicle's mass (kg), one
-    /// wheel's inertia (kg m^2) and radius (m), and TorqueScaleConfig's numbers (`params`, the names
-    /// of crate::torque_scale::params::Params).
+    /// wheel's inertia (kg m^2) and radius (m), the torque scale's `settings` (by the names of
+    /// crate::torque_scale::params::Settings; a missing one takes its default) and the numbers
+    /// derived from other settings (crate::torque_scale::params::Derived).
     #[new]
+    #[pyo3(signature = (constants, n_vehicles, mass, wheel_inertia, wheel_radius, settings, *, state_sigma,
+                        prior_sigma, k_default, slip_floor, gravity, model_resistance))]
+    #[allow(clippy::too_many_arguments)]
     fn py_new(
         constants: Constants,
         n_vehicles: usize,
         mass: f64,
         wheel_inertia: f64,
         wheel_radius: f64,
-        params: HashMap<String, f64>,
+        settings: HashMap<String, f64>,
+        state_sigma: f64,
+        prior_sigma: f64,
+        k_default: f64,
+        slip_floor: f64,
+        gravity: f64,
+        model_resistance: bool,
     ) -> PyResult<Self> {
         let body = Body::new(mass, wheel_inertia, wheel_radius).map_err(PyValueError::new_err)?;
-        let params = Params::from_map(&params).map_err(PyValueError::new_err)?;
+        let settings = Settings::from_map(&settings).map_err(PyValueError::new_err)?;
+        let derived = Derived {
+            state_sigma,
+            prior_sigma,
+            k_default,
+            slip_floor,
+            gravity,
+            model_resistance,
+        };
+        let params = Params::new(&settings, derived).map_err(PyValueError::new_err)?;
         let inner = bank::TorqueScaleBank::new(params, body, constants, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(TorqueScaleCore { inner })
     }

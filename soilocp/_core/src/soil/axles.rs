@@ -177,7 +177,7 @@ mod tests {
     /// Axles that read soils far apart for long enough are flagged; the same soil is not.
     #[test]
     fn disagreeing_axles_are_flagged() {
-        let (gr, cfg) = (grid(), Params::defaults());
+        let (gr, cfg) = (grid(), Params::default());
         for (front, rear, want) in [(10, 30, true), (20, 20, false)] {
             let mut a = AxleCheck::new(41);
             let mut last = AxleVerdict {
@@ -201,7 +201,7 @@ mod tests {
 
     #[test]
     fn an_axle_never_informed_is_not_judged() {
-        let (gr, cfg) = (grid(), Params::defaults());
+        let (gr, cfg) = (grid(), Params::default());
         let mut a = AxleCheck::new(41);
         a.update(0.0, &[1], &[vec![0.0; 41]]);
         let v = a.judge(&gr, &cfg, 0.0, f64::NAN, 0.0);

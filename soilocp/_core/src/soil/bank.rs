@@ -663,16 +663,7 @@ mod tests {
         let theta: Vec<f64> = (0..g).map(|i| a + (b - a) * i as f64 / (g - 1) as f64).collect();
         let k = theta.iter().map(|t| t.exp()).collect();
         let grid = Grid::new(theta, k, None, Kind::Gross, Constants::PAPER).unwrap();
-        // soil_config.SoilConfig's defaults
-        let values = [
-            0.04, 0.95, 3.0, 0.4, 0.1, 0.5, 1.0, 0.5, 0.03, 0.02, 0.15, 0.01, 0.3, 3.0, 0.05, 0.5, 2.5, 0.03, 1.0, 1.0,
-        ];
-        let map = Params::NAMES
-            .iter()
-            .zip(values)
-            .map(|(n, v)| (n.to_string(), v))
-            .collect();
-        let cfg = Params::from_map(&map).unwrap();
+        let cfg = Params::default();
         let z: Vec<f64> = (0..25).map(|i| -4.0 + 8.0 * i as f64 / 24.0).collect();
         let nodes = ScaleNodes {
             log_prior: z.iter().map(|z| -0.5 * z * z).collect(),

@@ -11,6 +11,7 @@ use crate::observer::numeric::{nan_max, nan_min};
 use crate::observer::vehicles::{Estimate, QUAD_NAMES as OBSERVER_QUADS};
 use crate::slip;
 use crate::soil::bank::Sample;
+use crate::soil::params::Params;
 use crate::soil::usability::{self, Limits, SLIP_BEYOND_EQ1};
 
 /// The per-wheel fields of a packed row, four columns each from `4 * index`: the observer's rows
@@ -126,8 +127,8 @@ pub fn row_of(e: &Estimate) -> [f64; COLUMNS] {
     row
 }
 
-/// The gate's settings: the vehicle's, eq. 1's and SoilConfig's numbers it reads (their meaning:
-/// PipelineConfig's and SoilConfig's field descriptions).
+/// The gate's settings: the vehicle's and eq. 1's numbers, the soil settings and the usability
+/// limits.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GateParams {
     /// m
@@ -144,14 +145,13 @@ pub struct GateParams {
     pub gross: bool,
     /// N: a wheel at or below this normal force is lifted off
     pub lift_off_force: f64,
+    /// m/s: eq. 1's deadband (the pipeline's slip_deadband)
     pub slip_deadband: f64,
+    /// m/s: eq. 1's floor (the pipeline's slip_floor)
     pub slip_floor: f64,
-    pub slip_sigma: f64,
-    pub speed_sigma: f64,
-    pub gate_smoothing: f64,
-    pub fresh_age: f64,
-    pub max_input_age: f64,
-    pub min_load_fraction: f64,
+    /// the soil settings (the gate reads slip_sigma, speed_sigma, gate_smoothing, fresh_age,
+    /// max_input_age and min_load_fraction)
+    pub soil: Params,
     pub limits: Limits,
 }
 
@@ -265,7 +265,17 @@ impl SlipGateBank {
         };
         let mut observed: [f64; 4] = std::array::from_fn(|w| direction[w] * measure[w]);
         let mut variance = measure_var.map(|v| v * cfg.shared);
-        let mut unusable = usability::codes(&slip, &rim, &v_wheel, v_body, yaw, &gross, cfg.half_track, &cfg.limits);
+        let mut unusable = usability::codes(
+            &slip,
+            &rim,
+            &v_wheel,
+            v_body,
+            yaw,
+            &gross,
+            cfg.half_track,
+            &cfg.limits,
+            cfg.slip_deadband,
+        );
         // a slow stream's refresh: the pair from the readings (eq. 13 integrated over a held speed's
         // interval, or at a held torque's refresh) instead of the observer's prediction through the
         // held value; gross only
@@ -309,7 +319,7 @@ impl SlipGateBank {
             if learning[w] {
                 !refresh[w]
             } else {
-                speed_age[w] > cfg.fresh_age || torque_age[w] > cfg.fresh_age
+                speed_age[w] > cfg.soil.fresh_age || torque_age[w] > cfg.soil.fresh_age
             }
         });
         // a wheel whose new speed reading the observer's innovation gate rejected, or whose held reading its
@@ -331,9 +341,9 @@ impl SlipGateBank {
         // held between fixes; §20) is that much less certain; a refresh interval's mean rim speed is known only
         // to interval_rim_sigma
         let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
-        let speed_sigma = cfg.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
+        let speed_sigma = cfg.soil.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
         let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
-            let s = cfg.slip_sigma.hypot(speed_sigma / nan_max(scale[w], 1e-3));
+            let s = cfg.soil.slip_sigma.hypot(speed_sigma / nan_max(scale[w], 1e-3));
             if any_refresh && refresh[w] {
                 s.hypot(rim_sigma[w] / nan_max(scale[w], 1e-3))
             } else {
@@ -342,7 +352,7 @@ impl SlipGateBank {
         });
         // the low-pass slip the gate decides on (§9): gating on the raw, noisy slip keeps the samples
         // whose noise pushed |S| up and biases K
-        let tau = cfg.gate_smoothing;
+        let tau = cfg.soil.gate_smoothing;
         let last = self.lp_stamp[i];
         let dt = stamp - last;
         let mut restart = last.is_nan() || reset || dt <= 0.0 || dt > 1.0;
@@ -374,7 +384,7 @@ impl SlipGateBank {
                 gate_sigma[w] = slip_sigma[w];
             }
         }
-        let min_load = cfg.min_load_fraction * cfg.static_load;
+        let min_load = cfg.soil.min_load_fraction * cfg.static_load;
         // the codes judge measured speeds and torques: between a slow stream's refreshes the filtered
         // speed is a prediction, and a held wheel informs no K anyway
         let unusable: [i64; 4] = std::array::from_fn(|w| if held[w] || !measured { 0 } else { unusable[w] as i64 });
@@ -389,7 +399,7 @@ impl SlipGateBank {
             gate_sigma,
             informative: std::array::from_fn(|w| informative[w] && measured && normal_force[w] >= min_load),
             held,
-            ground_stale: row[scalar::GROUND_SPEED_AGE] > cfg.max_input_age,
+            ground_stale: row[scalar::GROUND_SPEED_AGE] > cfg.soil.max_input_age,
             identifiable: measured,
             speed: v_body,
             span: any_refresh.then(|| std::array::from_fn(|w| if refresh[w] { interval[w] } else { 0.0 })),
@@ -472,12 +482,7 @@ mod tests {
             lift_off_force: 1.0,
             slip_deadband: 0.15,
             slip_floor: 0.05,
-            slip_sigma: 0.005,
-            speed_sigma: 0.008,
-            gate_smoothing: 0.15,
-            fresh_age: 0.05,
-            max_input_age: 0.5,
-            min_load_fraction: 0.25,
+            soil: Params::default(),
             limits: Limits::default(),
         }
     }

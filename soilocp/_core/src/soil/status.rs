@@ -8,111 +8,15 @@
 //! [`py_min`] and [`py_max`] are theirs (CPython's hypot is not libm's: 0.4 % of random pairs
 //! differ in the last bit).
 
-use std::collections::HashMap;
-
+use crate::codes::reason;
+use crate::codes::status::{HOLDING, MODEL_MISMATCH, NOT_OBSERVABLE, NO_ESTIMATE, OK, UNCERTAIN};
 use crate::soil::bank::{Sample, SoilGridBank, Step, HELD, UNDETERMINED, USED};
+use crate::soil::params::Params;
 
-/// Status codes, in the order of soilocp.estimation.soil_config.Status.
-pub const OK: u8 = 0;
-pub const UNCERTAIN: u8 = 1;
-pub const HOLDING: u8 = 2;
-pub const NO_ESTIMATE: u8 = 3;
-pub const NOT_OBSERVABLE: u8 = 4;
-pub const MODEL_MISMATCH: u8 = 5;
-
-/// The status codes' names, code -> name (soilocp.estimation.soil_strength takes them from here).
-pub const STATUS_NAMES: [&str; 6] = [
-    "ok",
-    "uncertain",
-    "holding",
-    "no_estimate",
-    "not_observable",
-    "model_mismatch",
-];
-
-/// Reason codes (soilocp.estimation.soil_strength words them; `args` in brackets).
-pub mod reason {
-    pub const NONE: u8 = 0;
-    /// slip not informative yet
-    pub const NOT_YET: u8 = 1;
-    pub const STAMP_BACKWARDS: u8 = 2;
-    /// [age]
-    pub const WITHDRAWN: u8 = 3;
-    /// [age]
-    pub const HOLDING: u8 = 4;
-    /// [ln K 1-sigma]
-    pub const WIDE: u8 = 5;
-    /// [ln K 1-sigma, scale prior, c mean]
-    pub const SYSTEMATIC_SCALE: u8 = 6;
-    /// [ln K 1-sigma, scale prior, c mean]: and the data suggest a wrong torque constant
-    pub const SYSTEMATIC_SCALE_CALIBRATE: u8 = 7;
-    /// [ln K 1-sigma]
-    pub const SYSTEMATIC_RADIUS: u8 = 8;
-    pub const NOT_IDENTIFIABLE: u8 = 9;
-    /// [ln K front, ln K rear, z]
-    pub const AXLES: u8 = 10;
-    /// [mean NIS]
-    pub const NIS: u8 = 11;
-    pub const BELOW_FLOOR: u8 = 12;
-    /// [s since the last update, NaN: none yet]
-    pub const GROUND_STALE: u8 = 13;
-    /// [s since the last update, NaN: none yet]
-    pub const READINGS_HELD: u8 = 14;
-    pub const UNDETERMINED: u8 = 15;
-    /// [c mean, scale prior]
-    pub const LEANS: u8 = 16;
-    pub const AXLE_WINDOW: u8 = 17;
-    /// [evidence s]
-    pub const EVIDENCE: u8 = 18;
-    /// out of model (the wheels' codes word the rest): a skid turn
-    pub const OUT_SKID: u8 = 19;
-    /// out of model, no wheel informs K, no K
-    pub const OUT_NO_WHEEL: u8 = 20;
-    /// out of model, no wheel informs K, holding [age]
-    pub const OUT_HOLDING: u8 = 21;
-    /// out of model, K from the other wheels
-    pub const OUT_OTHERS: u8 = 22;
-
-    /// The reason codes' names, code -> name (soilocp.estimation.soil_strength words each).
-    pub const NAMES: [&str; 23] = [
-        "none",
-        "not_yet",
-        "stamp_backwards",
-        "withdrawn",
-        "holding",
-        "wide",
-        "systematic_scale",
-        "systematic_scale_calibrate",
-        "systematic_radius",
-        "not_identifiable",
-        "axles",
-        "nis",
-        "below_floor",
-        "ground_stale",
-        "readings_held",
-        "undetermined",
-        "leans",
-        "axle_window",
-        "evidence",
-        "out_skid",
-        "out_no_wheel",
-        "out_holding",
-        "out_others",
-    ];
-}
-
-/// SoilConfig's numbers the status reads, and the grid's ln K span.
+/// The settings the status reads (crate::soil::params), and the grid's ln K span.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StatusParams {
-    pub hold_after: f64,
-    pub expire_after: f64,
-    pub uncertain_log_sigma: f64,
-    pub q_log_k: f64,
-    pub radius_sigma: f64,
-    pub evidence_window: f64,
-    pub mismatch_min_evidence: f64,
-    pub mismatch_nis: f64,
-    pub axle_mismatch_z: f64,
+    pub p: Params,
     /// ln K span of the grid: the band's cap ("undetermined")
     pub span: f64,
 }
@@ -258,7 +162,7 @@ impl StatusParams {
             h.held = None;
             return (NO_ESTIMATE, reason::STAMP_BACKWARDS, [0.0; 4], None);
         }
-        if age > self.hold_after + self.expire_after {
+        if age > self.p.hold_after + self.p.expire_after {
             return (NO_ESTIMATE, reason::WITHDRAWN, [age, 0.0, 0.0, 0.0], None);
         }
         let (mut k, mut k_std, mut log_std) = (k, k_std, log_std);
@@ -267,16 +171,16 @@ impl StatusParams {
                 // no information this sample: the last informed estimate, with a band never
                 // narrower than the soil's own drift since the update allows (q_log_k per sqrt(s))
                 k = held[0];
-                log_std = py_max(log_std, py_hypot(held[2], self.q_log_k * age.sqrt()));
+                log_std = py_max(log_std, py_hypot(held[2], self.p.q_log_k * age.sqrt()));
                 k_std = py_max(py_max(k_std, held[1]), k * log_std.sinh());
             }
             _ => h.held = Some([k, k_std, log_std]),
         }
         let est = Some([k, k_std, log_std]);
-        if age > self.hold_after {
+        if age > self.p.hold_after {
             return (HOLDING, reason::HOLDING, [age, 0.0, 0.0, 0.0], est);
         }
-        if log_std > self.uncertain_log_sigma {
+        if log_std > self.p.uncertain_log_sigma {
             return (UNCERTAIN, reason::WIDE, [log_std, 0.0, 0.0, 0.0], est);
         }
         (OK, reason::NONE, [0.0; 4], est)
@@ -299,7 +203,7 @@ impl StatusParams {
             h.lean_since = st; // none yet (NaN), or a restarted clock: it starts now
         }
         let sys_radius = if s_kk > 0.0 {
-            self.radius_sigma * s_ks.abs() / s_kk
+            self.p.radius_sigma * s_ks.abs() / s_kk
         } else {
             0.0
         };
@@ -316,7 +220,7 @@ impl StatusParams {
         let k_std = k_med * log_std.sinh();
         let (mut status, mut why, mut args, est) = self.hold(h, st, k_med, k_std, log_std);
         if status == UNCERTAIN && sys > log_stat && sys_scale >= sys_radius {
-            why = if st - h.lean_since >= self.evidence_window {
+            why = if st - h.lean_since >= self.p.evidence_window {
                 reason::SYSTEMATIC_SCALE_CALIBRATE
             } else {
                 reason::SYSTEMATIC_SCALE
@@ -335,7 +239,7 @@ impl StatusParams {
         } else if est.is_some() && axle_off {
             (status, why) = (MODEL_MISMATCH, reason::AXLES);
             args = [s.axle.theta_front, s.axle.theta_rear, s.axle.z, 0.0];
-        } else if est.is_some() && evidence >= self.mismatch_min_evidence && nis > self.mismatch_nis {
+        } else if est.is_some() && evidence >= self.p.mismatch_min_evidence && nis > self.p.mismatch_nis {
             (status, why, args) = (MODEL_MISMATCH, reason::NIS, [nis, 0.0, 0.0, 0.0]);
         } else if est.is_some() && s.floor_cdf > 0.5 {
             (status, why, args) = (MODEL_MISMATCH, reason::BELOW_FLOOR, [0.0; 4]);
@@ -383,11 +287,11 @@ impl StatusParams {
         if !h.lean_since.is_nan() && h.lean_since <= st {
             return (UNCERTAIN, reason::LEANS, [c_mean, seen.scale_prior, 0.0, 0.0]);
         }
-        let enough = 1.0 - (-self.mismatch_min_evidence / self.evidence_window).exp();
-        if self.axle_mismatch_z > 0.0 && weight >= enough && over > 0.5 * weight {
+        let enough = 1.0 - (-self.p.mismatch_min_evidence / self.p.evidence_window).exp();
+        if self.p.axle_mismatch_z > 0.0 && weight >= enough && over > 0.5 * weight {
             return (UNCERTAIN, reason::AXLE_WINDOW, [0.0; 4]);
         }
-        if evidence < self.mismatch_min_evidence {
+        if evidence < self.p.mismatch_min_evidence {
             return (UNCERTAIN, reason::EVIDENCE, [evidence, 0.0, 0.0, 0.0]);
         }
         (OK, reason::NONE, [0.0; 4])
@@ -436,46 +340,13 @@ pub struct StatusBank {
 }
 
 impl StatusBank {
-    /// The field names of [`StatusParams`] (the Python side passes a dict of them).
-    pub const NAMES: [&'static str; 10] = [
-        "hold_after",
-        "expire_after",
-        "uncertain_log_sigma",
-        "q_log_k",
-        "radius_sigma",
-        "evidence_window",
-        "mismatch_min_evidence",
-        "mismatch_nis",
-        "axle_mismatch_z",
-        "span",
-    ];
-
-    /// From a name -> value map with exactly [`StatusBank::NAMES`], for `n` vehicles.
-    pub fn from_map(m: &HashMap<String, f64>, n: usize) -> Result<StatusBank, String> {
-        if let Some(k) = m.keys().find(|k| !Self::NAMES.contains(&k.as_str())) {
-            return Err(format!("status params: unknown field {k:?}"));
+    /// The records' state of `n` vehicles with the settings `p` and the grid's ln K `span`.
+    pub fn new(p: Params, span: f64, n: usize) -> Result<StatusBank, String> {
+        if !(span.is_finite() && span > 0.0) {
+            return Err(format!("status: the grid's ln K span {span} must be finite and > 0"));
         }
-        let get = |name: &str| -> Result<f64, String> {
-            match m.get(name) {
-                None => Err(format!("status params: missing field {name:?}")),
-                Some(v) if !v.is_finite() => Err(format!("status params: {name} = {v} must be finite")),
-                Some(v) => Ok(*v),
-            }
-        };
-        let cfg = StatusParams {
-            hold_after: get("hold_after")?,
-            expire_after: get("expire_after")?,
-            uncertain_log_sigma: get("uncertain_log_sigma")?,
-            q_log_k: get("q_log_k")?,
-            radius_sigma: get("radius_sigma")?,
-            evidence_window: get("evidence_window")?,
-            mismatch_min_evidence: get("mismatch_min_evidence")?,
-            mismatch_nis: get("mismatch_nis")?,
-            axle_mismatch_z: get("axle_mismatch_z")?,
-            span: get("span")?,
-        };
         Ok(StatusBank {
-            cfg,
+            cfg: StatusParams { p, span },
             holds: vec![Hold::default(); n],
         })
     }
@@ -504,52 +375,6 @@ impl StatusBank {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn names_follow_the_codes() {
-        let statuses = [
-            (OK, "ok"),
-            (UNCERTAIN, "uncertain"),
-            (super::HOLDING, "holding"),
-            (NO_ESTIMATE, "no_estimate"),
-            (NOT_OBSERVABLE, "not_observable"),
-            (MODEL_MISMATCH, "model_mismatch"),
-        ];
-        assert_eq!(statuses.len(), STATUS_NAMES.len());
-        for (c, name) in statuses {
-            assert_eq!(STATUS_NAMES[c as usize], name);
-        }
-        use reason::*;
-        let reasons = [
-            (NONE, "none"),
-            (NOT_YET, "not_yet"),
-            (STAMP_BACKWARDS, "stamp_backwards"),
-            (WITHDRAWN, "withdrawn"),
-            (reason::HOLDING, "holding"),
-            (WIDE, "wide"),
-            (SYSTEMATIC_SCALE, "systematic_scale"),
-            (SYSTEMATIC_SCALE_CALIBRATE, "systematic_scale_calibrate"),
-            (SYSTEMATIC_RADIUS, "systematic_radius"),
-            (NOT_IDENTIFIABLE, "not_identifiable"),
-            (AXLES, "axles"),
-            (NIS, "nis"),
-            (BELOW_FLOOR, "below_floor"),
-            (GROUND_STALE, "ground_stale"),
-            (READINGS_HELD, "readings_held"),
-            (reason::UNDETERMINED, "undetermined"),
-            (LEANS, "leans"),
-            (AXLE_WINDOW, "axle_window"),
-            (EVIDENCE, "evidence"),
-            (OUT_SKID, "out_skid"),
-            (OUT_NO_WHEEL, "out_no_wheel"),
-            (OUT_HOLDING, "out_holding"),
-            (OUT_OTHERS, "out_others"),
-        ];
-        assert_eq!(reasons.len(), reason::NAMES.len());
-        for (c, name) in reasons {
-            assert_eq!(reason::NAMES[c as usize], name);
-        }
-    }
 
     #[test]
     fn hypot_is_pythons() {

@@ -3,6 +3,7 @@
 //! (soilocp.estimation.wheel_usability.REASONS, EXPLAIN, describe).
 
 use crate::observer::numeric::nan_min;
+use crate::settings::settings_struct;
 
 /// The longitudinal model describes the wheel.
 pub const USABLE: i8 = 0;
@@ -18,41 +19,29 @@ pub const SKID_TURN: i8 = 4;
 /// The codes' names, code -> name ("" for usable): soilocp.estimation.wheel_usability.REASONS takes them.
 pub const NAMES: [&str; 5] = ["", "slip_beyond_eq1", "stopped_unpowered", "stall", "skid_turn"];
 
-/// Thresholds of [`codes`] (soilocp.estimation.wheel_usability.UsabilityLimits).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Limits {
-    /// m/s: |V| below this with a torque is a stall
-    pub stall_speed: f64,
-    /// |gross traction| at most this: no torque acts on the wheel
-    pub gross_idle: f64,
-    /// m/s: a rim slower than this stands
-    pub rim_stopped: f64,
-    /// m/s: the body moves (eq. 1's deadband)
-    pub moving: f64,
-    /// m/s: a side's rim turns
-    pub rim_turning: f64,
-    /// rad/s
-    pub yaw_turning: f64,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits {
-            stall_speed: 0.1,
-            gross_idle: 0.05,
-            rim_stopped: 0.02,
-            moving: 0.15,
-            rim_turning: 0.05,
-            yaw_turning: 0.1,
-        }
+settings_struct! {
+    /// Thresholds of [`codes`] (soilocp.estimation.wheel_usability.UsabilityLimits is built from
+    /// these declarations).  Whether the body moves is the pipeline's slip deadband, passed to
+    /// [`codes`] by the caller.
+    pub struct Limits("usability") {
+        /// |V| below this with a torque is a stall.
+        stall_speed: Float = 0.1, Internal, "m/s", [ge 0.0];
+        /// |gross traction| at most this: no torque acts on the wheel.
+        gross_idle: Float = 0.05, Internal, "", [ge 0.0];
+        /// A rim slower than this stands.
+        rim_stopped: Float = 0.02, Internal, "m/s", [ge 0.0];
+        /// A side's rim turns when faster than this (a skid turn turns the sides oppositely).
+        rim_turning: Float = 0.05, Internal, "m/s", [ge 0.0];
+        /// A yaw rate above this about a point within the track is a skid turn.
+        yaw_turning: Float = 0.1, Internal, "rad/s", [ge 0.0];
     }
 }
 
 /// The unusable code per wheel (docs/method.md §17, the first that applies of skid turn, |S| > 1,
 /// stopped unpowered, stall) from the travel-frame slip (eq. 1 with §17's direction), the rim
 /// speeds R_w omega and the ground speeds under the wheels (m/s), the body's ground speed (m/s),
-/// yaw rate (rad/s), each wheel's gross traction (eq. 13's F_GT / W) and the half-track (c + d) / 2
-/// (m).  Wheels 1 LR, 2 LF (left side), 3 RF, 4 RR (right side).
+/// yaw rate (rad/s), each wheel's gross traction (eq. 13's F_GT / W), the half-track (c + d) / 2
+/// (m) and the slip deadband (m/s: above it the body moves).  Wheels 1 LR, 2 LF (left side), 3 RF, 4 RR (right side).
 #[allow(clippy::too_many_arguments)]
 pub fn codes(
     slip: &[f64; 4],
@@ -63,6 +52,7 @@ pub fn codes(
     gross: &[f64; 4],
     half_track: f64,
     lim: &Limits,
+    deadband: f64,
 ) -> [i8; 4] {
     // each side's mean rim speed
     let (left, right) = ((rim[0] + rim[1]) / 2.0, (rim[2] + rim[3]) / 2.0);
@@ -77,7 +67,7 @@ pub fn codes(
         if v < lim.stall_speed && powered {
             code[w] = STALL;
         }
-        if rim[w].abs() < lim.rim_stopped && !powered && ground[w].abs() > lim.moving {
+        if rim[w].abs() < lim.rim_stopped && !powered && ground[w].abs() > deadband {
             code[w] = STOPPED_UNPOWERED;
         }
         if slip[w].abs() > 1.0 {
@@ -111,7 +101,8 @@ mod tests {
 
     #[test]
     fn vectors_of_method_md() {
-        let lim = Limits::default();
+        // the pipeline's slip deadband (soilocp.model.constants.DEFAULT_DEADBAND)
+        let (lim, deadband) = (Limits::default(), 0.15);
         let ht = 0.3;
         let c = codes(
             &[1.2, 0.1, 0.1, 0.1],
@@ -122,6 +113,7 @@ mod tests {
             &[0.3; 4],
             ht,
             &lim,
+            deadband,
         );
         assert_eq!(c, [SLIP_BEYOND_EQ1, 0, 0, 0]);
         let c = codes(
@@ -133,9 +125,12 @@ mod tests {
             &[0.0, 0.0, 0.3, 0.3],
             ht,
             &lim,
+            deadband,
         );
         assert_eq!(c, [STOPPED_UNPOWERED, STOPPED_UNPOWERED, 0, 0]);
-        let c = codes(&[0.8; 4], &[0.25; 4], &[0.05; 4], 0.05, 0.0, &[0.5; 4], ht, &lim);
+        let c = codes(
+            &[0.8; 4], &[0.25; 4], &[0.05; 4], 0.05, 0.0, &[0.5; 4], ht, &lim, deadband,
+        );
         assert_eq!(c, [STALL; 4]);
         let c = codes(
             &[0.9, 0.9, -0.9, -0.9],
@@ -146,10 +141,11 @@ mod tests {
             &[0.5; 4],
             ht,
             &lim,
+            deadband,
         );
         assert_eq!(c, [SKID_TURN; 4]);
         assert_eq!(
-            codes(&[0.0; 4], &[0.0; 4], &[0.0; 4], 0.0, 0.0, &[0.0; 4], ht, &lim),
+            codes(&[0.0; 4], &[0.0; 4], &[0.0; 4], 0.0, 0.0, &[0.0; 4], ht, &lim, deadband),
             [0; 4]
         );
     }

@@ -8,7 +8,7 @@
 //! the pitch, eq. 20) reaches `min_accel` informs k; any other informs b alone.
 
 use crate::constants::Constants;
-use crate::normal_force::{gravity_from_attitude, STANDARD_GRAVITY};
+use crate::normal_force::gravity_from_attitude;
 use crate::observer::numeric::nan_max;
 use crate::slip;
 use crate::torque_scale::balance::{longitudinal_balance_split, modelled_resistance, Body};
@@ -114,7 +114,7 @@ impl TorqueScaleBank {
         let (p, r) = (&self.params, self.body.wheel_radius);
         let w_sum: f64 = s.wheel_speed.iter().sum();
         let t_sum: f64 = s.torque.iter().sum();
-        let g_x = gravity_from_attitude(0.0, s.pitch, STANDARD_GRAVITY)[0];
+        let g_x = gravity_from_attitude(0.0, s.pitch, p.gravity)[0];
         let speed = if s.ground_speed.is_nan() {
             w_sum / 4.0 * r
         } else {
@@ -139,12 +139,12 @@ impl TorqueScaleBank {
             _ => 0.0,
         };
         let cur: Terms = [s.f_x, g_x, t_sum, f_mr];
-        let straight = s.yaw_rate.abs() <= p.max_yaw_rate; // false for NaN
+        let straight = s.yaw_rate.abs() <= p.s.max_yaw_rate; // false for NaN
         let unusable = !cur.iter().all(|v| v.is_finite())
             || !w_sum.is_finite()
-            || speed.abs() < p.min_speed
+            || speed.abs() < p.s.min_speed
             || !straight
-            || !slips.iter().all(|v| v.abs() <= p.max_slip);
+            || !slips.iter().all(|v| v.abs() <= p.s.max_slip);
         if let Some(c) = self.window[i].add(s.stamp, &cur, w_sum, unusable, p) {
             if c.usable {
                 let alpha = self.inertia_scale(i);
@@ -406,7 +406,7 @@ mod tests {
             };
             let mut b = TorqueScaleBank::new(p, BODY, Constants::PAPER, 1).unwrap();
             let (k_true, w) = (1.08, 2.0 * std::f64::consts::PI / 4.0);
-            let fz = [BODY.mass * STANDARD_GRAVITY / 4.0; 4];
+            let fz = [BODY.mass * crate::normal_force::STANDARD_GRAVITY / 4.0; 4];
             let mut out = 0.0;
             let mut prev_w = f64::NAN;
             for i in 0..4000 {

@@ -121,7 +121,7 @@ impl ScaleState {
 
 /// The sign of a window's mean acceleration: 1 accelerating, 2 braking, 0 below `min_accel` (or NaN).
 fn accel_sign(accel: f64, p: &Params) -> u8 {
-    if accel.abs() >= p.min_accel {
+    if accel.abs() >= p.s.min_accel {
         if accel > 0.0 {
             1
         } else {

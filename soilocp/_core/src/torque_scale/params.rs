@@ -1,27 +1,50 @@
-//! The settings of the online torque scale: the numbers of
-//! `soilocp.estimation.torque_scale.TorqueScaleConfig` (which stays the validated, documented
-//! configuration; their meaning is in its field descriptions) that the per-sample kernel reads,
-//! and the priors the Python side derives from it and from `SoilConfig.gross_scale_sigma`.
+//! The online torque scale's settings, each declared once ([`Settings`], from which
+//! `soilocp.estimation.torque_scale_config` builds `TorqueScaleConfig`), and what the kernel reads
+//! ([`Params`]): the settings, their squares, and what the caller derives from other settings
+//! (the priors, the default soil, eq. 1's floor and gravity, each from its one definition).
 
-use std::collections::HashMap;
+use crate::normal_force::STANDARD_GRAVITY;
+use crate::settings::settings_struct;
 
-/// TorqueScaleConfig's per-sample numbers.  The squares are passed as Python computed them
-/// (`x**2`, libm's pow), so that the state's variances are those of the numpy kernel it replaced
-/// (tests/reference_torque_scale.py) to the bit.
+settings_struct! {
+    /// The online torque scale's settings (docs/method.md §10).
+    pub struct Settings("torque_scale") {
+        /// The force balance is taken over window means.
+        window: Float = 1.0, Internal, "s", [gt 0.0];
+        /// Windows with a slower sample are left out (static friction, stall).
+        min_speed: Float = 0.2, Internal, "m/s", [gt 0.0];
+        /// Windows turning faster are left out: a skid turn spends torque on scrubbing the wheels
+        /// sideways.
+        max_yaw_rate: Float = 0.1, Internal, "rad/s", [gt 0.0];
+        /// A larger step between stamps restarts the window.
+        max_gap: Float = 0.25, Internal, "s", [gt 0.0];
+        /// The window's mean acceleration that informs k.
+        min_accel: Float = 0.35, Internal, "m/s^2", [gt 0.0];
+        /// |slip| (eq. 1, from the readings) above which a window informs nothing: motion resistance
+        /// grows with slip (eq. 4), and under a slip sweep it follows the torque.
+        max_slip: Float = 0.15, Internal, "", [gt 0.0];
+        /// Random walk of k: how fast the torque scale may drift (temperature, battery).
+        scale_walk: Float = 0.002, Internal, "1/sqrt(s)", [ge 0.0];
+        /// Random walk of the motion resistance F_MR.
+        resistance_walk: Float = 2.0, Internal, "N/sqrt(s)", [ge 0.0];
+        /// Prior 1-sigma of F_MR (prior mean 0).
+        resistance_sigma: Float = 60.0, Internal, "N", [gt 0.0];
+        /// 1-sigma of a window's force balance once F_MR's changes are the random walk's and
+        /// resistance_jump's.
+        force_sigma: Float = 1.0, Internal, "N", [gt 0.0];
+        /// A window whose innovation is beyond this many of its own sigmas is a jump of F_MR (the
+        /// soil changed, a draft was hooked on), not a change of k: F_MR's variance returns to
+        /// resistance_sigma and the window informs F_MR alone (0: never).
+        resistance_jump: Float = 3.0, Internal, "", [ge 0.0];
+    }
+}
+
+/// What the kernel reads: the settings, their variances squared once, and the numbers the caller
+/// derives from other settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Params {
-    /// s: the force balance is taken over window means
-    pub window: f64,
-    /// m/s: a window with a slower sample informs nothing
-    pub min_speed: f64,
-    /// rad/s: nor one turning faster
-    pub max_yaw_rate: f64,
-    /// s: a larger step between stamps restarts the window
-    pub max_gap: f64,
-    /// m/s^2: the window's mean acceleration that informs k
-    pub min_accel: f64,
-    /// |slip| (eq. 1, from the readings) above which a window informs nothing
-    pub max_slip: f64,
+    /// the settings (window, speed, yaw-rate, gap, acceleration and slip limits are read here)
+    pub s: Settings,
     /// scale_walk^2: k's random walk, 1/s
     pub scale_walk_var: f64,
     /// resistance_walk^2: F_MR's random walk, N^2/s
@@ -41,153 +64,107 @@ pub struct Params {
     pub prior_var: f64,
     /// the soil's K for eq. 4 until the soil stage reports one (the median reference soil)
     pub k_default: f64,
-    /// eq. 1's floor of the denominator, m/s (docs/method.md §10)
+    /// eq. 1's floor of the denominator, m/s (the pipeline's slip_floor, docs/method.md §10)
     pub slip_floor: f64,
-    /// subtract eq. 4's motion resistance from the balance (1) or not (0)
+    /// m/s^2: gravity in the balance's slope term (the observer's gravity)
+    pub gravity: f64,
+    /// subtract eq. 4's motion resistance from the balance
     pub model_resistance: bool,
 }
 
-impl Params {
-    /// The field names the Python side passes (a dict of them, `model_resistance` as 0 or 1).
-    pub const NAMES: [&'static str; 18] = [
-        "window",
-        "min_speed",
-        "max_yaw_rate",
-        "max_gap",
-        "min_accel",
-        "max_slip",
-        "scale_walk_var",
-        "resistance_walk_var",
-        "force_var",
-        "resistance_var",
-        "jump_var",
-        "state_sigma",
-        "state_var",
-        "prior_sigma",
-        "prior_var",
-        "k_default",
-        "slip_floor",
-        "model_resistance",
-    ];
+/// The numbers the caller derives from settings other than [`Settings`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Derived {
+    /// k's prior 1-sigma of the state
+    pub state_sigma: f64,
+    /// the torque constant's prior 1-sigma (soil.gross_scale_sigma)
+    pub prior_sigma: f64,
+    /// the soil's K for eq. 4 until the soil stage reports one
+    pub k_default: f64,
+    /// eq. 1's floor of the denominator, m/s
+    pub slip_floor: f64,
+    /// m/s^2
+    pub gravity: f64,
+    /// subtract eq. 4's motion resistance from the balance
+    pub model_resistance: bool,
+}
 
-    /// From a name -> value map with exactly the names of [`Params::NAMES`], every value finite,
-    /// the lengths, bounds, sigmas and K > 0 and the walks >= 0; the error names the field.
-    pub fn from_map(m: &HashMap<String, f64>) -> Result<Params, String> {
-        for k in m.keys() {
-            if !Self::NAMES.contains(&k.as_str()) {
-                return Err(format!("torque scale params: unknown field {k:?}"));
+impl Derived {
+    /// The defaults: the state's prior 0.10, the torque constant's 0.05, the median reference soil
+    /// (K 120), eq. 1's floor 0.05 m/s, standard gravity, no modelled resistance.
+    pub const DEFAULT: Derived = Derived {
+        state_sigma: 0.10,
+        prior_sigma: 0.05,
+        k_default: 120.0,
+        slip_floor: 0.05,
+        gravity: STANDARD_GRAVITY,
+        model_resistance: false,
+    };
+}
+
+impl Params {
+    /// The kernel's numbers from the settings `s` and the derived numbers `d`, which must be
+    /// finite and > 0; the error names the one that is not.
+    pub fn new(s: &Settings, d: Derived) -> Result<Params, String> {
+        for (name, v) in [
+            ("state_sigma", d.state_sigma),
+            ("prior_sigma", d.prior_sigma),
+            ("k_default", d.k_default),
+            ("slip_floor", d.slip_floor),
+            ("gravity", d.gravity),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("torque scale: {name} = {v} must be finite and > 0"));
             }
-        }
-        let get = |name: &str, zero_ok: bool| -> Result<f64, String> {
-            let v = *m
-                .get(name)
-                .ok_or_else(|| format!("torque scale params: missing field {name:?}"))?;
-            if v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0)) {
-                Ok(v)
-            } else {
-                let need = if zero_ok { ">= 0" } else { "> 0" };
-                Err(format!("torque scale params: {name} = {v} must be finite and {need}"))
-            }
-        };
-        let model = get("model_resistance", true)?;
-        if model != 0.0 && model != 1.0 {
-            return Err(format!(
-                "torque scale params: model_resistance = {model} must be 0 or 1"
-            ));
         }
         Ok(Params {
-            window: get("window", false)?,
-            min_speed: get("min_speed", false)?,
-            max_yaw_rate: get("max_yaw_rate", false)?,
-            max_gap: get("max_gap", false)?,
-            min_accel: get("min_accel", false)?,
-            max_slip: get("max_slip", false)?,
-            scale_walk_var: get("scale_walk_var", true)?,
-            resistance_walk_var: get("resistance_walk_var", true)?,
-            force_var: get("force_var", false)?,
-            resistance_var: get("resistance_var", false)?,
-            jump_var: get("jump_var", true)?,
-            state_sigma: get("state_sigma", false)?,
-            state_var: get("state_var", false)?,
-            prior_sigma: get("prior_sigma", false)?,
-            prior_var: get("prior_var", false)?,
-            k_default: get("k_default", false)?,
-            slip_floor: get("slip_floor", false)?,
-            model_resistance: model == 1.0,
+            s: *s,
+            scale_walk_var: s.scale_walk * s.scale_walk,
+            resistance_walk_var: s.resistance_walk * s.resistance_walk,
+            force_var: s.force_sigma * s.force_sigma,
+            resistance_var: s.resistance_sigma * s.resistance_sigma,
+            jump_var: s.resistance_jump * s.resistance_jump,
+            state_sigma: d.state_sigma,
+            state_var: d.state_sigma * d.state_sigma,
+            prior_sigma: d.prior_sigma,
+            prior_var: d.prior_sigma * d.prior_sigma,
+            k_default: d.k_default,
+            slip_floor: d.slip_floor,
+            gravity: d.gravity,
+            model_resistance: d.model_resistance,
         })
     }
 
-    /// TorqueScaleConfig's defaults with the torque constant's prior 0.05 and the median reference
-    /// soil (K 120) for the Rust tests.
+    /// The default settings with [`Derived::DEFAULT`] (for the Rust tests).
     pub fn defaults() -> Params {
-        Params {
-            window: 1.0,
-            min_speed: 0.2,
-            max_yaw_rate: 0.1,
-            max_gap: 0.25,
-            min_accel: 0.35,
-            max_slip: 0.15,
-            scale_walk_var: 0.002 * 0.002,
-            resistance_walk_var: 2.0 * 2.0,
-            force_var: 1.0 * 1.0,
-            resistance_var: 60.0 * 60.0,
-            jump_var: 3.0 * 3.0,
-            state_sigma: 0.10,
-            state_var: 0.10 * 0.10,
-            prior_sigma: 0.05,
-            prior_var: 0.05 * 0.05,
-            k_default: 120.0,
-            slip_floor: 0.05,
-            model_resistance: false,
-        }
+        Params::new(&Settings::default(), Derived::DEFAULT).expect("the defaults are valid")
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn map(p: &Params) -> HashMap<String, f64> {
-        let v = [
-            p.window,
-            p.min_speed,
-            p.max_yaw_rate,
-            p.max_gap,
-            p.min_accel,
-            p.max_slip,
-            p.scale_walk_var,
-            p.resistance_walk_var,
-            p.force_var,
-            p.resistance_var,
-            p.jump_var,
-            p.state_sigma,
-            p.state_var,
-            p.prior_sigma,
-            p.prior_var,
-            p.k_default,
-            p.slip_floor,
-            if p.model_resistance { 1.0 } else { 0.0 },
-        ];
-        Params::NAMES.iter().map(|s| s.to_string()).zip(v).collect()
-    }
+    use std::collections::HashMap;
 
     #[test]
-    fn a_map_round_trips_and_bad_fields_are_named() {
+    fn settings_are_checked_by_name_and_derived_numbers_too() {
+        let m: HashMap<String, f64> = [("window".to_string(), 0.0)].into();
+        assert!(Settings::from_map(&m).unwrap_err().contains("window = 0 must be > 0"));
+        let m: HashMap<String, f64> = [("scale_walk".to_string(), 0.0)].into();
+        assert!(Settings::from_map(&m).is_ok());
+        let m: HashMap<String, f64> = [("bogus".to_string(), 1.0)].into();
+        assert!(Settings::from_map(&m).unwrap_err().contains("bogus"));
+        let bad = Derived {
+            k_default: f64::NAN,
+            ..Derived::DEFAULT
+        };
+        assert!(Params::new(&Settings::default(), bad)
+            .unwrap_err()
+            .contains("k_default"));
         let p = Params::defaults();
-        assert_eq!(Params::from_map(&map(&p)).unwrap(), p);
-        let mut m = map(&p);
-        m.insert("window".into(), 0.0);
-        assert!(Params::from_map(&m).unwrap_err().contains("window"));
-        let mut m = map(&p);
-        m.insert("scale_walk_var".into(), 0.0);
-        assert!(Params::from_map(&m).is_ok());
-        m.insert("bogus".into(), 1.0);
-        assert!(Params::from_map(&m).unwrap_err().contains("bogus"));
-        let mut m = map(&p);
-        m.remove("k_default");
-        assert!(Params::from_map(&m).unwrap_err().contains("k_default"));
-        let mut m = map(&p);
-        m.insert("model_resistance".into(), 0.5);
-        assert!(Params::from_map(&m).unwrap_err().contains("model_resistance"));
+        assert_eq!(
+            (p.jump_var, p.state_var, p.gravity),
+            (9.0, 0.10 * 0.10, STANDARD_GRAVITY)
+        );
     }
 }

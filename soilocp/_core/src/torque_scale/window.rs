@@ -57,14 +57,14 @@ impl Window {
     /// also starts the next; a gap (or a stamp that does not advance) restarts it here.
     pub fn add(&mut self, stamp: f64, cur: &Terms, w_sum: f64, unusable: bool, p: &Params) -> Option<Closed> {
         let dt = stamp - self.t_prev;
-        let cont = dt.is_finite() && dt > 0.0 && dt <= p.max_gap;
+        let cont = dt.is_finite() && dt > 0.0 && dt <= p.s.max_gap;
         let area: Terms = std::array::from_fn(|j| {
             let step = if cont { 0.5 * (self.prev[j] + cur[j]) * dt } else { 0.0 };
             self.area[j] + step
         });
         let spoilt = self.spoilt || unusable;
         let span = stamp - self.t0;
-        let full = cont && span >= p.window - 1e-9;
+        let full = cont && span >= p.s.window - 1e-9;
         let closed = full.then(|| Closed {
             start: self.t0,
             span,
