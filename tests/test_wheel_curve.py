@@ -126,3 +126,28 @@ def test_the_python_api_treats_a_users_vehicle_as_unchecked_and_uses_its_calibra
     (tmp_path / "v.json").write_text(json.dumps({"traction_curve": "c.json"}))
     used = soilocp.estimate(records, vehicle=tmp_path / "v.json")
     assert all(r["curve"] == "model" for r in used if r["soil_strength"] is not None and "beyond" not in r["reason"])
+
+
+@pytest.mark.parametrize("status, served", [("model_mismatch", True), ("not_observable", False)])
+def test_learnt_ocps_stand_without_k_only_where_the_model_cannot_describe_the_traction(status, served):
+    """A learnt peak rests on the wheel's (slip, traction) pairs, not on K: where the paper's curve fits no K
+    (model_mismatch below its floor, a record without K) the learnt OCPs are served, flagged; where the data do
+    not determine the state now (not_observable) no OCP is."""
+    from types import SimpleNamespace
+
+    from soilocp.estimation.wheel_curve import WheelCurve
+    from soilocp.schemas.pipeline import SoilEstimate
+
+    cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
+    curve = WheelCurve(cfg, 1)
+    fit = SimpleNamespace(shown=True, mu_t=0.8, s_t=0.3, s_t_std=0.01, mu_t_std=0.01, a=1.2, c3=6.0)
+    curve.bank = SimpleNamespace(step=lambda *args: fit)
+    soil = SoilEstimate(vehicle_id="r1", seq=1, stamp=0.0, slip=(0.1,) * 4, informative=(True,) * 4,
+                        soil_strength=None, soil_strength_std=None, log_k_std=None, soil_class=None,
+                        soil_class_confidence=None, status=status, last_update_stamp=None, mu=(0.5,) * 4)
+    rec = curve.record(0, soil, [float("nan")] * 4)
+    assert rec.status == status and rec.soil_strength is None and not rec.confirmed
+    if served:
+        assert (rec.mu_T, rec.S_T, rec.curve) == (0.8, 0.3, "learnt") and rec.mu_T_std > 0 and rec.S_T_std > 0
+    else:
+        assert rec.mu_T is None and rec.S_T is None

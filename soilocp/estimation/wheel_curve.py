@@ -59,7 +59,7 @@ def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model
     (:data:`soilocp.model.ocp_values.OCP_NAMES`; NaN: none); ``curve`` says where they come from, ``bands`` is
     (mu_T's, S_T's) 1-sigma of a learnt curve, ``status``, ``reason`` and ``reason_code`` replace the soil
     estimate's (:class:`WheelCurve` decides them)."""
-    have = soil.soil_strength is not None
+    have = soil.soil_strength is not None or curve == "learnt"  # a learnt curve's OCPs are its own, not K's
     mu_t, s_t, s_e, te = (None if not have or math.isnan(v) else float(v) for v in values)
     return OcpEstimate(
         vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
@@ -104,13 +104,17 @@ class WheelCurve:
         (:data:`soilocp.model.ocp_values.OCP_NAMES`' order; NaN: none), and the learnt curve where it holds."""
         fit = self.fit(j, soil)
         k = soil.soil_strength
-        if k is None or (self.checked and self.k_range is None):
-            return ocp_message(soil, values)
-        if not self.checked and fit is not None and fit.shown:
+        learnt = not self.checked and fit is not None and fit.shown
+        # a learnt peak does not rest on K: it stands where the paper's curve cannot describe the traction at
+        # any K (model_mismatch, which serves no K below the model's floor), though not where the data do
+        # not determine the state now (not_observable)
+        if learnt and (k is not None or soil.status == "model_mismatch"):
             s_t_std, mu_t_std = self.bands(fit)
             why = LEARNT_REASON.format(s_t=fit.s_t, s_t_std=s_t_std, mu_t=fit.mu_t, mu_t_std=mu_t_std)
             return _flagged(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
                             curve="learnt", bands=(mu_t_std, s_t_std))
+        if k is None or (self.checked and self.k_range is None):
+            return ocp_message(soil, values)
         if not self.checked:
             return _flagged(soil, values, UNCHECKED_REASON, "curve_unchecked", curve="unchecked")
         lo, hi = self.k_range
