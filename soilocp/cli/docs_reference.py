@@ -344,7 +344,6 @@ ENV_MEANING = {
     "SOILOCP_STALE_TIMEOUT": "`stale_timeout_s`, seconds",
     "SOILOCP_EXPRESS": "`express` (true / false)",
     "SOILOCP_BATCHING": "`batching` (true / false)",
-    "SOILOCP_INLINE": "`inline` (true / false)",
     "SOILOCP_MAP_PRIOR": "`map_prior`: a map id, or the JSON of the `map_prior` section",
     "SOILOCP_EXIT_WITH_PARENT": "set to 1 by `soilocp run` for its children: stop when the parent process goes away",
 }

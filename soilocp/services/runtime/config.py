@@ -14,7 +14,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 from soilocp.schemas.sensor import VehicleId
 from soilocp.validation import MAX_PAYLOAD_BYTES
 from soilocp.services.runtime.settings import (  # noqa: F401  (re-exported: the services' settings in one import)
-    DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_INLINE, ENV_LISTEN,
+    DEFAULT_ENDPOINT, ENV_BATCHING, ENV_CONFIG, ENV_CONNECT, ENV_EXIT_WITH_PARENT, ENV_EXPRESS, ENV_LISTEN,
     ENV_LOG_LEVEL, ENV_MAP_PRIOR, ENV_MODE, ENV_STALE_TIMEOUT, ENV_VEHICLE_ID, ConfigError, _read_config_file,
     _split_list, check_endpoint, env_settings, zenoh_config)
 
@@ -62,9 +62,6 @@ class ServiceConfig(BaseModel):
     multicast: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
     express: bool = Field(False, description="Zenoh: pipeline publishers send each message at once, never "
                           "batched with others (docs/performance.md, 'Zenoh settings, chosen')")
-    inline: bool = Field(True, description="Handle each input in the Zenoh callback that delivers it, as a bare "
-                         "zenoh-python relay does, rather than on a worker thread behind a queue (the gateway always "
-                         "queues: anyone may flood its input; docs/performance.md)")
     batching: bool = Field(True, description="Zenoh: the links may batch messages queued together "
                            "(transport/link/tx/queue/batching; docs/performance.md)")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level of the "
@@ -130,7 +127,7 @@ def load_service_config(
         values.update(_file_section(_read_config_file(path), service, path))
     values.update(env_settings(env, {ENV_VEHICLE_ID: "vehicle_ids", ENV_CONNECT: "connect", ENV_LISTEN: "listen"},
                                {ENV_MODE: "mode", ENV_LOG_LEVEL: "log_level", ENV_EXPRESS: "express",
-                                ENV_BATCHING: "batching", ENV_INLINE: "inline"}))
+                                ENV_BATCHING: "batching"}))
     if env.get(ENV_STALE_TIMEOUT):
         raw = env[ENV_STALE_TIMEOUT].strip()
         try:

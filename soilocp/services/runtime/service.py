@@ -2,19 +2,12 @@
 liveliness, health, signal handling and the bounded worker queue.
 
 A service is a subclass of :class:`Service`: it declares its subscribers and publishers per
-vehicle id in :meth:`Service.declare`, and does its work in :meth:`Service.handle`, one item at a time.
-Where the items come from is the service's ``inline`` setting (:attr:`Service.inline_inputs` says
-whether a class allows it):
-
-* inline (the pipeline's internal stages, by default): :meth:`Service.handle` runs in the Zenoh callback,
-  as a bare zenoh-python relay does: no hand-off to another thread per message (at 100 Hz that wake-up
-  is most of what the runtime adds to a relay).  A stage slower than its input then holds back its
-  sender (the publishers block under congestion) rather than queueing;
-* queued (the gateway, whose input anyone may flood, and ``inline: false``): Zenoh callbacks only
-  enqueue (one slow callback would stall the whole session); a full queue drops the item and counts it.
-
-Items a service posts itself (:meth:`Service.tick`'s) always go through the worker queue; one lock
-keeps every :meth:`Service.handle` call one at a time.
+vehicle id in :meth:`Service.declare`, and does its work in :meth:`Service.handle`, which runs on
+one worker thread fed by a bounded queue.  Zenoh callbacks only enqueue (one slow callback would
+stall the whole session); a full queue drops the item and counts it.  (Handling each input in the
+Zenoh callback instead, as a bare zenoh-python relay does, was measured: no gain in CPU per sample beyond
+the run-to-run spread, and under overload the backlog moved into the router's links, p50 > 1 s at 1 kHz;
+docs/performance.md.)
 """
 
 from __future__ import annotations
@@ -37,9 +30,6 @@ class Service:
     """Base of the pipeline services: per-vehicle declarations, one worker, health and liveliness."""
 
     name: ClassVar[str] = "service"
-    #: whether the inputs may be handled in the Zenoh callback (``cfg.inline``); False for an input that
-    #: anyone may flood (the gateway's): its bounded queue drops rather than holding the session back
-    inline_inputs: ClassVar[bool] = True
 
     def __init__(self, cfg: ServiceConfig, log: JsonLog):
         self.cfg = cfg
@@ -48,9 +38,7 @@ class Service:
         self.counters: dict[str, Counters] = {vid: Counters() for vid in cfg.vehicle_ids}
         self._declared: list[Any] = []
         self.session = None
-        self.inline = bool(getattr(cfg, "inline", False)) and self.inline_inputs
-        self._handle_lock = threading.Lock()  # one handle() at a time, from the callbacks and the worker
-        self.worker = BoundedWorker(self.name, self._handle_locked, cfg.queue_size, self._dropped, self._failed)
+        self.worker = BoundedWorker(self.name, self._handle_safe, cfg.queue_size, self._dropped, self._failed)
         self._drop_logged = 0
         self.stop_event: threading.Event = threading.Event()  # replaced by the runner's
         self.exit_code = 0
@@ -79,7 +67,7 @@ class Service:
     def subscribe(self, session, key: str, vehicle_id: str, kind: str) -> None:
         """Subscribe ``key``; the callback only enqueues a :class:`WorkItem`."""
         counters = self.counters[vehicle_id]
-        offer = self._handle_inline if self.inline else self.worker.offer
+        offer = self.worker.offer
         clock = time.time
 
         def _cb(sample) -> None:
@@ -95,18 +83,6 @@ class Service:
 
         return self.keep(session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
                                                    express=self.cfg.express))
-
-    def _handle_locked(self, item: WorkItem) -> None:
-        with self._handle_lock:
-            self._handle_safe(item)
-
-    def _handle_inline(self, item: WorkItem) -> None:
-        """One input handled in the Zenoh callback (``inline``): as the worker would, errors counted."""
-        with self._handle_lock:
-            try:
-                self._handle_safe(item)
-            except Exception as exc:  # one bad item must not disturb the session
-                self._failed(item, exc)
 
     def _handle_safe(self, item: WorkItem) -> None:
         self.handle(item)
@@ -212,7 +188,7 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
         # whichever message the pass happens to fall)
         gc.collect()
         gc.freeze()
-        log.info("running", vehicle_ids=cfg.vehicle_ids, inline=svc.inline)
+        log.info("running", vehicle_ids=cfg.vehicle_ids)
         # the main thread wakes every 50 ms for a service with a tick, else only for its health (an idle wake-up
         # per 50 ms is a fifth of a 100 Hz stream's)
         ticks = type(svc).tick is not Service.tick

@@ -26,8 +26,6 @@ ENV_STALE_TIMEOUT = "SOILOCP_STALE_TIMEOUT"
 #: Zenoh transport settings of a service's publishers and links (docs/performance.md, "Zenoh settings, chosen")
 ENV_EXPRESS = "SOILOCP_EXPRESS"
 ENV_BATCHING = "SOILOCP_BATCHING"
-#: 0: every service queues its inputs for a worker thread (ServiceConfig.inline)
-ENV_INLINE = "SOILOCP_INLINE"
 #: The soil-strength service starts its belief from this fleet soil map (a map id, or the JSON of MapPriorConfig)
 ENV_MAP_PRIOR = "SOILOCP_MAP_PRIOR"
 #: Set to 1 by ``soilocp run`` for its children: stop when the parent process goes away.

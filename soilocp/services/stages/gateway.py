@@ -93,7 +93,6 @@ class GatewayService(StageService):
     to ``soilocp/<vid>/rejected`` with its reason."""
 
     spec = BY_NAME["gateway"]
-    inline_inputs = False  # anyone may flood the raw key: the bounded queue drops and counts, the session goes on
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)
