@@ -50,6 +50,9 @@ FAILURE_WINDOW = 20
 FAILING_RATE = 0.5
 
 
+_STOP = object()  # wakes a blocked worker to stop
+
+
 class BoundedWorker:
     """One thread draining a bounded FIFO queue; ``offer`` never blocks (a full queue drops).
 
@@ -85,11 +88,12 @@ class BoundedWorker:
         return self._q.qsize()
 
     def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                item = self._q.get(timeout=0.1)
-            except queue.Empty:
-                continue
+        # a blocking get (no timeout): an idle worker does not wake up; stop() wakes it with _STOP
+        get = self._q.get
+        while True:
+            item = get()
+            if item is _STOP or self._stop.is_set():
+                return
             try:
                 self._handler(item)
             except Exception as exc:  # one bad item must not stop the service
@@ -97,5 +101,6 @@ class BoundedWorker:
 
     def stop(self, timeout: float = 0.5) -> None:
         self._stop.set()
+        self._q.put(_STOP)
         if self._thread.is_alive():
             self._thread.join(timeout)

@@ -169,7 +169,7 @@ class ObserverService(StageService):
         self.feedback: dict[str, SoilFeedback] = {
             vid: SoilFeedback(lambda s, f, _vid=vid: self._step(_vid, s, f), self.stages[vid].feed, self.counters[vid],
                               capacity=cfg.join_buffer, timeout_s=cfg.soil_feed_timeout_s)
-            for vid in cfg.vehicle_ids if self.stages[vid].feeds_soil
+            for vid in cfg.vehicle_ids if vid in self.stages and self.stages[vid].feeds_soil  # a relay has none
         }
         self.joiners = {
             vid: SeqJoiner(self.feedback[vid].add_pair if vid in self.feedback else
