@@ -59,12 +59,12 @@ class MapCell(_MapMessage):
 class MapCellUpdate(_MapMessage):
     """Published after each committed batch: what is now durably in the map."""
 
-    map_id: str = Field(pattern=MAP_ID_PATTERN)
+    map_id: str = Field(pattern=MAP_ID_PATTERN, description="The map this service keeps (its keys' soilmap/<map_id>/...)")
     batch: int = Field(ge=1, description="Commit counter of this service run")
     applied: dict[str, tuple[int, int]] = Field(
         description="Per vehicle: (the last seq committed in this batch, the vehicle's total committed updates)")
     cells: list[MapCell] = Field(description="The cells this batch changed, as they now are")
-    time: float
+    time: float = Field(description="Wall-clock time of the commit, s since the epoch")
 
 
 class MapCellColumns(BaseModel):
@@ -73,17 +73,17 @@ class MapCellColumns(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    frame: str
-    cell: list[str]
+    frame: str = Field(description="wgs84 (H3 hexagons) or the local frame's name (square cells)")
+    cell: list[str] = Field(description="Cell ids, as MapCell.cell")
     cx: list[float] = Field(description="Cell centres: x m, or longitude deg for wgs84")
     cy: list[float] = Field(description="y m, or latitude deg")
-    K: list[float]
-    log_k_std: list[float]
-    K_lo: list[float]
-    K_hi: list[float]
-    count: list[int]
-    last_seen: list[float]
-    vehicles: list[list[VehicleId]]
+    K: list[float] = Field(description="Fused soil strength per cell, as MapCell.K")
+    log_k_std: list[float] = Field(description="1-sigma of the fused ln K per cell")
+    K_lo: list[float] = Field(description="Lower ends of the 95 % bands")
+    K_hi: list[float] = Field(description="Upper ends of the 95 % bands")
+    count: list[int] = Field(description="Estimates applied per cell")
+    last_seen: list[float] = Field(description="Wall-clock time of each cell's newest estimate, s since the epoch")
+    vehicles: list[list[VehicleId]] = Field(description="The vehicles each cell's estimates came from, sorted")
 
     @model_validator(mode="after")
     def _same_length(self):
@@ -96,8 +96,8 @@ class MapCellColumns(BaseModel):
 
 
 class MapQueryReply(_MapMessage):
-    map_id: str = Field(pattern=MAP_ID_PATTERN)
-    frame: str
+    map_id: str = Field(pattern=MAP_ID_PATTERN, description="The map this service keeps (its keys' soilmap/<map_id>/...)")
+    frame: str = Field(description="The frame the box and the cells are in")
     bbox: tuple[float, float, float, float] = Field(description="xmin, ymin, xmax, ymax (lon/lat deg for wgs84)")
     columns: MapCellColumns = Field(description="Cells whose centre lies in the box, ordered by centre (x, then y), "
                                     "aged to 'time'")
@@ -116,27 +116,27 @@ class MapQueryReply(_MapMessage):
 
 
 class MapRejection(_MapMessage):
-    map_id: str = Field(pattern=MAP_ID_PATTERN)
+    map_id: str = Field(pattern=MAP_ID_PATTERN, description="The map this service keeps (its keys' soilmap/<map_id>/...)")
     vehicle_id: Optional[str] = Field(description="Vehicle of the key the estimate arrived on (null: unreadable key)")
-    seq: Optional[int] = None
-    code: MapRejectionCode
-    field: Optional[str] = None
-    message: str
-    key: str
-    received_at: float
+    seq: Optional[int] = Field(default=None, description="seq of the refused estimate (null: unreadable)")
+    code: MapRejectionCode = Field(description="Why it was refused, as a code")
+    field: Optional[str] = Field(default=None, description="The field at fault (null: the whole payload)")
+    message: str = Field(description="Why, in words: the value and what was expected")
+    key: str = Field(description="The key the estimate arrived on")
+    received_at: float = Field(description="Wall-clock time of reception, s since the epoch")
 
 
 class MapStatus(_MapMessage):
-    map_id: str = Field(pattern=MAP_ID_PATTERN)
-    pid: int
+    map_id: str = Field(pattern=MAP_ID_PATTERN, description="The map this service keeps (its keys' soilmap/<map_id>/...)")
+    pid: int = Field(description="The map service's process id")
     store: str = Field(description="sqlite:<path> or postgresql://host/db")
-    received: int = Field(ge=0)
+    received: int = Field(ge=0, description="Estimates received")
     applied: int = Field(ge=0, description="Estimates committed to cells")
     skipped: dict[str, int] = Field(description="Valid estimates that carry nothing for the map, by reason "
                                     "(status not usable, no place, older than the cell's)")
     rejected: dict[str, int] = Field(description="Refused estimates by code")
     dropped: int = Field(ge=0, description="Estimates dropped because the worker queue was full")
-    batches: int = Field(ge=0)
+    batches: int = Field(ge=0, description="Batches committed since the service started")
     cells: int = Field(ge=0, description="Cells in the store")
-    queue_depth: int = Field(ge=0)
-    time: float
+    queue_depth: int = Field(ge=0, description="Estimates waiting for the worker")
+    time: float = Field(description="Wall-clock time of this report, s since the epoch")

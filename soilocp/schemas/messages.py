@@ -58,15 +58,15 @@ class Rejection(_ServiceMessage):
 class ServiceHealth(_ServiceMessage):
     """Health and counters of one service for one vehicle (``soilocp/<vid>/status/<service>``)."""
 
-    service: str
+    service: str = Field(description="The service's name (gateway, normal-force, observer, soil-strength, ocp, ...)")
     vehicle_id: VehicleId
-    pid: int
-    host: str
+    pid: int = Field(description="Its process id")
+    host: str = Field(description="The host name of the machine it runs on")
     state: Literal["starting", "running", "failing", "stale", "stopping"] = Field(
         description="running; failing (most recent inputs fail: see failure_rate and the log); or stale (OCP "
         "publisher: no input for longer than stale_timeout_s)"
     )
-    uptime_s: float = Field(ge=0)
+    uptime_s: float = Field(ge=0, description="Seconds since the service started")
     received: int = Field(ge=0, description="Messages received on the service's input keys")
     published: int = Field(ge=0, description="Messages published on its output key")
     rejected: int = Field(ge=0, description="Inputs refused (gateway: rejections published)")
@@ -106,9 +106,9 @@ class SupervisorStatus(_ServiceMessage):
 
     vehicle_id: VehicleId
     pid: int = Field(description="The supervisor's process id")
-    host: str
+    host: str = Field(description="The host name of the machine it runs on")
     restart: bool = Field(description="Processes that die are restarted (soilocp run --restart); else the run stops")
-    processes: list[SupervisedProcess]
+    processes: list[SupervisedProcess] = Field(description="Each process it runs, with its restarts")
     time: float = Field(description="Wall-clock time of this report, s since the Unix epoch")
 
 
@@ -120,7 +120,7 @@ class OcpReply(_ServiceMessage):
         description="True if no input arrived for longer than stale_timeout_s (or none yet): do not use 'latest' blindly"
     )
     age_s: Optional[float] = Field(description="Wall-clock seconds since the latest estimate was produced (null: none yet)")
-    stale_timeout_s: float = Field(gt=0)
+    stale_timeout_s: float = Field(gt=0, description="Seconds without input after which the publisher is stale")
     latest: Optional[OcpEstimate] = Field(description="The latest estimate (its status says 'stale' when stale)")
     history: Optional[list[OcpEstimate]] = Field(
         default=None, description="Estimates selected by ?last=N or ?since=STAMP, oldest first (null without them)"
@@ -150,7 +150,7 @@ class SlipSetpoint(_ServiceMessage):
     stamp: Optional[float] = Field(default=None, description="stamp of that sample, s")
     soil_strength: Optional[float] = Field(default=None, description="K the set-point came from")
     ocp_age_s: Optional[float] = Field(default=None, description="Wall-clock s since the last OCP (null: none yet)")
-    stale_timeout_s: float = Field(gt=0)
+    stale_timeout_s: float = Field(gt=0, description="Seconds without an OCP after which the controller falls back")
     issued_at: float = Field(description="Wall-clock time of publication, s since the Unix epoch")
 
 

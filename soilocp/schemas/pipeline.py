@@ -207,8 +207,8 @@ class OcpEstimate(_Message):
 
     soil_strength: Optional[float] = Field(description="K, null when there is no estimate")
     soil_strength_std: Optional[float] = Field(description="1-sigma of K")
-    soil_class: Optional[str] = None
-    soil_class_confidence: Optional[float] = None
+    soil_class: Optional[str] = Field(default=None, description="Most probable soil class (null: no K); a class to act on only where confirmed is true")
+    soil_class_confidence: Optional[float] = Field(default=None, description="Probability of that class, 0..1")
     mu_T: Optional[float] = Field(description="Maximum net traction coefficient (eq. 8)")
     S_T: Optional[float] = Field(description="Slip of maximum traction (eq. 7, sign corrected)")
     S_E: Optional[float] = Field(description="Slip of maximum tractive efficiency (eq. 10; null when the OCPs are "
