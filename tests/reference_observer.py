@@ -23,6 +23,7 @@ from filterpy.kalman import KalmanFilter
 from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise,
                                          initial_covariance)
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE
+from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.normal_force import STANDARD_GRAVITY
 from soilocp.model.vehicle import VehicleParams
 
@@ -121,7 +122,7 @@ def model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: n
 def continuous_model(layout: StateLayout, vehicle: VehicleParams, fz: np.ndarray, torque: np.ndarray,
                      pitch: float, g: float = STANDARD_GRAVITY, slip=None, travel=None):
     """A (n, n), b (n,), H (7, n) of eq. 33 for one vehicle: :func:`model` with k = 1."""
-    M = resistance_map(layout, slip, travel, ObserverConfig().bridge_slip)
+    M = resistance_map(layout, slip, travel, DEFAULT_CONSTANTS.bridge_slip)
     A, b, H = model(layout, vehicle, np.asarray(fz, float)[None], np.asarray(torque, float)[None],
                     np.array([pitch], float), M[None], g)
     return A[0], b[0], H[0]
@@ -663,7 +664,7 @@ class TractionObserver:
         rim = x[L.omega] * v.wheel_radius
         ground = x[L.v] - x[L.psi] * self._wheel_y
         slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
-        return resistance_map(L, slip, travel_direction(ground, self.cfg.travel_speed), self.cfg.bridge_slip)
+        return resistance_map(L, slip, travel_direction(ground, self.cfg.travel_speed), DEFAULT_CONSTANTS.bridge_slip)
 
     def step(self, stamp: float, specific_force_x: float, yaw_rate: float, pitch: float,
              wheel_speed, wheel_torque, ground_speed: float, normal_force) -> ObserverEstimate:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from reference_observer import TractionObserver, continuous_model, discretize, model, resistance_map, travel_direction
+from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces
 from soilocp.estimation.observer import (
     ObserverConfig,
@@ -73,7 +74,7 @@ def test_the_cores_model_is_the_numpy_reference(structure):
         fz, torque, pitch = rng.uniform(1, 300, 4), rng.uniform(-20, 20, 4), rng.uniform(-0.4, 0.4)
         rim, ground = x[layout.omega] * V.wheel_radius, x[layout.v] - x[layout.psi] * wheel_y
         slip = (rim - ground) / np.maximum(np.maximum(np.abs(rim), np.abs(ground)), 0.05)
-        M = resistance_map(layout, slip, travel_direction(ground, cfg.travel_speed), cfg.bridge_slip)
+        M = resistance_map(layout, slip, travel_direction(ground, cfg.travel_speed), DEFAULT_CONSTANTS.bridge_slip)
         want = [m[0] for m in model(layout, V, fz[None], torque[None], np.array([pitch]), M[None], cfg.gravity)]
         for got, ref in zip(core.model(x.tolist(), fz.tolist(), torque.tolist(), pitch), want):
             np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-14)

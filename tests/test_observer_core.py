@@ -261,3 +261,23 @@ def test_rows_that_miss_the_message_fail_at_import(monkeypatch):
         m.setattr(observer_bank, "ROWS", {**ROWS, "mu": (1, 0)})
         with pytest.raises(ImportError, match="mu"):
             _check_rows()
+
+
+def test_the_observer_bridges_zero_slip_with_the_model_constants():
+    """One zero-slip bridge: the observer's motion resistance (eq. 4's constant part) takes the model's
+    ``constants.bridge_slip``, the same that bridges the traction curve, so a config that sets it reaches both."""
+    from soilocp.estimation.estimate import estimate_lines
+    from soilocp.estimation.pipeline import PipelineConfig
+    from soilocp.model.constants import ModelConstants
+    from soilocp.sim.scenarios import get_scenario
+    from soilocp.sim.simulator import simulate
+
+    lines = [s.model_dump_json() for s, _ in simulate(get_scenario("sand"), duration=4.0, seed=0)]
+    mu = {}
+    for bridge in (0.0, 0.02):
+        cfg = PipelineConfig(constants=ModelConstants(bridge_slip=bridge))
+        mu[bridge] = np.array([r["mu"] for r in estimate_lines(lines, cfg)], dtype=float)
+    assert mu[0.0].shape == mu[0.02].shape and np.isfinite(mu[0.0]).any()
+    assert np.nanmax(np.abs(mu[0.0] - mu[0.02])) > 1e-6
+    with pytest.raises(Exception, match="bridge_slip"):
+        PipelineConfig.model_validate({"observer": {"bridge_slip": 0.01}})

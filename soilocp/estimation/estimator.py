@@ -120,7 +120,7 @@ class Estimator:
         self.priors = list(priors) if priors is not None else None
         if self.priors is not None and len(self.priors) != n:
             raise ValueError(f"priors: {len(self.priors)} given for {n} vehicles")
-        self.observer = ObserverBank(cfg.vehicle, cfg.observer, n)
+        self.observer = ObserverBank(cfg.vehicle, cfg.observer, n, bridge_slip=cfg.constants.bridge_slip)
         self.gate = SlipGate(cfg, n)
         # the paper's rule (method "paper") replaces the grid update; it is not in the core, whose chain still
         # holds a grid bank (of the default method's settings, never stepped then)

@@ -54,7 +54,7 @@ from soilocp._core import ObserverCore
 from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
 from soilocp.estimation.observer_config import Structure
 from soilocp.model.checks import check_count, check_index
-from soilocp.model.constants import STANDARD_GRAVITY
+from soilocp.model.constants import DEFAULT_CONSTANTS, STANDARD_GRAVITY
 from soilocp.model.vehicle import VehicleParams
 
 #: Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -202,7 +202,10 @@ class ObserverBank:
     be in step.  Everything per sample runs in the compiled core (``soilocp._core.ObserverCore``,
     one call per step); this class checks the inputs and returns the core's blocks, named (:class:`ObserverBlocks`)."""
 
-    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int):
+    def __init__(self, vehicle: VehicleParams, config: ObserverConfig | None, n_vehicles: int,
+                 bridge_slip: float = DEFAULT_CONSTANTS.bridge_slip):
+        """``bridge_slip``: the traction model's zero-slip bridge (:attr:`ModelConstants.bridge_slip`), which
+        also bridges the constant part of eq. 4's motion resistance in the observer's model."""
         self.vehicle = vehicle
         self.cfg = cfg = config or ObserverConfig()
         if cfg.discretization != "series":
@@ -216,7 +219,7 @@ class ObserverBank:
         self._core = ObserverCore(
             cfg.structure, n, [v.mass, v.wheel_radius, v.wheel_inertia, v.yaw_inertia, v.a, v.b, v.c, v.d],
             [float(y) for y in v.wheel_y], cfg.gate_sigma, cfg.gate_patience, cfg.max_gap, cfg.anchor_speed,
-            cfg.variance_floor, cfg.variance_ceiling, cfg.travel_speed, cfg.bridge_slip, cfg.gravity, r,
+            cfg.variance_floor, cfg.variance_ceiling, cfg.travel_speed, bridge_slip, cfg.gravity, r,
             np.diagonal(continuous_process_noise(L, cfg)).tolist(), np.diagonal(initial_covariance(L, cfg)).tolist(),
             lower.tolist(), upper.tolist(), [cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed],
             per_side=vehicle.drive == "per_side", interval_mean=vehicle.wheel_speed_reading == "interval_mean",

@@ -98,6 +98,5 @@ class ObserverConfig(BaseModel):
         0.15, gt=0, description="mu_i counts as determined by the data while its posterior 1-sigma is <= this"
     )
     travel_speed: float = Field(0.05, gt=0, description="m/s over which the travel direction of a wheel is smoothed")
-    bridge_slip: float = Field(0.005, ge=0, description="Zero-slip bridge of eq. 4's constant part (ModelConstants.bridge_slip)")
     max_wheel_speed: float = Field(1000.0, gt=0, description="A filtered wheel speed above this (rad/s) is divergence: reset")
     max_ground_speed: float = Field(100.0, gt=0, description="A filtered ground speed above this (m/s) is divergence: reset")

@@ -56,7 +56,8 @@ class ModelConstants(BaseModel):
         lt=0.1,
         description=(
             "Half-width of the linear bridge through S=0 (docs/method.md §8): eq. 6 jumps from -C5/K "
-            "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear. 0 = as printed."
+            "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear, in the traction curve and in "
+            "the observer's motion resistance alike. 0 = as printed."
         ),
     )
     k_range: Optional[tuple[float, float]] = Field(
