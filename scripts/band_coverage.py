@@ -25,12 +25,12 @@ def coverage(name: str, seed: int) -> str:
     pairs = list(v.simulate(seed, nominal=cfg.vehicle, constants=cfg.constants))
     cfg = cfg.model_copy(update={"vehicle": v.known_vehicle(cfg.vehicle)})
     truth = {(t.vehicle_id, t.seq): t.soil_strength for _, t in pairs}
-    k, sd, kt = (np.array(a, dtype=float) for a in zip(*[
-        (r["soil_strength"], r["soil_strength_std"], truth[(r["vehicle_id"], r["seq"])])
-        for r in estimate_lines([s.model_dump_json() for s, _ in pairs], cfg)
-        if r["soil_strength"] is not None and r["soil_strength_std"] is not None] or [((), (), ())]))
-    if not k.size:
+    rows = [(r["soil_strength"], r["soil_strength_std"], truth[(r["vehicle_id"], r["seq"])])
+            for r in estimate_lines([s.model_dump_json() for s, _ in pairs], cfg)
+            if r["soil_strength"] is not None and r["soil_strength_std"] is not None]
+    if not rows:
         return f"{name} seed {seed}: no record serves K"
+    k, sd, kt = np.array(rows, dtype=float).T
     linear = np.abs(k - kt) <= 2 * sd
     in_ln = np.abs(np.log(k / kt)) <= 2 * np.arcsinh(sd / k)
     narrow = sd / k < 0.5

@@ -29,7 +29,7 @@ REASONS: dict[str, tuple[str, str]] = {
     'not_identifiable': ('soil', 'no independent ground speed (or a log that cannot identify K): slip and K not identifiable'),
     'axles': ('soil', "the front and rear axles read different soils (normal forces or an axle's torque constant off)"),
     'nis': ('soil', 'the traction curve does not explain the (slip, traction) pairs at any K'),
-    'below_floor': ('soil', 'traction below what the weakest soil gives at this slip (torque scale or units?)'),
+    'below_floor': ('soil', 'traction below what the weakest soil gives at this slip (torque scale or units?): no K'),
     'ground_stale': ('soil', 'slip is informative but the ground speed reading is stale'),
     'readings_held': ('soil', 'slip is informative but the wheel speed / torque readings are held (refresh too slow)'),
     'undetermined': ('soil', 'slip is informative but the torque balance does not determine gross traction'),

@@ -96,7 +96,7 @@ code_table! {
             "the front and rear axles read different soils (normal forces or an axle's torque constant off)";
         NIS = "nis", Soil, "the traction curve does not explain the (slip, traction) pairs at any K";
         BELOW_FLOOR = "below_floor", Soil,
-            "traction below what the weakest soil gives at this slip (torque scale or units?)";
+            "traction below what the weakest soil gives at this slip (torque scale or units?): no K";
         GROUND_STALE = "ground_stale", Soil, "slip is informative but the ground speed reading is stale";
         READINGS_HELD = "readings_held", Soil,
             "slip is informative but the wheel speed / torque readings are held (refresh too slow)";
