@@ -44,6 +44,16 @@ def test_band_coverage_and_confident_wrong_count_only_settled_samples():
     assert len(seg.std_rel) == 4 and "std_rel" not in results_as_json([seg])[0]  # pooled by --robustness only
 
 
+def test_the_band_is_the_one_the_record_serves_where_it_serves_one():
+    truth = [_truth(i, 100.0, float(i)) for i in range(5)]
+    est = [_est(i, 20.0, 30.0) for i in range(2)]  # before the settle
+    # a wide belief low in K: K + 2 std = 80 misses the truth, the served ln-K band [2.7, 148] holds it
+    est += [dict(_est(i, 20.0, 30.0), soil_strength_low=20.0 * 0.135, soil_strength_high=20.0 * 7.39) for i in (2, 3)]
+    est += [_est(4, 20.0, 30.0)]  # a record without a served band: K +- 2 std
+    (seg,) = evaluate_records(truth, est)
+    assert seg.band_samples == 3 and seg.band_coverage == pytest.approx(2 / 3)
+
+
 def test_cruise_is_not_identifiable_and_the_row_says_so():
     run = run_variant("cruise", 0, duration=4.0)
     (row,) = summarize([run])
@@ -168,3 +178,26 @@ def test_judged_from_moves_k_and_ocp_scores_but_not_the_ok_count_or_the_band():
     assert (whole.band_samples, whole.coverage) == (late.band_samples, late.coverage) == (6, 0.75)
     assert "judged from 4 s" in CliRunner().invoke(
         main, ["accuracy", "--robustness", "--variant", "reverse-braking", "--duration", "6", "--jobs", "1"]).output
+
+
+def test_a_record_serves_k_with_its_band_in_ln_k_and_the_truth_of_a_noisy_cruise_lies_in_it():
+    """GNSS-grade speed at constant speed reads as slip: the K served is wide, its band (Gaussian in ln K, so
+    far from symmetric about K) holds the truth, and a record without K serves no band."""
+    from soilocp.estimation.estimate import estimate_lines
+    from soilocp.estimation.pipeline import PipelineConfig
+    from soilocp.sim.variants import get_variant
+
+    v, cfg = get_variant("gnss-cruise"), PipelineConfig()
+    pairs = list(v.simulate(1, duration=20.0, nominal=cfg.vehicle, constants=cfg.constants))
+    truth = {t.seq: t.soil_strength for _, t in pairs}
+    recs = list(estimate_lines([s.model_dump_json() for s, _ in pairs],
+                               cfg.model_copy(update={"vehicle": v.known_vehicle(cfg.vehicle)})))
+    served = [r for r in recs if r["soil_strength"] is not None]
+    assert served and all(r["soil_strength_low"] is None and r["soil_strength_high"] is None
+                          for r in recs if r["soil_strength"] is None)
+    for r in served:
+        k, lo, hi = r["soil_strength"], r["soil_strength_low"], r["soil_strength_high"]
+        assert lo < k < hi and lo * hi == pytest.approx(k * k, rel=1e-9)
+    inside = [r["soil_strength_low"] <= truth[r["seq"]] <= r["soil_strength_high"] for r in served]
+    linear = [abs(r["soil_strength"] - truth[r["seq"]]) <= 2 * r["soil_strength_std"] for r in served]
+    assert sum(inside) >= 0.9 * len(served) > sum(linear), (sum(inside), sum(linear), len(served))

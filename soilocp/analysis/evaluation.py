@@ -160,12 +160,17 @@ def evaluate_records(truth: list[dict], estimates: list[dict], settle: float = T
             vals = np.sort(ocp_errs(name, ocp_judged))
             return float(vals[min(int(np.ceil(0.9 * len(vals))) - 1, len(vals) - 1)]) if len(vals) else None
 
-        # the reported band: 2 std around K, over the settled samples that report both
-        k_std = np.array([e["soil_strength_std"] if e and e.get("soil_strength_std") is not None else np.nan
-                          for _, e in seg])[settled]
+        # the served band, over the settled samples that report K and its std: the record's 2-sigma band
+        # (soil_strength_low..high, Gaussian in ln K) where it gives one, else K +- 2 std
+        def field(name):
+            return np.array([e[name] if e and e.get(name) is not None else np.nan for _, e in seg])[settled]
+
+        k_std, low, high = field("soil_strength_std"), field("soil_strength_low"), field("soil_strength_high")
         k_set = k_est[settled]
         banded = np.isfinite(k_set) & np.isfinite(k_std)
-        band_hits = np.abs(k_set[banded] - kt) <= 2.0 * k_std[banded]
+        low = np.where(np.isfinite(low), low, k_set - 2.0 * k_std)
+        high = np.where(np.isfinite(high), high, k_set + 2.0 * k_std)
+        band_hits = (low[banded] <= kt) & (kt <= high[banded])
         status_ok = np.array([bool(e) and e["status"] == "ok" for _, e in seg])[settled]
         # judged against the nearest soil under the wheels: in the b/V s before the CoM reaches the next soil
         # the front wheels are on it, and a K that reads either soil is not wrong (the convergence rule above

@@ -61,9 +61,13 @@ def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model
     estimate's (:class:`WheelCurve` decides them)."""
     have = soil.soil_strength is not None or curve == "learnt"  # a learnt curve's OCPs are its own, not K's
     mu_t, s_t, s_e, te = (None if not have or math.isnan(v) else float(v) for v in values)
+    k, log_std = soil.soil_strength, soil.log_k_std
+    low, high = (None, None) if k is None or log_std is None else (k * math.exp(-2.0 * log_std),
+                                                                    k * math.exp(2.0 * log_std))
     return OcpEstimate(
-        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=soil.soil_strength,
-        soil_strength_std=soil.soil_strength_std, soil_class=soil.soil_class,
+        vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=k,
+        soil_strength_std=soil.soil_strength_std, soil_strength_low=low, soil_strength_high=high,
+        soil_class=soil.soil_class,
         soil_class_confidence=soil.soil_class_confidence, status=status or soil.status,
         reason=soil.reason if reason is None else reason, reason_code=reason_code or soil.reason_code, mu=soil.mu,
         mu_determined=soil.mu_determined, slip=soil.slip, mu_T=mu_t, S_T=s_t, S_E=s_e, te_at_S_E=te,

@@ -310,8 +310,8 @@ def align_and_write(streams: list[Stream], tmap, prov: Provenance, out: str | Pa
     return prov
 
 
-WITHHELD_FIELDS = ("soil_strength", "soil_strength_std", "soil_class", "soil_class_confidence", "mu_T", "S_T", "S_E",
-                   "te_at_S_E")
+WITHHELD_FIELDS = ("soil_strength", "soil_strength_std", "soil_strength_low", "soil_strength_high", "soil_class",
+                   "soil_class_confidence", "mu_T", "S_T", "S_E", "te_at_S_E")
 
 
 def withhold(rec: dict, reason: str) -> dict:

@@ -207,6 +207,13 @@ class OcpEstimate(_Message):
 
     soil_strength: Optional[float] = Field(description="K, null when there is no estimate")
     soil_strength_std: Optional[float] = Field(description="1-sigma of K")
+    soil_strength_low: Optional[float] = Field(
+        default=None, description="Lower end of K's 2-sigma band, K exp(-2 sigma) with sigma the 1-sigma of ln K: the "
+        "estimator's belief is Gaussian in ln K, so the band is not symmetric about K and, where it is wide, K - 2 std "
+        "does not describe it (null: no K)")
+    soil_strength_high: Optional[float] = Field(
+        default=None, description="Upper end of K's 2-sigma band, K exp(2 sigma) (null: no K); where the belief is wide "
+        "the truth may lie far above K + 2 std but within this end")
     soil_class: Optional[str] = Field(default=None, description="Most probable soil class (null: no K); a class to act on only where confirmed is true")
     soil_class_confidence: Optional[float] = Field(default=None, description="Probability of that class, 0..1")
     mu_T: Optional[float] = Field(description="Maximum net traction coefficient (eq. 8)")
