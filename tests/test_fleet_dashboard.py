@@ -127,6 +127,46 @@ def test_state_restarts_from_the_supervisor_and_a_second_source_from_the_gateway
     assert row["second_source"] is True and row["source_conflicts"] == 6
 
 
+def test_state_restarts_seen_in_health_whoever_restarts_the_process():
+    """Without a supervisor (systemd, Docker: in a container the pid stays 1), a service's health from a
+    process that started later than the one before is a restart; the old process's late report is not,
+    nor is the same process's next report."""
+    from soilocp.services.fleet.commands import restarts_text
+
+    clock = Clock()
+    st = FleetState(clock=clock)
+
+    def health(service, pid, start, t):
+        return ServiceHealth(service=service, vehicle_id="rover1", pid=pid, host="c1", state="running",
+                             uptime_s=t - start, received=1, published=1, rejected=0, dropped=0, errors=0,
+                             queue_depth=0, time=t)
+
+    st.set_health(health("observer", 1, 100.0, 150.0))
+    st.set_health(health("observer", 1, 100.0, 151.0))
+    st.set_health(health("ocp", 1, 100.0, 151.0))
+    (row,) = st.rows()
+    assert row["restarts_seen_total"] == 0 and row["restarts_seen"] == {} and restarts_text(row) == "-"
+    st.set_health(health("observer", 1, 160.0, 160.5))  # pid 1 again: a container restarted by Docker
+    st.set_health(health("observer", 1, 100.0, 159.0))  # the old process's report, delivered late
+    st.set_health(health("observer", 1, 160.2, 161.5))  # the new one's next report (its clock jittered)
+    clock.t += 2.0
+    (row,) = st.rows()
+    assert row["restarts_seen_total"] == 1, row["restarts_seen"]
+    assert row["restarts_seen"]["observer"] == {"restarts": 1, "pid": 1, "host": "c1",
+                                                "last_restart_age_s": pytest.approx(2.5)}
+    assert restarts_text(row) == "1 seen, observer 2.5 s ago"
+    st.set_health(health("ocp", 4242, 170.0, 170.2))  # another pid, as systemd restarts it
+    assert st.rows()[0]["restarts_seen_total"] == 2
+    # a one-shot status sees no restart happen, but the uptimes: the youngest service, if much younger
+    once = FleetState(clock=clock)
+    once.set_health(health("observer", 1, 100.0, 200.0))
+    once.set_health(health("ocp", 1, 190.0, 200.0))
+    clock.t += 1.0
+    (row,) = once.rows()
+    assert row["uptime_s"] == {"observer": pytest.approx(101.0), "ocp": pytest.approx(11.0)}
+    assert restarts_text(row) == "ocp up 11.0 s"
+
+
 def test_state_reconcile_removes_a_service_only_after_consecutive_misses():
     st = FleetState(clock=Clock())
     st.reconcile_alive([("v1", s) for s in PIPELINE_SERVICES], misses=2)

@@ -75,10 +75,24 @@ def fleet_table(rows: list[dict[str, Any]], title: str):
     return t
 
 
+#: A service this much younger than the oldest of its vehicle was started again since
+YOUNGER_S = 5.0
+
+
 def restarts_text(row: dict[str, Any]) -> str:
-    """The ``restarts`` cell: total, and the process restarted last with how long ago
-    ("3, ocp 12.0 s ago"); "-" without a supervisor report."""
+    """The ``restarts`` cell: the supervisor's total, and the process restarted last with how long ago
+    ("3, ocp 12.0 s ago"); without a supervisor report (systemd, Docker), the new processes the services'
+    health showed while this monitor listened ("2 seen, ocp 12.0 s ago"), else the youngest service where
+    it is younger than the oldest ("ocp up 12.0 s"); "-" without any of these."""
     if row.get("restarts_total") is None:
+        seen = row.get("restarts_seen") or {}
+        if seen:
+            age, name = min((p["last_restart_age_s"], n) for n, p in seen.items())
+            return f"{row['restarts_seen_total']} seen, {name} {_age(age)} ago"
+        up = row.get("uptime_s") or {}
+        if up and min(up.values()) < max(up.values()) - YOUNGER_S:
+            age, name = min((a, n) for n, a in up.items())
+            return f"{name} up {_age(age)}"
         return "-"
     per = row.get("restarts") or {}
     died = [n for n, p in per.items() if p["state"] == "died"]

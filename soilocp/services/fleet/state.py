@@ -37,6 +37,37 @@ def _finite(x: Optional[float]) -> Optional[float]:
     return x if x is not None and math.isfinite(x) else None
 
 
+#: A health report whose process started less than this much later than the newest known start of its
+#: service is the same process (the report's own wall clock minus its uptime, which jitters by the
+#: report's delivery and the sender's clock steps)
+SAME_START_S = 1.0
+
+
+@dataclass
+class _Instances:
+    """The processes one service's health reports came from: a report whose process started later than
+    the newest known one (``time - uptime_s``), or that names another host or pid, is a new process,
+    whoever started it (the supervisor of ``soilocp run``, systemd, Docker); an older process's late
+    report is not."""
+
+    host: str
+    pid: int
+    started: float  # the newest known process's start, by its own clock (report time - uptime)
+    restarts: int = 0  # new processes seen after the first
+    seen_wall: Optional[float] = None  # our clock when the newest new process was first seen
+    uptime_then: float = 0.0  # its uptime in that report
+
+    def update(self, h: ServiceHealth, now: float) -> None:
+        started = h.time - h.uptime_s
+        if started <= self.started + SAME_START_S and (h.host, h.pid) == (self.host, self.pid):
+            return  # the same process (or an older report of it)
+        if started < self.started - SAME_START_S:
+            return  # a late report of a process that has since been replaced
+        self.host, self.pid, self.started = h.host, h.pid, started
+        self.restarts += 1
+        self.seen_wall, self.uptime_then = now, h.uptime_s
+
+
 @dataclass
 class _Vehicle:
     vehicle_id: str
@@ -50,8 +81,11 @@ class _Vehicle:
     publisher_says_stale: Optional[bool] = None
     ocp_count: int = 0
     health: dict[str, ServiceHealth] = field(default_factory=dict)
+    health_wall: dict[str, float] = field(default_factory=dict)  # our clock when each health report arrived
     supervisor: Optional[SupervisorStatus] = None
     supervisor_wall: float = 0.0  # when that report arrived (its ages are as of then)
+    #: per service, the new processes its health showed (:meth:`FleetState.set_health`)
+    instances: dict[str, "_Instances"] = field(default_factory=dict)
     rejections_seen: int = 0
     last_seen: float = 0.0
     history: deque = field(default_factory=lambda: deque(maxlen=HISTORY_POINTS))
@@ -201,6 +235,12 @@ class FleetState:
         with self._lock:
             v = self._vehicle(h.vehicle_id, now)
             v.health[h.service] = h
+            v.health_wall[h.service] = now
+            known = v.instances.get(h.service)
+            if known is None:
+                v.instances[h.service] = _Instances(h.host, h.pid, h.time - h.uptime_s)
+            else:
+                known.update(h, now)
             if h.service == "ocp" and h.stale is not None:
                 v.publisher_says_stale = h.stale
 
@@ -263,6 +303,9 @@ class FleetState:
                                  else round(p.last_restart_age_s + since, 3)}
                         for p in v.supervisor.processes if p.restarts or p.state == "died"}
             restarts_total = sum(p.restarts for p in v.supervisor.processes)
+        seen = {name: {"restarts": i.restarts, "pid": i.pid, "host": i.host,
+                       "last_restart_age_s": round(now - i.seen_wall + i.uptime_then, 3)}
+                for name, i in sorted(v.instances.items()) if i.restarts}
         if not v.alive:
             state = "offline"
         elif missing:
@@ -300,6 +343,15 @@ class FleetState:
             # (null: no supervisor report, e.g. services run by systemd)
             "restarts_total": restarts_total,
             "restarts": restarts,
+            # new processes of a service seen in its health reports while this monitor listened, whoever
+            # restarted them (the supervisor, systemd, Docker): per service that restarted, how many times,
+            # its pid and host now, and how long ago the newest started
+            "restarts_seen_total": sum(x["restarts"] for x in seen.values()),
+            "restarts_seen": seen,
+            # each service's uptime as of now, from its last health report (a one-shot status, which saw no
+            # restart happen, still shows a process younger than the others)
+            "uptime_s": {name: round(h.uptime_s + max(0.0, now - v.health_wall.get(name, now)), 3)
+                         for name, h in sorted(v.health.items())},
             "ocp_received": v.ocp_count,
             "first_seen": v.first_seen,
             "last_seen": v.last_seen,
