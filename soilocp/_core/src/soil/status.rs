@@ -3,10 +3,6 @@
 //! `expire_after` (never a drifting number), and the status with the code of its reason.  The
 //! reason text stays in Python (soilocp.estimation.soil_strength), made from the code and the
 //! numbers of [`Report::args`].
-//!
-//! Python's `math.hypot`, `min` and `max` made these numbers before the port; [`py_hypot`],
-//! [`py_min`] and [`py_max`] are theirs (CPython's hypot is not libm's: 0.4 % of random pairs
-//! differ in the last bit).
 
 use crate::codes::reason;
 use crate::codes::status::{HOLDING, MODEL_MISMATCH, NOT_OBSERVABLE, NO_ESTIMATE, OK, UNCERTAIN};
@@ -64,90 +60,6 @@ pub struct Seen {
     pub scale_prior: f64,
 }
 
-/// Python's `min(a, b)`: `b` only where it is smaller.
-#[inline]
-pub fn py_min(a: f64, b: f64) -> f64 {
-    if b < a {
-        b
-    } else {
-        a
-    }
-}
-
-/// Python's `max(a, b)`: `b` only where it is larger.
-#[inline]
-pub fn py_max(a: f64, b: f64) -> f64 {
-    if b > a {
-        b
-    } else {
-        a
-    }
-}
-
-/// x y exactly as hi + lo (Dekker's product with Veltkamp's split).
-#[inline]
-fn two_product(x: f64, y: f64) -> (f64, f64) {
-    const SPLIT: f64 = 134_217_729.0; // 2^27 + 1
-    let split = |a: f64| {
-        let c = SPLIT * a;
-        let hi = c - (c - a);
-        (hi, a - hi)
-    };
-    let p = x * y;
-    let ((xh, xl), (yh, yl)) = (split(x), split(y));
-    let lo = ((xh * yh - p) + xh * yl + xl * yh) + xl * yl;
-    (p, lo)
-}
-
-/// a + b as hi + lo, |a| >= |b|.
-#[inline]
-fn fast_two_sum(a: f64, b: f64) -> (f64, f64) {
-    let x = a + b;
-    let z = x - a;
-    (x, b - z)
-}
-
-/// CPython's `math.hypot(x, y)` (Modules/mathmodule.c, vector_norm): a lossless scaling by the
-/// larger's power of two, exact squares, and one differential correction of the square root.
-pub fn py_hypot(x: f64, y: f64) -> f64 {
-    let (a, b) = (x.abs(), y.abs());
-    if a.is_infinite() || b.is_infinite() {
-        return f64::INFINITY;
-    }
-    if a.is_nan() || b.is_nan() {
-        return f64::NAN;
-    }
-    let max = if a > b { a } else { b };
-    if max == 0.0 {
-        return max;
-    }
-    if max < f64::MIN_POSITIVE {
-        // subnormals: to normals first, as CPython does
-        return f64::MIN_POSITIVE * py_hypot(a / f64::MIN_POSITIVE, b / f64::MIN_POSITIVE);
-    }
-    // frexp: max = m 2^e with m in [0.5, 1)
-    let e = ((max.to_bits() >> 52) & 0x7ff) as i32 - 1022;
-    let scale = f64::from_bits(((1023 - e) as u64) << 52); // 2^-e, normal for normal max
-    let (mut csum, mut frac1, mut frac2) = (1.0, 0.0, 0.0);
-    for v in [a, b] {
-        let v = v * scale;
-        let (hi, lo) = two_product(v, v);
-        let (s, t) = fast_two_sum(csum, hi);
-        csum = s;
-        frac1 += lo;
-        frac2 += t;
-    }
-    let mut h = (csum - 1.0 + (frac1 + frac2)).sqrt();
-    let (hi, lo) = two_product(-h, h);
-    let (s, t) = fast_two_sum(csum, hi);
-    csum = s;
-    frac1 += lo;
-    frac2 += t;
-    let x = csum - 1.0 + (frac1 + frac2);
-    h += x / (2.0 * h);
-    h / scale
-}
-
 impl StatusParams {
     /// The held / withdrawn / uncertain logic of the record (§9: hold, flagged; never drift):
     /// (status, reason, args, (K, K 1-sigma, ln K 1-sigma) if any).
@@ -171,8 +83,8 @@ impl StatusParams {
                 // no information this sample: the last informed estimate, with a band never
                 // narrower than the soil's own drift since the update allows (q_log_k per sqrt(s))
                 k = held[0];
-                log_std = py_max(log_std, py_hypot(held[2], self.p.q_log_k * age.sqrt()));
-                k_std = py_max(py_max(k_std, held[1]), k * log_std.sinh());
+                log_std = log_std.max(held[2].hypot(self.p.q_log_k * age.sqrt()));
+                k_std = k_std.max(held[1]).max(k * log_std.sinh());
             }
             _ => h.held = Some([k, k_std, log_std]),
         }
@@ -197,7 +109,7 @@ impl StatusParams {
         let [sys_scale, c_mean, c_std] = s.scale;
         let prior = seen.scale_prior;
         // how long the data have leant to a wrong torque constant
-        if (c_mean - 1.0).abs() <= py_max(2.0 * c_std, prior) {
+        if (c_mean - 1.0).abs() <= (2.0 * c_std).max(prior) {
             h.lean_since = f64::NAN;
         } else if h.lean_since.is_nan() || h.lean_since > st {
             h.lean_since = st; // none yet (NaN), or a restarted clock: it starts now
@@ -215,8 +127,9 @@ impl StatusParams {
         } else {
             0.0
         };
-        let sys = py_min(py_hypot(py_hypot(sys_scale, sys_radius), sys_axle), self.span);
-        let log_std = py_min(py_hypot(log_stat, sys), self.span);
+        let sys = sys_scale.hypot(sys_radius).hypot(sys_axle).min(self.span);
+        // f64::min: a NaN term gives the capped band (undetermined), never a NaN one read as ok
+        let log_std = log_stat.hypot(sys).min(self.span);
         let k_std = k_med * log_std.sinh();
         let (mut status, mut why, mut args, est) = self.hold(h, st, k_med, k_std, log_std);
         if status == UNCERTAIN && sys > log_stat && sys_scale >= sys_radius {
@@ -369,33 +282,5 @@ impl StatusBank {
                 self.cfg.report(&mut self.holds[smp.vehicle], step, &seen)
             })
             .collect()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn hypot_is_pythons() {
-        // math.hypot's values (CPython 3.11), where libm's hypot differs in the last bit
-        assert_eq!(py_hypot(3.0, 4.0), 5.0);
-        assert_eq!(py_hypot(0.0, -0.0), 0.0);
-        assert!(py_hypot(f64::NAN, 1.0).is_nan());
-        assert_eq!(py_hypot(f64::NAN, f64::INFINITY), f64::INFINITY);
-        assert_eq!(py_hypot(1e-310, 0.0), 1e-310);
-        assert_eq!(py_hypot(0.1, 0.2), 0.223_606_797_749_979);
-        // libm's hypot gives ...415 here: a port to f64::hypot fails this line
-        assert_eq!(
-            py_hypot(0.115_102_498_427_927_3, 0.885_060_070_379_661_1),
-            0.892_513_256_666_141_3
-        );
-    }
-
-    #[test]
-    fn python_min_max_keep_the_first_of_equals_and_nan() {
-        assert!(py_max(f64::NAN, 1.0).is_nan());
-        assert_eq!(py_max(1.0, f64::NAN), 1.0);
-        assert!(py_min(f64::NAN, 1.0).is_nan());
     }
 }
