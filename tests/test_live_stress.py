@@ -21,7 +21,7 @@ import time
 
 import pytest
 
-from soilocp.schemas.messages import ServiceHealth
+from soilocp.schemas.messages import REJECTION_PUBLISH_RATE, ServiceHealth
 from soilocp.services.bench.live import proc_rss_mib
 from zenoh_helpers import Procs, alive_services, client, endpoint, free_port, get_payloads, start_pipeline, wait_alive
 
@@ -91,11 +91,19 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
             ocp_seqs.append(d["seq"])
             statuses[d["status"]] = statuses.get(d["status"], 0) + 1
 
+    published: list[tuple[float, int]] = []  # (arrival, suppressed) of each published rejection
+
+    def _rejected(sample) -> None:
+        d = json.loads(sample.payload.to_bytes())
+        with lock:
+            published.append((time.monotonic(), d.get("suppressed", 0)))
+
     try:
         procs.spawn("router", ["router", "--listen", ep])
         start_pipeline(procs, ep, vid)
         with client(ep) as s:
             s.declare_subscriber(f"soilocp/{vid}/ocp", _ocp)
+            s.declare_subscriber(f"soilocp/{vid}/rejected", _rejected)
             assert wait_alive(s, vid), alive_services(s, vid)
             time.sleep(0.3)
             h0 = _gateway_health(s, vid)
@@ -158,6 +166,14 @@ def test_hostile_flood_loses_no_good_sample_and_counts_every_rejection(tmp_path)
     assert h1.errors == 0 and h1.rejected - h0.rejected == sum(codes.values())
     received = h1.received - h0.received  # what reached the gateway (the flooder's own queue may drop, as it may)
     assert received == len(sent) + (h1.rejected - h0.rejected) + (h1.dropped - h0.dropped)
+    # the bus carried a sample of them: at most REJECTION_PUBLISH_RATE a second plus one burst, and each
+    # published one counts those left out before it, so the topic's subscribers can count them all
+    span = published[-1][0] - published[0][0]
+    unpublished = h1.detail.get("rejections_unpublished", 0) - h0.detail.get("rejections_unpublished", 0)
+    print(f"flood: rejections published {len(published)} over {span:.1f} s, counted only {unpublished}")
+    assert len(published) <= REJECTION_PUBLISH_RATE * (span + 1.0) + REJECTION_PUBLISH_RATE
+    assert len(published) + unpublished == h1.rejected - h0.rejected
+    assert len(published) + sum(n for _, n in published) <= h1.rejected - h0.rejected
     assert received > len(sent) + report["sent"] // 2
     assert {"too_large", "malformed_json", "non_finite", "schema", "vehicle_mismatch", "old_seq"} <= set(codes)
     assert rss_peak[0] - rss0 < 64, (rss0, rss_peak[0])  # bounded: the queue holds at most queue_size payloads

@@ -11,7 +11,7 @@ Public keys (a contract for other programs, see ``docs/services.md``)::
     soilocp/<vid>/sensors/raw          SensorSample JSON, one sample per put (drivers, synthetic vehicle)
     soilocp/<vid>/ocp                  OcpEstimate JSON per sample (publication); queryable -> OcpReply
                                        (?last=N or ?since=STAMP add a history)
-    soilocp/<vid>/rejected             Rejection JSON, one per rejected raw sample
+    soilocp/<vid>/rejected             Rejection JSON, one per rejected raw sample (a flood: 50/s, the rest counted)
     soilocp/<vid>/alive/<service>      liveliness token of each running service
     soilocp/<vid>/control/slip         SlipSetpoint JSON: wheel slip set-points of the controller service
     soilocp/<vid>/control/drive        DriveSetpoint JSON: speed and slip set-points of a calibration drive

@@ -17,6 +17,10 @@ SERVICE_SCHEMA_VERSION = 1
 
 #: Longest raw payload excerpt a Rejection carries (characters).
 REJECTION_PAYLOAD_MAX = 512
+#: Rejections per second and vehicle the gateway publishes at most, in bursts of as many: a flood of garbage
+#: must not flood the bus and every subscriber of it; the rest are counted (``Rejection.suppressed`` and the
+#: gateway's health), not published
+REJECTION_PUBLISH_RATE = 50.0
 
 RejectionCode = Literal[
     "malformed_json",  # not JSON / not UTF-8
@@ -53,6 +57,10 @@ class Rejection(_ServiceMessage):
     payload_size: int = Field(ge=0, description="Size of the raw payload, bytes")
     key: str = Field(description="The key the sample arrived on")
     received_at: float = Field(description="Gateway wall-clock time of reception, s since the Unix epoch")
+    suppressed: int = Field(
+        0, ge=0, description=f"Rejections of this vehicle counted but not published since the previous published "
+        f"one: under a flood the gateway publishes at most {REJECTION_PUBLISH_RATE:g} a second; every rejection, "
+        "published or not, is in its health's rejected_<code> counters")
 
 
 class ServiceHealth(_ServiceMessage):

@@ -32,6 +32,7 @@ from soilocp.services.bench.stages import summarize
 
 PIPELINE = PIPELINE_SERVICES
 _SEQ_RE = re.compile(rb'"seq":\s*(\d+)')
+_SUPPRESSED_RE = re.compile(rb'"suppressed":\s*(\d+)')
 _CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
@@ -305,9 +306,10 @@ def drive(session, payloads: dict[str, list[tuple[int, bytes]]], rate: float, du
             with lock:
                 got[(vid, int(m.group(1)))] = t
 
-    def _rej(_sample) -> None:
+    def _rej(sample) -> None:
+        m = _SUPPRESSED_RE.search(sample.payload.to_bytes())  # a flood's rejections are sampled
         with lock:
-            rejected[0] += 1
+            rejected[0] += 1 + (int(m.group(1)) if m else 0)
 
     subs = [session.declare_subscriber(keys.any_vehicle_ocp(), _ocp),
             session.declare_subscriber(keys.any_vehicle_rejected(), _rej)]

@@ -150,10 +150,10 @@ class FleetMonitor:
             elif kind == "rejected":
                 vid, _rest = keys.split_key(key)
                 try:
-                    Rejection.model_validate_json(data)
+                    unpublished = Rejection.model_validate_json(data).suppressed
                 except ValidationError:
-                    pass  # still a rejection of that vehicle; count it
-                st.add_rejection(vid, wall)
+                    unpublished = 0  # still a rejection of that vehicle; count it
+                st.add_rejection(vid, wall, 1 + unpublished)
         except (ValidationError, ValueError):
             st.bad_payloads += 1
 

@@ -252,10 +252,11 @@ class FleetState:
             if v.supervisor is None or st.pid != v.supervisor.pid or st.time >= v.supervisor.time:
                 v.supervisor, v.supervisor_wall = st, now
 
-    def add_rejection(self, vid: str, now: Optional[float] = None) -> None:
+    def add_rejection(self, vid: str, now: Optional[float] = None, count: int = 1) -> None:
+        """Count ``count`` rejections of ``vid``: a published one and those left out before it."""
         now = self.clock() if now is None else now
         with self._lock:
-            self._vehicle(vid, now).rejections_seen += 1
+            self._vehicle(vid, now).rejections_seen += count
 
     def needs_backfill(self) -> list[str]:
         with self._lock:

@@ -16,7 +16,7 @@ import time
 from typing import Any, Optional, Union
 
 from soilocp.schemas import keys
-from soilocp.schemas.messages import REJECTION_PAYLOAD_MAX, Rejection
+from soilocp.schemas.messages import REJECTION_PAYLOAD_MAX, REJECTION_PUBLISH_RATE, Rejection
 from soilocp.schemas.sensor import SensorSample
 from soilocp.validation import MAX_PAYLOAD_BYTES, SampleRejected, SampleValidator, parse_sample
 
@@ -88,9 +88,36 @@ class RawSampleChecker:
         )
 
 
+class PublishBudget:
+    """A token bucket: at most ``rate`` events a second, in bursts of up to ``burst``.
+
+    Parameters
+    ----------
+    rate : float
+        Tokens added per second.
+    burst : float
+        The bucket's size (and its content at the start).
+    """
+
+    def __init__(self, rate: float, burst: float):
+        self.rate, self.burst = rate, burst
+        self.tokens, self.last = burst, time.monotonic()
+
+    def take(self, now: Optional[float] = None) -> bool:
+        """Whether an event may pass now (it takes a token)."""
+        now = time.monotonic() if now is None else now
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
 class GatewayService(StageService):
     """The gateway row: raw bytes are checked here (no model parses them first); a rejection goes
-    to ``soilocp/<vid>/rejected`` with its reason."""
+    to ``soilocp/<vid>/rejected`` with its reason, at most ``REJECTION_PUBLISH_RATE`` a second per vehicle
+    (the next published one counts those not published in ``suppressed``)."""
 
     spec = BY_NAME["gateway"]
 
@@ -98,6 +125,8 @@ class GatewayService(StageService):
         super().__init__(cfg, log)
         self.checkers = {vid: RawSampleChecker(vid, max_payload_bytes=cfg.max_payload_bytes) for vid in cfg.vehicle_ids}
         self.pub_rejected: dict[str, Any] = {}
+        self.budgets = {vid: PublishBudget(REJECTION_PUBLISH_RATE, REJECTION_PUBLISH_RATE) for vid in cfg.vehicle_ids}
+        self.suppressed = dict.fromkeys(cfg.vehicle_ids, 0)
 
     def declare(self, session, vehicle_id: str) -> None:
         self.pub_rejected[vehicle_id] = self.publisher(session, keys.rejected(vehicle_id))
@@ -118,6 +147,13 @@ class GatewayService(StageService):
             if c.rejected <= 50 or c.rejected % 100 == 0:  # a flood of garbage must not flood the log
                 self.log.warning("rejected", vehicle_id=vid, code=result.code, seq=result.seq,
                                  message=result.message[:300], rejected_total=c.rejected)
+            if not self.budgets[vid].take():
+                self.suppressed[vid] += 1
+                c.bump("rejections_unpublished")
+                return
+            if self.suppressed[vid]:
+                result = result.model_copy(update={"suppressed": self.suppressed[vid]})
+                self.suppressed[vid] = 0
             self.pub_rejected[vid].put(result.model_dump_json())
             return
         self.emit(vid, result)

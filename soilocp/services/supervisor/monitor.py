@@ -66,12 +66,14 @@ class Monitor:
         def on_rejected(sample) -> None:
             try:
                 rej = Rejection.model_validate_json(sample.payload.to_bytes())
-                code = rej.code
+                code, unpublished = rej.code, rej.suppressed
             except ValueError:
-                code = "?"
+                code, unpublished = "?", 0
             with self.lock:
-                self.rejections += 1
+                self.rejections += 1 + unpublished
                 self.rejection_codes[code] += 1
+                if unpublished:  # their codes are in the gateway's health (rejection_counts)
+                    self.rejection_codes["unpublished"] += unpublished
 
         def status(h: ServiceHealth) -> None:
             self.health[h.service] = h
@@ -100,6 +102,16 @@ class Monitor:
             session.liveliness().declare_subscriber(keys.vehicle_alive_all(vid), on_alive, history=True),
         ]
 
+    def _rejection_codes(self) -> dict[str, int]:
+        """Rejections by code: the gateway health's counters, which hold every one, where they are at least
+        as new as the published rejections (a flood's are sampled, see ``Rejection.suppressed``)."""
+        gw = self.health.get("gateway")
+        exact = {k[len("rejected_"):]: n for k, n in (gw.detail if gw else {}).items()
+                 if k.startswith("rejected_") and n}
+        if exact and sum(exact.values()) >= self.rejections:
+            return exact
+        return dict(self.rejection_codes)
+
     def detach(self) -> None:
         undeclare_all(self._decls)
 
@@ -118,7 +130,7 @@ class Monitor:
                 rate=rate,
                 count=self.ocp_count,
                 rejections=self.rejections,
-                codes=dict(self.rejection_codes),
+                codes=self._rejection_codes(),
                 alive=set(self.alive),
                 health=dict(self.health),
                 ocp_stale_reported=bool(ocp_h and ocp_h.stale),
