@@ -21,8 +21,11 @@ settings_struct! {
         /// The window's mean acceleration that informs k.
         min_accel: Float = 0.35, Internal, "m/s^2", [gt 0.0];
         /// |slip| (eq. 1, from the readings) above which a window informs nothing: motion resistance
-        /// grows with slip (eq. 4), and under a slip sweep it follows the torque.
-        max_slip: Float = 0.15, Internal, "", [gt 0.0];
+        /// grows with slip (eq. 4), and the slip grows with the acceleration that makes a window
+        /// informative, so above this the resistance's change within the balance is read as torque
+        /// (a skid steer's speed swings at slips 0.1-0.15 learn k a few per cent high, and K on a
+        /// firm soil, where the curve is flat, moves many times that).
+        max_slip: Float = 0.1, Internal, "", [gt 0.0];
         /// Random walk of k: how fast the torque scale may drift (temperature, battery).
         scale_walk: Float = 0.002, Internal, "1/sqrt(s)", [ge 0.0];
         /// Random walk of the motion resistance F_MR.
