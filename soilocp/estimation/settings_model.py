@@ -5,7 +5,7 @@ whether a setting is for users or an internal constant of the method (``json_sch
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
@@ -20,11 +20,16 @@ def describe(doc: str, unit: str) -> str:
 
 
 def core_fields(group: str) -> dict[str, tuple[type, Any]]:
-    """The fields of the core's settings group ``group``, in the core's order: name -> (type, FieldInfo)."""
+    """The fields of the core's settings group ``group``, in the core's order: name -> (type, FieldInfo).  A
+    choice is a ``Literal`` of its names (its default: the core's index into them)."""
     fields: dict[str, tuple[type, Any]] = {}
-    for name, kind, default, bounds, unit, audience, doc in _core.settings_schema(group):
-        typ = _TYPES[kind]
-        fields[name] = (typ, Field(typ(default), description=describe(doc, unit), **dict(bounds),
+    for name, kind, default, bounds, unit, audience, doc, choices in _core.settings_schema(group):
+        if kind == "choice":
+            typ, value = Literal[tuple(choices)], choices[int(default)]
+        else:
+            typ = _TYPES[kind]
+            value = typ(default)
+        fields[name] = (typ, Field(value, description=describe(doc, unit), **dict(bounds),
                                    json_schema_extra={"audience": audience, "unit": unit}))
     return fields
 
@@ -36,7 +41,9 @@ def model_from_core(name: str, group: str, module: str, doc: str, **own: tuple[t
                         **own, **core_fields(group))
 
 
-def core_values(config: BaseModel, group: str) -> dict[str, float]:
-    """The core's settings of group ``group`` from a validated ``config``, as the core takes them."""
-    return {name: float(getattr(config, name)) for name, *_ in _core.settings_schema(group)}
+def core_values(config: BaseModel, group: str) -> dict[str, float | str]:
+    """The core's settings of group ``group`` from a validated ``config``, as the core takes them (a number as a
+    float, a choice as its name)."""
+    return {name: getattr(config, name) if kind == "choice" else float(getattr(config, name))
+            for name, kind, *_ in _core.settings_schema(group)}
 
