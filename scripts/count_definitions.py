@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Counts of what the estimator defines more than once: the places each soil and torque-scale setting
-is written, the places that list the records' statuses or reason codes, and the estimator settings a
+"""Counts of what the estimator defines more than once: the places each soil, torque-scale, usability,
+curve-learner and observer setting is written, the places that list the records' statuses or reason codes, and the estimator settings a
 user sets.
 
     scripts/count_definitions.py                    # the working tree
@@ -28,7 +28,7 @@ from collections import Counter
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-GROUPS = ("soil", "torque_scale", "usability", "curve")
+GROUPS = ("soil", "torque_scale", "usability", "curve", "observer")
 
 
 def files(rev: str | None, suffix: str, under: str) -> dict[str, str]:
@@ -48,11 +48,12 @@ def setting_names() -> dict[str, list[str]]:
     from soilocp import _core
     from soilocp.estimation.soil_config import SoilConfig
     from soilocp.estimation.curve_config import CurveConfig
+    from soilocp.estimation.observer_config import ObserverConfig
     from soilocp.estimation.torque_scale_config import TorqueScaleConfig
     from soilocp.estimation.wheel_usability import UsabilityLimits
 
     out = {}
-    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig, UsabilityLimits, CurveConfig)):
+    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig, UsabilityLimits, CurveConfig, ObserverConfig)):
         names = [n for n, *_ in _core.settings_schema(group)]
         out[group] = names + [n for n in model.model_fields if n not in names]
     return out
@@ -97,7 +98,7 @@ def rust_places(text: str, names: set[str]) -> Counter:
     array, a from_map, a defaults(), a declaration block)."""
     places: Counter = Counter()
     for pat in (r"^\s*pub (\w+): f64,", r'^\s*"(\w+)",\s*$', r'get\("(\w+)"',
-                r"^\s*(\w+): -?[0-9][0-9._]*(?: \* [0-9._]+)?,\s*$", r"^\s*(\w+): (?:Float|Int) = "):
+                r"^\s*(\w+): -?[0-9][0-9._]*(?: \* [0-9._]+)?,\s*$", r"^\s*(\w+): (?:Float|Int|Choice) = "):
         hits = [m.group(1) for m in re.finditer(pat, text, flags=re.M) if m.group(1) in names]
         if len(set(hits)) >= 3:
             places.update(hits)

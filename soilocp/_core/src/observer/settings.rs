@@ -166,15 +166,8 @@ impl ObserverSettings {
             self.speed_bias_bound,
         );
         Ok(FilterSettings {
-            gate_sigma: self.gate_sigma,
-            gate_patience: self.gate_patience as i64,
-            max_gap: self.max_gap,
-            anchor_speed: self.anchor_speed,
-            variance_floor: self.variance_floor,
-            variance_ceiling: self.variance_ceiling,
-            travel_speed: self.travel_speed,
+            s: *self,
             bridge_slip,
-            gravity: self.gravity,
             r,
             q: sq(layout.per_state(
                 self.q_mu,
@@ -208,16 +201,12 @@ impl ObserverSettings {
         })
     }
 
-    /// The readings clock's and the latency fit's settings for a vehicle's drive (`per_side`: a
-    /// side's encoder) and encoder (`interval_mean`: its reading is the interval's mean speed).
+    /// What the vehicles' step reads of a vehicle's drive (`per_side`: a side's encoder) and
+    /// encoder (`interval_mean`: its reading is the interval's mean speed).
     pub fn reading(&self, per_side: bool, interval_mean: bool) -> Reading {
         Reading {
             per_side,
             interval_mean,
-            full_rate_share: self.full_rate_share,
-            repeat_window: self.repeat_window,
-            latency_window: self.latency_window,
-            latency_max: self.ground_speed_latency_max,
             mu_var_determined: self.mu_std_determined * self.mu_std_determined,
         }
     }

@@ -271,7 +271,7 @@ impl ObserverCore {
             &l,
             &f.vehicle,
             &x,
-            f.settings.travel_speed,
+            f.settings.s.travel_speed,
             f.settings.bridge_slip,
             &mut m,
         );
@@ -280,7 +280,7 @@ impl ObserverCore {
             &f.vehicle,
             &fz,
             &torque,
-            f.settings.gravity * pitch.sin(),
+            f.settings.s.gravity * pitch.sin(),
             &m,
             &mut a,
             &mut b,
