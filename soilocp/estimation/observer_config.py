@@ -12,7 +12,7 @@ from __future__ import annotations
 from soilocp.estimation.settings_model import model_from_core
 
 ObserverConfig = model_from_core(
-    "ObserverConfig", "observer", __name__, "Noise, prior, structure and bounds of the traction observer (module doc).")
+    "ObserverConfig", "observer", __name__, "Noise, prior, structure and bounds of the traction observer.")
 
 #: the observer's structures (a ``Literal`` of the core's choices for ``structure``)
 Structure = ObserverConfig.model_fields["structure"].annotation
