@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Counts of what the estimator defines more than once: the places each soil and torque-scale setting
-is written, the places that list the records' statuses or reason codes, and the estimator settings a
+"""Counts of what the estimator defines more than once: the places each soil, torque-scale, usability,
+curve-learner and observer setting is written, the places that list the records' statuses or reason codes, and the estimator settings a
 user sets.
 
     scripts/count_definitions.py                    # the working tree
@@ -13,8 +13,11 @@ or more setting names (``_CORE_FIELDS``, a name -> value dict handed to the core
 field (``pub name: f64``), an entry of a const name array, a ``get("name")`` of a hand-written
 ``from_map``, a ``name: 0.5`` of a hand-written ``defaults()``, or a ``settings_struct!`` declaration.
 A place that defines the statuses or reasons lists four or more of their names (a Literal, a tuple, a
-dict's keys, a const array of a Rust file).  The settings counted are those the compiled core declares
-(``soilocp._core.settings_schema``) and the models' own fields.
+dict's keys, a const array of a Rust file).  A dataclass field made by ``from_core`` (its default and bounds
+read from the core's declaration) uses a setting, it does not define it; a ``model_from_core`` model's own
+fields count for its own group only (``torque_scale.enabled`` and ``curve.enabled`` are two settings).  The
+settings counted are those the compiled core declares (``soilocp._core.settings_schema``) and the models' own
+fields.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from collections import Counter
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-GROUPS = ("soil", "torque_scale", "usability", "curve")
+GROUPS = ("soil", "torque_scale", "usability", "curve", "observer")
 
 
 def files(rev: str | None, suffix: str, under: str) -> dict[str, str]:
@@ -48,11 +51,12 @@ def setting_names() -> dict[str, list[str]]:
     from soilocp import _core
     from soilocp.estimation.soil_config import SoilConfig
     from soilocp.estimation.curve_config import CurveConfig
+    from soilocp.estimation.observer_config import ObserverConfig
     from soilocp.estimation.torque_scale_config import TorqueScaleConfig
     from soilocp.estimation.wheel_usability import UsabilityLimits
 
     out = {}
-    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig, UsabilityLimits, CurveConfig)):
+    for group, model in zip(GROUPS, (SoilConfig, TorqueScaleConfig, UsabilityLimits, CurveConfig, ObserverConfig)):
         names = [n for n, *_ in _core.settings_schema(group)]
         out[group] = names + [n for n in model.model_fields if n not in names]
     return out
@@ -75,15 +79,22 @@ def _strings(node: ast.AST) -> list[str]:
     return out
 
 
-def python_places(text: str, names: set[str]) -> Counter:
+def _from_core(value: ast.AST | None) -> bool:
+    """A field's value that reads the core's declaration (``from_core(group, name)``)."""
+    return isinstance(value, ast.Call) and getattr(value.func, "id", "") == "from_core"
+
+
+def python_places(text: str, names: set[str], group: str | None = None) -> Counter:
     places: Counter = Counter()
     for node in ast.walk(ast.parse(text)):
         found: list[str] = []
         if isinstance(node, ast.ClassDef):  # a settings model: a class with three or more of the fields
             found = [st.target.id for st in node.body if isinstance(st, ast.AnnAssign)
-                     and isinstance(st.target, ast.Name) and st.target.id in names]
+                     and isinstance(st.target, ast.Name) and st.target.id in names and not _from_core(st.value)]
         elif isinstance(node, ast.Call) and getattr(node.func, "id", "") in ("create_model", "model_from_core"):
-            places.update(kw.arg for kw in node.keywords if kw.arg in names)  # a model's own fields, however few
+            of = node.args[1].value if len(node.args) > 1 and isinstance(node.args[1], ast.Constant) else None
+            if group is None or of is None or of == group:  # a model's own fields, however few
+                places.update(kw.arg for kw in node.keywords if kw.arg in names)
             continue
         else:
             found = list({s for s in _strings(node) if s in names})
@@ -97,7 +108,7 @@ def rust_places(text: str, names: set[str]) -> Counter:
     array, a from_map, a defaults(), a declaration block)."""
     places: Counter = Counter()
     for pat in (r"^\s*pub (\w+): f64,", r'^\s*"(\w+)",\s*$', r'get\("(\w+)"',
-                r"^\s*(\w+): -?[0-9][0-9._]*(?: \* [0-9._]+)?,\s*$", r"^\s*(\w+): (?:Float|Int) = "):
+                r"^\s*(\w+): -?[0-9][0-9._]*(?: \* [0-9._]+)?,\s*$", r"^\s*(\w+): (?:Float|Int|Choice) = "):
         hits = [m.group(1) for m in re.finditer(pat, text, flags=re.M) if m.group(1) in names]
         if len(set(hits)) >= 3:
             places.update(hits)
@@ -112,7 +123,7 @@ def setting_counts(rev: str | None) -> dict[str, Counter]:
         c: Counter = Counter({n: 0 for n in names})
         for text in py.values():
             try:
-                c.update(python_places(text, set(names)))
+                c.update(python_places(text, set(names), group))
             except SyntaxError:
                 pass
         for path, text in rs.items():

@@ -20,8 +20,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from soilocp.estimation.observer import (N_MEAS, ObserverConfig, StateLayout, continuous_process_noise,
-                                         initial_covariance)
+from soilocp.estimation.observer import N_MEAS, ObserverConfig, StateLayout
 from soilocp.estimation.observer_bank import LIFT_OFF_FORCE
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.normal_force import STANDARD_GRAVITY
@@ -624,6 +623,30 @@ class ObserverEstimate:
     pairs: IntervalTraction | None = None  # each field (4,)
 
 
+def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
+    """Q (n, n): diagonal random-walk intensities of the states, squared (the core's
+    ObserverSettings::filter)."""
+    c = cfg
+    return np.diag(layout.per_state(c.q_mu, c.q_resistance, c.q_resistance_slope, c.q_lateral, c.q_wheel_speed,
+                                    c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
+
+
+def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
+    """P_0 (n, n): diagonal, from the config's initial 1-sigmas (speeds from their sensors' noise)."""
+    c = cfg
+    return np.diag(layout.per_state(c.p0_mu, c.p0_resistance, c.p0_resistance_slope, c.p0_lateral, c.r_wheel_speed,
+                                    c.p0_speed, c.r_yaw_rate, c.p0_speed_bias) ** 2)
+
+
+def state_bounds(layout: StateLayout, cfg: ObserverConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) physical box of the state (docs/method.md §12); speeds unbounded (the divergence guard
+    watches them)."""
+    inf = np.inf
+    hi = layout.per_state(cfg.mu_bound, cfg.resistance_bound, cfg.resistance_slope_bound, cfg.lateral_bound,
+                          inf, inf, inf, cfg.speed_bias_bound)
+    return -hi, hi
+
+
 class TractionObserver:
     """One vehicle's traction observer on filterpy's KalmanFilter (the kernel's reference)."""
 
@@ -646,7 +669,7 @@ class TractionObserver:
         self._latency = (GroundSpeedLatency(1, cfg.latency_window, cfg.ground_speed_latency_max)
                          if cfg.ground_speed_latency_max > 0 else None)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
-        self._lower, self._upper = L.bounds(cfg)
+        self._lower, self._upper = state_bounds(L, cfg)
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:

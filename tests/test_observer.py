@@ -7,14 +7,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from reference_observer import TractionObserver, continuous_model, discretize, model, resistance_map, travel_direction
+from reference_observer import (TractionObserver, continuous_model, continuous_process_noise, discretize, model,
+                                resistance_map, travel_direction)
 from soilocp.model.constants import DEFAULT_CONSTANTS
 from soilocp.model.normal_force import STANDARD_GRAVITY, normal_forces
-from soilocp.estimation.observer import (
-    ObserverConfig,
-    StateLayout,
-    continuous_process_noise,
-)
+from soilocp.estimation.observer import ObserverConfig, StateLayout
 from soilocp.estimation.observer_bank import ObserverBank, ObserverInputs, observability_rank
 from soilocp.model.vehicle import DEFAULT_VEHICLE as V
 

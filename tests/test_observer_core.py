@@ -182,15 +182,21 @@ def test_core_refuses_malformed_calls_naming_the_argument():
         core.step(np.array([0]), ObserverInputs(**dict(ok, wheel_speed=[[1, 2, 3, 4]])))
     # nothing stepped on a refused call
     assert bank.resets_by_reason["start"] == 0
-    args = ("paper", 1, [1.0] * 8, [0.0] * 4, 5.0, 10, 0.5, 0.3, 1e-10, 1e4, 0.05, 0.005, 9.8,
-            [1.0] * 7, [1.0] * 14, [1.0] * 14, [-1.0] * 14, [1.0] * 14, [1.0] * 5)
-    kw = dict(per_side=False, interval_mean=False, full_rate_share=0.5, repeat_window=0.5, latency_window=30.0,
-              latency_max=0.3, refresh_jerk=50.0, refresh_min_interval=0.1, refresh_max_interval=1.0,
-              speed_sigma=0.03, mu_var_determined=0.0225)
-    with pytest.raises(ValueError, match="observer structure must be slip, shared, per_wheel or none"):
-        ObserverCore(*args, **kw)
-    with pytest.raises(ValueError, match="settings.q must have 14 entries"):
-        ObserverCore("slip", *args[1:14], [1.0] * 12, *args[15:], **kw)
+    # the settings, whole, by name: the core checks them as ObserverConfig does, naming the setting
+    args = (1, [1.0] * 8, [0.0] * 4)
+    kw = dict(per_side=False, interval_mean=False, bridge_slip=0.005)
+    with pytest.raises(ValueError, match='observer settings: structure = "paper" must be one of slip, shared, '
+                                         'per_wheel, none'):
+        ObserverCore(*args, {"structure": "paper"}, **kw)
+    with pytest.raises(ValueError, match="observer settings: gate_patience = 1.5 must be a whole number"):
+        ObserverCore(*args, {"gate_patience": 1.5}, **kw)
+    with pytest.raises(ValueError, match="observer settings: full_rate_share = 1 must be < 1"):
+        ObserverCore(*args, {"full_rate_share": 1.0}, **kw)
+    with pytest.raises(ValueError, match='unknown setting "q_muu"'):
+        ObserverCore(*args, {"q_muu": 1.0}, **kw)
+    with pytest.raises(ValueError, match="discretization \"expm\": the observer kernel implements 'series' only"):
+        ObserverCore(*args, {"discretization": "expm"}, **kw)
+    ObserverCore(*args, {}, **kw)  # every setting at its default
 
 
 def test_the_bank_names_a_malformed_input_field():

@@ -41,6 +41,7 @@ from typing import Literal
 
 import numpy as np
 
+from soilocp.estimation.settings_model import check_from_core, from_core
 from soilocp.model.force_balance import longitudinal_balance
 from soilocp.model.normal_force import gravity_from_attitude
 from soilocp.model.vehicle import VehicleParams
@@ -48,13 +49,15 @@ from soilocp.model.vehicle import VehicleParams
 
 @dataclass(frozen=True)
 class TorqueSelection:
-    """Which stretches of a log enter the fit (see the module doc)."""
+    """Which stretches of a log enter the fit (see the module doc).  The slow, turning and gap rules are the
+    online torque scale's (its settings min_speed, max_yaw_rate, max_gap, declared in the core); the window is
+    this fit's own: shorter than the online scale's, for more, nearly independent windows."""
 
     window: float = 0.5  #: s, length of the averaging windows
-    min_speed: float = 0.2  #: m/s
-    max_yaw_rate: float = 0.1  #: rad/s
+    min_speed: float = from_core("torque_scale", "min_speed")  #: m/s
+    max_yaw_rate: float = from_core("torque_scale", "max_yaw_rate")  #: rad/s
     saturation: float | None = None  #: |logged torque| per wheel at or above this is clipped; None: none known
-    max_gap: float = 0.25  #: s, a larger step between stamps ends the window
+    max_gap: float = from_core("torque_scale", "max_gap")  #: s, a larger step between stamps ends the window
     min_windows: int = 10
     max_rel_std: float = 0.1  #: k_std / k above this: not determined
     #: m/s^2: the windows' mean f_x must spread (std) at least this much.  Motion resistance is
@@ -65,7 +68,8 @@ class TorqueSelection:
     accel: Literal["imu", "ground_speed"] = "imu"
 
     def __post_init__(self) -> None:
-        for name in ("window", "min_speed", "max_yaw_rate", "max_gap", "max_rel_std", "min_accel_spread"):
+        check_from_core(self)
+        for name in ("window", "max_rel_std", "min_accel_spread"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")

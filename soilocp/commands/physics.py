@@ -239,9 +239,11 @@ COMMANDS = [ocp, curves, calibrate]
               help="Vehicle JSON (mass, wheel radius and inertia enter the force balance).")
 @click.option("--accel", type=click.Choice(["imu", "ground_speed"]), default="imu", show_default=True,
               help="Acceleration from the IMU's f_x, or from the ground speed's change + pitch's gravity.")
-@click.option("--window", default=0.5, show_default=True, help="Averaging window, s.")
-@click.option("--min-speed", default=0.2, show_default=True, help="Windows slower than this (m/s) are skipped.")
-@click.option("--max-yaw-rate", default=0.1, show_default=True, help="Windows turning faster (rad/s) are skipped.")
+@click.option("--window", type=float, default=None, help="Averaging window, s (default: the fit's own, shorter than the online torque scale's).")
+@click.option("--min-speed", type=float, default=None,
+              help="Windows slower than this (m/s) are skipped (default: the online torque scale's min_speed).")
+@click.option("--max-yaw-rate", type=float, default=None,
+              help="Windows turning faster (rad/s) are skipped (default: the online torque scale's max_yaw_rate).")
 @click.option("--saturation", type=float, default=None, help="|logged torque| per wheel at which it clips.")
 @click.option("--scale", "old_scale", type=float, default=None,
               help="The effort_scale / current_to_torque the log was imported with (to print the new one).")
@@ -259,8 +261,8 @@ def calibrate_torque(log, vehicle_path, accel, window, min_speed, max_yaw_rate, 
 
     try:
         vehicle = load_vehicle(vehicle_path)
-        sel = TorqueSelection(window=window, min_speed=min_speed, max_yaw_rate=max_yaw_rate, saturation=saturation,
-                              accel=accel)
+        given = dict(window=window, min_speed=min_speed, max_yaw_rate=max_yaw_rate)
+        sel = TorqueSelection(saturation=saturation, accel=accel, **{k: v for k, v in given.items() if v is not None})
         fit = fit_torque_constant(read_jsonl(log), vehicle, sel)
     except ValueError as exc:
         raise BadInput(str(exc)) from None

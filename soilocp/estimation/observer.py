@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from soilocp.estimation.observer_config import ObserverConfig, Structure
+from soilocp.estimation.observer_config import ObserverConfig, Structure  # noqa: F401 (re-exported)
 
 
 @dataclass(frozen=True)
@@ -118,28 +118,6 @@ class StateLayout:
         out[self.bias] = bias
         return out
 
-    def bounds(self, cfg: "ObserverConfig") -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) physical box of the state (docs/method.md §12: a net traction coefficient of 3
-        is not a soil); speeds are unbounded here (the divergence guard watches them)."""
-        inf = np.inf
-        hi = self.per_state(cfg.mu_bound, cfg.resistance_bound, cfg.resistance_slope_bound, cfg.lateral_bound,
-                            inf, inf, inf, cfg.speed_bias_bound)
-        return -hi, hi
-
 
 # measurement rows: f_x, yaw rate, omega_1..4, ground speed
 N_MEAS = 7
-
-
-def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
-    """Q (n, n): diagonal random-walk intensities of the states, squared."""
-    c = cfg
-    return np.diag(layout.per_state(c.q_mu, c.q_resistance, c.q_resistance_slope, c.q_lateral, c.q_wheel_speed,
-                                    c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
-
-
-def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
-    """P_0 (n, n): diagonal, from the config's initial 1-sigmas (speeds from their sensors' noise)."""
-    c = cfg
-    return np.diag(layout.per_state(c.p0_mu, c.p0_resistance, c.p0_resistance_slope, c.p0_lateral, c.r_wheel_speed,
-                                    c.p0_speed, c.r_yaw_rate, c.p0_speed_bias) ** 2)

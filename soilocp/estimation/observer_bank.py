@@ -51,8 +51,9 @@ import numpy as np
 from soilocp.schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
-from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
+from soilocp.estimation.observer import ObserverConfig, StateLayout
 from soilocp.estimation.observer_config import Structure
+from soilocp.estimation.settings_model import core_values
 from soilocp.model.checks import check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, STANDARD_GRAVITY
 from soilocp.model.vehicle import VehicleParams
@@ -208,26 +209,13 @@ class ObserverBank:
         also bridges the constant part of eq. 4's motion resistance in the observer's model."""
         self.vehicle = vehicle
         self.cfg = cfg = config or ObserverConfig()
-        if cfg.discretization != "series":
-            raise ValueError(f"discretization {cfg.discretization!r}: the observer kernel implements 'series' only")
         self.n_vehicles = n = check_count(n_vehicles)
-        self.layout = L = StateLayout.of(cfg.structure)
-        r_speed = cfg.r_wheel_speed**2 * (2.0 if vehicle.drive == "per_side" else 1.0)
-        r = [cfg.r_specific_force**2, cfg.r_yaw_rate**2, *([r_speed] * 4), cfg.r_ground_speed**2]
-        lower, upper = L.bounds(cfg)
+        self.layout = StateLayout.of(cfg.structure)
         v = vehicle
         self._core = ObserverCore(
-            cfg.structure, n, [v.mass, v.wheel_radius, v.wheel_inertia, v.yaw_inertia, v.a, v.b, v.c, v.d],
-            [float(y) for y in v.wheel_y], cfg.gate_sigma, cfg.gate_patience, cfg.max_gap, cfg.anchor_speed,
-            cfg.variance_floor, cfg.variance_ceiling, cfg.travel_speed, bridge_slip, cfg.gravity, r,
-            np.diagonal(continuous_process_noise(L, cfg)).tolist(), np.diagonal(initial_covariance(L, cfg)).tolist(),
-            lower.tolist(), upper.tolist(), [cfg.max_wheel_speed] * 4 + [cfg.max_ground_speed],
-            per_side=vehicle.drive == "per_side", interval_mean=vehicle.wheel_speed_reading == "interval_mean",
-            full_rate_share=cfg.full_rate_share, repeat_window=cfg.repeat_window,
-            latency_window=cfg.latency_window, latency_max=cfg.ground_speed_latency_max,
-            refresh_jerk=cfg.refresh_jerk, refresh_min_interval=cfg.refresh_min_interval,
-            refresh_max_interval=cfg.refresh_max_interval, speed_sigma=cfg.r_wheel_speed,
-            mu_var_determined=cfg.mu_std_determined**2)
+            n, [v.mass, v.wheel_radius, v.wheel_inertia, v.yaw_inertia, v.a, v.b, v.c, v.d],
+            [float(y) for y in v.wheel_y], core_values(cfg, "observer"), per_side=vehicle.drive == "per_side",
+            interval_mean=vehicle.wheel_speed_reading == "interval_mean", bridge_slip=bridge_slip)
 
     @property
     def last_stamp(self) -> np.ndarray:

@@ -3,33 +3,16 @@
 //! fit, refresh pairs), on a drive whose speeds, torques and forces keep changing (constant inputs
 //! let P decay into subnormal numbers, each a slow operation):
 //! `cargo run --release --example observer_step_time [STEPS]`.
-use _core::observer::bank::{FilterBank, Sample, Settings};
-use _core::observer::intervals::IntervalSettings;
-use _core::observer::layout::Layout;
+use _core::observer::bank::{FilterBank, Sample};
 use _core::observer::model::ROVER;
-use _core::observer::vehicles::{ObserverBank, Raw, Reading};
+use _core::observer::settings::ObserverSettings;
+use _core::observer::vehicles::{ObserverBank, Raw};
 
 fn main() {
-    let l = Layout::of("slip").unwrap();
+    let settings = ObserverSettings::default();
+    let l = settings.layout();
     let v = ROVER;
-    let n = l.n();
-    let s = Settings {
-        gate_sigma: 5.0,
-        gate_patience: 10,
-        max_gap: 0.5,
-        anchor_speed: 0.3,
-        variance_floor: 1e-10,
-        variance_ceiling: 1e4,
-        travel_speed: 0.05,
-        bridge_slip: 0.005,
-        gravity: 9.80665,
-        r: [0.0064, 1e-4, 9e-4, 9e-4, 9e-4, 9e-4, 4e-4],
-        q: l.per_state(1.0, 0.01, 0.01, 0.09, 0.09, 0.01, 0.04, 2.5e-5),
-        p0: l.per_state(0.25, 0.04, 0.25, 0.25, 9e-4, 0.01, 1e-4, 0.0025),
-        lower: vec![-10.0; n],
-        upper: vec![10.0; n],
-        speed_limits: [1000.0, 1000.0, 1000.0, 1000.0, 100.0],
-    };
+    let s = settings.filter(&l, false, 0.005).unwrap();
     let mut bank = FilterBank::new(l, v, s.clone(), 1).unwrap();
     let mut sample = Sample {
         dt: f64::NAN,
@@ -63,24 +46,8 @@ fn main() {
         t.elapsed().as_secs_f64() / steps as f64 * 1e6
     );
 
-    let reading = Reading {
-        per_side: false,
-        interval_mean: false,
-        full_rate_share: 0.5,
-        repeat_window: 0.5,
-        latency_window: 30.0,
-        latency_max: 0.3,
-        mu_var_determined: 0.0225,
-    };
-    let refresh = IntervalSettings {
-        inertia: v.wheel_inertia,
-        radius: v.wheel_radius,
-        jerk: 50.0,
-        min_interval: 0.1,
-        max_interval: 1.0,
-        variance_floor: 1e-10,
-        speed_sigma: 0.03,
-    };
+    let reading = settings.reading(false, false);
+    let refresh = settings.refresh(v.wheel_inertia, v.wheel_radius);
     let mut whole = ObserverBank::new(FilterBank::new(l, v, s, 1).unwrap(), reading, refresh);
     let mut raw = Raw {
         stamp: 0.0,

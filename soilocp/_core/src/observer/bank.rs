@@ -9,6 +9,7 @@ use super::kalman::{condition, gated_update, predict, Workspace};
 use super::layout::{Layout, N_MEAS};
 use super::model::{build, init, resistance_map, Vehicle};
 use super::numeric::{matmul, matvec, nan_max};
+use super::settings::ObserverSettings;
 
 /// Reset reasons, in the order of soilocp.estimation.observer_bank.RESET_REASONS (code = index + 1).
 pub const RESET_REASONS: [&str; 5] = [
@@ -24,18 +25,15 @@ const STAMP_BACKWARDS: u8 = 3;
 const NON_FINITE: u8 = 4;
 const OUT_OF_PHYSICS: u8 = 5;
 
-/// The filter's settings (soilocp.estimation.observer.ObserverConfig, resolved per layout).
+/// The filter's settings: the observer's as declared, and what follows from them for a layout
+/// and a vehicle's drive (ObserverSettings::filter).
 #[derive(Clone, Debug)]
 pub struct Settings {
-    pub gate_sigma: f64,
-    pub gate_patience: i64,
-    pub max_gap: f64,
-    pub anchor_speed: f64,
-    pub variance_floor: f64,
-    pub variance_ceiling: f64,
-    pub travel_speed: f64,
+    /// the observer's settings (the gate, the gap, the anchoring, the conditioning and gravity are
+    /// read here)
+    pub s: ObserverSettings,
+    /// the traction model's zero-slip bridge
     pub bridge_slip: f64,
-    pub gravity: f64,
     /// measurement variances of the 7 rows (the wheel-speed rows doubled for a per-side drive)
     pub r: [f64; N_MEAS],
     /// Q's diagonal, P_0's diagonal, the state's box (n each)
@@ -196,7 +194,7 @@ impl FilterBank {
         let (l, n) = (self.layout, self.layout.n());
         let (radius, speed, r) = (
             self.vehicle.wheel_radius,
-            self.settings.anchor_speed,
+            self.settings.s.anchor_speed,
             self.settings.r[2],
         );
         let x = &mut self.x[g * n..(g + 1) * n];
@@ -232,7 +230,7 @@ impl FilterBank {
             START
         } else if s.dt < 0.0 {
             STAMP_BACKWARDS
-        } else if s.dt > self.settings.max_gap {
+        } else if s.dt > self.settings.s.max_gap {
             TIME_GAP
         } else {
             0
@@ -246,11 +244,11 @@ impl FilterBank {
             &l,
             &self.vehicle,
             &self.x[g * n..(g + 1) * n],
-            st.travel_speed,
+            st.s.travel_speed,
             st.bridge_slip,
             &mut self.m,
         );
-        let g_sin_pitch = st.gravity * s.pitch.sin();
+        let g_sin_pitch = st.s.gravity * s.pitch.sin();
         build(
             &l,
             &self.vehicle,
@@ -284,14 +282,14 @@ impl FilterBank {
                 &z,
                 &st.r,
                 &self.h,
-                st.gate_sigma,
+                st.s.gate_sigma,
                 counts,
-                st.gate_patience,
+                st.s.gate_patience as i64,
                 &available,
                 &mut self.ws,
             );
             out.rejected = (0..N_MEAS).filter(|&i| available[i] && !gated.keep[i]).count() as i64;
-            let anchored = if st.anchor_speed > 0.0 {
+            let anchored = if st.s.anchor_speed > 0.0 {
                 self.anchor(g, &z, &gated.keep, &available)
             } else {
                 [false; 4]
@@ -299,10 +297,18 @@ impl FilterBank {
             let st = &self.settings;
             let x = &mut self.x[g * n..(g + 1) * n];
             let p = &mut self.p[g * n * n..(g + 1) * n * n];
-            let left = left_its_reading(&l, x, &z, &available, &st.r, st.gate_sigma);
+            let left = left_its_reading(&l, x, &z, &available, &st.r, st.s.gate_sigma);
             out.speed_rejected =
                 std::array::from_fn(|w| !anchored[w] && ((available[2 + w] && !gated.keep[2 + w]) || left[w]));
-            condition(x, p, &st.lower, &st.upper, st.variance_floor, st.variance_ceiling, n);
+            condition(
+                x,
+                p,
+                &st.lower,
+                &st.upper,
+                st.s.variance_floor,
+                st.s.variance_ceiling,
+                n,
+            );
         }
         // divergence guard
         let x = &self.x[g * n..(g + 1) * n];
@@ -329,7 +335,7 @@ impl FilterBank {
         let st = &self.settings;
         let x = &self.x[g * n..(g + 1) * n];
         let p = &self.p[g * n * n..(g + 1) * n * n];
-        resistance_map(&l, &self.vehicle, x, st.travel_speed, st.bridge_slip, &mut self.m);
+        resistance_map(&l, &self.vehicle, x, st.s.travel_speed, st.bridge_slip, &mut self.m);
         if l.n_res > 0 {
             matvec(&self.m, &x[l.res()..l.lat()], &mut out.resistance, 4, l.n_res);
         }
@@ -347,7 +353,7 @@ impl FilterBank {
             for c in 0..n {
                 row[c] = jp[i * n + c] * j[i * n + c];
             }
-            out.gross_var[i] = nan_max(row[..n].iter().sum(), st.variance_floor);
+            out.gross_var[i] = nan_max(row[..n].iter().sum(), st.s.variance_floor);
             out.mu_var[i] = p[i * n + i];
             out.gross[i] = x[i] + out.resistance[i];
         }

@@ -21,11 +21,6 @@ pub struct Reading {
     pub per_side: bool,
     /// encoder speeds are count differences, the mean over their interval (docs/method.md §14)
     pub interval_mean: bool,
-    pub full_rate_share: f64,
-    pub repeat_window: f64,
-    /// s: the ground-speed latency fit's memory and the largest latency (0: no fit)
-    pub latency_window: f64,
-    pub latency_max: f64,
     /// mu_i counts as determined while its posterior variance is <= this
     pub mu_var_determined: f64,
 }
@@ -188,11 +183,11 @@ pub struct ObserverBank {
 
 impl ObserverBank {
     pub fn new(filter: FilterBank, reading: Reading, refresh: IntervalSettings) -> ObserverBank {
-        let n = filter.n_vehicles;
+        let (n, s) = (filter.n_vehicles, &filter.settings.s);
+        let latency_max = s.ground_speed_latency_max;
         ObserverBank {
-            readings: ReadingClock::new(n, reading.full_rate_share, reading.repeat_window),
-            latency: (reading.latency_max > 0.0)
-                .then(|| GroundSpeedLatency::new(n, reading.latency_window, reading.latency_max)),
+            readings: ReadingClock::new(n, s.full_rate_share, s.repeat_window),
+            latency: (latency_max > 0.0).then(|| GroundSpeedLatency::new(n, s.latency_window, latency_max)),
             intervals: RefreshIntervals::new(n, refresh),
             last_stamp: vec![f64::NAN; n],
             stray: vec![(0.0, f64::NAN); n],
@@ -204,7 +199,7 @@ impl ObserverBank {
     /// One observer step of vehicle `g` (see the module doc).
     pub fn step(&mut self, g: usize, r: &Raw) -> Estimate {
         let rd_cfg = self.reading;
-        let max_gap = self.filter.settings.max_gap;
+        let max_gap = self.filter.settings.s.max_gap;
         let last = self.last_stamp[g];
         // NaN at a vehicle's first sample
         let dt = r.stamp - last;
@@ -241,7 +236,7 @@ impl ObserverBank {
         }
         // dt == 0 (a repeated stamp) is no restart: only the update runs
         let restart = first || dt < 0.0 || dt > max_gap;
-        let g_sin_pitch = self.filter.settings.gravity * r.pitch.sin();
+        let g_sin_pitch = self.filter.settings.s.gravity * r.pitch.sin();
         let mut ground_speed_z = r.ground_speed;
         let mut latency = 0.0;
         if let Some(fit) = self.latency.as_mut() {

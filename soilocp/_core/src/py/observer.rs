@@ -8,12 +8,15 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReado
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use std::collections::HashMap;
+
 use super::args;
-use crate::observer::bank::{FilterBank, Settings, RESET_REASONS};
-use crate::observer::intervals::IntervalSettings;
-use crate::observer::layout::{Layout, N_MEAS};
+use super::settings::Given;
+use crate::observer::bank::{FilterBank, RESET_REASONS};
+use crate::observer::layout::N_MEAS;
 use crate::observer::model::{build, init, resistance_map, Vehicle};
-use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+use crate::observer::settings::ObserverSettings;
+use crate::observer::vehicles::{Estimate, ObserverBank, Raw, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
 
 /// One step's samples of k vehicles, read by attribute from
 /// soilocp.estimation.observer_bank.ObserverInputs: (k,) stamp, specific force x, yaw rate, pitch,
@@ -177,54 +180,25 @@ impl ObserverCore {
 
 #[pymethods]
 impl ObserverCore {
-    /// The observers of `n_vehicles` vehicles of one kind (`structure`: slip | shared | per_wheel |
-    /// none).  `vehicle`: (mass, wheel_radius, wheel_inertia, yaw_inertia, a, b, c, d); `r`: the 7
-    /// measurement variances; `q`, `p0`, `lower`, `upper`: per state; `speed_limits`: |omega_1..4|
-    /// and |V| above which a state has diverged; `per_side` / `interval_mean`: the vehicle's drive
-    /// and encoder reading; the readings clock's `full_rate_share` / `repeat_window`; the
-    /// ground-speed latency fit's `latency_window` / `latency_max` (0: none); the refresh pairs'
-    /// `refresh_jerk`, `refresh_min_interval`, `refresh_max_interval` and `speed_sigma` (the
-    /// encoder's 1-sigma); `mu_var_determined`: mu's variance up to which it is determined.
+    /// The observers of `n_vehicles` vehicles of one kind.  `vehicle`: (mass, wheel_radius,
+    /// wheel_inertia, yaw_inertia, a, b, c, d); `wheel_y`: the wheels' lateral positions;
+    /// `settings`: the observer's settings by name (crate::observer::settings, ObserverConfig's
+    /// fields; a missing one at its default, an unknown or invalid one a ValueError naming it);
+    /// `per_side` / `interval_mean`: the vehicle's drive and encoder reading; `bridge_slip`: the
+    /// traction model's zero-slip bridge.
     #[new]
-    #[pyo3(signature = (structure, n_vehicles, vehicle, wheel_y, gate_sigma, gate_patience, max_gap,
-                        anchor_speed, variance_floor, variance_ceiling, travel_speed, bridge_slip,
-                        gravity, r, q, p0, lower, upper, speed_limits, *, per_side, interval_mean,
-                        full_rate_share, repeat_window, latency_window, latency_max, refresh_jerk,
-                        refresh_min_interval, refresh_max_interval, speed_sigma, mu_var_determined))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (n_vehicles, vehicle, wheel_y, settings, *, per_side, interval_mean, bridge_slip))]
     fn py_new(
-        structure: &str,
         n_vehicles: usize,
         vehicle: Vec<f64>,
         wheel_y: Vec<f64>,
-        gate_sigma: f64,
-        gate_patience: i64,
-        max_gap: f64,
-        anchor_speed: f64,
-        variance_floor: f64,
-        variance_ceiling: f64,
-        travel_speed: f64,
-        bridge_slip: f64,
-        gravity: f64,
-        r: Vec<f64>,
-        q: Vec<f64>,
-        p0: Vec<f64>,
-        lower: Vec<f64>,
-        upper: Vec<f64>,
-        speed_limits: Vec<f64>,
+        settings: HashMap<String, Given>,
         per_side: bool,
         interval_mean: bool,
-        full_rate_share: f64,
-        repeat_window: f64,
-        latency_window: f64,
-        latency_max: f64,
-        refresh_jerk: f64,
-        refresh_min_interval: f64,
-        refresh_max_interval: f64,
-        speed_sigma: f64,
-        mu_var_determined: f64,
+        bridge_slip: f64,
     ) -> PyResult<Self> {
-        let layout = Layout::of(structure).map_err(PyValueError::new_err)?;
+        let s = ObserverSettings::from_map(&settings).map_err(PyValueError::new_err)?;
+        let layout = s.layout();
         let [mass, wheel_radius, wheel_inertia, yaw_inertia, a, b, c, d] = fixed::<8>("vehicle", &vehicle)?;
         let vehicle = Vehicle {
             mass,
@@ -237,44 +211,16 @@ impl ObserverCore {
             d,
             wheel_y: fixed::<4>("wheel_y", &wheel_y)?,
         };
-        let settings = Settings {
-            gate_sigma,
-            gate_patience,
-            max_gap,
-            anchor_speed,
-            variance_floor,
-            variance_ceiling,
-            travel_speed,
-            bridge_slip,
-            gravity,
-            r: fixed::<N_MEAS>("r", &r)?,
-            q,
-            p0,
-            lower,
-            upper,
-            speed_limits: fixed::<5>("speed_limits", &speed_limits)?,
-        };
-        let filter = FilterBank::new(layout, vehicle, settings, n_vehicles).map_err(PyValueError::new_err)?;
-        let reading = Reading {
-            per_side,
-            interval_mean,
-            full_rate_share,
-            repeat_window,
-            latency_window,
-            latency_max,
-            mu_var_determined,
-        };
-        let refresh = IntervalSettings {
-            inertia: wheel_inertia,
-            radius: wheel_radius,
-            jerk: refresh_jerk,
-            min_interval: refresh_min_interval,
-            max_interval: refresh_max_interval,
-            variance_floor,
-            speed_sigma,
-        };
+        let filter_settings = s
+            .filter(&layout, per_side, bridge_slip)
+            .map_err(PyValueError::new_err)?;
+        let filter = FilterBank::new(layout, vehicle, filter_settings, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(ObserverCore {
-            inner: ObserverBank::new(filter, reading, refresh),
+            inner: ObserverBank::new(
+                filter,
+                s.reading(per_side, interval_mean),
+                s.refresh(wheel_inertia, wheel_radius),
+            ),
         })
     }
 
@@ -325,7 +271,7 @@ impl ObserverCore {
             &l,
             &f.vehicle,
             &x,
-            f.settings.travel_speed,
+            f.settings.s.travel_speed,
             f.settings.bridge_slip,
             &mut m,
         );
@@ -334,7 +280,7 @@ impl ObserverCore {
             &f.vehicle,
             &fz,
             &torque,
-            f.settings.gravity * pitch.sin(),
+            f.settings.s.gravity * pitch.sin(),
             &m,
             &mut a,
             &mut b,

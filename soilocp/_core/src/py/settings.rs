@@ -5,13 +5,38 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::curve::Params as CurveParams;
+use crate::observer::settings::ObserverSettings;
 use crate::settings::{Audience, Kind, Spec};
 use crate::soil::params::Params as SoilParams;
 use crate::soil::usability::Limits;
 use crate::torque_scale::params::Settings as TorqueScaleSettings;
 
-/// One declaration as Python sees it: (name, "float" | "int", default, {"gt" | "ge" | "lt" |
-/// "le": bound}, unit, "user" | "internal", description).
+/// A setting's value as Python gives it: a number, or a choice's name.
+#[derive(FromPyObject)]
+pub enum Given {
+    Number(f64),
+    Name(String),
+}
+
+impl crate::settings::Given for Given {
+    fn number(&self) -> Option<f64> {
+        match self {
+            Given::Number(v) => Some(*v),
+            Given::Name(_) => None,
+        }
+    }
+
+    fn name(&self) -> Option<&str> {
+        match self {
+            Given::Number(_) => None,
+            Given::Name(n) => Some(n),
+        }
+    }
+}
+
+/// One declaration as Python sees it: (name, "float" | "int" | "choice", default (a choice's: its
+/// index in the choices), {"gt" | "ge" | "lt" | "le": bound}, unit, "user" | "internal",
+/// description, the choices (empty for a number)).
 type Row = (
     &'static str,
     &'static str,
@@ -20,6 +45,7 @@ type Row = (
     &'static str,
     &'static str,
     String,
+    Vec<&'static str>,
 );
 
 fn row(s: &Spec) -> Row {
@@ -31,16 +57,27 @@ fn row(s: &Spec) -> Row {
     let kind = match s.kind {
         Kind::Float => "float",
         Kind::Int => "int",
+        Kind::Choice => "choice",
     };
     let audience = match s.audience {
         Audience::User => "user",
         Audience::Internal => "internal",
     };
     let doc = s.doc.split_whitespace().collect::<Vec<_>>().join(" ");
-    (s.name, kind, s.default, bounds, s.unit, audience, doc)
+    (
+        s.name,
+        kind,
+        s.default,
+        bounds,
+        s.unit,
+        audience,
+        doc,
+        s.choices.to_vec(),
+    )
 }
 
-/// The declarations of the settings group `group` ("soil", "torque_scale", "usability", "curve"), in order.
+/// The declarations of the settings group `group` ("soil", "torque_scale", "usability", "curve",
+/// "observer"), in order.
 #[pyfunction]
 pub fn settings_schema(group: &str) -> PyResult<Vec<Row>> {
     let specs: &[Spec] = match group {
@@ -48,9 +85,10 @@ pub fn settings_schema(group: &str) -> PyResult<Vec<Row>> {
         TorqueScaleSettings::GROUP => TorqueScaleSettings::SPECS,
         Limits::GROUP => Limits::SPECS,
         CurveParams::GROUP => CurveParams::SPECS,
+        ObserverSettings::GROUP => ObserverSettings::SPECS,
         other => {
             return Err(PyValueError::new_err(format!(
-                "no settings group {other:?} (have: soil, torque_scale, usability, curve)"
+                "no settings group {other:?} (have: soil, torque_scale, usability, curve, observer)"
             )))
         }
     };

@@ -112,7 +112,7 @@ mod tests {
     #[test]
     fn the_declarations_are_the_defaults_and_a_bad_value_is_named() {
         let d = Params::default();
-        assert_eq!(Params::from_map(&HashMap::new()).unwrap(), d);
+        assert_eq!(Params::from_map(&HashMap::<String, f64>::new()).unwrap(), d);
         assert_eq!(Params::SPECS.len(), 35);
         assert_eq!(d.grid_points, 241.0);
         let m: HashMap<String, f64> = [("temper".to_string(), 1.5)].into();
