@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -14,7 +14,7 @@ use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank::{self, Sample};
 use crate::torque_scale::params::{Derived, Params, Settings};
 
-use super::args::{check_len, check_quads};
+use super::args::{check_len, check_quads, row};
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 /// `apply`'s result: the scaled torques (k, 4) and K's band scale (k,), or None (never learnt).
@@ -26,10 +26,6 @@ fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult
     } else {
         Err(PyValueError::new_err(format!("inputs.{name} must be finite")))
     }
-}
-
-fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
-    [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
 }
 
 /// The torque scales of N vehicles (docs/method.md §15).
