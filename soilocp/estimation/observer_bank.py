@@ -51,6 +51,7 @@ import numpy as np
 from soilocp.schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
+from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.observer import ObserverConfig, StateLayout, continuous_process_noise, initial_covariance
 from soilocp.estimation.observer_config import Structure
 from soilocp.model.checks import check_count, check_index
@@ -229,25 +230,12 @@ class ObserverBank:
             refresh_max_interval=cfg.refresh_max_interval, speed_sigma=cfg.r_wheel_speed,
             mu_var_determined=cfg.mu_std_determined**2)
 
-    @property
-    def last_stamp(self) -> np.ndarray:
-        """Each vehicle's last stamp (N,), NaN before its first sample: the core's clock (a copy)."""
-        return self._core.last_stamp
-
-    @property
-    def x(self) -> np.ndarray:
-        """The states (N, n) (a copy)."""
-        return self._core.x
-
-    @property
-    def P(self) -> np.ndarray:
-        """The covariances (N, n, n) (a copy)."""
-        return self._core.P
-
-    @property
-    def rejections(self) -> np.ndarray:
-        """Consecutive gate rejections of each measurement row (N, 7) (a copy)."""
-        return self._core.rejections
+    # the core's state, as it holds it (each a copy)
+    last_stamp = core_attribute(
+        "last_stamp", "Each vehicle's last stamp (N,), NaN before its first sample: the core's clock (a copy).")
+    x = core_attribute("x", "The states (N, n) (a copy).")
+    P = core_attribute("P", "The covariances (N, n, n) (a copy).")
+    rejections = core_attribute("rejections", "Consecutive gate rejections of each measurement row (N, 7) (a copy).")
 
     @property
     def resets_by_reason(self) -> dict[str, int]:

@@ -41,6 +41,7 @@ from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.soil_config import SoilConfig, Status
 from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
@@ -125,25 +126,16 @@ class SoilBank:
         #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
-    @property
-    def p(self) -> np.ndarray:
-        """The pooled beliefs over the grid (N, G) (a copy)."""
-        return self.core.p
-
-    @property
-    def w_stay(self) -> np.ndarray:
-        """P(no change since the change last taken | data) per vehicle (N,) (a copy)."""
-        return self.core.w_stay
-
-    @property
-    def scale_sys(self) -> np.ndarray:
-        """The scale's systematic 1-sigma of ln K, c's mean and 1-sigma, per vehicle (N, 3) (a copy)."""
-        return self.core.scale_sys
-
-    @property
-    def scale_prior(self) -> np.ndarray:
-        """The torque scale's 1-sigma per vehicle (N,): the prior, or the online state's (a copy)."""
-        return self.core.scale_prior
+    # the core's state, as it holds it (each a copy)
+    p = core_attribute("p", "The pooled beliefs over the grid (N, G) (a copy).", "core")
+    w_stay = core_attribute("w_stay", "P(no change since the change last taken | data) per vehicle (N,) (a copy).",
+                            "core")
+    scale_sys = core_attribute(
+        "scale_sys", "The scale's systematic 1-sigma of ln K, c's mean and 1-sigma, per vehicle (N, 3) (a copy).",
+        "core")
+    scale_prior = core_attribute(
+        "scale_prior", "The torque scale's 1-sigma per vehicle (N,): the prior, or the online state's (a copy).",
+        "core")
 
     def start_belief(self, i: int, log_k: float, log_k_std: float, floor: float = 1e-3) -> None:
         """Start vehicle i's belief over again from N(log_k, log_k_std^2) on the grid, with a uniform
