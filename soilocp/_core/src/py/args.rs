@@ -109,3 +109,9 @@ pub fn map_broadcast<R>(
     let (a, b) = broadcast(names, &a, &b)?;
     Ok(Zip::from(&a).and(&b).map_collect(|&a, &b| f(a, b)))
 }
+
+/// One part `part` of every entry of `a`, as a C-ordered array of its shape: how the bindings with
+/// several outputs per pair (eq. 1's slip and scale, a curve's value and derivatives) return each.
+pub fn part<T>(a: &ArrayD<T>, part: impl Fn(&T) -> f64) -> ArrayD<f64> {
+    ArrayD::from_shape_vec(a.raw_dim(), a.iter().map(part).collect()).expect("one value per entry")
+}

@@ -12,15 +12,15 @@ use std::collections::HashMap;
 use crate::slip;
 use crate::soil::usability::{self, Limits};
 
-use super::args::{map_broadcast, quads};
+use super::args::{map_broadcast, part, quads};
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
-/// The two halves of an array of pairs, as two arrays.
+/// The two halves of an array of pairs, as two C-ordered arrays of its shape.
 fn unzip<'py>(py: Python<'py>, pairs: ArrayD<(f64, f64)>) -> (Arr<'py>, Arr<'py>) {
     (
-        pairs.mapv(|p| p.0).into_pyarray(py),
-        pairs.mapv(|p| p.1).into_pyarray(py),
+        part(&pairs, |p| p.0).into_pyarray(py),
+        part(&pairs, |p| p.1).into_pyarray(py),
     )
 }
 

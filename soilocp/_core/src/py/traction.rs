@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 use crate::constants::Constants;
 use crate::traction::{self, Kind};
 
-use super::args::map_broadcast;
+use super::args::{map_broadcast, part};
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
@@ -40,9 +40,9 @@ pub fn traction_curve<'py>(
     let kind = kind(kind_name)?;
     let curves = map_pairs(&slip, &soil_strength, |s, k| traction::curve(kind, s, k, constants))?;
     Ok((
-        curves.mapv(|c| c.value).into_pyarray(py),
-        curves.mapv(|c| c.d_s).into_pyarray(py),
-        curves.mapv(|c| c.d_k).into_pyarray(py),
+        part(&curves, |c| c.value).into_pyarray(py),
+        part(&curves, |c| c.d_s).into_pyarray(py),
+        part(&curves, |c| c.d_k).into_pyarray(py),
     ))
 }
 
