@@ -51,6 +51,7 @@ import numpy as np
 from soilocp.schemas.pipeline import BoolQuad, ObserverOutput, Quad
 
 from soilocp._core import ObserverCore
+from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.observer import ObserverConfig, StateLayout
 from soilocp.estimation.observer_config import Structure
 from soilocp.estimation.settings_model import core_values
@@ -217,25 +218,12 @@ class ObserverBank:
             [float(y) for y in v.wheel_y], core_values(cfg, "observer"), per_side=vehicle.drive == "per_side",
             interval_mean=vehicle.wheel_speed_reading == "interval_mean", bridge_slip=bridge_slip)
 
-    @property
-    def last_stamp(self) -> np.ndarray:
-        """Each vehicle's last stamp (N,), NaN before its first sample: the core's clock (a copy)."""
-        return self._core.last_stamp
-
-    @property
-    def x(self) -> np.ndarray:
-        """The states (N, n) (a copy)."""
-        return self._core.x
-
-    @property
-    def P(self) -> np.ndarray:
-        """The covariances (N, n, n) (a copy)."""
-        return self._core.P
-
-    @property
-    def rejections(self) -> np.ndarray:
-        """Consecutive gate rejections of each measurement row (N, 7) (a copy)."""
-        return self._core.rejections
+    # the core's state, as it holds it (each a copy)
+    last_stamp = core_attribute(
+        "last_stamp", "Each vehicle's last stamp (N,), NaN before its first sample: the core's clock (a copy).")
+    x = core_attribute("x", "The states (N, n) (a copy).")
+    P = core_attribute("P", "The covariances (N, n, n) (a copy).")
+    rejections = core_attribute("rejections", "Consecutive gate rejections of each measurement row (N, 7) (a copy).")
 
     @property
     def resets_by_reason(self) -> dict[str, int]:

@@ -41,6 +41,7 @@ from soilocp import _core
 from soilocp.model.checks import as_float_array, check_count, check_index
 from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
+from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.soil_config import SoilConfig, Status
 from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
@@ -125,25 +126,16 @@ class SoilBank:
         #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
-    @property
-    def p(self) -> np.ndarray:
-        """The pooled beliefs over the grid (N, G) (a copy)."""
-        return self.core.p
-
-    @property
-    def w_stay(self) -> np.ndarray:
-        """P(no change since the change last taken | data) per vehicle (N,) (a copy)."""
-        return self.core.w_stay
-
-    @property
-    def scale_sys(self) -> np.ndarray:
-        """The scale's systematic 1-sigma of ln K, c's mean and 1-sigma, per vehicle (N, 3) (a copy)."""
-        return self.core.scale_sys
-
-    @property
-    def scale_prior(self) -> np.ndarray:
-        """The torque scale's 1-sigma per vehicle (N,): the prior, or the online state's (a copy)."""
-        return self.core.scale_prior
+    # the core's state, as it holds it (each a copy)
+    p = core_attribute("p", "The pooled beliefs over the grid (N, G) (a copy).", "core")
+    w_stay = core_attribute("w_stay", "P(no change since the change last taken | data) per vehicle (N,) (a copy).",
+                            "core")
+    scale_sys = core_attribute(
+        "scale_sys", "The scale's systematic 1-sigma of ln K, c's mean and 1-sigma, per vehicle (N, 3) (a copy).",
+        "core")
+    scale_prior = core_attribute(
+        "scale_prior", "The torque scale's 1-sigma per vehicle (N,): the prior, or the online state's (a copy).",
+        "core")
 
     def start_belief(self, i: int, log_k: float, log_k_std: float, floor: float = 1e-3) -> None:
         """Start vehicle i's belief over again from N(log_k, log_k_std^2) on the grid, with a uniform
@@ -233,18 +225,14 @@ class SoilBank:
 
     def _reason(self, why: int, args, unusable) -> str:
         """The reason text of the core's reason code ``why`` (soilocp/_core/src/soil/status.rs, ``reason``) and
-        its numbers ``args``; ``unusable``: the wheels' unusable codes (4,) (the out-of-model reasons word them)."""
+        its numbers ``args``; ``unusable``: the wheels' unusable codes (4,) (the out-of-model reasons word them).
+        A text that is one template is :data:`_REASON_TEMPLATES`'; the others are worded here."""
         cfg, (a0, a1, a2, _) = self.cfg, args
-        if why == _R["not_yet"]:
-            return "slip has not been informative yet (need |slip| >= %.2f)" % cfg.slip_min
-        if why == _R["stamp_backwards"]:
-            return "stamp went backwards (source restarted): estimate withdrawn"
-        if why == _R["withdrawn"]:
-            return f"slip uninformative for {a0:.1f} s: estimate withdrawn"
-        if why == _R["holding"]:
-            return f"slip uninformative for {a0:.1f} s: holding the last estimate"
-        if why == _R["wide"]:
-            return f"ln K 1-sigma {a0:.2f} > {cfg.uncertain_log_sigma}: K poorly determined"
+        template = _REASON_TEMPLATES.get(why)
+        if template is not None:
+            # the wheels the longitudinal model does not describe, worded only where the text names them
+            text = describe(unusable) if "{text}" in template else ""
+            return template.format(cfg=cfg, a0=a0, a1=a1, a2=a2, k_floor=self.k_floor, text=text)
         if why in (_R["systematic_scale"], _R["systematic_scale_calibrate"]):
             # the data's scale without its posterior spread: across drives it moves by more than that
             # spread (nominal: 0.98-1.05 for 1.00, 1-sigma 0.03; docs/robustness.md)
@@ -257,20 +245,11 @@ class SoilBank:
         if why == _R["systematic_radius"]:
             return (f"ln K 1-sigma {a0:.2f}, mostly systematic: a {100 * cfg.radius_sigma:g} % wheel-radius "
                     "uncertainty moves these small slips, and K, this much")
-        if why == _R["not_identifiable"]:
-            return ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
-                    "with it; wheel odometry cannot stand in)")
         if why == _R["axles"]:
             return (f"the front and rear axles read different soils (K {math.exp(a0):.0f} front, "
                     f"{math.exp(a1):.0f} rear; {a2:.1f} sigma apart, and most of the last "
                     f"{cfg.evidence_window:g} s): the normal forces (mass, centre of mass) or an axle's torque "
                     "constant are off")
-        if why == _R["nis"]:
-            return (f"the traction curve does not explain the (slip, gross traction) pairs: mean NIS {a0:.1f} "
-                    f"> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)")
-        if why == _R["below_floor"]:
-            return (f"gross traction is below what the model's weakest soil gives at this slip (K under "
-                    f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
         if why in (_R["ground_stale"], _R["readings_held"]):
             since = "yet" if math.isnan(a0) else f"for {a0:.1f} s"
             if why == _R["ground_stale"]:
@@ -278,29 +257,6 @@ class SoilBank:
                         f"{cfg.max_input_age:g} s, no K update {since} (slip, eq. 1, needs a measured ground speed)")
             return (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
                     f"both {since} (sensor refresh too slow to measure traction)")
-        if why == _R["undetermined"]:
-            return "slip is informative but the wheel torque balance does not determine gross traction"
-        if why == _R["leans"]:
-            return (f"these data lean to a torque scale of {a0:.2f} (1 +- {a1:.2f} assumed): K is limited by the "
-                    "torque scale, which a drive at constant speed cannot tell apart from K (accelerate or brake, "
-                    "or soilocp calibrate-torque)")
-        if why == _R["axle_window"]:
-            return (f"the front and rear axles read different soils for most of the last "
-                    f"{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
-                    "centre of mass) or an axle's torque constant may be off")
-        if why == _R["evidence"]:
-            return (f"K from {a0:.1f} s of informative slip since the last change or hold: the "
-                    f"model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok")
-        # the wheels the longitudinal model does not describe (docs/method.md §17, docs/robustness.md "Skid turns")
-        text = describe(unusable)
-        if why == _R["out_skid"]:
-            return f"{text}: no K while it lasts"
-        if why == _R["out_no_wheel"]:
-            return f"{text}: no wheel informs K"
-        if why == _R["out_holding"]:
-            return f"{text}: no wheel informs K; holding the estimate of {a0:.1f} s ago"
-        if why == _R["out_others"]:
-            return f"{text}; K from the other wheels"
         raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
 
@@ -313,6 +269,36 @@ if _STATUSES != get_args(Status) or not set(_REASON_NAMES) <= set(REASON_CODES):
     raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not those of "
                       "soilocp.schemas.codes: rebuild the core (make setup) and regenerate the module "
                       "(python -m soilocp.cli.generate_codes)")
+
+#: the reason texts that are one template each, by reason code (the others: SoilBank._reason): filled in with
+#: the record's numbers a0, a1, a2, the soil settings cfg, the grid's k_floor and text, the wheels outside the
+#: longitudinal model described (docs/method.md §17, docs/robustness.md "Skid turns")
+_REASON_TEMPLATES: dict[int, str] = {
+    _R["not_yet"]: "slip has not been informative yet (need |slip| >= {cfg.slip_min:.2f})",
+    _R["stamp_backwards"]: "stamp went backwards (source restarted): estimate withdrawn",
+    _R["withdrawn"]: "slip uninformative for {a0:.1f} s: estimate withdrawn",
+    _R["holding"]: "slip uninformative for {a0:.1f} s: holding the last estimate",
+    _R["wide"]: "ln K 1-sigma {a0:.2f} > {cfg.uncertain_log_sigma}: K poorly determined",
+    _R["not_identifiable"]: ("not identifiable: no independent ground speed (slip, eq. 1, compares the wheel speed "
+                             "with it; wheel odometry cannot stand in)"),
+    _R["nis"]: ("the traction curve does not explain the (slip, gross traction) pairs: mean NIS {a0:.1f} "
+                "> {cfg.mismatch_nis:g} over the last {cfg.evidence_window:g} s (torque scale, sensor or model)"),
+    _R["below_floor"]: ("gross traction is below what the model's weakest soil gives at this slip (K under "
+                        "{k_floor:g}, half the weakest reference soil's): torque scale or units?"),
+    _R["undetermined"]: "slip is informative but the wheel torque balance does not determine gross traction",
+    _R["leans"]: ("these data lean to a torque scale of {a0:.2f} (1 +- {a1:.2f} assumed): K is limited by the "
+                  "torque scale, which a drive at constant speed cannot tell apart from K (accelerate or brake, "
+                  "or soilocp calibrate-torque)"),
+    _R["axle_window"]: ("the front and rear axles read different soils for most of the last "
+                        "{cfg.evidence_window:g} s (one axle does not inform K now): the normal forces (mass, "
+                        "centre of mass) or an axle's torque constant may be off"),
+    _R["evidence"]: ("K from {a0:.1f} s of informative slip since the last change or hold: the "
+                     "model checks need {cfg.mismatch_min_evidence:g} s before the estimate is ok"),
+    _R["out_skid"]: "{text}: no K while it lasts",
+    _R["out_no_wheel"]: "{text}: no wheel informs K",
+    _R["out_holding"]: "{text}: no wheel informs K; holding the estimate of {a0:.1f} s ago",
+    _R["out_others"]: "{text}; K from the other wheels",
+}
 
 
 class BayesSoilEstimator:

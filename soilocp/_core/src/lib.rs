@@ -20,37 +20,53 @@ pub mod traction;
 
 use pyo3::prelude::*;
 
+/// Add each listed item to the module `m`: `class` for a `#[pyclass]`, `fn` for a `#[pyfunction]`,
+/// each path written once.
+macro_rules! register {
+    ($m:ident; $($kind:ident $path:path),+ $(,)?) => {
+        $(register!(@one $m, $kind, $path);)+
+    };
+    (@one $m:ident, class, $path:path) => {
+        $m.add_class::<$path>()?
+    };
+    (@one $m:ident, fn, $path:path) => {
+        $m.add_function(wrap_pyfunction!($path, $m)?)?
+    };
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<constants::Constants>()?;
-    m.add_function(wrap_pyfunction!(py::codes::status_codes, m)?)?;
-    m.add_function(wrap_pyfunction!(py::codes::reason_codes, m)?)?;
-    m.add_function(wrap_pyfunction!(py::settings::settings_schema, m)?)?;
-    m.add_class::<py::normal_force::NormalForceSolver>()?;
-    m.add_function(wrap_pyfunction!(py::traction::traction_curve, m)?)?;
-    m.add_function(wrap_pyfunction!(py::traction::traction_value, m)?)?;
-    m.add_function(wrap_pyfunction!(py::traction::tractive_efficiency, m)?)?;
-    m.add_function(wrap_pyfunction!(py::ocp::ocp_bank, m)?)?;
-    m.add_function(wrap_pyfunction!(py::ocp::ocp_one, m)?)?;
-    // the soil-grid update
-    m.add_class::<py::soil::SoilGridBank>()?;
-    // the slip gate, eq. 1 and the wheels' usability codes
-    m.add_class::<py::soil::SlipGateBank>()?;
-    m.add_function(wrap_pyfunction!(py::soil::soil_classes, m)?)?;
-    m.add_function(wrap_pyfunction!(py::slip::slip_ratio, m)?)?;
-    m.add_function(wrap_pyfunction!(py::slip::travel_slip, m)?)?;
-    m.add_function(wrap_pyfunction!(py::slip::wheel_usability, m)?)?;
-    // the observer: its filter bank
-    m.add_class::<py::observer::ObserverCore>()?;
-    // the torque scale: its bank, eq. TC and eq. 20 for the offline fit
-    m.add_class::<py::torque_scale::TorqueScaleCore>()?;
-    m.add_function(wrap_pyfunction!(py::torque_scale::longitudinal_balance, m)?)?;
-    m.add_function(wrap_pyfunction!(py::torque_scale::modelled_resistance, m)?)?;
-    m.add_function(wrap_pyfunction!(py::normal_force::gravity_from_attitude, m)?)?;
-    // the whole chain of a bank in one call per step: the offline path, the batched service
-    m.add_class::<py::chain::ChainCore>()?;
-    // the wheel's own traction curve, learnt where the drive shows it
-    m.add_class::<py::curve::CurveBank>()?;
-    m.add_class::<curve::Fit>()?;
+    register! {m;
+        class constants::Constants,
+        fn py::codes::status_codes,
+        fn py::codes::reason_codes,
+        fn py::settings::settings_schema,
+        class py::normal_force::NormalForceSolver,
+        fn py::traction::traction_curve,
+        fn py::traction::traction_value,
+        fn py::traction::tractive_efficiency,
+        fn py::ocp::ocp_bank,
+        fn py::ocp::ocp_one,
+        // the soil-grid update
+        class py::soil::SoilGridBank,
+        // the slip gate, eq. 1 and the wheels' usability codes
+        class py::soil::SlipGateBank,
+        fn py::soil::soil_classes,
+        fn py::slip::slip_ratio,
+        fn py::slip::travel_slip,
+        fn py::slip::wheel_usability,
+        // the observer: its filter bank
+        class py::observer::ObserverCore,
+        // the torque scale: its bank, eq. TC and eq. 20 for the offline fit
+        class py::torque_scale::TorqueScaleCore,
+        fn py::torque_scale::longitudinal_balance,
+        fn py::torque_scale::modelled_resistance,
+        fn py::normal_force::gravity_from_attitude,
+        // the whole chain of a bank in one call per step: the offline path, the batched service
+        class py::chain::ChainCore,
+        // the wheel's own traction curve, learnt where the drive shows it
+        class py::curve::CurveBank,
+        class curve::Fit,
+    }
     Ok(())
 }

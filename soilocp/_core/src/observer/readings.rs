@@ -101,17 +101,33 @@ mod tests {
         (r.fresh[0], r.age[0])
     }
 
+    /// Samples `steps` of a 100 Hz log (stamp i / 100 s), every channel at `value(i)` and sample 0 a
+    /// restart; `last`: the previous sample's stamp, moved on.  (fresh, age) of each.
+    fn run(
+        clock: &mut ReadingClock,
+        steps: std::ops::Range<usize>,
+        last: &mut f64,
+        value: impl Fn(usize) -> f64,
+    ) -> Vec<(bool, f64)> {
+        steps
+            .map(|i| {
+                let t = i as f64 * 0.01;
+                let out = one(clock, t, *last, value(i), i == 0);
+                *last = t;
+                out
+            })
+            .collect()
+    }
+
     #[test]
     fn a_held_slow_stream_is_no_reading_until_it_changes() {
         // a 5 Hz driver held by a 100 Hz logger: 20 samples of one value, then the next
         let mut clock = ReadingClock::new(1, 0.5, 0.5);
         let mut last = f64::NAN;
-        for i in 0..100 {
-            let t = i as f64 * 0.01;
-            let (fresh, age) = one(&mut clock, t, last, (i / 20) as f64, i == 0);
+        let out = run(&mut clock, 0..100, &mut last, |i| (i / 20) as f64);
+        for (i, &(fresh, age)) in out.iter().enumerate() {
             assert_eq!(fresh, i % 20 == 0, "{i}");
             assert!((age - (i % 20) as f64 * 0.01).abs() < 1e-12);
-            last = t;
         }
     }
 
@@ -119,18 +135,12 @@ mod tests {
     fn a_full_rate_streams_repeat_is_a_reading_within_the_window() {
         let mut clock = ReadingClock::new(1, 0.5, 0.5);
         let mut last = f64::NAN;
-        for i in 0..40 {
-            let t = i as f64 * 0.01;
-            one(&mut clock, t, last, i as f64, i == 0);
-            last = t;
-        }
+        run(&mut clock, 0..40, &mut last, |i| i as f64);
         // repeats: readings for 0.5 s after the last change, then a frozen driver
-        let mut fresh = vec![];
-        for i in 40..120 {
-            let t = i as f64 * 0.01;
-            fresh.push(one(&mut clock, t, last, 39.0, false).0);
-            last = t;
-        }
+        let fresh: Vec<bool> = run(&mut clock, 40..120, &mut last, |_| 39.0)
+            .iter()
+            .map(|r| r.0)
+            .collect();
         assert!(fresh[..49].iter().all(|&f| f) && fresh[52..].iter().all(|&f| !f));
         // a repeated stamp is no new reading
         assert!(!one(&mut clock, last, last, 39.0, false).0);

@@ -2,8 +2,8 @@
 //! observer's inputs, every entry finite), two arrays that broadcast together, refused with a ValueError
 //! that names the argument and what it came with.
 
-use numpy::ndarray::{ArrayView1, ArrayView2, ArrayViewD, IxDyn};
-use numpy::{PyReadonlyArray1, PyReadonlyArray2};
+use numpy::ndarray::{ArrayD, ArrayView1, ArrayView2, ArrayViewD, IxDyn, Zip};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -32,6 +32,11 @@ pub fn quads<T: Copy + numpy::Element>(name: &str, a: &PyReadonlyArray2<'_, T>, 
     let v = a.as_array();
     check_quads(name, v.shape(), k)?;
     Ok(v.outer_iter().map(|r| [r[0], r[1], r[2], r[3]]).collect())
+}
+
+/// Row `j` of a (k, 4) array (its shape checked by the caller), one entry per wheel.
+pub fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
+    [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
 }
 
 /// The entries of a (k,) array.
@@ -90,4 +95,23 @@ pub fn broadcast<'a>(
         a.broadcast(shape.clone()).ok_or_else(fail)?,
         b.broadcast(shape).ok_or_else(fail)?,
     ))
+}
+
+/// `f` of every pair of two arrays that broadcast together (`names`: theirs, for the error), in
+/// their common shape: the elementwise bindings (eq. 1, the traction law) over numpy's rules.
+pub fn map_broadcast<R>(
+    names: (&str, &str),
+    a: &PyReadonlyArrayDyn<'_, f64>,
+    b: &PyReadonlyArrayDyn<'_, f64>,
+    f: impl Fn(f64, f64) -> R,
+) -> PyResult<ArrayD<R>> {
+    let (a, b) = (a.as_array(), b.as_array());
+    let (a, b) = broadcast(names, &a, &b)?;
+    Ok(Zip::from(&a).and(&b).map_collect(|&a, &b| f(a, b)))
+}
+
+/// One part `part` of every entry of `a`, as a C-ordered array of its shape: how the bindings with
+/// several outputs per pair (eq. 1's slip and scale, a curve's value and derivatives) return each.
+pub fn part<T>(a: &ArrayD<T>, part: impl Fn(&T) -> f64) -> ArrayD<f64> {
+    ArrayD::from_shape_vec(a.raw_dim(), a.iter().map(part).collect()).expect("one value per entry")
 }

@@ -3,7 +3,7 @@
 //! same names (soilocp.model.slip, soilocp.estimation.wheel_usability) and their callers off the
 //! soil stage (the control loop, the torque scale, the simulator's checks).
 
-use numpy::ndarray::{Array2, ArrayD, Zip};
+use numpy::ndarray::{Array2, ArrayD};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -12,26 +12,16 @@ use std::collections::HashMap;
 use crate::slip;
 use crate::soil::usability::{self, Limits};
 
-use super::args::{broadcast, quads};
+use super::args::{map_broadcast, part, quads};
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
-/// `f` of every pair of two arrays that broadcast together (names: theirs, for the error), as two arrays.
-fn map_pairs<'py>(
-    py: Python<'py>,
-    names: (&str, &str),
-    a: &PyReadonlyArrayDyn<'py, f64>,
-    b: &PyReadonlyArrayDyn<'py, f64>,
-    f: impl Fn(f64, f64) -> (f64, f64),
-) -> PyResult<(Arr<'py>, Arr<'py>)> {
-    let (a, b) = (a.as_array(), b.as_array());
-    let (a, b) = broadcast(names, &a, &b)?;
-    let mut x = ArrayD::<f64>::zeros(a.raw_dim());
-    let mut y = ArrayD::<f64>::zeros(a.raw_dim());
-    Zip::from(&mut x).and(&mut y).and(&a).and(&b).for_each(|x, y, &a, &b| {
-        (*x, *y) = f(a, b);
-    });
-    Ok((x.into_pyarray(py), y.into_pyarray(py)))
+/// The two halves of an array of pairs, as two C-ordered arrays of its shape.
+fn unzip<'py>(py: Python<'py>, pairs: ArrayD<(f64, f64)>) -> (Arr<'py>, Arr<'py>) {
+    (
+        part(&pairs, |p| p.0).into_pyarray(py),
+        part(&pairs, |p| p.1).into_pyarray(py),
+    )
 }
 
 /// Eq. 1 with the floor of docs/method.md §10 (crate::slip::slip) from wheel speeds omega (rad/s),
@@ -45,16 +35,11 @@ pub fn slip_ratio<'py>(
     wheel_radius: f64,
     floor: f64,
 ) -> PyResult<(Arr<'py>, Arr<'py>)> {
-    map_pairs(
-        py,
-        ("wheel_speed", "ground_speed"),
-        &wheel_speed,
-        &ground_speed,
-        |w, v| {
-            let rim = w * wheel_radius;
-            (slip::slip(rim, v, floor), slip::scale(rim, v))
-        },
-    )
+    let pairs = map_broadcast(("wheel_speed", "ground_speed"), &wheel_speed, &ground_speed, |w, v| {
+        let rim = w * wheel_radius;
+        (slip::slip(rim, v, floor), slip::scale(rim, v))
+    })?;
+    Ok(unzip(py, pairs))
 }
 
 /// Eq. 1 in each wheel's direction of travel (docs/method.md §17, crate::slip::travel_slip) from rim
@@ -66,9 +51,8 @@ pub fn travel_slip<'py>(
     ground: PyReadonlyArrayDyn<'py, f64>,
     floor: f64,
 ) -> PyResult<(Arr<'py>, Arr<'py>)> {
-    map_pairs(py, ("rim", "ground"), &rim, &ground, |r, g| {
-        slip::travel_slip(r, g, floor)
-    })
+    let pairs = map_broadcast(("rim", "ground"), &rim, &ground, |r, g| slip::travel_slip(r, g, floor))?;
+    Ok(unzip(py, pairs))
 }
 
 /// The unusable code (k, 4) per wheel (docs/method.md §17, crate::soil::usability::codes) from the

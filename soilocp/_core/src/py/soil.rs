@@ -200,6 +200,14 @@ impl SlipGateBank {
         if !wheel_y.iter().all(|v| v.is_finite()) {
             return Err(PyValueError::new_err(format!("wheel_y {wheel_y:?} must be finite")));
         }
+        // the entries one settings struct declares (`declared`), for its own from_map
+        let only = |declared: &dyn Fn(&str) -> bool| -> HashMap<String, f64> {
+            params
+                .iter()
+                .filter(|(k, _)| declared(k))
+                .map(|(k, v)| (k.clone(), *v))
+                .collect()
+        };
         let cfg = GateParams {
             wheel_radius: get("wheel_radius")?,
             wheel_y,
@@ -210,22 +218,8 @@ impl SlipGateBank {
             lift_off_force: get("lift_off_force")?,
             slip_deadband: get("slip_deadband")?,
             slip_floor: get("slip_floor")?,
-            soil: Params::from_map(
-                &params
-                    .iter()
-                    .filter(|(k, _)| soil(k))
-                    .map(|(k, v)| (k.clone(), *v))
-                    .collect(),
-            )
-            .map_err(PyValueError::new_err)?,
-            limits: Limits::from_map(
-                &params
-                    .iter()
-                    .filter(|(k, _)| limit(k))
-                    .map(|(k, v)| (k.clone(), *v))
-                    .collect(),
-            )
-            .map_err(PyValueError::new_err)?,
+            soil: Params::from_map(&only(&soil)).map_err(PyValueError::new_err)?,
+            limits: Limits::from_map(&only(&limit)).map_err(PyValueError::new_err)?,
         };
         let inner = gate::SlipGateBank::new(cfg, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(SlipGateBank { inner })

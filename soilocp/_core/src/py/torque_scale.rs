@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -14,7 +14,7 @@ use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank::{self, Sample};
 use crate::torque_scale::params::{Derived, Params, Settings};
 
-use super::args::{check_len, check_quads};
+use super::args::{check_len, column, quads, row};
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 /// `apply`'s result: the scaled torques (k, 4) and K's band scale (k,), or None (never learnt).
@@ -26,10 +26,6 @@ fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult
     } else {
         Err(PyValueError::new_err(format!("inputs.{name} must be finite")))
     }
-}
-
-fn row(a: &ArrayView2<'_, f64>, j: usize) -> [f64; 4] {
-    [a[[j, 0]], a[[j, 1]], a[[j, 2]], a[[j, 3]]]
 }
 
 /// The torque scales of N vehicles (docs/method.md §15).
@@ -86,29 +82,14 @@ impl TorqueScaleCore {
         normal_force: Option<&PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<Vec<(f64, f64)>> {
         let k = ix.len();
-        let (stamp, f_x, pitch, yaw_rate, ground_speed) = (
-            stamp.as_array(),
-            f_x.as_array(),
-            pitch.as_array(),
-            yaw_rate.as_array(),
-            ground_speed.as_array(),
-        );
-        for (name, a) in [
-            ("stamp", &stamp),
-            ("specific_force_x", &f_x),
-            ("pitch", &pitch),
-            ("yaw_rate", &yaw_rate),
-            ("ground_speed", &ground_speed),
-        ] {
-            check_len(name, a.len(), k)?;
-        }
-        let (ws, tq) = (wheel_speed.as_array(), wheel_torque.as_array());
-        check_quads("wheel_speed", ws.shape(), k)?;
-        check_quads("wheel_torque", tq.shape(), k)?;
-        let nf = normal_force.map(|a| a.as_array());
-        if let Some(a) = &nf {
-            check_quads("normal_force", a.shape(), k)?;
-        }
+        let stamp = column("stamp", stamp, k)?;
+        let f_x = column("specific_force_x", f_x, k)?;
+        let pitch = column("pitch", pitch, k)?;
+        let yaw_rate = column("yaw_rate", yaw_rate, k)?;
+        let ground_speed = column("ground_speed", ground_speed, k)?;
+        let ws = quads("wheel_speed", wheel_speed, k)?;
+        let tq = quads("wheel_torque", wheel_torque, k)?;
+        let nf = normal_force.map(|a| quads("normal_force", a, k)).transpose()?;
         Ok(ix
             .iter()
             .enumerate()
@@ -118,10 +99,10 @@ impl TorqueScaleCore {
                     f_x: f_x[j],
                     pitch: pitch[j],
                     yaw_rate: yaw_rate[j],
-                    wheel_speed: row(&ws, j),
-                    torque: row(&tq, j),
+                    wheel_speed: ws[j],
+                    torque: tq[j],
                     ground_speed: ground_speed[j],
-                    normal_force: nf.as_ref().map(|a| row(a, j)),
+                    normal_force: nf.as_ref().map(|a| a[j]),
                 };
                 self.inner.step(i, &s)
             })
@@ -283,14 +264,10 @@ impl TorqueScaleCore {
     ) -> PyResult<()> {
         let ix = self.indices(&idx)?;
         let k = ix.len();
-        let ks = soil_strength.as_array();
-        check_len("soil_strength", ks.len(), k)?;
-        let slip = slip.as_ref().map(|a| a.as_array());
-        if let Some(a) = &slip {
-            check_quads("slip", a.shape(), k)?;
-        }
+        let ks = column("soil_strength", &soil_strength, k)?;
+        let slip = slip.as_ref().map(|a| quads("slip", a, k)).transpose()?;
         for (j, &i) in ix.iter().enumerate() {
-            self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| row(a, j)));
+            self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| a[j]));
         }
         Ok(())
     }
@@ -372,18 +349,13 @@ pub fn modelled_resistance<'py>(
     direction: PyReadonlyArray1<'py, f64>,
     constants: &Constants,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-    let (s, k, fz, d) = (
-        slip.as_array(),
-        soil_strength.as_array(),
-        normal_force.as_array(),
-        direction.as_array(),
-    );
+    let k = soil_strength.as_array();
     let n = k.len();
-    check_quads("slip", s.shape(), n)?;
-    check_quads("normal_force", fz.shape(), n)?;
-    check_len("direction", d.len(), n)?;
+    let s = quads("slip", &slip, n)?;
+    let fz = quads("normal_force", &normal_force, n)?;
+    let d = column("direction", &direction, n)?;
     let out: Vec<f64> = (0..n)
-        .map(|j| balance::modelled_resistance(&row(&s, j), k[j], &row(&fz, j), d[j], constants))
+        .map(|j| balance::modelled_resistance(&s[j], k[j], &fz[j], d[j], constants))
         .collect();
     Ok(out.into_pyarray(py))
 }

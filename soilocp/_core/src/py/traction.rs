@@ -1,7 +1,7 @@
 //! `soilocp._core.traction_curve` / `traction_value` / `tractive_efficiency`: the traction law
 //! (eqs. 2-6, 9; docs/method.md §8, §11) over arrays that broadcast together (numpy's rules).
 
-use numpy::ndarray::{ArrayD, Zip};
+use numpy::ndarray::ArrayD;
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 use crate::constants::Constants;
 use crate::traction::{self, Kind};
 
-use super::args::broadcast;
+use super::args::{map_broadcast, part};
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
@@ -19,15 +19,12 @@ fn kind(name: &str) -> PyResult<Kind> {
 }
 
 /// `f` of every (slip, soil_strength) pair of two arrays that broadcast together.
-fn map_pairs<'py>(
-    py: Python<'py>,
-    slip: &PyReadonlyArrayDyn<'py, f64>,
-    soil_strength: &PyReadonlyArrayDyn<'py, f64>,
-    f: impl Fn(f64, f64) -> f64,
-) -> PyResult<Arr<'py>> {
-    let (sa, ka) = (slip.as_array(), soil_strength.as_array());
-    let (s, k) = broadcast(("slip", "soil_strength"), &sa, &ka)?;
-    Ok(Zip::from(&s).and(&k).map_collect(|&s, &k| f(s, k)).into_pyarray(py))
+fn map_pairs<R>(
+    slip: &PyReadonlyArrayDyn<'_, f64>,
+    soil_strength: &PyReadonlyArrayDyn<'_, f64>,
+    f: impl Fn(f64, f64) -> R,
+) -> PyResult<ArrayD<R>> {
+    map_broadcast(("slip", "soil_strength"), slip, soil_strength, f)
 }
 
 /// (value, d/dS, d/dK) of one curve of the traction law (`kind`: net = eq. 6, gross = eq. 2/3,
@@ -41,21 +38,12 @@ pub fn traction_curve<'py>(
     constants: &Constants,
 ) -> PyResult<(Arr<'py>, Arr<'py>, Arr<'py>)> {
     let kind = kind(kind_name)?;
-    let (sa, ka) = (slip.as_array(), soil_strength.as_array());
-    let (s, k) = broadcast(("slip", "soil_strength"), &sa, &ka)?;
-    let mut value = ArrayD::<f64>::zeros(s.shape());
-    let mut d_s = ArrayD::<f64>::zeros(s.shape());
-    let mut d_k = ArrayD::<f64>::zeros(s.shape());
-    Zip::from(&mut value)
-        .and(&mut d_s)
-        .and(&mut d_k)
-        .and(&s)
-        .and(&k)
-        .for_each(|v, ds, dk, &s, &k| {
-            let c = traction::curve(kind, s, k, constants);
-            (*v, *ds, *dk) = (c.value, c.d_s, c.d_k);
-        });
-    Ok((value.into_pyarray(py), d_s.into_pyarray(py), d_k.into_pyarray(py)))
+    let curves = map_pairs(&slip, &soil_strength, |s, k| traction::curve(kind, s, k, constants))?;
+    Ok((
+        part(&curves, |c| c.value).into_pyarray(py),
+        part(&curves, |c| c.d_s).into_pyarray(py),
+        part(&curves, |c| c.d_k).into_pyarray(py),
+    ))
 }
 
 /// The value alone of one curve of the traction law (see `traction_curve`).
@@ -68,9 +56,10 @@ pub fn traction_value<'py>(
     constants: &Constants,
 ) -> PyResult<Arr<'py>> {
     let kind = kind(kind_name)?;
-    map_pairs(py, &slip, &soil_strength, |s, k| {
+    let values = map_pairs(&slip, &soil_strength, |s, k| {
         traction::curve(kind, s, k, constants).value
-    })
+    })?;
+    Ok(values.into_pyarray(py))
 }
 
 /// Tractive efficiency TE = (mu / g)(1 - S), eq. 9, for driving slips 0 < S < 1 (checked by the
@@ -82,7 +71,8 @@ pub fn tractive_efficiency<'py>(
     soil_strength: PyReadonlyArrayDyn<'py, f64>,
     constants: &Constants,
 ) -> PyResult<Arr<'py>> {
-    map_pairs(py, &slip, &soil_strength, |s, k| {
+    let values = map_pairs(&slip, &soil_strength, |s, k| {
         traction::tractive_efficiency(s, k, constants)
-    })
+    })?;
+    Ok(values.into_pyarray(py))
 }
