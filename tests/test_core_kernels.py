@@ -102,12 +102,21 @@ lengths = st.floats(0.05, 2.0)
 def test_normal_forces_equal_the_pseudo_inverse_reference(v, fs):
     """The core's product with the prepared matrix against the reference's A^+ B (numpy's SVD
     pseudo-inverse applied to the load vector); the allowance is relative to the size of the load
-    vector's terms (a lifted wheel's force can be near 0)."""
+    vector's terms (a lifted wheel's force can be near 0), and at least 1e-9 N: a load vector of
+    subnormal numbers (below 1e-308) rounds differently in each and gives no force at all."""
     f = np.array(fs)
     want = ref.normal_forces(v, f)
     scale = v.mass * np.abs(f).sum(axis=1, keepdims=True) * (v.a + v.b + v.c + v.d + v.h) / min(v.a + v.b, v.c + v.d)
-    _close(normal_forces(v, f), want, scale * 10)
-    _close(NormalForceSolver(v)(f[0]), want[0], scale[0] * 10)
+    scale = scale * 10 + 1e-9 / REL  # _close allows REL x scale: at least 1e-9 N
+    _close(normal_forces(v, f), want, scale)
+    _close(NormalForceSolver(v)(f[0]), want[0], scale[0])
+
+
+def test_normal_forces_of_a_subnormal_load_are_no_force():
+    """The case that the allowance's floor is for (found by the property test above)."""
+    v = VehicleParams(mass=1.0, a=0.05, b=0.05, c=0.05, d=0.05, h=2.0)
+    f = np.array([[5e-324, 5e-324, 5e-324]])
+    assert np.abs(normal_forces(v, f)).max() < 1e-300 and np.abs(ref.normal_forces(v, f)).max() < 1e-300
 
 
 def test_bank_shapes_and_scalars():
