@@ -160,9 +160,10 @@ def code_lists(rev: str | None) -> list[str]:
     return out
 
 
-def user_settings(tree: str | None) -> tuple[int, int]:
-    """(estimator settings, of them user settings): PipelineConfig's leaves, less those the core declares
-    internal.  ``tree``: import soilocp from that checkout instead."""
+def user_settings(tree: str | None) -> tuple[int, int, int]:
+    """(estimator settings, user settings, calibrated constants): PipelineConfig's leaves, and of them those a
+    user sets (not declared internal, nor fitted by ``soilocp calibrate``).  ``tree``: import soilocp from that
+    checkout instead."""
     code = (
         "import json, sys\n"
         "from soilocp.estimation.config import PipelineConfig\n"
@@ -174,13 +175,13 @@ def user_settings(tree: str | None) -> tuple[int, int]:
         "        if subs: yield from leaves(subs[0])\n"
         "        else: yield f\n"
         "fs = list(leaves(PipelineConfig))\n"
-        "internal = sum(isinstance(f.json_schema_extra, dict) and f.json_schema_extra.get('audience') == 'internal' for f in fs)\n"
-        "print(json.dumps([len(fs), len(fs) - internal]))\n")
+        "def aud(f): return f.json_schema_extra.get('audience', 'user') if isinstance(f.json_schema_extra, dict) else 'user'\n"
+        "print(json.dumps([len(fs), sum(aud(f) == 'user' for f in fs), sum(aud(f) == 'calibration' for f in fs)]))\n")
     r = subprocess.run([sys.executable, "-c", code], cwd=tree or REPO, capture_output=True, text=True, check=True)
     import json
 
-    total, user = json.loads(r.stdout)
-    return total, user
+    total, user, calibrated = json.loads(r.stdout)
+    return total, user, calibrated
 
 
 def main() -> int:
@@ -205,8 +206,9 @@ def main() -> int:
     for x in lists:
         print("  " + x)
     if args.rev is None or args.tree:
-        total, user = user_settings(args.tree)
-        print(f"{args.tree or where}: estimator settings (PipelineConfig leaves): {total}, user settings: {user}")
+        total, user, calibrated = user_settings(args.tree)
+        print(f"{args.tree or where}: estimator settings (PipelineConfig leaves): {total}, user settings: {user}, "
+              f"calibrated constants (written by soilocp calibrate): {calibrated}, internal: {total - user - calibrated}")
     return 0
 
 

@@ -272,14 +272,15 @@ def _settings_sections(model: type[BaseModel], instance: Optional[BaseModel], pr
 
 
 def _audience(field: Any) -> str:
-    """"internal" for a setting the compiled core declares an internal constant of the method, else "user"."""
+    """"internal" for an internal constant of the method, "calibration" for a constant that ``soilocp calibrate``
+    fits and writes to a constants file, else "user"."""
     extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
     return extra.get("audience", "user")
 
 
 def _settings_table(leaves: list[tuple[str, Any, Any]], *, required_if_no_default: bool = True) -> tuple[str, int]:
-    """The user settings' table, then (where the core declares some) the internal constants'."""
-    rows: dict[str, list] = {"user": [], "internal": []}
+    """The user settings' table, then (where there are some) the calibrated constants' and the internal ones'."""
+    rows: dict[str, list] = {"user": [], "calibration": [], "internal": []}
     undocumented = 0
     for key, field, value in leaves:
         undocumented += not field.description
@@ -288,9 +289,13 @@ def _settings_table(leaves: list[tuple[str, Any, Any]], *, required_if_no_defaul
                                        _esc(field.description) if field.description else NO_DESCRIPTION])
     head = ["setting", "type", "default", "bounds", "description"]
     text = _table(head, rows["user"]) if rows["user"] else ""
+    if rows["calibration"]:
+        text += (("\n" if text else "") + "Fitted from data by `soilocp calibrate` or `soilocp calibrate-drive`, which write them to a "
+                 "constants file that `--constants` or the vehicle file's `traction_curve` names (by hand only to "
+                 "reproduce a published curve):\n\n" + _table(head, rows["calibration"]))
     if rows["internal"]:
-        text += ("\nInternal constants of the method (declared in the compiled core with the reason for their "
-                 "value; a config file may still set them, to study the method):\n\n" + _table(head, rows["internal"]))
+        text += ("\nInternal constants of the method (each with the reason for its value; a config file may still "
+                 "set them, to study the method):\n\n" + _table(head, rows["internal"]))
     return text, undocumented
 
 

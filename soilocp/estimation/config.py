@@ -31,7 +31,9 @@ class PipelineConfig(BaseModel):
     torque_scale: TorqueScaleConfig = Field(default_factory=TorqueScaleConfig)
     curve: CurveConfig = Field(default_factory=CurveConfig)
     slip_deadband: float = Field(DEFAULT_DEADBAND, ge=0, description="m/s below which slip is not informative (eq. 1)")
-    slip_floor: float = Field(DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s")
+    slip_floor: float = Field(
+        DEFAULT_FLOOR, gt=0, description="floor of eq. 1's denominator, m/s: keeps a standstill's slip finite; below "
+        "slip_deadband the slip informs nothing, so the floor only bounds the numbers", json_schema_extra={"audience": "internal"})
     torque_constant: float = Field(
         1.0, gt=0, description="N m at the wheel per unit of the log's wheel_torque column: every logged torque is "
         "multiplied by it before the chain (a motor current's constant, as soilocp calibrate-torque fits it; 1: the "

@@ -24,8 +24,10 @@ SoilConfig = model_from_core(
     "SoilConfig", "soil", __name__, "Settings of the soil-strength estimator (docs/method.md §4, §9, §11-13, §16).",
     method=(Literal["bayes", "paper"], Field(
         "bayes", description="bayes (the grid Bayes filter) or paper (eqs. 36-37, sign fixed): paper only to "
-        "reproduce the paper's update rule", json_schema_extra={"audience": "user"})),
+        "reproduce the paper's update rule, which has no band, no hold and no soil change",
+        json_schema_extra={"audience": "internal"})),
     measurement=(Literal["gross", "net"], Field(
-        "gross", description="Compare gross (eq. 3) or net (eq. 6) traction: net only with the paper method",
-        json_schema_extra={"audience": "user"})),
+        "gross", description="Compare gross (eq. 3) or net (eq. 6) traction: net only with the paper method (the "
+        "gross traction is what the wheel's torque balance determines, the net also carries the observer's "
+        "resistance split)", json_schema_extra={"audience": "internal"})),
 )

@@ -37,19 +37,24 @@ DEFAULT_DEADBAND = 0.15
 DEFAULT_FLOOR = 0.05
 
 
+#: A constant that ``soilocp calibrate`` / ``calibrate-drive`` fits from data and writes to a constants file,
+#: which the vehicle file's ``traction_curve`` or ``--constants`` names: a user gives the file, not the numbers
+_CALIBRATED = {"audience": "calibration"}
+
+
 class ModelConstants(BaseModel):
     """Improved Brixius constants C1..C6 (eqs. 3-6), the S_E line (eq. 10) and model options."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    C1: float = Field(1.3, gt=0, description="Gross-traction amplitude (eq. 3)")
-    C2: float = Field(0.01, gt=0, description="Soil-strength saturation rate, 1/K (eq. 3)")
-    C3: float = Field(7.058, gt=0, description="Slip rate of the traction rise (eq. 3)")
-    C4: float = Field(0.04, description="Constant of gross traction and motion resistance (eqs. 3-4)")
-    C5: float = Field(-5.0, description="K-inverse motion-resistance term (eq. 4)")
-    C6: float = Field(4.0, gt=0, description="Slip-proportional motion resistance over sqrt(K) (eq. 4)")
-    alpha: float = Field(677.4, description="S_E = (K - alpha) / beta (eq. 10)")
-    beta: float = Field(-5242.9, description="S_E = (K - alpha) / beta (eq. 10)")
+    C1: float = Field(1.3, gt=0, description="Gross-traction amplitude (eq. 3)", json_schema_extra=_CALIBRATED)
+    C2: float = Field(0.01, gt=0, description="Soil-strength saturation rate, 1/K (eq. 3)", json_schema_extra=_CALIBRATED)
+    C3: float = Field(7.058, gt=0, description="Slip rate of the traction rise (eq. 3)", json_schema_extra=_CALIBRATED)
+    C4: float = Field(0.04, description="Constant of gross traction and motion resistance (eqs. 3-4)", json_schema_extra=_CALIBRATED)
+    C5: float = Field(-5.0, description="K-inverse motion-resistance term (eq. 4)", json_schema_extra=_CALIBRATED)
+    C6: float = Field(4.0, gt=0, description="Slip-proportional motion resistance over sqrt(K) (eq. 4)", json_schema_extra=_CALIBRATED)
+    alpha: float = Field(677.4, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
+    beta: float = Field(-5242.9, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
     bridge_slip: float = Field(
         0.005,
         ge=0,
@@ -59,6 +64,7 @@ class ModelConstants(BaseModel):
             "to +C5/K at zero slip; inside |S| < bridge_slip the model is linear, in the traction curve and in "
             "the observer's motion resistance alike. 0 = as printed."
         ),
+        json_schema_extra={"audience": "internal"},
     )
     k_range: Optional[tuple[float, float]] = Field(
         None,
@@ -67,10 +73,12 @@ class ModelConstants(BaseModel):
             "Outside them the OCPs are an extrapolation and are not served as ok. None: not limited (the paper's "
             "constants, whose testbed soils the simulator's scenarios span)"
         ),
+        json_schema_extra=_CALIBRATED,
     )
     soils: dict[str, float] = Field(
         default_factory=lambda: dict(REFERENCE_SOILS),
         description="Soil class -> reference soil strength K (calibrated per soil)",
+        json_schema_extra=_CALIBRATED,
     )
 
     @field_validator("soils")
