@@ -3,16 +3,17 @@
 //! fit, refresh pairs), on a drive whose speeds, torques and forces keep changing (constant inputs
 //! let P decay into subnormal numbers, each a slow operation):
 //! `cargo run --release --example observer_step_time [STEPS]`.
-use _core::observer::bank::{FilterBank, Sample};
+use _core::observer::bank::{FilterBank, Sample, Settings};
+use _core::observer::intervals::IntervalSettings;
 use _core::observer::model::ROVER;
 use _core::observer::settings::ObserverSettings;
-use _core::observer::vehicles::{ObserverBank, Raw};
+use _core::observer::vehicles::{ObserverBank, Raw, Reading};
 
 fn main() {
     let settings = ObserverSettings::default();
     let l = settings.layout();
     let v = ROVER;
-    let s = settings.filter(&l, false, 0.005).unwrap();
+    let s = Settings::of(&settings, &l, false, 0.005).unwrap();
     let mut bank = FilterBank::new(l, v, s.clone(), 1).unwrap();
     let mut sample = Sample {
         dt: f64::NAN,
@@ -46,8 +47,8 @@ fn main() {
         t.elapsed().as_secs_f64() / steps as f64 * 1e6
     );
 
-    let reading = settings.reading(false, false);
-    let refresh = settings.refresh(v.wheel_inertia, v.wheel_radius);
+    let reading = Reading::of(&settings, false, false);
+    let refresh = IntervalSettings::of(&settings, v.wheel_inertia, v.wheel_radius);
     let mut whole = ObserverBank::new(FilterBank::new(l, v, s, 1).unwrap(), reading, refresh);
     let mut raw = Raw {
         stamp: 0.0,

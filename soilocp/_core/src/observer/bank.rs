@@ -45,6 +45,71 @@ pub struct Settings {
     pub speed_limits: [f64; 5],
 }
 
+impl Settings {
+    /// The filter's settings of the declared `s` for `layout`: the measurement variances (a side's shared encoder
+    /// `per_side` doubles the wheel rows'), Q's and P_0's diagonals, the state's box and the
+    /// divergence limits.  `bridge_slip`: the traction model's zero-slip bridge.
+    pub fn of(s: &ObserverSettings, layout: &Layout, per_side: bool, bridge_slip: f64) -> Result<Settings, String> {
+        if s.discretization != "series" {
+            return Err(format!(
+                "discretization {:?}: the observer kernel implements 'series' only",
+                s.discretization
+            ));
+        }
+        let sq = |v: Vec<f64>| v.into_iter().map(|x| x * x).collect::<Vec<f64>>();
+        let r_speed = s.r_wheel_speed * s.r_wheel_speed * if per_side { 2.0 } else { 1.0 };
+        let mut r = [r_speed; N_MEAS];
+        r[0] = s.r_specific_force * s.r_specific_force;
+        r[1] = s.r_yaw_rate * s.r_yaw_rate;
+        r[N_MEAS - 1] = s.r_ground_speed * s.r_ground_speed;
+        let inf = f64::INFINITY;
+        let upper = layout.per_state(
+            s.mu_bound,
+            s.resistance_bound,
+            s.resistance_slope_bound,
+            s.lateral_bound,
+            inf,
+            inf,
+            inf,
+            s.speed_bias_bound,
+        );
+        Ok(Settings {
+            s: *s,
+            bridge_slip,
+            r,
+            q: sq(layout.per_state(
+                s.q_mu,
+                s.q_resistance,
+                s.q_resistance_slope,
+                s.q_lateral,
+                s.q_wheel_speed,
+                s.q_ground_speed,
+                s.q_yaw_rate,
+                s.q_speed_bias,
+            )),
+            p0: sq(layout.per_state(
+                s.p0_mu,
+                s.p0_resistance,
+                s.p0_resistance_slope,
+                s.p0_lateral,
+                s.r_wheel_speed,
+                s.p0_speed,
+                s.r_yaw_rate,
+                s.p0_speed_bias,
+            )),
+            lower: upper.iter().map(|u| -u).collect(),
+            upper,
+            speed_limits: [
+                s.max_wheel_speed,
+                s.max_wheel_speed,
+                s.max_wheel_speed,
+                s.max_wheel_speed,
+                s.max_ground_speed,
+            ],
+        })
+    }
+}
+
 /// One vehicle's sample, as the bank takes it (the Python side has run the readings clock, the
 /// torque split, the encoder lead and the ground-speed latency).
 pub struct Sample {
@@ -363,6 +428,28 @@ impl FilterBank {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn settings_resolve_per_layout() {
+        let s = ObserverSettings::default();
+        let l = s.layout();
+        let f = Settings::of(&s, &l, true, 0.005).unwrap();
+        assert_eq!((f.q.len(), f.p0.len(), f.upper.len()), (l.n(), l.n(), l.n()));
+        assert_eq!(f.r[2], 2.0 * 0.03 * 0.03);
+        assert_eq!((f.upper[0], f.lower[0], f.upper[l.v()]), (1.5, -1.5, f64::INFINITY));
+        assert_eq!(f.q[0], 1.0);
+    }
+
+    #[test]
+    fn expm_is_refused_by_the_kernel() {
+        let s = ObserverSettings {
+            discretization: "expm",
+            ..Default::default()
+        };
+        assert!(Settings::of(&s, &s.layout(), false, 0.005)
+            .unwrap_err()
+            .contains("'series' only"));
+    }
 
     #[test]
     fn a_held_reading_the_speed_left_by_more_than_the_gate_of_its_noise_is_flagged() {

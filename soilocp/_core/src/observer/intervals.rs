@@ -18,6 +18,7 @@
 //! by R_w |d omega_dot| tau / 8 (`rim_sigma`).
 
 use super::numeric::nan_max;
+use super::settings::ObserverSettings;
 
 /// s: intervals are sums or differences of stamps, so a 10 Hz stream's 0.1 s reads 0.1 - 1e-15 as
 /// often as not; the interval bounds are taken this much wider.
@@ -129,6 +130,21 @@ pub struct IntervalSettings {
     pub variance_floor: f64,
     /// rad/s: the encoder's noise
     pub speed_sigma: f64,
+}
+
+impl IntervalSettings {
+    /// The refresh pairs' settings of the declared `s` for a wheel of `inertia` (kg m^2) and `radius` (m).
+    pub fn of(s: &ObserverSettings, inertia: f64, radius: f64) -> IntervalSettings {
+        IntervalSettings {
+            inertia,
+            radius,
+            jerk: s.refresh_jerk,
+            min_interval: s.refresh_min_interval,
+            max_interval: s.refresh_max_interval,
+            variance_floor: s.variance_floor,
+            speed_sigma: s.r_wheel_speed,
+        }
+    }
 }
 
 pub struct RefreshIntervals {

@@ -2,10 +2,7 @@
 //! `soilocp.estimation.observer_config` builds `ObserverConfig`), and what the filter, the readings
 //! clock and the refresh pairs take from them for a layout and a vehicle's drive.
 
-use super::bank::Settings as FilterSettings;
-use super::intervals::IntervalSettings;
-use super::layout::{Layout, N_MEAS};
-use super::vehicles::Reading;
+use super::layout::Layout;
 use crate::normal_force::STANDARD_GRAVITY;
 use crate::settings::settings_struct;
 
@@ -137,92 +134,6 @@ impl ObserverSettings {
     pub fn layout(&self) -> Layout {
         Layout::of(self.structure).expect("structure is one of its declared choices")
     }
-
-    /// The filter's settings for `layout`: the measurement variances (a side's shared encoder
-    /// `per_side` doubles the wheel rows'), Q's and P_0's diagonals, the state's box and the
-    /// divergence limits.  `bridge_slip`: the traction model's zero-slip bridge.
-    pub fn filter(&self, layout: &Layout, per_side: bool, bridge_slip: f64) -> Result<FilterSettings, String> {
-        if self.discretization != "series" {
-            return Err(format!(
-                "discretization {:?}: the observer kernel implements 'series' only",
-                self.discretization
-            ));
-        }
-        let sq = |v: Vec<f64>| v.into_iter().map(|x| x * x).collect::<Vec<f64>>();
-        let r_speed = self.r_wheel_speed * self.r_wheel_speed * if per_side { 2.0 } else { 1.0 };
-        let mut r = [r_speed; N_MEAS];
-        r[0] = self.r_specific_force * self.r_specific_force;
-        r[1] = self.r_yaw_rate * self.r_yaw_rate;
-        r[N_MEAS - 1] = self.r_ground_speed * self.r_ground_speed;
-        let inf = f64::INFINITY;
-        let upper = layout.per_state(
-            self.mu_bound,
-            self.resistance_bound,
-            self.resistance_slope_bound,
-            self.lateral_bound,
-            inf,
-            inf,
-            inf,
-            self.speed_bias_bound,
-        );
-        Ok(FilterSettings {
-            s: *self,
-            bridge_slip,
-            r,
-            q: sq(layout.per_state(
-                self.q_mu,
-                self.q_resistance,
-                self.q_resistance_slope,
-                self.q_lateral,
-                self.q_wheel_speed,
-                self.q_ground_speed,
-                self.q_yaw_rate,
-                self.q_speed_bias,
-            )),
-            p0: sq(layout.per_state(
-                self.p0_mu,
-                self.p0_resistance,
-                self.p0_resistance_slope,
-                self.p0_lateral,
-                self.r_wheel_speed,
-                self.p0_speed,
-                self.r_yaw_rate,
-                self.p0_speed_bias,
-            )),
-            lower: upper.iter().map(|u| -u).collect(),
-            upper,
-            speed_limits: [
-                self.max_wheel_speed,
-                self.max_wheel_speed,
-                self.max_wheel_speed,
-                self.max_wheel_speed,
-                self.max_ground_speed,
-            ],
-        })
-    }
-
-    /// What the vehicles' step reads of a vehicle's drive (`per_side`: a side's encoder) and
-    /// encoder (`interval_mean`: its reading is the interval's mean speed).
-    pub fn reading(&self, per_side: bool, interval_mean: bool) -> Reading {
-        Reading {
-            per_side,
-            interval_mean,
-            mu_var_determined: self.mu_std_determined * self.mu_std_determined,
-        }
-    }
-
-    /// The refresh pairs' settings for a wheel of `inertia` (kg m^2) and `radius` (m).
-    pub fn refresh(&self, inertia: f64, radius: f64) -> IntervalSettings {
-        IntervalSettings {
-            inertia,
-            radius,
-            jerk: self.refresh_jerk,
-            min_interval: self.refresh_min_interval,
-            max_interval: self.refresh_max_interval,
-            variance_floor: self.variance_floor,
-            speed_sigma: self.r_wheel_speed,
-        }
-    }
 }
 
 #[cfg(test)]
@@ -232,30 +143,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn defaults_resolve_per_layout() {
+    fn defaults_and_an_empty_map_agree() {
         let s = ObserverSettings::default();
         assert_eq!(
             (s.structure, s.discretization, s.gate_patience),
             ("slip", "series", 10.0)
         );
         assert_eq!(ObserverSettings::from_map(&HashMap::<String, f64>::new()).unwrap(), s);
-        let l = s.layout();
-        let f = s.filter(&l, true, 0.005).unwrap();
-        assert_eq!((f.q.len(), f.p0.len(), f.upper.len()), (l.n(), l.n(), l.n()));
-        assert_eq!(f.r[2], 2.0 * 0.03 * 0.03);
-        assert_eq!((f.upper[0], f.lower[0], f.upper[l.v()]), (1.5, -1.5, f64::INFINITY));
-        assert_eq!(f.q[0], 1.0);
-    }
-
-    #[test]
-    fn expm_is_refused_by_the_kernel() {
-        let s = ObserverSettings {
-            discretization: "expm",
-            ..Default::default()
-        };
-        assert!(s
-            .filter(&s.layout(), false, 0.005)
-            .unwrap_err()
-            .contains("'series' only"));
+        assert_eq!(s.layout().n_res, 2);
     }
 }

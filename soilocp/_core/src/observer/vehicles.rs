@@ -9,6 +9,7 @@ use super::latency::{exp_terms, GroundSpeedLatency};
 use super::layout::N_MEAS;
 use super::numeric::nan_max;
 use super::readings::{ReadingClock, CHANNELS};
+use super::settings::ObserverSettings;
 use super::wheel_inputs::{encoder_lead, split_side_torque, wheel_acceleration};
 
 /// Normal force (N) below which a wheel is treated as lifted off: no traction information.
@@ -23,6 +24,18 @@ pub struct Reading {
     pub interval_mean: bool,
     /// mu_i counts as determined while its posterior variance is <= this
     pub mu_var_determined: f64,
+}
+
+impl Reading {
+    /// What the vehicles' step reads of a vehicle's drive, from the declared `s` (`per_side`: a side's encoder) and
+    /// encoder (`interval_mean`: its reading is the interval's mean speed).
+    pub fn of(s: &ObserverSettings, per_side: bool, interval_mean: bool) -> Reading {
+        Reading {
+            per_side,
+            interval_mean,
+            mu_var_determined: s.mu_std_determined * s.mu_std_determined,
+        }
+    }
 }
 
 /// One vehicle's sample as logged.

@@ -12,11 +12,12 @@ use std::collections::HashMap;
 
 use super::args;
 use super::settings::Given;
-use crate::observer::bank::{FilterBank, RESET_REASONS};
+use crate::observer::bank::{FilterBank, Settings as FilterSettings, RESET_REASONS};
+use crate::observer::intervals::IntervalSettings;
 use crate::observer::layout::N_MEAS;
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::settings::ObserverSettings;
-use crate::observer::vehicles::{Estimate, ObserverBank, Raw, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
 
 /// One step's samples of k vehicles, read by attribute from
 /// soilocp.estimation.observer_bank.ObserverInputs: (k,) stamp, specific force x, yaw rate, pitch,
@@ -211,15 +212,13 @@ impl ObserverCore {
             d,
             wheel_y: fixed::<4>("wheel_y", &wheel_y)?,
         };
-        let filter_settings = s
-            .filter(&layout, per_side, bridge_slip)
-            .map_err(PyValueError::new_err)?;
+        let filter_settings = FilterSettings::of(&s, &layout, per_side, bridge_slip).map_err(PyValueError::new_err)?;
         let filter = FilterBank::new(layout, vehicle, filter_settings, n_vehicles).map_err(PyValueError::new_err)?;
         Ok(ObserverCore {
             inner: ObserverBank::new(
                 filter,
-                s.reading(per_side, interval_mean),
-                s.refresh(wheel_inertia, wheel_radius),
+                Reading::of(&s, per_side, interval_mean),
+                IntervalSettings::of(&s, wheel_inertia, wheel_radius),
             ),
         })
     }
