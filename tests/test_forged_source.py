@@ -13,10 +13,6 @@ TLS and access control the forger is refused by the router instead (tests/test_f
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import threading
 import time
 
@@ -24,23 +20,9 @@ import zenoh
 
 from soilocp.schemas import keys
 from soilocp.services.bench.stages import simulate_drive
-from zenoh_helpers import Procs, client, endpoint, free_port, wait_alive, wait_for
+from zenoh_helpers import Procs, client, endpoint, fleet_status, free_port, wait_alive, wait_for
 
 VID = "rover1"
-
-
-def _status(ep: str) -> tuple[dict, str]:
-    """``soilocp fleet status --json`` (the row of VID) and the table, as a user runs them."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    out = {}
-    for fmt in (["--json"], []):
-        res = subprocess.run([sys.executable, "-m", "soilocp.cli", "fleet", "status", "--connect", ep, "--timeout",
-                              "3", *fmt], capture_output=True, text=True, timeout=60, env=env)
-        assert res.returncode == 0, res.stdout + res.stderr
-        out["json" if fmt else "table"] = res.stdout
-    rows = {r["vehicle_id"]: r for r in json.loads(out["json"])["vehicles"]}
-    assert VID in rows, rows
-    return rows[VID], out["table"]
 
 
 class Publisher(threading.Thread):
@@ -81,7 +63,7 @@ def test_a_second_publisher_of_a_vehicle_is_flagged_in_fleet_status(tmp_path):
             time.sleep(1.0)
             p = Publisher(vehicle, own[:300], 100.0)
             p.run()
-            alone, _ = _status(ep)
+            alone, _ = fleet_status(ep, VID)
             assert alone["source_conflicts"] == 0 and not alone["second_source"], alone
             assert alone["rejections"] > 0, alone  # the restart's first samples, refused until adopted
             # the vehicle goes on; the forger joins it on the same key
@@ -90,7 +72,7 @@ def test_a_second_publisher_of_a_vehicle_is_flagged_in_fleet_status(tmp_path):
             p.start()
             f.start()
             assert wait_for(lambda: f.sent >= 40, 30)
-            both, table = _status(ep)
+            both, table = fleet_status(ep, VID)
             p.stop.set()
             f.stop.set()
             p.join(5)

@@ -10,31 +10,13 @@ which was not listening, shows the restarted service younger than the others.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import time
 
 from soilocp.services.fleet.monitor import FleetMonitor
 from soilocp.services.fleet.state import FleetState
-from zenoh_helpers import Procs, client, endpoint, free_port, wait_alive, wait_for
+from zenoh_helpers import Procs, client, endpoint, fleet_status, free_port, wait_alive, wait_for
 
 VID = "rover1"
-
-
-def _status(ep: str) -> tuple[dict, str]:
-    """``soilocp fleet status`` (the row of VID as JSON, and the table), as a user runs it."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
-    out = {}
-    for fmt in (["--json"], []):
-        res = subprocess.run([sys.executable, "-m", "soilocp.cli", "fleet", "status", "--connect", ep, "--timeout",
-                              "3", *fmt], capture_output=True, text=True, timeout=60, env=env)
-        assert res.returncode == 0, res.stdout + res.stderr
-        out["json" if fmt else "table"] = res.stdout
-    rows = {r["vehicle_id"]: r for r in json.loads(out["json"])["vehicles"]}
-    assert VID in rows, rows
-    return rows[VID], out["table"]
 
 
 def test_a_service_restarted_outside_the_supervisor_shows_in_fleet_status(tmp_path):
@@ -64,7 +46,7 @@ def test_a_service_restarted_outside_the_supervisor_shows_in_fleet_status(tmp_pa
                 assert row["restarts_total"] is None  # no supervisor report: none ran
             finally:
                 monitor.stop()
-        once, table = _status(ep)
+        once, table = fleet_status(ep, VID)
         assert once["restarts_total"] is None and once["restarts_seen_total"] == 0  # it was not listening
         assert once["uptime_s"]["ocp"] < once["uptime_s"]["gateway"] - 5.0, once["uptime_s"]
         assert "ocp up" in table, table

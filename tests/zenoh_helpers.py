@@ -100,6 +100,24 @@ def start_pipeline(procs: Procs, ep: str, vid: str, extra: Iterable[str] = ()) -
         procs.spawn(name, ["service", name, "--vehicle-id", vid, "--connect", ep, *extra])
 
 
+def fleet_status(ep: str, vid: str) -> tuple[dict, str]:
+    """``soilocp fleet status`` against the router at ``ep``, as a user runs it (no SOILOCP_* environment): the
+    row of ``vid`` from ``--json``, and the table."""
+    import os
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SOILOCP_")}
+    out = {}
+    for fmt in (["--json"], []):
+        res = subprocess.run([sys.executable, "-m", "soilocp.cli", "fleet", "status", "--connect", ep, "--timeout",
+                              "3", *fmt], capture_output=True, text=True, timeout=60, env=env)
+        assert res.returncode == 0, res.stdout + res.stderr
+        out["json" if fmt else "table"] = res.stdout
+    rows = {r["vehicle_id"]: r for r in json.loads(out["json"])["vehicles"]}
+    assert vid in rows, rows
+    return rows[vid], out["table"]
+
+
 def write_log(path: Path, vid: str, duration: float, scenario: str = "sandy-slope", seed: int = 1) -> list[str]:
     """A sensor log from the simulator (JSON Lines, one SensorSample per line); returns the lines."""
     from soilocp.sim.simulator import simulate
