@@ -287,3 +287,19 @@ def test_the_observer_bridges_zero_slip_with_the_model_constants():
     assert np.nanmax(np.abs(mu[0.0] - mu[0.02])) > 1e-6
     with pytest.raises(Exception, match="bridge_slip"):
         PipelineConfig.model_validate({"observer": {"bridge_slip": 0.01}})
+
+
+@pytest.mark.parametrize("structure", ["slip", "shared", "per_wheel", "none"])
+def test_the_state_layout_is_the_cores(structure):
+    """StateLayout reads the core's layout: its blocks tile the state the core's filter holds, in order."""
+    from soilocp.estimation.observer import StateLayout
+
+    layout = StateLayout.of(structure)
+    bank = ObserverBank(DEFAULT_VEHICLE, ObserverConfig(structure=structure), 1)
+    assert bank.x.shape == (1, layout.n) and bank.P.shape == (1, layout.n, layout.n)
+    blocks = [layout.mu, layout.res, layout.lat, layout.omega, slice(layout.v, layout.v + 1),
+              slice(layout.psi, layout.psi + 1), slice(layout.bias, layout.bias + 1)]
+    assert [b.start for b in blocks[1:]] == [b.stop for b in blocks[:-1]] and blocks[-1].stop == layout.n
+    assert (layout.n_res, layout.n_lat) == {"slip": (2, 1), "shared": (1, 1), "per_wheel": (4, 4), "none": (0, 1)}[structure]
+    with pytest.raises(ValueError, match="slip, shared, per_wheel or none"):
+        StateLayout.of("paper")

@@ -12,10 +12,12 @@ measurements [V_x_dot, psi_dot, omega_1..4] (eq. 28).  It is not observable: eac
 equation (eq. 11) one more mix, so 17 states face 6 independent measurement directions and the
 observability matrix has rank 10 (see :func:`soilocp.estimation.observer_bank.observability_rank`).
 
-The default ``structure="shared"`` makes the estimate determined: one longitudinal resistance
-coefficient mu_xR shared by the four wheels (the wheels run on the same soil at similar slip), and
-one lateral coefficient mu_yR.  Then the wheel equations give mu_i + mu_xR, the accelerometer gives
-sum(mu_i Fz_i), hence mu_xR and every mu_i: full rank.  We also add the CoM speed V as a state,
+``structure="shared"`` makes the estimate determined: one longitudinal resistance coefficient mu_xR
+shared by the four wheels (the wheels run on the same soil at similar slip), and one lateral
+coefficient mu_yR.  Then the wheel equations give mu_i + mu_xR, the accelerometer gives
+sum(mu_i Fz_i), hence mu_xR and every mu_i: full rank.  The default ``structure="slip"`` gives the
+shared resistance eq. 4's form, a constant and a slope in each wheel's slip (mu_xR_i = a + b S_i),
+which the wheels' different slips determine as well.  We also add the CoM speed V as a state,
 driven by the same net traction (V_dot = sum(mu_i Fz_i)/m + g sin(pitch)) and measured by
 ground_speed: that smooths the slip of eq. 1 with the physics instead of a low-pass filter; and a
 slowly varying bias of that speed equation (accelerometer bias, g x pitch bias), which the ground
@@ -50,57 +52,33 @@ from soilocp.estimation.observer_config import ObserverConfig, Structure  # noqa
 
 @dataclass(frozen=True)
 class StateLayout:
-    """Index map of the observer state for a given structure."""
+    """Index map of the observer state for a given structure, as the compiled core lays it out
+    (soilocp/_core/src/observer/layout.rs, its one definition): the traction coefficients mu_1..4, the
+    longitudinal resistance states (2 for ``slip``: constant and slope; 1 ``shared``; 4 ``per_wheel``;
+    0 ``none``), the lateral ones (1, or 4 ``per_wheel``), the wheel speeds omega_1..4, the ground speed V,
+    the yaw rate psi_dot and the speed equation's bias."""
 
     structure: Structure
-    n_res: int  # longitudinal resistance states: 2 (slip), 1 (shared), 4 (per wheel) or 0
-    n_lat: int  # lateral resistance states: 1 or 4
-
-    @property
-    def mu(self) -> slice:
-        return slice(0, 4)
-
-    @property
-    def res(self) -> slice:
-        return slice(4, 4 + self.n_res)
-
-    @property
-    def lat(self) -> slice:
-        return slice(4 + self.n_res, 4 + self.n_res + self.n_lat)
-
-    @property
-    def omega(self) -> slice:
-        s = 4 + self.n_res + self.n_lat
-        return slice(s, s + 4)
-
-    @property
-    def v(self) -> int:
-        return 4 + self.n_res + self.n_lat + 4
-
-    @property
-    def psi(self) -> int:
-        return self.v + 1
-
-    @property
-    def bias(self) -> int:
-        """Bias of the speed equation (accelerometer bias + g x pitch bias), m/s^2."""
-        return self.psi + 1
-
-    @property
-    def n(self) -> int:
-        return self.bias + 1
+    n_res: int  # longitudinal resistance states
+    n_lat: int  # lateral resistance states
+    mu: slice
+    res: slice
+    lat: slice
+    omega: slice
+    v: int
+    psi: int
+    bias: int  # bias of the speed equation (accelerometer bias + g x pitch bias), m/s^2
+    n: int
 
     @staticmethod
     def of(structure: Structure) -> "StateLayout":
-        if structure == "slip":
-            return StateLayout(structure, 2, 1)
-        if structure == "shared":
-            return StateLayout(structure, 1, 1)
-        if structure == "per_wheel":
-            return StateLayout(structure, 4, 4)
-        if structure == "none":
-            return StateLayout(structure, 0, 1)
-        raise ValueError(f"observer structure must be slip, shared, per_wheel or none, got {structure!r}")
+        """The layout of ``structure`` (slip, shared, per_wheel or none; another name is a ValueError)."""
+        from soilocp import _core
+
+        blocks = {name: (start, size) for name, start, size in _core.observer_layout(structure)}
+        span = {name: slice(start, start + size) for name, (start, size) in blocks.items()}
+        return StateLayout(structure, blocks["res"][1], blocks["lat"][1], span["mu"], span["res"], span["lat"],
+                           span["omega"], blocks["v"][0], blocks["psi"][0], blocks["bias"][0], blocks["n"][1])
 
     def per_state(self, mu: float, res: float, res_slope: float, lat: float, omega: float, v: float, psi: float,
                   bias: float) -> np.ndarray:

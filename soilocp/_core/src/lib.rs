@@ -57,6 +57,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         fn py::slip::wheel_usability,
         // the observer: its filter bank
         class py::observer::ObserverCore,
+        fn py::observer::observer_layout,
         // the torque scale: its bank, eq. TC and eq. 20 for the offline fit
         class py::torque_scale::TorqueScaleCore,
         fn py::torque_scale::longitudinal_balance,

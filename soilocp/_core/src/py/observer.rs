@@ -14,7 +14,7 @@ use super::args;
 use super::settings::Given;
 use crate::observer::bank::{FilterBank, Settings as FilterSettings, RESET_REASONS};
 use crate::observer::intervals::IntervalSettings;
-use crate::observer::layout::N_MEAS;
+use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::settings::ObserverSettings;
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
@@ -363,4 +363,22 @@ impl ObserverCore {
     fn reset_reasons() -> Vec<&'static str> {
         RESET_REASONS.to_vec()
     }
+}
+
+/// The observer's state layout of `structure` (crate::observer::layout, its one definition): the
+/// first index and the length of each block (mu, res, lat, omega: 4 each or the structure's count;
+/// v, psi, bias: one each), and n, the state's size.
+#[pyfunction]
+pub fn observer_layout(structure: &str) -> PyResult<Vec<(&'static str, usize, usize)>> {
+    let l = Layout::of(structure).map_err(PyValueError::new_err)?;
+    Ok(vec![
+        ("mu", Layout::MU, 4),
+        ("res", l.res(), l.n_res),
+        ("lat", l.lat(), l.n_lat),
+        ("omega", l.omega(), 4),
+        ("v", l.v(), 1),
+        ("psi", l.psi(), 1),
+        ("bias", l.bias(), 1),
+        ("n", 0, l.n()),
+    ])
 }
