@@ -72,7 +72,7 @@ class Monitor:
             with self.lock:
                 self.rejections += 1 + unpublished
                 self.rejection_codes[code] += 1
-                if unpublished:  # their codes are in the gateway's health (rejection_counts)
+                if unpublished:  # their codes are in the gateway's health (rejected_<code>)
                     self.rejection_codes["unpublished"] += unpublished
 
         def status(h: ServiceHealth) -> None:
