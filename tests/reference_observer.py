@@ -243,13 +243,17 @@ class GroundSpeedLatency:
         self.a_prev = np.full(n_vehicles, np.nan)  # the previous sample's acceleration (trapezoid)
         self.sums = np.zeros((n_vehicles, 4))  # decaying sums of x y, x x, y y and the pair count
         self.latency = np.zeros(n_vehicles)  # s; 0 while not determined
+        self.clock = np.zeros(n_vehicles)  # s since the last restart
+        # the recent (clock, acceleration) samples the lead integrates, at least max_latency of them
+        self.recent: list[list[tuple[float, float]]] = [[] for _ in range(n_vehicles)]
 
     def step(self, sel, dt: np.ndarray, acc: np.ndarray, reading: np.ndarray, new: np.ndarray) -> np.ndarray:
         """One sample of the vehicles ``sel``: ``dt`` (k,) s since their previous sample (NaN or
         negative: a restart, which closes the open pair; 0: a repeated stamp), ``acc`` (k,) m/s^2,
         the ground-speed ``reading`` (k,; NaN: none, which neither closes a pair nor enters the
-        fit) and whether it is a new one (k,).  Returns the reading led by the latency,
-        V_read + tau a (k,)."""
+        fit) and whether it is a new one (k,).  Returns the reading led by the latency (k,): V_read
+        plus the acceleration's integral over the last tau seconds (trapezoids, the first cut at
+        now - tau by interpolation, the oldest acceleration held before it)."""
         with np.errstate(invalid="ignore"):
             restart = ~(dt >= 0)  # NaN or negative
         a_lp, a_prev, integral = self.a_lp[sel], self.a_prev[sel], self.integral[sel]
@@ -287,7 +291,38 @@ class GroundSpeedLatency:
             integral = np.where(new, 0.0, integral)
         self.latency[sel], self.sums[sel], self.integral[sel] = latency, sums, integral
         self.a_lp[sel], self.a_prev[sel] = a_lp, acc
-        return reading + latency * a_lp
+        lead = np.zeros(len(latency))
+        for j, g in enumerate(np.arange(len(self.latency))[sel]):
+            if restart[j]:
+                self.recent[g], self.clock[g] = [], 0.0
+            self.clock[g] += step[j]
+            recent = self.recent[g]
+            recent.append((float(self.clock[g]), float(acc[j])))
+            while len(recent) > 2 and recent[1][0] <= self.clock[g] - self.max_latency:
+                recent.pop(0)
+            lead[j] = _trailing_integral(recent, float(self.clock[g]), float(latency[j]))
+        return np.where(latency > 0.0, reading + lead, reading)
+
+
+def _trailing_integral(recent: list[tuple[float, float]], now: float, tau: float) -> float:
+    """The integral of the acceleration over [now - tau, now] from the samples ``recent``."""
+    start = now - tau
+    t1, a1 = recent[-1]
+    total = 0.0
+    for t0, a0 in reversed(recent[:-1]):
+        if t1 <= start:
+            break
+        if t0 >= start:
+            total += 0.5 * (a0 + a1) * (t1 - t0)
+            t1, a1 = t0, a0
+        else:
+            a_start = a0 + (a1 - a0) * (start - t0) / (t1 - t0)
+            total += 0.5 * (a_start + a1) * (t1 - start)
+            t1 = start
+            break
+    if t1 > start:
+        total += a1 * (t1 - start)
+    return total
 
 
 # --- the refresh pairs (intervals.rs) --------------------------------------------------------------------
