@@ -616,6 +616,9 @@ class ReferenceSlipGate:
         self._wheel_y = np.asarray(config.vehicle.wheel_y, dtype=float)
         self._lp = np.zeros((n_vehicles, 4))
         self._lp_stamp = np.full(n_vehicles, np.nan)
+        # the ground speed's age at the last stamp and its last refresh interval (s; NaN: not yet seen)
+        self._gs_age = np.full(n_vehicles, np.nan)
+        self._gs_interval = np.full(n_vehicles, np.nan)
         # skid-steer: the two wheels of a side carry one torque measurement, so each counts half
         self._shared = 2.0 if config.vehicle.drive == "per_side" else 1.0
         self._static_load = config.vehicle.mass * config.observer.gravity / 4.0
@@ -668,14 +671,25 @@ class ReferenceSlipGate:
                        & (unusable == 0) & (~ob.speed_rejected | refresh | held))
         # slip error of eq. 1 at this speed: a speed error dV gives dS ~ dV / V (docs/method.md §6, §9), with the
         # ground speed's stray beyond its assumed noise (§20)
-        speed_sigma = np.hypot(cfg.soil.speed_sigma, ob.ground_speed_excess)[:, None]
+        # the stray is one error per reading, repeated by every sample until the next reading: counted as often
+        # as those samples' likelihood exponents add up to
+        last = self._lp_stamp[ix]
+        start = np.isnan(last)
+        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
+        age = np.asarray(ob.ground_speed_age, dtype=float)
+        since = self._gs_age[ix] + dt
+        with np.errstate(invalid="ignore"):
+            new_reading = np.isfinite(since) & (age < since - 1e-9)
+            interval = np.where(new_reading, since - age, self._gs_interval[ix])
+            step = np.where(dt > 0, dt, 1.0)
+            exponent = np.minimum(cfg.soil.temper * step / cfg.soil.temper_interval, cfg.soil.temper_max)
+            repeats = np.where((dt > 0) & (interval > dt), np.maximum(interval / step * exponent, 1.0), 1.0)
+        self._gs_age[ix], self._gs_interval[ix] = age, interval
+        speed_sigma = np.hypot(cfg.soil.speed_sigma, ob.ground_speed_excess * np.sqrt(repeats))[:, None]
         s_sig = np.hypot(cfg.soil.slip_sigma, speed_sigma / np.maximum(scale, 1e-3))
         if any_refresh:  # and the interval's mean rim speed is known only to interval_rim_sigma
             s_sig = np.where(refresh, np.hypot(s_sig, ob.interval_rim_sigma / np.maximum(scale, 1e-3)), s_sig)
         tau = cfg.soil.gate_smoothing
-        last = self._lp_stamp[ix]
-        start = np.isnan(last)
-        dt = stamp - last  # NaN at the start (quiet NaN: no FP warning), where it is not used
         restart = start | ob.reset | (dt <= 0) | (dt > 1.0)
         if tau > 0:
             alpha = np.where(restart, 1.0, -np.expm1(-np.where(restart, 0.0, dt) / tau))

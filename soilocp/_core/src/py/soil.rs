@@ -159,7 +159,7 @@ impl SlipGateBank {
 pub(crate) struct PendingGate {
     pub(crate) idx: Vec<usize>,
     pub(crate) stamp: Vec<f64>,
-    pub(crate) lps: Vec<[f64; 4]>,
+    pub(crate) lps: Vec<crate::soil::gate::Memory>,
 }
 
 #[pymethods]

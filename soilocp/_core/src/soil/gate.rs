@@ -10,7 +10,7 @@
 use crate::observer::numeric::{nan_max, nan_min};
 use crate::observer::vehicles::{Estimate, QUAD_NAMES as OBSERVER_QUADS};
 use crate::slip;
-use crate::soil::bank::Sample;
+use crate::soil::bank::{likelihood_exponent, Sample};
 use crate::soil::params::Params;
 use crate::soil::usability::{self, Limits, SLIP_BEYOND_EQ1};
 
@@ -155,12 +155,24 @@ pub struct GateParams {
     pub limits: Limits,
 }
 
-/// N vehicles' gate state: the low-pass slip and the stamp it was last stepped at (NaN: never).
+/// N vehicles' gate state: the low-pass slip, the stamp it was last stepped at (NaN: never), and
+/// the ground speed's age at that stamp and its last refresh interval (s; NaN: not yet seen).
 #[derive(Clone, Debug)]
 pub struct SlipGateBank {
     pub cfg: GateParams,
     pub lp: Vec<[f64; 4]>,
     pub lp_stamp: Vec<f64>,
+    pub ground_speed_age: Vec<f64>,
+    pub ground_speed_interval: Vec<f64>,
+}
+
+/// What one vehicle's gate carries to its next sample: the low-pass slip, the ground speed's age
+/// and its last refresh interval (s).
+#[derive(Clone, Copy, Debug)]
+pub struct Memory {
+    pub lp: [f64; 4],
+    pub ground_speed_age: f64,
+    pub ground_speed_interval: f64,
 }
 
 #[inline]
@@ -189,6 +201,8 @@ impl SlipGateBank {
             cfg,
             lp: vec![[0.0; 4]; n],
             lp_stamp: vec![f64::NAN; n],
+            ground_speed_age: vec![f64::NAN; n],
+            ground_speed_interval: vec![f64::NAN; n],
         })
     }
 
@@ -202,14 +216,9 @@ impl SlipGateBank {
         Ok(samples)
     }
 
-    /// [`Self::step`] without touching the state: the samples and each vehicle's new low-pass slip,
-    /// for [`Self::commit`] once the caller has accepted them (a refused step leaves the gate as it was).
-    pub fn samples(
-        &self,
-        idx: &[usize],
-        stamp: &[f64],
-        rows: &[&[f64]],
-    ) -> Result<(Vec<Sample>, Vec<[f64; 4]>), String> {
+    /// [`Self::step`] without touching the state: the samples and each vehicle's new [`Memory`], for
+    /// [`Self::commit`] once the caller has accepted them (a refused step leaves the gate as it was).
+    pub fn samples(&self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<(Vec<Sample>, Vec<Memory>), String> {
         let n = self.lp.len();
         let mut seen = vec![false; n];
         for &i in idx {
@@ -232,18 +241,20 @@ impl SlipGateBank {
             .unzip())
     }
 
-    /// Keep the low-pass slips `lps` of [`Self::samples`] as the vehicles' state at `stamp`.
-    pub fn commit(&mut self, idx: &[usize], stamp: &[f64], lps: &[[f64; 4]]) {
-        for ((&i, &t), lp) in idx.iter().zip(stamp).zip(lps) {
-            self.lp[i] = *lp;
+    /// Keep the [`Memory`]s `lps` of [`Self::samples`] as the vehicles' state at `stamp`.
+    pub fn commit(&mut self, idx: &[usize], stamp: &[f64], lps: &[Memory]) {
+        for ((&i, &t), m) in idx.iter().zip(stamp).zip(lps) {
+            self.lp[i] = m.lp;
             self.lp_stamp[i] = t;
+            self.ground_speed_age[i] = m.ground_speed_age;
+            self.ground_speed_interval[i] = m.ground_speed_interval;
         }
     }
 
     /// Vehicle `i`'s sample and its new low-pass slip: eq. 1 in the wheel's direction of travel with the
     /// floor and deadband (docs/method.md §6, §10, §17), and the gate's low-pass slip and its
     /// stationary 1-sigma (§9).
-    fn one(&self, i: usize, stamp: f64, row: &[f64], any_refresh: bool) -> (Sample, [f64; 4]) {
+    fn one(&self, i: usize, stamp: f64, row: &[f64], any_refresh: bool) -> (Sample, Memory) {
         let cfg = &self.cfg;
         let q = |f: usize| row4(row, f);
         let flag = |f: usize| q(f).map(|v| v != 0.0);
@@ -341,7 +352,26 @@ impl SlipGateBank {
         // held between fixes; §20) is that much less certain; a refresh interval's mean rim speed is known only
         // to interval_rim_sigma
         let rim_sigma = q(quad::INTERVAL_RIM_SIGMA);
-        let speed_sigma = cfg.soil.speed_sigma.hypot(row[scalar::GROUND_SPEED_EXCESS]);
+        // the stray is one error per reading: every sample until the next reading repeats it, and K
+        // would count it as many times as those samples' likelihood exponents add up to (§20)
+        let last = self.lp_stamp[i];
+        let dt = stamp - last;
+        let age = row[scalar::GROUND_SPEED_AGE];
+        let since = self.ground_speed_age[i] + dt; // the previous reading's age now
+        let gs_interval = if since.is_finite() && age < since - 1e-9 {
+            since - age // a new reading: the time since the one before it
+        } else {
+            self.ground_speed_interval[i]
+        };
+        let repeats = if dt > 0.0 && gs_interval > dt {
+            (gs_interval / dt * likelihood_exponent(&cfg.soil, dt)).max(1.0)
+        } else {
+            1.0
+        };
+        let speed_sigma = cfg
+            .soil
+            .speed_sigma
+            .hypot(row[scalar::GROUND_SPEED_EXCESS] * repeats.sqrt());
         let slip_sigma: [f64; 4] = std::array::from_fn(|w| {
             let s = cfg.soil.slip_sigma.hypot(speed_sigma / nan_max(scale[w], 1e-3));
             if any_refresh && refresh[w] {
@@ -353,8 +383,6 @@ impl SlipGateBank {
         // the low-pass slip the gate decides on (§9): gating on the raw, noisy slip keeps the samples
         // whose noise pushed |S| up and biases K
         let tau = cfg.soil.gate_smoothing;
-        let last = self.lp_stamp[i];
-        let dt = stamp - last;
         let mut restart = last.is_nan() || reset || dt <= 0.0 || dt > 1.0;
         let alpha = if tau > 0.0 {
             if restart {
@@ -407,7 +435,12 @@ impl SlipGateBank {
             unusable,
             scale_sigma: None,
         };
-        (sample, lp)
+        let memory = Memory {
+            lp,
+            ground_speed_age: age,
+            ground_speed_interval: gs_interval,
+        };
+        (sample, memory)
     }
 }
 
@@ -526,5 +559,34 @@ mod tests {
         let s = g.step(&[0], &[0.0], &[&r]).unwrap();
         assert!((s[0].slip[0] - 0.41 / 0.45).abs() < 1e-9);
         assert!((s[0].observed[0] + 0.3).abs() < 1e-15);
+    }
+
+    /// A ground speed read at 5 Hz by 100 Hz samples, straying 0.05 m/s beyond its noise: each
+    /// reading's error is repeated by the 20 samples until the next, whose likelihood exponents
+    /// add up to 20 x 0.15 = 3, so the stray enters the slip's 1-sigma sqrt(3) times; a reading
+    /// at every sample, once.
+    #[test]
+    fn a_held_reading_s_stray_counts_once_per_reading() {
+        let sigma_at = |refresh: usize| {
+            let p = params();
+            let mut g = SlipGateBank::new(p.clone(), 1).unwrap();
+            let mut last = [0.0; 4];
+            for i in 0..100 {
+                let mut r = row(1.25 / 0.15, 1.0);
+                r[scalar::GROUND_SPEED_AGE] = 0.01 * (i % refresh) as f64;
+                r[scalar::GROUND_SPEED_EXCESS] = 0.05;
+                last = g.step(&[0], &[0.01 * i as f64], &[&r]).unwrap()[0].slip_sigma;
+            }
+            let s = p.soil;
+            let want = |repeats: f64| s.slip_sigma.hypot(s.speed_sigma.hypot(0.05 * repeats.sqrt()) / 1.25);
+            (last[0], want(1.0), want(20.0 * likelihood_exponent(&s, 0.01)))
+        };
+        let (got, once, _) = sigma_at(1);
+        assert!((got - once).abs() < 1e-12, "{got} {once}");
+        let (got, once, repeated) = sigma_at(20);
+        assert!(
+            (got - repeated).abs() < 1e-12 && repeated > 1.3 * once,
+            "{got} {repeated} {once}"
+        );
     }
 }
