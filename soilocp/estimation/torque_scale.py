@@ -44,8 +44,6 @@ kernel.  This module keeps the configuration and a thin bank over the core.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from soilocp import _core
@@ -57,8 +55,8 @@ from soilocp.model.vehicle import VehicleParams
 
 
 class TorqueScaleBank:
-    """N vehicles' torque scales (module doc), their state in the core: :meth:`apply` takes one sample per
-    vehicle in ``ix`` (the observer's inputs) and steps them in one call."""
+    """N vehicles' torque scales (module doc), their state in the core, which the estimator's chain
+    (``soilocp._core.ChainCore``) steps with the observer: one sample per vehicle in a step, the observer's inputs."""
 
     def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int,
                  constants: ModelConstants = DEFAULT_CONSTANTS, *, slip_floor: float = DEFAULT_FLOOR,
@@ -95,28 +93,6 @@ class TorqueScaleBank:
         if not self.active:
             return np.tile(np.diag([self.state_sigma**2, self.cfg.resistance_sigma**2]), (self._n, 1, 1))
         return self._core.p
-
-    def apply(self, ix: np.ndarray, inputs):
-        """The observer's inputs (:class:`soilocp.estimation.observer_bank.ObserverInputs`) for vehicles ``ix``
-        after this sample has stepped the state: torques x k's mean; and k's relative posterior 1-sigma (k,),
-        the soil estimator's scale prior, or None while the state is off or never learnt (the prior stays the
-        config's)."""
-        if not self.active:
-            return inputs, None
-        ix = np.asarray(ix, dtype=np.int64)
-        try:  # the core refuses a bad shape, dtype or value before it steps a vehicle
-            out = self._apply(ix, inputs)
-        except (TypeError, ValueError):
-            inputs.check()  # the observer's own named error (or its float64 copies of the fields, then the core's)
-            out = self._apply(ix, inputs)
-        if out is None:
-            return inputs, None
-        torque, scale_sigma = out
-        return dataclasses.replace(inputs, wheel_torque=torque), scale_sigma
-
-    def _apply(self, ix: np.ndarray, inputs):
-        return self._core.apply(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
-                                inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
 
     def band_sigma(self, sd) -> np.ndarray:
         """k's 1-sigma for K's band: the windows' information about k (the state's posterior precision less its

@@ -1,11 +1,31 @@
-//! Argument checks the bindings share: a (k,) or a (k, 4) array of a step's k vehicles (and, for the
-//! observer's inputs, every entry finite), two arrays that broadcast together, refused with a ValueError
-//! that names the argument and what it came with.
+//! Argument checks the bindings share: a step's vehicle indices, a (k,) or a (k, 4) array of its k
+//! vehicles (and, for the observer's inputs, every entry finite), two arrays that broadcast together,
+//! refused with a ValueError that names the argument and what it came with.
 
 use numpy::ndarray::{ArrayD, ArrayView1, ArrayView2, ArrayViewD, IxDyn, Zip};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+
+/// The vehicles of a step of a bank of `n` from `idx` (None: all, in order): distinct indices in
+/// [0, n), else a ValueError naming them.
+pub fn vehicles(idx: Option<&PyReadonlyArray1<'_, i64>>, n: usize) -> PyResult<Vec<usize>> {
+    let Some(idx) = idx else {
+        return Ok((0..n).collect());
+    };
+    let ix = idx.as_array();
+    let mut seen = vec![false; n];
+    let mut out = Vec::with_capacity(ix.len());
+    for &g in ix.iter() {
+        if g < 0 || g as usize >= n || std::mem::replace(&mut seen[g as usize], true) {
+            return Err(PyValueError::new_err(format!(
+                "idx must be distinct vehicle indices in [0, {n}), got {ix}"
+            )));
+        }
+        out.push(g as usize);
+    }
+    Ok(out)
+}
 
 /// `len` entries where the step has `k` vehicles.
 pub fn check_len(name: &str, len: usize, k: usize) -> PyResult<()> {

@@ -13,7 +13,7 @@ use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::args::{column, quads};
+use super::args::{self, column, quads};
 use super::observer::{blocks, Inputs, ObserverCore, StepOut};
 use super::soil::{gate_arrays, report_arrays, GateArrays, PendingGate, ReportArrays, SlipGateBank, SoilGridBank};
 use super::torque_scale::TorqueScaleCore;
@@ -22,7 +22,7 @@ use crate::observer::vehicles::{Estimate, ObserverBank, Raw};
 use crate::ocp;
 use crate::soil::bank::Sample;
 use crate::soil::gate::{self, COLUMNS};
-use crate::torque_scale::bank::{Sample as ScaleSample, TorqueScaleBank};
+use crate::torque_scale::bank::TorqueScaleBank;
 
 type Arr<'py> = Bound<'py, PyArray1<f64>>;
 
@@ -43,20 +43,6 @@ pub struct ChainCore {
     scale: Option<Py<TorqueScaleCore>>,
     /// feed each step's K and slips back to the scale (its modelled motion resistance, eq. 4)
     feed_soil: bool,
-}
-
-/// The torque scale's sample of an observer input: the logged torques, before the scale.
-fn scale_sample(r: &Raw) -> ScaleSample {
-    ScaleSample {
-        stamp: r.stamp,
-        f_x: r.specific_force_x,
-        pitch: r.pitch,
-        yaw_rate: r.yaw_rate,
-        wheel_speed: r.wheel_speed,
-        torque: r.wheel_torque,
-        ground_speed: r.ground_speed,
-        normal_force: Some(r.normal_force),
-    }
 }
 
 /// The observer stage's output: the estimates and, once the torque scale has left its prior, each
@@ -114,11 +100,7 @@ impl Stages<'_> {
     fn observe(&mut self, vehicles: &[usize], mut raws: Vec<Raw>) -> PyResult<Observed> {
         let mut scaled = None;
         if let Some(bank) = self.scale.as_deref_mut() {
-            let stepped: Vec<(f64, f64)> = vehicles
-                .iter()
-                .zip(&raws)
-                .map(|(&g, r)| bank.step(g, &scale_sample(r)))
-                .collect();
+            let stepped: Vec<(f64, f64)> = vehicles.iter().zip(&raws).map(|(&g, r)| bank.step(g, r)).collect();
             scaled = bank.scaled(&stepped);
             if let Some(sc) = &scaled {
                 for (r, &(m, _)) in raws.iter_mut().zip(sc) {
@@ -355,21 +337,11 @@ impl ChainCore {
         k: PyReadonlyArray1<'_, f64>,
         slip: PyReadonlyArray2<'_, f64>,
     ) -> PyResult<()> {
-        let n = idx.as_array().len();
-        let ix = column("idx", &idx, n)?;
+        let mut held = self.hold(py)?;
+        let vehicles = args::vehicles(Some(&idx), held.observer.bank_mut().filter.n_vehicles)?;
+        let n = vehicles.len();
         let ks = column("k", &k, n)?;
         let slips = quads("slip", &slip, n)?;
-        let mut held = self.hold(py)?;
-        let n_veh = held.observer.bank_mut().filter.n_vehicles;
-        let mut vehicles = Vec::with_capacity(n);
-        for &g in &ix {
-            if g < 0 || g as usize >= n_veh {
-                return Err(PyValueError::new_err(format!(
-                    "idx {g}: not a vehicle index in [0, {n_veh})"
-                )));
-            }
-            vehicles.push(g as usize);
-        }
         held.stages(&self.constants, self.feed_soil)
             .feed(&vehicles, &ks, &slips);
         Ok(())

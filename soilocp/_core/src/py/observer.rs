@@ -3,7 +3,7 @@
 //! (soilocp.estimation.observer_bank.ObserverBank) words the reset reasons from the codes and
 //! wraps the arrays in its dataclass.
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -11,13 +11,13 @@ use pyo3::prelude::*;
 use std::collections::HashMap;
 
 use super::args;
-use super::settings::Given;
 use crate::observer::bank::{FilterBank, Settings as FilterSettings, RESET_REASONS};
 use crate::observer::intervals::IntervalSettings;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::settings::ObserverSettings;
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+use crate::settings::Value;
 
 /// One step's samples of k vehicles, read by attribute from
 /// soilocp.estimation.observer_bank.ObserverInputs: (k,) stamp, specific force x, yaw rate, pitch,
@@ -120,23 +120,7 @@ impl ObserverCore {
         let n_veh = self.inner.filter.n_vehicles;
         let stamp = inputs.stamp.as_array();
         let k = stamp.len();
-        let idx_view = idx.map(|a| a.as_array());
-        let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
-        let mut vehicles = Vec::with_capacity(k);
-        if let Some(ix) = &idx_view {
-            let mut seen = vec![false; n_veh];
-            for &g in ix.iter() {
-                if g < 0 || g as usize >= n_veh || seen[g as usize] {
-                    return Err(PyValueError::new_err(format!(
-                        "idx must be distinct vehicle indices in [0, {n_veh}), got {ix}"
-                    )));
-                }
-                seen[g as usize] = true;
-                vehicles.push(g as usize);
-            }
-        } else {
-            vehicles.extend(0..n_veh);
-        }
+        let vehicles = args::vehicles(idx, n_veh)?;
         let (fx, yaw, pitch, gs) = (
             inputs.specific_force_x.as_array(),
             inputs.yaw_rate.as_array(),
@@ -157,22 +141,22 @@ impl ObserverCore {
         args::check_finite_quads("wheel_torque", &tq, k)?;
         args::check_finite_quads("normal_force", &fz, k)?;
         // after the fields, which are checked against the stamp's length: a field of another length is named
-        if k != m {
+        if k != vehicles.len() {
             return Err(PyValueError::new_err(format!(
-                "inputs hold {k} samples for {m} vehicle indices"
+                "inputs hold {k} samples for {} vehicle indices",
+                vehicles.len()
             )));
         }
-        let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
         let raws = (0..k)
             .map(|j| Raw {
                 stamp: stamp[j],
                 specific_force_x: fx[j],
                 yaw_rate: yaw[j],
                 pitch: pitch[j],
-                wheel_speed: row4(&ws, j),
-                wheel_torque: row4(&tq, j),
+                wheel_speed: args::row(&ws, j),
+                wheel_torque: args::row(&tq, j),
                 ground_speed: gs[j],
-                normal_force: row4(&fz, j),
+                normal_force: args::row(&fz, j),
             })
             .collect();
         Ok((vehicles, raws))
@@ -193,7 +177,7 @@ impl ObserverCore {
         n_vehicles: usize,
         vehicle: Vec<f64>,
         wheel_y: Vec<f64>,
-        settings: HashMap<String, Given>,
+        settings: HashMap<String, Value>,
         per_side: bool,
         interval_mean: bool,
         bridge_slip: f64,
