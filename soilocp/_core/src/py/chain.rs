@@ -299,7 +299,7 @@ impl ChainCore {
     /// observer outputs `rows` (k, `SlipGateBank.columns`, or one message's numbers) of the vehicles
     /// `idx` at `stamp` (k,), each wheel's map-prior `informing` flag (None: every wheel may inform
     /// K), and the update with the scale's relative 1-sigma (None: the prior).  Returns the gate's
-    /// arrays and the records (as `SoilGridBank.step_gated`).
+    /// arrays (as `SlipGateBank.step`) and the records (as `SoilGridBank.report`).
     #[pyo3(signature = (idx, stamp, rows, scale_sigma=None, informing=None))]
     fn update<'py>(
         &self,

@@ -345,7 +345,7 @@ impl SoilGridBank {
     ) -> PyResult<(Vec<Sample>, Vec<[bool; 4]>)> {
         if self.status.is_none() {
             return Err(PyValueError::new_err(
-                "step_gated: call set_status first (the records' settings)",
+                "soil: call set_status first (the records' settings)",
             ));
         }
         if let Some(sig) = scale_sigma {
@@ -633,31 +633,8 @@ impl SoilGridBank {
         self.run(py, &samples)
     }
 
-    /// The soil stage's one call per step: the slip gate `gate` on the packed observer outputs
-    /// `rows` (k, COLUMNS) (soilocp.estimation.slip_gate.GATE_FIELDS) of the vehicles `idx` at `stamp`
-    /// (k,), then the update of their beliefs with the gate's samples and `scale_sigma` (k,) (the
-    /// online torque scale's relative 1-sigma, None: the prior), and their records.  Returns (the
-    /// gate's arrays, as `SlipGateBank.step`; the records' arrays, as `report`).
-    #[pyo3(signature = (gate, idx, stamp, rows, scale_sigma=None))]
-    fn step_gated<'py>(
-        &mut self,
-        py: Python<'py>,
-        mut gate: PyRefMut<'py, SlipGateBank>,
-        idx: PyReadonlyArray1<'py, i64>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        rows: Bound<'py, PyAny>,
-        scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
-    ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
-        let (samples, pending) = gate.run(&idx, &stamp, &rows)?;
-        let sig = scale_sigma
-            .map(|a| column("scale_sigma", &a, samples.len()))
-            .transpose()?;
-        let (samples, used) = self.gated(&mut gate.inner, samples, pending, sig.as_deref())?;
-        Ok((gate_arrays(py, &samples)?, report_arrays(py, &self.reports, &used)))
-    }
-
-    /// Make records from now on: each step also makes its vehicles' records (`report`,
-    /// `step_gated`), with the bank's settings and the grid's ln K `span`.
+    /// Make records from now on: each step also makes its vehicles' records (`report`, the
+    /// chain's steps), with the bank's settings and the grid's ln K `span`.
     fn set_status(&mut self, span: f64) -> PyResult<()> {
         let n = self.inner.vehicles.len();
         let bank = StatusBank::new(self.inner.cfg, span, n).map_err(PyValueError::new_err)?;
