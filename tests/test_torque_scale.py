@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from soilocp.estimation.observer_bank import ObserverInputs
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.traction import motion_resistance
@@ -15,6 +16,16 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 V = DEFAULT_VEHICLE
+
+
+def scale_inputs(stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed, normal_force=None) -> ObserverInputs:
+    """One sample per vehicle as the observer takes it (the torque scale's input): stamps, f_x, pitch, yaw rate,
+    ground speed (k,); wheel speeds, logged torques and normal forces (k, 4) (None: none, zero)."""
+    col = lambda a: np.asarray(a, dtype=float).reshape(-1)  # noqa: E731
+    quad = lambda a: np.asarray(a, dtype=float).reshape(-1, 4)  # noqa: E731
+    k = col(stamp).size
+    return ObserverInputs(col(stamp), col(f_x), col(yaw_rate), col(pitch), quad(wheel_speed), quad(torque), col(speed),
+                          np.zeros((k, 4)) if normal_force is None else quad(normal_force))
 
 
 def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, seconds: float = 40.0, rate: float = 100.0,
@@ -38,7 +49,7 @@ def _run(stream, cfg=TorqueScaleConfig(enabled=True, prior_sigma=None)):
     t, f_x, omega, logged, v = stream
     bank = TorqueScaleBank(V, cfg, 0.05, 1)
     ix = np.array([0])
-    out = [bank.step(ix, [t[i]], [f_x[i]], [0.0], [0.0], omega[i][None], logged[i][None], [v[i]]) for i in range(t.size)]
+    out = [bank.step(ix, scale_inputs(t[i], f_x[i], 0.0, 0.0, omega[i], logged[i], v[i])) for i in range(t.size)]
     return np.array([(m[0], s[0]) for m, s in out])
 
 
@@ -70,8 +81,8 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
     bank = TorqueScaleBank(V, TorqueScaleConfig(enabled=True, prior_sigma=None), 0.05, 1)
     ix = np.array([0])
     for s, _ in var.simulate(0, duration=15.0):
-        m, sd = bank.step(ix, [s.stamp], [s.specific_force[0]], [s.pitch], [s.yaw_rate], [s.wheel_speed],
-                          [s.wheel_torque], [s.ground_speed])
+        m, sd = bank.step(ix, scale_inputs(s.stamp, s.specific_force[0], s.pitch, s.yaw_rate, s.wheel_speed,
+                                           s.wheel_torque, s.ground_speed))
     assert m[0] == 1.0 and sd[0] == pytest.approx(0.05)
 
 
@@ -186,7 +197,7 @@ def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = 
     ix = np.array([0])
     for i in range(t.size):
         bank.feed_soil(ix, [k_soil[i]])
-        m, _ = bank.step(ix, [t[i]], [f_x[i]], [0.0], [0.0], omega[i][None], logged[i][None], [v[i]], fz[i][None])
+        m, _ = bank.step(ix, scale_inputs(t[i], f_x[i], 0.0, 0.0, omega[i], logged[i], v[i], fz[i]))
     return m[0]
 
 

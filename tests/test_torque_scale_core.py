@@ -22,6 +22,7 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 import reference_torque_scale as ref
+from test_torque_scale import scale_inputs
 
 V = DEFAULT_VEHICLE
 
@@ -33,7 +34,8 @@ def _same(a, b) -> bool:
 
 def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse: bool):
     """A drive that mostly satisfies eq. TC (torque = k_true x logged, F_MR 25 N, small slips), with bad
-    samples (turning, slipping, slow, gaps, stamps that stand still, NaN readings) at rate p_bad."""
+    samples (turning, slipping, slow, gaps, stamps that stand still, no ground speed, torque glitches) at rate
+    p_bad: what passes the observer's input check, which the chain runs before the scale."""
     t, out = 0.0, []
     w = 2.0 * math.pi / rng.uniform(2.0, 6.0)
     sign = -1.0 if reverse else 1.0
@@ -63,7 +65,7 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
             elif kind == 5:
                 s["gs"] = math.nan  # no ground speed: the rims' mean
             else:
-                s["f_x"] = math.nan
+                s["tq"] = s["tq"] * 3.0  # a torque glitch
         t += dt
         s["stamp"] = t
         out.append(s)
@@ -82,7 +84,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
         rows = [samples_per_vehicle[i][j] for i in ix]
         args = [np.array([r[k] for r in rows], dtype=float) for k in ("stamp", "f_x", "pitch", "yaw", "ws", "tq", "gs")]
         fz = np.array([r["fz"] for r in rows])
-        m1, s1 = core.step(ix, *args, fz)
+        m1, s1 = core.step(ix, scale_inputs(*args, fz))
         m2, s2 = numpy_.step(ix, *args, fz)
         assert _same(m1, m2) and _same(s1, s2), (j, m1, m2, s1, s2)
         learnt += int(np.any(m1 != 1.0))
@@ -261,11 +263,17 @@ def test_bad_calls_are_named():
     bank = TorqueScaleBank(V, TorqueScaleConfig(), 0.05, 2)
     one = [np.zeros(1)] * 4
     with pytest.raises(ValueError, match=r"idx must be distinct vehicle indices in \[0, 2\), got \[2\]"):
-        bank.step(np.array([2]), *one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1))
+        bank.step(np.array([2]), scale_inputs(*one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1)))
     with pytest.raises(ValueError, match="distinct"):
-        bank.step(np.array([1, 1]), *[np.zeros(2)] * 4, np.zeros((2, 4)), np.zeros((2, 4)), np.zeros(2))
-    with pytest.raises(ValueError, match="wheel_torque"):
-        bank.step(np.array([0]), *one, np.zeros((1, 4)), np.zeros((1, 3)), np.zeros(1))
+        bank.step(np.array([1, 1]), scale_inputs(*[np.zeros(2)] * 4, np.zeros((2, 4)), np.zeros((2, 4)), np.zeros(2)))
+    x = scale_inputs(*one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1))
+    x.wheel_torque = np.zeros((1, 3))
+    with pytest.raises(ValueError, match=r"inputs.wheel_torque must be a finite array of shape \(1, 4\)"):
+        bank.step(np.array([0]), x)
+    x.wheel_torque, x.specific_force_x = np.zeros((1, 4)), np.array([np.nan])
+    with pytest.raises(ValueError, match="inputs.specific_force_x must be a finite array"):
+        bank.step(np.array([0]), x)
+    assert _same(bank.theta, np.tile([1.0, 0.0], (2, 1)))  # refused before any vehicle stepped
     fed = TorqueScaleBank(V, TorqueScaleConfig(model_resistance=True), 0.05, 2)
     with pytest.raises(ValueError, match="soil_strength"):
         fed.feed_soil(np.array([0, 1]), [1.0])

@@ -126,14 +126,11 @@ class TorqueScaleBank:
             return np.ones(ix.size), np.sqrt(np.full(ix.size, self.state_sigma**2))
         return self._core.scale(ix)
 
-    def step(self, ix: np.ndarray, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed,
-             normal_force=None) -> tuple[np.ndarray, np.ndarray]:
-        """Add one sample per vehicle (stamps s, f_x m/s^2, pitch rad, yaw rate rad/s, wheel speeds (k, 4)
-        rad/s, logged torques (k, 4), ground speed m/s (NaN: the rims' mean), normal forces (k, 4) N (None:
-        no modelled resistance, b is the whole F_MR)); close the windows that are full and update their
-        vehicles' state.  Returns k's mean and 1-sigma after this sample."""
+    def step(self, ix, inputs) -> tuple[np.ndarray, np.ndarray]:
+        """Add one sample per vehicle in ``ix`` (None: all, in order): the observer's inputs
+        (:class:`soilocp.estimation.observer_bank.ObserverInputs`, the logged torques; its normal forces are read
+        where the resistance is modelled); close the windows that are full and update their vehicles' state.
+        Returns k's mean and 1-sigma after this sample."""
         if not self.active:
-            return self.scale(ix)
-        f = lambda a: np.asarray(a, dtype=float)  # noqa: E731
-        return self._core.step(np.asarray(ix, dtype=np.int64), f(stamp), f(f_x), f(pitch), f(yaw_rate), f(wheel_speed),
-                               f(torque), f(speed), None if normal_force is None else f(normal_force))
+            return self.scale(np.arange(self._n) if ix is None else ix)
+        return self._core.step(None if ix is None else np.asarray(ix, dtype=np.int64), inputs)

@@ -104,28 +104,23 @@ pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
     )
 }
 
-impl ObserverCore {
-    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
-    pub(crate) fn bank_mut(&mut self) -> &mut ObserverBank {
-        &mut self.inner
-    }
-
-    /// A step's vehicles (`idx`, None: all in order; distinct, in range) and their samples, every
-    /// input checked (shape, finite; ValueError naming the field) before any vehicle's state changes.
+impl Inputs<'_> {
+    /// A step's vehicles of a bank of `n_vehicles` (`idx`, None: all in order; distinct, in range)
+    /// and their samples, every input checked (shape, finite; ValueError naming the field) before
+    /// any vehicle's state changes.
     pub(crate) fn raws(
         &self,
         idx: Option<&PyReadonlyArray1<'_, i64>>,
-        inputs: &Inputs<'_>,
+        n_vehicles: usize,
     ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
-        let n_veh = self.inner.filter.n_vehicles;
-        let stamp = inputs.stamp.as_array();
+        let stamp = self.stamp.as_array();
         let k = stamp.len();
-        let vehicles = args::vehicles(idx, n_veh)?;
+        let vehicles = args::vehicles(idx, n_vehicles)?;
         let (fx, yaw, pitch, gs) = (
-            inputs.specific_force_x.as_array(),
-            inputs.yaw_rate.as_array(),
-            inputs.pitch.as_array(),
-            inputs.ground_speed.as_array(),
+            self.specific_force_x.as_array(),
+            self.yaw_rate.as_array(),
+            self.pitch.as_array(),
+            self.ground_speed.as_array(),
         );
         args::check_finite_column("stamp", &stamp, k, false)?;
         args::check_finite_column("specific_force_x", &fx, k, false)?;
@@ -133,9 +128,9 @@ impl ObserverCore {
         args::check_finite_column("pitch", &pitch, k, false)?;
         args::check_finite_column("ground_speed", &gs, k, true)?;
         let (ws, tq, fz) = (
-            inputs.wheel_speed.as_array(),
-            inputs.wheel_torque.as_array(),
-            inputs.normal_force.as_array(),
+            self.wheel_speed.as_array(),
+            self.wheel_torque.as_array(),
+            self.normal_force.as_array(),
         );
         args::check_finite_quads("wheel_speed", &ws, k)?;
         args::check_finite_quads("wheel_torque", &tq, k)?;
@@ -160,6 +155,22 @@ impl ObserverCore {
             })
             .collect();
         Ok((vehicles, raws))
+    }
+}
+
+impl ObserverCore {
+    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
+    pub(crate) fn bank_mut(&mut self) -> &mut ObserverBank {
+        &mut self.inner
+    }
+
+    /// A step's vehicles (`idx`, None: all in order) and their samples, checked ([`Inputs::raws`]).
+    pub(crate) fn raws(
+        &self,
+        idx: Option<&PyReadonlyArray1<'_, i64>>,
+        inputs: &Inputs<'_>,
+    ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
+        inputs.raws(idx, self.inner.filter.n_vehicles)
     }
 }
 

@@ -11,12 +11,12 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::constants::Constants;
-use crate::observer::vehicles::Raw;
 use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank;
 use crate::torque_scale::params::{Derived, Params, Settings};
 
 use super::args::{check_len, column, quads, vehicles};
+use super::observer::Inputs;
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
@@ -77,54 +77,18 @@ impl TorqueScaleCore {
         Ok(TorqueScaleCore { inner })
     }
 
-    /// One sample per vehicle in `idx` (k distinct indices): the observer's inputs (stamp,
-    /// specific_force_x, pitch, yaw_rate, ground_speed (k,), NaN ground speed: none; wheel_speed,
-    /// wheel_torque (k, 4)) and the normal forces (k, 4) (None: no modelled resistance).  Returns
-    /// k's mean and 1-sigma after this sample, (k,) each.
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (idx, stamp, specific_force_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed,
-                        normal_force=None))]
+    /// One sample per vehicle in `idx` (None: all, in order): the observer's inputs (an
+    /// ObserverInputs, the logged torques; checked as the observer checks them, before any vehicle
+    /// steps).  Returns k's mean and 1-sigma after this sample, (k,) each.
+    #[pyo3(signature = (idx, inputs))]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
-        idx: PyReadonlyArray1<'py, i64>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        specific_force_x: PyReadonlyArray1<'py, f64>,
-        pitch: PyReadonlyArray1<'py, f64>,
-        yaw_rate: PyReadonlyArray1<'py, f64>,
-        wheel_speed: PyReadonlyArray2<'py, f64>,
-        wheel_torque: PyReadonlyArray2<'py, f64>,
-        ground_speed: PyReadonlyArray1<'py, f64>,
-        normal_force: Option<PyReadonlyArray2<'py, f64>>,
+        idx: Option<PyReadonlyArray1<'py, i64>>,
+        inputs: Inputs<'py>,
     ) -> PyResult<Pair<'py>> {
-        let ix = self.indices(&idx)?;
-        let k = ix.len();
-        let stamp = column("stamp", &stamp, k)?;
-        let f_x = column("specific_force_x", &specific_force_x, k)?;
-        let pitch = column("pitch", &pitch, k)?;
-        let yaw_rate = column("yaw_rate", &yaw_rate, k)?;
-        let ground_speed = column("ground_speed", &ground_speed, k)?;
-        let ws = quads("wheel_speed", &wheel_speed, k)?;
-        let tq = quads("wheel_torque", &wheel_torque, k)?;
-        let nf = normal_force.map(|a| quads("normal_force", &a, k)).transpose()?;
-        let out: Vec<(f64, f64)> = ix
-            .iter()
-            .enumerate()
-            .map(|(j, &i)| {
-                let s = Raw {
-                    stamp: stamp[j],
-                    specific_force_x: f_x[j],
-                    yaw_rate: yaw_rate[j],
-                    pitch: pitch[j],
-                    wheel_speed: ws[j],
-                    wheel_torque: tq[j],
-                    ground_speed: ground_speed[j],
-                    // none: no modelled resistance (eq. 4's sum over zero normal forces)
-                    normal_force: nf.as_ref().map_or([0.0; 4], |a| a[j]),
-                };
-                self.inner.step(i, &s)
-            })
-            .collect();
+        let (ix, raws) = inputs.raws(idx.as_ref(), self.inner.len())?;
+        let out: Vec<(f64, f64)> = ix.iter().zip(&raws).map(|(&i, r)| self.inner.step(i, r)).collect();
         let (m, sd): (Vec<f64>, Vec<f64>) = out.into_iter().unzip();
         Ok((m.into_pyarray(py), sd.into_pyarray(py)))
     }
