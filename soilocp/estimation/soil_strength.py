@@ -254,7 +254,7 @@ _REASON_NAMES: tuple[str, ...] = tuple(_core.SoilGridBank.reason_names)
 _R = {name: code for code, name in enumerate(_REASON_NAMES)}
 if _STATUSES != get_args(Status) or not set(_REASON_NAMES) <= set(REASON_CODES):
     raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not those of "
-                      "soilocp.schemas.codes: rebuild the core (make setup) and regenerate the module "
+                      "soilocp.schemas.codes: rebuild the core (make setup) and regenerate its file "
                       "(python -m soilocp.cli.generate_codes)")
 
 #: the reason texts that are one template each, by reason code (the others: SoilBank._reason): filled in with
