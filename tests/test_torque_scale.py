@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from soilocp.estimation.estimator import Estimator
 from soilocp.estimation.observer_bank import ObserverInputs
+from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.traction import motion_resistance
@@ -26,6 +28,14 @@ def scale_inputs(stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed, normal
     k = col(stamp).size
     return ObserverInputs(col(stamp), col(f_x), col(yaw_rate), col(pitch), quad(wheel_speed), quad(torque), col(speed),
                           np.zeros((k, 4)) if normal_force is None else quad(normal_force))
+
+
+def fed_bank(cfg: TorqueScaleConfig, n: int = 1):
+    """The torque scale of an estimator of n vehicles (the vehicle, constants and settings otherwise the defaults)
+    and its chain, which feeds the soil's K and slips back to the scale as the soil stage does (``chain.feed``,
+    :meth:`Estimator.feed`; only where the resistance is modelled)."""
+    est = Estimator(PipelineConfig(torque_scale=cfg), n)
+    return est.scale, est.chain
 
 
 def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, seconds: float = 40.0, rate: float = 100.0,
@@ -176,7 +186,7 @@ def test_the_modelled_resistance_is_eq_4_summed_and_opposes_travel():
 
 def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = None):
     """Eq. TC with F_MR = eq. 4 at slips 0.04-0.09 on a soil that alternates K 200 / 50 every 10 s (F_MR +25 / -19
-    N): the soil's K is fed back as the soil stage does (feed_soil).  ``jump``: resistance_jump (None: the
+    N): the soil's K is fed back as the soil stage does (the chain's feed).  ``jump``: resistance_jump (None: the
     default).  Returns k's final mean."""
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 40.0, 0.01)
@@ -193,10 +203,10 @@ def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = 
     f_x = a + rng.normal(0, 0.02, t.size)
     extra = {} if jump is None else {"resistance_jump": jump}
     cfg = TorqueScaleConfig(enabled=True, model_resistance=model, prior_sigma=None, **extra)
-    bank = TorqueScaleBank(V, cfg, 0.05, 1)
-    ix = np.array([0])
+    bank, chain = fed_bank(cfg)
+    ix, no_slip = np.array([0]), np.full((1, 4), np.nan)
     for i in range(t.size):
-        bank.feed_soil(ix, [k_soil[i]])
+        chain.feed(ix, k_soil[i:i + 1], no_slip)
         m, _ = bank.step(ix, scale_inputs(t[i], f_x[i], 0.0, 0.0, omega[i], logged[i], v[i], fz[i]))
     return m[0]
 

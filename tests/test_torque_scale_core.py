@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 import soilocp.estimation.batch as batch_module
 import soilocp.estimation.estimator as estimator_module
 import soilocp.estimation.pipeline as pipeline_module
+from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.normal_force import gravity_from_attitude
@@ -22,7 +23,7 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 import reference_torque_scale as ref
-from test_torque_scale import scale_inputs
+from test_torque_scale import fed_bank, scale_inputs
 
 V = DEFAULT_VEHICLE
 
@@ -74,7 +75,8 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
 
 def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: bool = False):
     n = len(samples_per_vehicle)
-    core = TorqueScaleBank(V, cfg, prior_sigma, n)
+    assert prior_sigma == SoilConfig().gross_scale_sigma  # the estimator's scale prior
+    core, chain = fed_bank(cfg, n)
     numpy_ = ref.ReferenceTorqueScale(V, cfg, prior_sigma, n)
     learnt = 0
     for j in range(len(samples_per_vehicle[0])):
@@ -92,8 +94,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
             k = rng.choice([np.nan, -1.0, 40.0, 120.0, 400.0], ix.size)
             slip = rng.normal(0, 0.1, (ix.size, 4))
             slip[rng.random((ix.size, 4)) < 0.3] = np.nan
-            slip = None if rng.random() < 0.3 else slip
-            core.feed_soil(ix, list(k), slip)
+            chain.feed(ix.astype(np.int64), k, slip)
             numpy_.feed_soil(ix, list(k), slip)
     assert _same(core.theta, numpy_.theta) and _same(core.P, numpy_.P)
     assert _same(core.band_sigma(np.sqrt(core.P[:, 0, 0])), numpy_.band_sigma(np.sqrt(numpy_.P[:, 0, 0])))
@@ -274,9 +275,9 @@ def test_bad_calls_are_named():
     with pytest.raises(ValueError, match="inputs.specific_force_x must be a finite array"):
         bank.step(np.array([0]), x)
     assert _same(bank.theta, np.tile([1.0, 0.0], (2, 1)))  # refused before any vehicle stepped
-    fed = TorqueScaleBank(V, TorqueScaleConfig(model_resistance=True), 0.05, 2)
-    with pytest.raises(ValueError, match="soil_strength"):
-        fed.feed_soil(np.array([0, 1]), [1.0])
+    _, chain = fed_bank(TorqueScaleConfig(model_resistance=True), 2)
+    with pytest.raises(ValueError, match=r"k must have shape \(2,\)"):
+        chain.feed(np.array([0, 1]), np.array([1.0]), np.zeros((2, 4)))
     with pytest.raises(ValueError, match="soil_strength"):
         modelled_resistance(np.zeros((1, 4)), [0.0], np.ones((1, 4)), [1.0])
     with pytest.raises(ValueError, match="broadcast"):

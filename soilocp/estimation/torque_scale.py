@@ -20,8 +20,8 @@ straight, every wheel's slip within ``max_slip``, finite):
   The wheel-inertia term of the balance carries the payload's share of k, k^w, w = 1 - ``SoilConfig.gross_scale_sigma``^2 /
   ``TorqueScaleConfig.prior_sigma``^2 (docs/method.md §15, "The wheels' inertia under an unknown payload").  With ``model_resistance`` the
   resistance itself is modelled, not a state: eq. 4 at each sample's slips (eq. 1 from the readings),
-  normal forces and the soil's K as the soil stage last reported it (:meth:`TorqueScaleBank.feed_soil`,
-  the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,
+  normal forces and the soil's K as the soil stage last reported it (the chain's ``feed``,
+  :meth:`soilocp.estimation.estimator.Estimator.feed`, the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,
   averaged over the window like the other terms.
 
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
@@ -69,7 +69,7 @@ class TorqueScaleBank:
         wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
         self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
         self.active = cfg.enabled and self.prior_sigma > 0
-        # the soil's K for eq. 4's resistance until the soil stage reports one (feed_soil): the median reference
+        # the soil's K for eq. 4's resistance until the soil stage reports one (the chain's feed): the median reference
         # soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
         self.k_default = float(np.median(list(constants.soils.values())))
         self._n = n_vehicles
@@ -105,19 +105,6 @@ class TorqueScaleBank:
         if self.state_sigma == self.prior_sigma:
             return sd
         return self._core.band_sigma(sd.reshape(-1)).reshape(sd.shape)
-
-    def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
-        """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept)
-        and its slips per wheel (k, 4) (NaN: none): the next samples' modelled motion resistance (eq. 4) uses
-        them (only there: without ``model_resistance`` the feed is not kept)."""
-        if not self.active or not self.cfg.model_resistance:
-            return
-        if type(soil_strength) is np.ndarray and soil_strength.dtype == np.float64:
-            k = soil_strength.reshape(-1)
-        else:
-            k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
-        ix = np.asarray(ix, dtype=np.int64)
-        self._core.feed_soil(ix, k, None if slip is None else np.asarray(slip, dtype=float).reshape(-1, 4))
 
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """k's posterior mean and 1-sigma for the vehicles ``ix``."""

@@ -159,7 +159,7 @@ impl Stages<'_> {
     fn feed(&mut self, vehicles: &[usize], ks: &[f64], slips: &[[f64; 4]]) {
         if let (true, Some(bank)) = (self.feed_soil, self.scale.as_deref_mut()) {
             for ((&g, &k), s) in vehicles.iter().zip(ks).zip(slips) {
-                bank.feed_soil(g, k, Some(*s));
+                bank.feed_soil(g, k, *s);
             }
         }
     }

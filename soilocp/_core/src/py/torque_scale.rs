@@ -1,5 +1,6 @@
 //! `soilocp._core.TorqueScaleCore`: the torque scales of N vehicles (crate::torque_scale), which the
-//! chain (crate::py::chain) steps with the observer; its own `step` and `feed_soil` serve the tests.
+//! chain (crate::py::chain) steps with the observer and feeds the soil's K back to; its own `step`
+//! serves the tests.
 //! `longitudinal_balance` and `modelled_resistance`: eq. TC and eq. 4 summed over arrays, for the
 //! offline fit (`soilocp calibrate-torque`) and the tests.
 
@@ -91,26 +92,6 @@ impl TorqueScaleCore {
         let out: Vec<(f64, f64)> = ix.iter().zip(&raws).map(|(&i, r)| self.inner.step(i, r)).collect();
         let (m, sd): (Vec<f64>, Vec<f64>) = out.into_iter().unzip();
         Ok((m.into_pyarray(py), sd.into_pyarray(py)))
-    }
-
-    /// The soil stage's K (k,) for the vehicles `idx` (NaN: none reported, the last is kept) and,
-    /// optionally, its slips (k, 4) (NaN: none, the readings' are used): the next samples' modelled
-    /// motion resistance (eq. 4) uses them.
-    #[pyo3(signature = (idx, soil_strength, slip=None))]
-    fn feed_soil(
-        &mut self,
-        idx: PyReadonlyArray1<'_, i64>,
-        soil_strength: PyReadonlyArray1<'_, f64>,
-        slip: Option<PyReadonlyArray2<'_, f64>>,
-    ) -> PyResult<()> {
-        let ix = self.indices(&idx)?;
-        let k = ix.len();
-        let ks = column("soil_strength", &soil_strength, k)?;
-        let slip = slip.as_ref().map(|a| quads("slip", a, k)).transpose()?;
-        for (j, &i) in ix.iter().enumerate() {
-            self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| a[j]));
-        }
-        Ok(())
     }
 
     /// k's mean and 1-sigma for the vehicles `idx`.

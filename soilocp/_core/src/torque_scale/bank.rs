@@ -81,15 +81,14 @@ impl TorqueScaleBank {
         self.state[i].scale()
     }
 
-    /// The soil stage's K (ignored unless finite and > 0: the last is kept) and, if given, its
-    /// slips per wheel (NaN: none) for vehicle i: the next samples' modelled resistance uses them.
-    pub fn feed_soil(&mut self, i: usize, k: f64, slip: Option<[f64; 4]>) {
+    /// The soil stage's K (ignored unless finite and > 0: the last is kept) and its slips per wheel
+    /// (NaN: none, the readings' slip is used) for vehicle i: the next samples' modelled resistance
+    /// uses them.
+    pub fn feed_soil(&mut self, i: usize, k: f64, slip: [f64; 4]) {
         if k.is_finite() && k > 0.0 {
             self.soil_k[i] = k;
         }
-        if let Some(s) = slip {
-            self.soil_slip[i] = s;
-        }
+        self.soil_slip[i] = slip;
     }
 
     /// Add vehicle i's sample as logged (the observer's input: its torques before the scale; NaN
@@ -415,7 +414,7 @@ mod tests {
                 };
                 prev_w = omega;
                 let torque = (BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
-                b.feed_soil(0, k_soil, None);
+                b.feed_soil(0, k_soil, [f64::NAN; 4]);
                 out = b.step(0, &straight(t, a, omega, torque / k_true, v)).0;
             }
             out
@@ -440,12 +439,12 @@ mod tests {
     #[test]
     fn the_soil_feed_keeps_the_last_good_k() {
         let mut b = bank(0.10);
-        b.feed_soil(0, f64::NAN, None);
+        b.feed_soil(0, f64::NAN, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 120.0);
-        b.feed_soil(0, 50.0, None);
+        b.feed_soil(0, 50.0, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 50.0);
-        b.feed_soil(0, 200.0, Some([0.1; 4]));
-        b.feed_soil(0, -3.0, None);
+        b.feed_soil(0, 200.0, [0.1; 4]);
+        b.feed_soil(0, -3.0, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 200.0);
     }
 }
