@@ -6,6 +6,7 @@
 pub mod codes;
 pub mod constants;
 pub mod curve;
+pub mod index;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;

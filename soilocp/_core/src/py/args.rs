@@ -8,23 +8,12 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 /// The vehicles of a step of a bank of `n` from `idx` (None: all, in order): distinct indices in
-/// [0, n), else a ValueError naming them.
+/// [0, n) (crate::index::vehicles), else a ValueError naming them.
 pub fn vehicles(idx: Option<&PyReadonlyArray1<'_, i64>>, n: usize) -> PyResult<Vec<usize>> {
-    let Some(idx) = idx else {
-        return Ok((0..n).collect());
-    };
-    let ix = idx.as_array();
-    let mut seen = vec![false; n];
-    let mut out = Vec::with_capacity(ix.len());
-    for &g in ix.iter() {
-        if g < 0 || g as usize >= n || std::mem::replace(&mut seen[g as usize], true) {
-            return Err(PyValueError::new_err(format!(
-                "idx must be distinct vehicle indices in [0, {n}), got {ix}"
-            )));
-        }
-        out.push(g as usize);
+    match idx {
+        None => Ok((0..n).collect()),
+        Some(idx) => crate::index::vehicles(&idx.as_array().to_vec(), n).map_err(PyValueError::new_err),
     }
-    Ok(out)
 }
 
 /// `len` entries where the step has `k` vehicles.

@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use super::args::{column, quads};
+use super::args::{column, quads, vehicles};
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
@@ -103,14 +103,8 @@ impl SlipGateBank {
         stamp: &PyReadonlyArray1<'_, f64>,
         rows: &Bound<'_, PyAny>,
     ) -> PyResult<(Vec<Sample>, PendingGate)> {
-        let k = idx.as_array().len();
-        let idx = column("idx", idx, k)?;
-        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
-            return Err(PyValueError::new_err(format!(
-                "idx {bad}: vehicle indices must be >= 0"
-            )));
-        }
-        let idx: Vec<usize> = idx.iter().map(|&i| i as usize).collect();
+        let idx = vehicles(Some(idx), self.inner.lp.len())?;
+        let k = idx.len();
         let stamp = column("stamp", stamp, k)?;
         let shape_error = |got: String| {
             PyValueError::new_err(format!(
@@ -554,13 +548,8 @@ impl SoilGridBank {
             span,
             slip_ends,
         } = inputs;
-        let k = idx.as_array().len();
-        let idx = column("idx", &idx, k)?;
-        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
-            return Err(PyValueError::new_err(format!(
-                "idx {bad}: vehicle indices must be >= 0"
-            )));
-        }
+        let idx = vehicles(Some(&idx), self.inner.vehicles.len())?;
+        let k = idx.len();
         let stamp = column("stamp", &stamp, k)?;
         let (slip, observed, variance, slip_sigma) = (
             quads("slip", &slip, k)?,
@@ -611,7 +600,7 @@ impl SoilGridBank {
         let scale_sigma = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
         let samples: Vec<Sample> = (0..k)
             .map(|j| Sample {
-                vehicle: idx[j] as usize,
+                vehicle: idx[j],
                 stamp: stamp[j],
                 slip: slip[j],
                 observed: observed[j],

@@ -210,17 +210,7 @@ impl SlipGateBank {
         stamp: &[f64],
         rows: &[&[f64]],
     ) -> Result<(Vec<Sample>, Vec<[f64; 4]>), String> {
-        let n = self.lp.len();
-        let mut seen = vec![false; n];
-        for &i in idx {
-            if i >= n {
-                return Err(format!("vehicle index {i} out of range for {n} vehicles"));
-            }
-            if seen[i] {
-                return Err(format!("vehicle index {i} appears twice in one step"));
-            }
-            seen[i] = true;
-        }
+        crate::index::vehicles(idx, self.lp.len())?;
         let cfg = &self.cfg;
         let refreshes = |row: &[f64]| cfg.gross && row4(row, quad::INTERVAL).iter().any(|&v| v > 0.0);
         let any_refresh = rows.iter().any(|r| refreshes(r));
