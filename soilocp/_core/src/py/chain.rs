@@ -17,7 +17,6 @@ use super::args::{self, column, quads};
 use super::observer::{blocks, Inputs, ObserverCore, StepOut};
 use super::soil::{gate_arrays, report_arrays, GateArrays, PendingGate, ReportArrays, SlipGateBank, SoilGridBank};
 use super::torque_scale::TorqueScaleCore;
-use crate::constants::Constants;
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw};
 use crate::ocp;
 use crate::soil::bank::Sample;
@@ -38,7 +37,6 @@ pub struct ChainCore {
     observer: Py<ObserverCore>,
     gate: Py<SlipGateBank>,
     soil: Py<SoilGridBank>,
-    constants: Constants,
     /// None: the torque scale is off (k = 1 and the soil's scale prior as configured)
     scale: Option<Py<TorqueScaleCore>>,
     /// feed each step's K and slips back to the scale (its modelled motion resistance, eq. 4)
@@ -58,7 +56,6 @@ struct Stages<'a> {
     scale: Option<&'a mut TorqueScaleBank>,
     gate: &'a mut SlipGateBank,
     soil: &'a mut SoilGridBank,
-    constants: &'a Constants,
     feed_soil: bool,
 }
 
@@ -73,13 +70,12 @@ struct Held<'py> {
 
 impl Held<'_> {
     /// The stages of the held objects, for one call.
-    fn stages<'a>(&'a mut self, constants: &'a Constants, feed_soil: bool) -> Stages<'a> {
+    fn stages(&mut self, feed_soil: bool) -> Stages<'_> {
         Stages {
             observer: self.observer.bank_mut(),
             scale: self.scale.as_mut().map(|s| s.bank_mut()),
             gate: &mut self.gate,
             soil: &mut self.soil,
-            constants,
             feed_soil,
         }
     }
@@ -176,7 +172,8 @@ impl Stages<'_> {
         let (samples, used, ks) = self.update(samples, pending, scale_sigma.as_deref(), informing)?;
         let slips: Vec<[f64; 4]> = samples.iter().map(|s| s.slip).collect();
         self.feed(vehicles, &ks, &slips);
-        let ocp = ocp::bank(&ks, self.constants).map_err(PyValueError::new_err)?;
+        // the OCPs of the traction law the soil update inverts
+        let ocp = ocp::bank(&ks, self.soil.constants()).map_err(PyValueError::new_err)?;
         Ok(Done {
             estimates,
             samples,
@@ -201,16 +198,15 @@ impl ChainCore {
 #[pymethods]
 impl ChainCore {
     /// The chain over the stage objects of one bank of N vehicles: the `observer`, the slip `gate`,
-    /// the `soil` bank (its records' settings given: `set_status`), the traction law's `constants`
-    /// (the OCPs'), the torque `scale` (None: off) and whether K is fed back to it (`feed_soil`).
+    /// the `soil` bank (its records' settings given: `set_status`; the OCPs are of its traction
+    /// law's constants), the torque `scale` (None: off) and whether K is fed back to it (`feed_soil`).
     #[new]
-    #[pyo3(signature = (observer, gate, soil, constants, scale=None, feed_soil=false))]
+    #[pyo3(signature = (observer, gate, soil, scale=None, feed_soil=false))]
     fn py_new(
         py: Python<'_>,
         observer: Py<ObserverCore>,
         gate: Py<SlipGateBank>,
         soil: Py<SoilGridBank>,
-        constants: Constants,
         scale: Option<Py<TorqueScaleCore>>,
         feed_soil: bool,
     ) -> PyResult<Self> {
@@ -236,7 +232,6 @@ impl ChainCore {
             observer,
             gate,
             soil,
-            constants,
             scale,
             feed_soil,
         })
@@ -261,7 +256,7 @@ impl ChainCore {
         let mut held = self.hold(py)?;
         let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
         let informing = informing.map(|a| quads("informing", &a, vehicles.len())).transpose()?;
-        let stages = held.stages(&self.constants, self.feed_soil);
+        let stages = held.stages(self.feed_soil);
         // the GIL is released for the step: a Zenoh callback can hand over the next samples meanwhile (the
         // stage objects stay borrowed: another thread that reads one of them now gets a RuntimeError, not a
         // half-stepped state)
@@ -287,7 +282,7 @@ impl ChainCore {
     ) -> PyResult<(StepOut<'py>, Option<(Arr<'py>, Arr<'py>)>)> {
         let mut held = self.hold(py)?;
         let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
-        let (estimates, scaled) = held.stages(&self.constants, self.feed_soil).observe(&vehicles, raws)?;
+        let (estimates, scaled) = held.stages(self.feed_soil).observe(&vehicles, raws)?;
         let scaled = scaled.map(|s| {
             let (m, sd): (Vec<f64>, Vec<f64>) = s.into_iter().unzip();
             (m.into_pyarray(py), sd.into_pyarray(py))
@@ -315,12 +310,9 @@ impl ChainCore {
         let k = samples.len();
         let sig = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
         let informing = informing.map(|a| quads("informing", &a, k)).transpose()?;
-        let (samples, used, _) = held.stages(&self.constants, self.feed_soil).update(
-            samples,
-            pending,
-            sig.as_deref(),
-            informing.as_deref(),
-        )?;
+        let (samples, used, _) =
+            held.stages(self.feed_soil)
+                .update(samples, pending, sig.as_deref(), informing.as_deref())?;
         Ok((
             gate_arrays(py, &samples)?,
             report_arrays(py, held.soil.reports(), &used),
@@ -342,8 +334,7 @@ impl ChainCore {
         let n = vehicles.len();
         let ks = column("k", &k, n)?;
         let slips = quads("slip", &slip, n)?;
-        held.stages(&self.constants, self.feed_soil)
-            .feed(&vehicles, &ks, &slips);
+        held.stages(self.feed_soil).feed(&vehicles, &ks, &slips);
         Ok(())
     }
 

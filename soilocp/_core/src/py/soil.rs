@@ -359,6 +359,11 @@ impl SoilGridBank {
         self.status.is_some()
     }
 
+    /// The traction law's constants the grid's curves are of.
+    pub(crate) fn constants(&self) -> &Constants {
+        &self.inner.grid.c
+    }
+
     /// The number of vehicles of the bank.
     pub(crate) fn bank_len(&self) -> usize {
         self.inner.vehicles.len()
