@@ -123,7 +123,7 @@ class SoilBank:
         self.k_floor = self.grid.k_floor
         # the records (held / withdrawn K, status and reason codes, soilocp/_core/src/soil/status.rs)
         self.core.set_status(self.grid.span)
-        #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
+        #: wheel-samples the longitudinal model did not describe, by the unusable code's name (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
     # the core's state, as it holds it (each a copy)

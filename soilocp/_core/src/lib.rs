@@ -50,12 +50,11 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         fn py::ocp::ocp_one,
         // the soil-grid update
         class py::soil::SoilGridBank,
-        // the slip gate, eq. 1 and the wheels' usability codes
+        // the slip gate (with the wheels' usability codes) and eq. 1
         class py::soil::SlipGateBank,
         fn py::soil::soil_classes,
         fn py::slip::slip_ratio,
         fn py::slip::travel_slip,
-        fn py::slip::wheel_usability,
         // the observer: its filter bank
         class py::observer::ObserverCore,
         fn py::observer::observer_layout,

@@ -149,4 +149,39 @@ mod tests {
             [0; 4]
         );
     }
+
+    /// A Husky's skid turns (half-track 0.25 m): in place, the sides' rims at +-0.19 m/s and yaw
+    /// -0.21 rad/s, and while creeping at 0.12 m/s with yaw -0.6 rad/s; an arc at speed (the
+    /// robustness drive's S-turns, 0.3 rad/s at 1 m/s) is no skid turn.
+    #[test]
+    fn skid_turns_and_an_arc() {
+        let (lim, deadband, ht) = (Limits::default(), 0.15, 0.25);
+        let rim = [0.19, 0.19, -0.19, -0.19];
+        let c = codes(
+            &[0.9, 0.9, -0.9, -0.9],
+            &rim,
+            &[0.0; 4],
+            0.0,
+            -0.21,
+            &[0.3; 4],
+            ht,
+            &lim,
+            deadband,
+        );
+        assert_eq!(c, [SKID_TURN; 4], "not a stall: the robot turns in place");
+        let c = codes(
+            &[0.5, 0.5, -0.5, -0.5],
+            &rim,
+            &[0.12; 4],
+            0.12,
+            -0.6,
+            &[0.3; 4],
+            ht,
+            &lim,
+            deadband,
+        );
+        assert_eq!(c, [SKID_TURN; 4]);
+        let c = codes(&[0.1; 4], &[1.1; 4], &[1.0; 4], 1.0, 0.3, &[0.3; 4], ht, &lim, deadband);
+        assert_eq!(c, [USABLE; 4]);
+    }
 }
