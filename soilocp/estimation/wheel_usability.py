@@ -26,8 +26,6 @@ soil/gate.rs); :data:`REASONS` names them, :func:`describe` words them, and the 
 
 from __future__ import annotations
 
-import numpy as np
-
 from soilocp import _core
 from soilocp.estimation.settings_model import model_from_core
 
@@ -52,17 +50,6 @@ EXPLAIN = {
 #: (soilocp/_core/src/soil/usability.rs); whether the body moves is the pipeline's ``slip_deadband``.
 UsabilityLimits = model_from_core("UsabilityLimits", "usability", __name__,
                                   "Thresholds of the wheels' unusable codes (docs/method.md §17).")
-
-
-def travel_slip(rim, ground, floor: float):
-    """Eq. 1 in the wheel's direction of travel (docs/method.md §17): S = d (R_w omega - V) /
-    max(|V|, |R_w omega|, floor), d the sign of the ground speed under the wheel, or of the rim where the
-    ground stands (|V| < 0.02 m/s, slip.rs's V_STILL), +1 where both stand.  Correction to the print: the print is for
-    forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel that
-    drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a braking
-    wheel and flipped its motion resistance.  Returns (S, d), arrays of the broadcast shape of ``rim`` and
-    ``ground``.  The compiled core's (soilocp/_core/src/slip.rs), which the slip gate runs."""
-    return _core.travel_slip(np.asarray(rim, dtype=float), np.asarray(ground, dtype=float), float(floor))
 
 
 def describe(codes) -> str:

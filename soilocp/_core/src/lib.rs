@@ -54,7 +54,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         class py::soil::SlipGateBank,
         fn py::soil::soil_classes,
         fn py::slip::slip_ratio,
-        fn py::slip::travel_slip,
         // the observer: its filter bank
         class py::observer::ObserverCore,
         fn py::observer::observer_layout,
