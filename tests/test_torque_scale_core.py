@@ -23,7 +23,7 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 import reference_torque_scale as ref
-from test_torque_scale import fed_bank, scale_inputs
+from test_torque_scale import ChainScale, scale_inputs
 
 V = DEFAULT_VEHICLE
 
@@ -76,7 +76,8 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
 def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: bool = False):
     n = len(samples_per_vehicle)
     assert prior_sigma == SoilConfig().gross_scale_sigma  # the estimator's scale prior
-    core, chain = fed_bank(cfg, n)
+    bank = ChainScale(cfg, n)
+    core = bank.scale
     numpy_ = ref.ReferenceTorqueScale(V, cfg, prior_sigma, n)
     learnt = 0
     for j in range(len(samples_per_vehicle[0])):
@@ -86,7 +87,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
         rows = [samples_per_vehicle[i][j] for i in ix]
         args = [np.array([r[k] for r in rows], dtype=float) for k in ("stamp", "f_x", "pitch", "yaw", "ws", "tq", "gs")]
         fz = np.array([r["fz"] for r in rows])
-        m1, s1 = core.step(ix, scale_inputs(*args, fz))
+        m1, s1 = bank.step(ix, scale_inputs(*args, fz))
         m2, s2 = numpy_.step(ix, *args, fz)
         assert _same(m1, m2) and _same(s1, s2), (j, m1, m2, s1, s2)
         learnt += int(np.any(m1 != 1.0))
@@ -94,7 +95,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
             k = rng.choice([np.nan, -1.0, 40.0, 120.0, 400.0], ix.size)
             slip = rng.normal(0, 0.1, (ix.size, 4))
             slip[rng.random((ix.size, 4)) < 0.3] = np.nan
-            chain.feed(ix.astype(np.int64), k, slip)
+            bank.feed(ix, k, slip)
             numpy_.feed_soil(ix, list(k), slip)
     assert _same(core.theta, numpy_.theta) and _same(core.P, numpy_.P)
     assert _same(core.band_sigma(np.sqrt(core.P[:, 0, 0])), numpy_.band_sigma(np.sqrt(numpy_.P[:, 0, 0])))
@@ -261,7 +262,7 @@ def test_eq_tc_and_eq_20_are_the_core_and_the_reference():
 
 
 def test_bad_calls_are_named():
-    bank = TorqueScaleBank(V, TorqueScaleConfig(), 0.05, 2)
+    bank = ChainScale(TorqueScaleConfig(), 2)
     one = [np.zeros(1)] * 4
     with pytest.raises(ValueError, match=r"idx must be distinct vehicle indices in \[0, 2\), got \[2\]"):
         bank.step(np.array([2]), scale_inputs(*one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1)))
@@ -274,10 +275,9 @@ def test_bad_calls_are_named():
     x.wheel_torque, x.specific_force_x = np.zeros((1, 4)), np.array([np.nan])
     with pytest.raises(ValueError, match="inputs.specific_force_x must be a finite array"):
         bank.step(np.array([0]), x)
-    assert _same(bank.theta, np.tile([1.0, 0.0], (2, 1)))  # refused before any vehicle stepped
-    _, chain = fed_bank(TorqueScaleConfig(model_resistance=True), 2)
+    assert _same(bank.scale.theta, np.tile([1.0, 0.0], (2, 1)))  # refused before any vehicle stepped
     with pytest.raises(ValueError, match=r"k must have shape \(2,\)"):
-        chain.feed(np.array([0, 1]), np.array([1.0]), np.zeros((2, 4)))
+        ChainScale(TorqueScaleConfig(model_resistance=True), 2).feed([0, 1], [1.0], np.zeros((2, 4)))
     with pytest.raises(ValueError, match="soil_strength"):
         modelled_resistance(np.zeros((1, 4)), [0.0], np.ones((1, 4)), [1.0])
     with pytest.raises(ValueError, match="broadcast"):

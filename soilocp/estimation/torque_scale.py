@@ -112,12 +112,3 @@ class TorqueScaleBank:
         if not self.active:
             return np.ones(ix.size), np.sqrt(np.full(ix.size, self.state_sigma**2))
         return self._core.scale(ix)
-
-    def step(self, ix, inputs) -> tuple[np.ndarray, np.ndarray]:
-        """Add one sample per vehicle in ``ix`` (None: all, in order): the observer's inputs
-        (:class:`soilocp.estimation.observer_bank.ObserverInputs`, the logged torques; its normal forces are read
-        where the resistance is modelled); close the windows that are full and update their vehicles' state.
-        Returns k's mean and 1-sigma after this sample."""
-        if not self.active:
-            return self.scale(np.arange(self._n) if ix is None else ix)
-        return self._core.step(None if ix is None else np.asarray(ix, dtype=np.int64), inputs)

@@ -1,6 +1,6 @@
 //! `soilocp._core.TorqueScaleCore`: the torque scales of N vehicles (crate::torque_scale), which the
-//! chain (crate::py::chain) steps with the observer and feeds the soil's K back to; its own `step`
-//! serves the tests.
+//! chain (crate::py::chain) steps with the observer and feeds the soil's K back to; this binding
+//! holds the bank between the chain's calls and reads its state.
 //! `longitudinal_balance` and `modelled_resistance`: eq. TC and eq. 4 summed over arrays, for the
 //! offline fit (`soilocp calibrate-torque`) and the tests.
 
@@ -17,7 +17,6 @@ use crate::torque_scale::bank;
 use crate::torque_scale::params::{Derived, Params, Settings};
 
 use super::args::{check_len, column, quads, vehicles};
-use super::observer::Inputs;
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
@@ -31,11 +30,6 @@ impl TorqueScaleCore {
     /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
     pub(crate) fn bank_mut(&mut self) -> &mut bank::TorqueScaleBank {
         &mut self.inner
-    }
-
-    /// The selected vehicles' indices, each in [0, N) and each once.
-    fn indices(&self, idx: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<usize>> {
-        vehicles(Some(idx), self.inner.len())
     }
 }
 
@@ -78,25 +72,9 @@ impl TorqueScaleCore {
         Ok(TorqueScaleCore { inner })
     }
 
-    /// One sample per vehicle in `idx` (None: all, in order): the observer's inputs (an
-    /// ObserverInputs, the logged torques; checked as the observer checks them, before any vehicle
-    /// steps).  Returns k's mean and 1-sigma after this sample, (k,) each.
-    #[pyo3(signature = (idx, inputs))]
-    fn step<'py>(
-        &mut self,
-        py: Python<'py>,
-        idx: Option<PyReadonlyArray1<'py, i64>>,
-        inputs: Inputs<'py>,
-    ) -> PyResult<Pair<'py>> {
-        let (ix, raws) = inputs.raws(idx.as_ref(), self.inner.len())?;
-        let out: Vec<(f64, f64)> = ix.iter().zip(&raws).map(|(&i, r)| self.inner.step(i, r)).collect();
-        let (m, sd): (Vec<f64>, Vec<f64>) = out.into_iter().unzip();
-        Ok((m.into_pyarray(py), sd.into_pyarray(py)))
-    }
-
     /// k's mean and 1-sigma for the vehicles `idx`.
     fn scale<'py>(&self, py: Python<'py>, idx: PyReadonlyArray1<'py, i64>) -> PyResult<Pair<'py>> {
-        let ix = self.indices(&idx)?;
+        let ix = vehicles(Some(&idx), self.inner.len())?;
         let (m, sd): (Vec<f64>, Vec<f64>) = ix.iter().map(|&i| self.inner.scale(i)).unzip();
         Ok((m.into_pyarray(py), sd.into_pyarray(py)))
     }
