@@ -237,8 +237,8 @@ def test_the_chain_refuses_stages_of_different_banks_and_a_soil_bank_without_rec
     cfg = PipelineConfig()
     two, three = BatchPipeline(cfg, 2), BatchPipeline(cfg, 3)
     with pytest.raises(ValueError, match="soil holds 3 vehicles, the observer 2"):
-        _core.ChainCore(two.observer._core, two.gate.core, three.soil.core, cfg.constants.kernel, two.scale._core)
+        _core.ChainCore(two.observer._core, two.gate.core, three.soil.core, two.scale._core)
     bare = SoilBank(cfg.constants, cfg.soil, 2)
     bare.core = bare.grid.bank(2)  # the core's bank before its records' settings
     with pytest.raises(ValueError, match="set_status"):
-        _core.ChainCore(two.observer._core, two.gate.core, bare.core, cfg.constants.kernel)
+        _core.ChainCore(two.observer._core, two.gate.core, bare.core)

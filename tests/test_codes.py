@@ -1,6 +1,6 @@
 """The records' statuses and reason codes are defined once, in the compiled core (soilocp/_core/src/codes.rs):
-the generated soilocp.schemas.codes is the core's tables, the schemas and the soil stage take their names from
-it, and no other file of the package lists them."""
+the generated soilocp/schemas/codes.json (which soilocp.schemas.codes reads) is the core's tables, the schemas and
+the soil stage take their names from it, and no other file of the package lists them."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from soilocp.schemas.pipeline import REASON_CODES, EstimateStatus
 PKG = Path(__file__).resolve().parents[1] / "soilocp"
 STATUS_NAMES = {name for name, *_ in _core.status_codes()}
 REASON_NAMES = {name for name, *_ in _core.reason_codes()}
-#: the one definition, and the module generated from it
+#: the one definition, and the file generated from it
 DEFINITIONS = {PKG / "_core/src/codes.rs", TARGET}
 #: tables keyed by every code that add something per code without defining the codes (each checks at
 #: import that its keys are the core's)
@@ -29,7 +29,7 @@ KEYED_BY_CODE = {
 
 
 def test_the_generated_module_is_the_cores():
-    """Fails when codes.rs changed without regenerating soilocp/schemas/codes.py."""
+    """Fails when codes.rs changed without regenerating soilocp/schemas/codes.json."""
     assert TARGET.read_text() == render(), "run python -m soilocp.cli.generate_codes"
 
 
@@ -79,8 +79,8 @@ def _rust_lists(path: Path) -> list[tuple[int, str]]:
 
 
 def test_no_other_file_defines_the_statuses_or_reasons():
-    """Any literal collection of four or more status or reason names outside the core's tables, the generated
-    module and the keyed tables is a second definition; so is a Rust array of them."""
+    """Any literal collection of four or more status or reason names outside the core's tables and the keyed
+    tables is a second definition; so is a Rust array of them."""
     offenders = []
     for path in sorted(PKG.rglob("*.py")):
         if path in DEFINITIONS or path in KEYED_BY_CODE:

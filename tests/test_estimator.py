@@ -49,8 +49,8 @@ def test_the_whole_step_is_the_stage_steps_in_order():
     stages, whole = VehiclePipeline(cfg, stages_prior), Estimator(cfg, 2, [whole_prior, None])
     assert whole.feeds_soil and stages.observer.feeds_soil
     unfed = Estimator(cfg, 1, [MapPrior(_cells(), vehicle=cfg.vehicle)])
-    unfed.chain = _core.ChainCore(unfed.observer._core, unfed.gate.core, unfed.soil.core, cfg.constants.kernel,
-                                  unfed.scale._core, feed_soil=False)  # the same chain, K not fed back
+    unfed.chain = _core.ChainCore(unfed.observer._core, unfed.gate.core, unfed.soil.core, unfed.scale._core,
+                                  feed_soil=False)  # the same chain, K not fed back
     solve = NormalForceSolver(cfg.vehicle)
     differ = 0
     for s in samples:

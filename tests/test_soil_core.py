@@ -113,13 +113,13 @@ def test_core_update_equals_the_numpy_reference(seed, steps, measurement, change
 def test_bad_input_is_refused_with_its_name():
     bank = SoilBank(DEFAULT_CONSTANTS, SoilConfig(), 2)
     inp = _inputs(np.random.default_rng(0), 1, False, False).arrays(1)
-    with pytest.raises(ValueError, match="out of range"):
+    with pytest.raises(ValueError, match=r"idx must be distinct vehicle indices in \[0, 2\), got \[5\]"):
         bank.core.step(np.array([5]), np.array([0.0]), inp)
     with pytest.raises(ValueError, match="slip must have shape"):
         bank.core.step(np.array([0]), np.array([0.0]), dataclasses.replace(inp, slip=inp.slip[:, :3]))
     with pytest.raises(ValueError, match="stamp"):
         bank.core.step(np.array([0]), np.array([np.nan]), inp)
-    with pytest.raises(ValueError, match="given twice"):
+    with pytest.raises(ValueError, match=r"distinct vehicle indices in \[0, 2\), got \[1, 1\]"):
         two = SoilInputs(*(None if a is None else np.repeat(a, 2, axis=0) for a in dataclasses.astuple(inp)))
         bank.core.step(np.array([1, 1]), np.array([0.0, 0.0]), two)
     with pytest.raises(ValueError, match="observed must be a finite array"):  # the struct's own check names it

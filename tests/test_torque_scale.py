@@ -8,6 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from soilocp.estimation.estimator import Estimator
+from soilocp.estimation.observer_bank import ObserverInputs
+from soilocp.estimation.pipeline import PipelineConfig
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.traction import motion_resistance
@@ -15,6 +18,36 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 V = DEFAULT_VEHICLE
+
+
+def scale_inputs(stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed, normal_force=None) -> ObserverInputs:
+    """One sample per vehicle as the observer takes it (the torque scale's input): stamps, f_x, pitch, yaw rate,
+    ground speed (k,); wheel speeds, logged torques and normal forces (k, 4) (None: the static load's)."""
+    col = lambda a: np.asarray(a, dtype=float).reshape(-1)  # noqa: E731
+    quad = lambda a: np.asarray(a, dtype=float).reshape(-1, 4)  # noqa: E731
+    k = col(stamp).size
+    return ObserverInputs(col(stamp), col(f_x), col(yaw_rate), col(pitch), quad(wheel_speed), quad(torque), col(speed),
+                          np.full((k, 4), V.mass * 9.80665 / 4.0) if normal_force is None else quad(normal_force))
+
+
+class ChainScale:
+    """The torque scale of an estimator of n vehicles (the vehicle, constants and settings otherwise the defaults),
+    stepped and fed through its chain as the estimator steps and feeds it: the observer stage's ``observe`` (the
+    scale, then the observer) and ``feed`` (the soil's K and slips, where the resistance is modelled)."""
+
+    def __init__(self, cfg: TorqueScaleConfig, n: int = 1):
+        est = Estimator(PipelineConfig(torque_scale=cfg), n)
+        self.scale, self.chain = est.scale, est.chain
+
+    def step(self, ix, inputs: ObserverInputs):
+        """One sample per vehicle in ``ix``: k's mean and 1-sigma after it."""
+        ix = np.asarray(ix, dtype=np.int64)
+        self.chain.observe(ix, inputs)
+        return self.scale.scale(ix)
+
+    def feed(self, ix, k, slip) -> None:
+        """The soil's K (k,) and slips (k, 4) (NaN: none) for the vehicles ``ix``."""
+        self.chain.feed(np.asarray(ix, dtype=np.int64), np.asarray(k, dtype=float), np.asarray(slip, dtype=float))
 
 
 def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, seconds: float = 40.0, rate: float = 100.0,
@@ -36,9 +69,9 @@ def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, secon
 
 def _run(stream, cfg=TorqueScaleConfig(enabled=True, prior_sigma=None)):
     t, f_x, omega, logged, v = stream
-    bank = TorqueScaleBank(V, cfg, 0.05, 1)
+    bank = ChainScale(cfg)
     ix = np.array([0])
-    out = [bank.step(ix, [t[i]], [f_x[i]], [0.0], [0.0], omega[i][None], logged[i][None], [v[i]]) for i in range(t.size)]
+    out = [bank.step(ix, scale_inputs(t[i], f_x[i], 0.0, 0.0, omega[i], logged[i], v[i])) for i in range(t.size)]
     return np.array([(m[0], s[0]) for m, s in out])
 
 
@@ -67,11 +100,11 @@ def test_a_slip_sweep_at_constant_speed_teaches_it_nothing():
     """The robust-mix traction test: its speed swings within each sweep, but motion resistance swings
     with the slip, so its windows are left out (max_slip) and the scale stays the prior."""
     var = get_variant("nominal")
-    bank = TorqueScaleBank(V, TorqueScaleConfig(enabled=True, prior_sigma=None), 0.05, 1)
+    bank = ChainScale(TorqueScaleConfig(enabled=True, prior_sigma=None))
     ix = np.array([0])
     for s, _ in var.simulate(0, duration=15.0):
-        m, sd = bank.step(ix, [s.stamp], [s.specific_force[0]], [s.pitch], [s.yaw_rate], [s.wheel_speed],
-                          [s.wheel_torque], [s.ground_speed])
+        m, sd = bank.step(ix, scale_inputs(s.stamp, s.specific_force[0], s.pitch, s.yaw_rate, s.wheel_speed,
+                                           s.wheel_torque, s.ground_speed))
     assert m[0] == 1.0 and sd[0] == pytest.approx(0.05)
 
 
@@ -165,7 +198,7 @@ def test_the_modelled_resistance_is_eq_4_summed_and_opposes_travel():
 
 def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = None):
     """Eq. TC with F_MR = eq. 4 at slips 0.04-0.09 on a soil that alternates K 200 / 50 every 10 s (F_MR +25 / -19
-    N): the soil's K is fed back as the soil stage does (feed_soil).  ``jump``: resistance_jump (None: the
+    N): the soil's K is fed back as the soil stage does (the chain's feed).  ``jump``: resistance_jump (None: the
     default).  Returns k's final mean."""
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 40.0, 0.01)
@@ -182,11 +215,11 @@ def _soil_change_stream(model: bool, k_true: float = 1.08, jump: float | None = 
     f_x = a + rng.normal(0, 0.02, t.size)
     extra = {} if jump is None else {"resistance_jump": jump}
     cfg = TorqueScaleConfig(enabled=True, model_resistance=model, prior_sigma=None, **extra)
-    bank = TorqueScaleBank(V, cfg, 0.05, 1)
-    ix = np.array([0])
+    bank = ChainScale(cfg)
+    ix, no_slip = np.array([0]), np.full((1, 4), np.nan)
     for i in range(t.size):
-        bank.feed_soil(ix, [k_soil[i]])
-        m, _ = bank.step(ix, [t[i]], [f_x[i]], [0.0], [0.0], omega[i][None], logged[i][None], [v[i]], fz[i][None])
+        bank.feed(ix, k_soil[i:i + 1], no_slip)
+        m, _ = bank.step(ix, scale_inputs(t[i], f_x[i], 0.0, 0.0, omega[i], logged[i], v[i], fz[i]))
     return m[0]
 
 

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 import soilocp.estimation.batch as batch_module
 import soilocp.estimation.estimator as estimator_module
 import soilocp.estimation.pipeline as pipeline_module
+from soilocp.estimation.soil_config import SoilConfig
 from soilocp.estimation.torque_scale import TorqueScaleBank, TorqueScaleConfig
 from soilocp.model.force_balance import longitudinal_balance, modelled_resistance
 from soilocp.model.normal_force import gravity_from_attitude
@@ -22,6 +23,7 @@ from soilocp.model.vehicle import DEFAULT_VEHICLE
 from soilocp.sim.variants import get_variant
 
 import reference_torque_scale as ref
+from test_torque_scale import ChainScale, scale_inputs
 
 V = DEFAULT_VEHICLE
 
@@ -33,7 +35,8 @@ def _same(a, b) -> bool:
 
 def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse: bool):
     """A drive that mostly satisfies eq. TC (torque = k_true x logged, F_MR 25 N, small slips), with bad
-    samples (turning, slipping, slow, gaps, stamps that stand still, NaN readings) at rate p_bad."""
+    samples (turning, slipping, slow, gaps, stamps that stand still, no ground speed, torque glitches) at rate
+    p_bad: what passes the observer's input check, which the chain runs before the scale."""
     t, out = 0.0, []
     w = 2.0 * math.pi / rng.uniform(2.0, 6.0)
     sign = -1.0 if reverse else 1.0
@@ -63,7 +66,7 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
             elif kind == 5:
                 s["gs"] = math.nan  # no ground speed: the rims' mean
             else:
-                s["f_x"] = math.nan
+                s["tq"] = s["tq"] * 3.0  # a torque glitch
         t += dt
         s["stamp"] = t
         out.append(s)
@@ -72,7 +75,9 @@ def _drive(rng, n_steps: int, k_true: float, accel: float, p_bad: float, reverse
 
 def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: bool = False):
     n = len(samples_per_vehicle)
-    core = TorqueScaleBank(V, cfg, prior_sigma, n)
+    assert prior_sigma == SoilConfig().gross_scale_sigma  # the estimator's scale prior
+    bank = ChainScale(cfg, n)
+    core = bank.scale
     numpy_ = ref.ReferenceTorqueScale(V, cfg, prior_sigma, n)
     learnt = 0
     for j in range(len(samples_per_vehicle[0])):
@@ -82,7 +87,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
         rows = [samples_per_vehicle[i][j] for i in ix]
         args = [np.array([r[k] for r in rows], dtype=float) for k in ("stamp", "f_x", "pitch", "yaw", "ws", "tq", "gs")]
         fz = np.array([r["fz"] for r in rows])
-        m1, s1 = core.step(ix, *args, fz)
+        m1, s1 = bank.step(ix, scale_inputs(*args, fz))
         m2, s2 = numpy_.step(ix, *args, fz)
         assert _same(m1, m2) and _same(s1, s2), (j, m1, m2, s1, s2)
         learnt += int(np.any(m1 != 1.0))
@@ -90,8 +95,7 @@ def _run_both(samples_per_vehicle, cfg, prior_sigma, rng, feed: bool, with_ref: 
             k = rng.choice([np.nan, -1.0, 40.0, 120.0, 400.0], ix.size)
             slip = rng.normal(0, 0.1, (ix.size, 4))
             slip[rng.random((ix.size, 4)) < 0.3] = np.nan
-            slip = None if rng.random() < 0.3 else slip
-            core.feed_soil(ix, list(k), slip)
+            bank.feed(ix, k, slip)
             numpy_.feed_soil(ix, list(k), slip)
     assert _same(core.theta, numpy_.theta) and _same(core.P, numpy_.P)
     assert _same(core.band_sigma(np.sqrt(core.P[:, 0, 0])), numpy_.band_sigma(np.sqrt(numpy_.P[:, 0, 0])))
@@ -258,51 +262,23 @@ def test_eq_tc_and_eq_20_are_the_core_and_the_reference():
 
 
 def test_bad_calls_are_named():
-    bank = TorqueScaleBank(V, TorqueScaleConfig(), 0.05, 2)
+    bank = ChainScale(TorqueScaleConfig(), 2)
     one = [np.zeros(1)] * 4
-    with pytest.raises(ValueError, match=r"idx 2"):
-        bank.step(np.array([2]), *one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1))
-    with pytest.raises(ValueError, match="only once"):
-        bank.step(np.array([1, 1]), *[np.zeros(2)] * 4, np.zeros((2, 4)), np.zeros((2, 4)), np.zeros(2))
-    with pytest.raises(ValueError, match="wheel_torque"):
-        bank.step(np.array([0]), *one, np.zeros((1, 4)), np.zeros((1, 3)), np.zeros(1))
-    fed = TorqueScaleBank(V, TorqueScaleConfig(model_resistance=True), 0.05, 2)
-    with pytest.raises(ValueError, match="soil_strength"):
-        fed.feed_soil(np.array([0, 1]), [1.0])
+    with pytest.raises(ValueError, match=r"idx must be distinct vehicle indices in \[0, 2\), got \[2\]"):
+        bank.step(np.array([2]), scale_inputs(*one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1)))
+    with pytest.raises(ValueError, match="distinct"):
+        bank.step(np.array([1, 1]), scale_inputs(*[np.zeros(2)] * 4, np.zeros((2, 4)), np.zeros((2, 4)), np.zeros(2)))
+    x = scale_inputs(*one, np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1))
+    x.wheel_torque = np.zeros((1, 3))
+    with pytest.raises(ValueError, match=r"inputs.wheel_torque must be a finite array of shape \(1, 4\)"):
+        bank.step(np.array([0]), x)
+    x.wheel_torque, x.specific_force_x = np.zeros((1, 4)), np.array([np.nan])
+    with pytest.raises(ValueError, match="inputs.specific_force_x must be a finite array"):
+        bank.step(np.array([0]), x)
+    assert _same(bank.scale.theta, np.tile([1.0, 0.0], (2, 1)))  # refused before any vehicle stepped
+    with pytest.raises(ValueError, match=r"k must have shape \(2,\)"):
+        ChainScale(TorqueScaleConfig(model_resistance=True), 2).feed([0, 1], [1.0], np.zeros((2, 4)))
     with pytest.raises(ValueError, match="soil_strength"):
         modelled_resistance(np.zeros((1, 4)), [0.0], np.ones((1, 4)), [1.0])
     with pytest.raises(ValueError, match="broadcast"):
         longitudinal_balance(np.zeros(3), np.zeros(2), 0.0, V)
-
-
-def test_apply_names_a_bad_field_before_it_steps_and_takes_other_dtypes():
-    """apply refuses the observer's bad inputs with the observer's own message (ObserverInputs.check) and leaves
-    the state as it was; integer fields are taken as the floats they are."""
-    from soilocp.estimation.observer_bank import ObserverInputs
-
-    def inputs(stamp, torque=1.0):
-        return ObserverInputs(stamp=np.array([stamp]), specific_force_x=np.array([0.5]), yaw_rate=np.zeros(1),
-                              pitch=np.zeros(1), wheel_speed=np.full((1, 4), 5.0), wheel_torque=np.full((1, 4), torque),
-                              ground_speed=np.array([1.0]), normal_force=np.full((1, 4), 150.0))
-
-    bank = TorqueScaleBank(V, TorqueScaleConfig(), 0.05, 1)
-    numpy_ = ref.ReferenceTorqueScale(V, TorqueScaleConfig(), 0.05, 1)
-    ix = np.zeros(1, dtype=int)
-    for j in range(150):
-        bank.apply(ix, inputs(0.01 * j, 1.0 + 0.01 * j))
-        numpy_.step(ix, [0.01 * j], [0.5], [0.0], [0.0], np.full((1, 4), 5.0), np.full((1, 4), 1.0 + 0.01 * j), [1.0],
-                    np.full((1, 4), 150.0))
-    before = (bank.theta, bank.P)
-    for field, bad in (("wheel_torque", np.full((1, 4), np.nan)), ("ground_speed", np.array([np.inf])),
-                       ("pitch", np.zeros(2))):
-        x = inputs(1.5)
-        setattr(x, field, bad)
-        with pytest.raises(ValueError, match=f"inputs.{field} must be a finite array"):
-            bank.apply(ix, x)
-    assert _same(bank.theta, before[0]) and _same(bank.P, before[1])
-    x = inputs(1.5)
-    x.wheel_speed = np.full((1, 4), 5)  # integers: the observer's check makes them floats
-    out, _ = bank.apply(ix, x)
-    numpy_.step(ix, [1.5], [0.5], [0.0], [0.0], np.full((1, 4), 5.0), np.full((1, 4), 1.0), [1.0], np.full((1, 4), 150.0))
-    assert out.wheel_speed.dtype == np.float64
-    assert _same(bank.theta, numpy_.theta) and _same(bank.P, numpy_.P)

@@ -131,8 +131,8 @@ class Estimator:
         self.scale = TorqueScaleBank(cfg.vehicle, cfg.torque_scale, cfg.soil.gross_scale_sigma, n, cfg.constants,
                                      slip_floor=cfg.slip_floor, gravity=cfg.observer.gravity)
         self.curve = WheelCurve(cfg, n)  # the wheel's learnt curve and the OCP records' rule
-        self.chain = _core.ChainCore(self.observer._core, self.gate.core, self.soil.core, cfg.constants.kernel,
-                                     self.scale._core, feed_soil=self.scale.active and cfg.torque_scale.model_resistance)
+        self.chain = _core.ChainCore(self.observer._core, self.gate.core, self.soil.core, self.scale._core,
+                                     feed_soil=self.scale.active and cfg.torque_scale.model_resistance)
 
     @property
     def feeds_soil(self) -> bool:

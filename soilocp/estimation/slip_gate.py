@@ -7,9 +7,9 @@ for N vehicles.
 
 The gate runs in the compiled core (``soilocp._core.SlipGateBank``, soilocp/_core/src/soil/gate.rs, one
 call per step); this module packs the observer's output into the one array the core reads and keeps
-the settings.  The soil stage normally runs the gate and the soil update in one core call
-(:meth:`soilocp.estimation.soil_strength.SoilBank.step_gated`); :meth:`SlipGate.step` alone serves the
-map prior's hook (soilocp.map.prior.start_from_map), which runs between the two, and the paper method.
+the settings.  The soil stage runs the gate and the soil update in one core call (the chain's
+``update``, :class:`soilocp.estimation.estimator.Estimator`); :meth:`SlipGate.step` alone serves the
+paper method and the tests.
 """
 
 from __future__ import annotations

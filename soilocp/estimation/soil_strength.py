@@ -123,7 +123,7 @@ class SoilBank:
         self.k_floor = self.grid.k_floor
         # the records (held / withdrawn K, status and reason codes, soilocp/_core/src/soil/status.rs)
         self.core.set_status(self.grid.span)
-        #: wheel-samples the longitudinal model did not describe, by wheel_usability's reason (the health counters)
+        #: wheel-samples the longitudinal model did not describe, by the unusable code's name (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
 
     # the core's state, as it holds it (each a copy)
@@ -164,23 +164,10 @@ class SoilBank:
                                None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))[0]
         return self._states(ix, stamp, codes, self.core.report(wheel))
 
-    def step_gated(self, gate, idx, stamp, rows: np.ndarray, scale_sigma=None) -> tuple[SoilInputs, list[SoilState]]:
-        """The soil stage's step in one core call: ``gate`` (:class:`soilocp.estimation.slip_gate.SlipGate`) on
-        the packed observer outputs ``rows`` (k, ``SlipGateBank.columns``) of the vehicles ``idx`` at ``stamp``
-        (k,), then :meth:`update` with its inputs.  Returns the gate's inputs (the record's slip) and the states."""
-        ix = np.asarray(idx, dtype=np.int64)  # the core refuses a negative, out-of-range or repeated index
-        k = ix.size
-        stamp = np.asarray(stamp, dtype=float)
-        stamp = stamp if stamp.shape == (k,) else stamp.reshape(k)
-        fields, report = self.core.step_gated(gate.core, ix, stamp, rows,
-                                              None if scale_sigma is None else np.asarray(scale_sigma, dtype=float).reshape(k))
-        inputs = SoilInputs(*fields)
-        return inputs, self.states(ix, stamp, inputs, report)
-
     def states(self, ix: np.ndarray, stamp: np.ndarray, inputs: SoilInputs, report) -> list[SoilState]:
         """The states of the vehicles ``ix`` at ``stamp`` (k,) from a gated step's inputs (their unusable
-        wheels, counted in :attr:`unusable_by_reason`) and the core's records ``report`` (``step_gated``'s, or
-        ``ChainCore.step``'s)."""
+        wheels, counted in :attr:`unusable_by_reason`) and the core's records ``report`` (``ChainCore.step``'s or
+        ``update``'s)."""
         return self._states(ix, stamp, self._count_unusable(inputs.unusable, ix.size), report)
 
     def _count_unusable(self, unusable, k: int) -> np.ndarray | None:
@@ -267,7 +254,7 @@ _REASON_NAMES: tuple[str, ...] = tuple(_core.SoilGridBank.reason_names)
 _R = {name: code for code, name in enumerate(_REASON_NAMES)}
 if _STATUSES != get_args(Status) or not set(_REASON_NAMES) <= set(REASON_CODES):
     raise ImportError(f"soilocp._core's status names {_STATUSES} or reason names {_REASON_NAMES} are not those of "
-                      "soilocp.schemas.codes: rebuild the core (make setup) and regenerate the module "
+                      "soilocp.schemas.codes: rebuild the core (make setup) and regenerate its file "
                       "(python -m soilocp.cli.generate_codes)")
 
 #: the reason texts that are one template each, by reason code (the others: SoilBank._reason): filled in with

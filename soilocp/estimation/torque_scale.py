@@ -20,8 +20,8 @@ straight, every wheel's slip within ``max_slip``, finite):
   The wheel-inertia term of the balance carries the payload's share of k, k^w, w = 1 - ``SoilConfig.gross_scale_sigma``^2 /
   ``TorqueScaleConfig.prior_sigma``^2 (docs/method.md §15, "The wheels' inertia under an unknown payload").  With ``model_resistance`` the
   resistance itself is modelled, not a state: eq. 4 at each sample's slips (eq. 1 from the readings),
-  normal forces and the soil's K as the soil stage last reported it (:meth:`TorqueScaleBank.feed_soil`,
-  the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,
+  normal forces and the soil's K as the soil stage last reported it (the chain's ``feed``,
+  :meth:`soilocp.estimation.estimator.Estimator.feed`, the K fed back; a median reference soil until then), :func:`soilocp.model.force_balance.modelled_resistance`,
   averaged over the window like the other terms.
 
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
@@ -44,8 +44,6 @@ kernel.  This module keeps the configuration and a thin bank over the core.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from soilocp import _core
@@ -57,8 +55,8 @@ from soilocp.model.vehicle import VehicleParams
 
 
 class TorqueScaleBank:
-    """N vehicles' torque scales (module doc), their state in the core: :meth:`apply` takes one sample per
-    vehicle in ``ix`` (the observer's inputs) and steps them in one call."""
+    """N vehicles' torque scales (module doc), their state in the core, which the estimator's chain
+    (``soilocp._core.ChainCore``) steps with the observer: one sample per vehicle in a step, the observer's inputs."""
 
     def __init__(self, vehicle: VehicleParams, cfg: TorqueScaleConfig, prior_sigma: float, n_vehicles: int,
                  constants: ModelConstants = DEFAULT_CONSTANTS, *, slip_floor: float = DEFAULT_FLOOR,
@@ -71,7 +69,7 @@ class TorqueScaleBank:
         wider = cfg.enabled and cfg.prior_sigma is not None and prior_sigma > 0
         self.state_sigma = float(cfg.prior_sigma) if wider else self.prior_sigma
         self.active = cfg.enabled and self.prior_sigma > 0
-        # the soil's K for eq. 4's resistance until the soil stage reports one (feed_soil): the median reference
+        # the soil's K for eq. 4's resistance until the soil stage reports one (the chain's feed): the median reference
         # soil (the resistance of an unknown soil, within +-30 N of the truth on the reference soils)
         self.k_default = float(np.median(list(constants.soils.values())))
         self._n = n_vehicles
@@ -96,28 +94,6 @@ class TorqueScaleBank:
             return np.tile(np.diag([self.state_sigma**2, self.cfg.resistance_sigma**2]), (self._n, 1, 1))
         return self._core.p
 
-    def apply(self, ix: np.ndarray, inputs):
-        """The observer's inputs (:class:`soilocp.estimation.observer_bank.ObserverInputs`) for vehicles ``ix``
-        after this sample has stepped the state: torques x k's mean; and k's relative posterior 1-sigma (k,),
-        the soil estimator's scale prior, or None while the state is off or never learnt (the prior stays the
-        config's)."""
-        if not self.active:
-            return inputs, None
-        ix = np.asarray(ix, dtype=np.int64)
-        try:  # the core refuses a bad shape, dtype or value before it steps a vehicle
-            out = self._apply(ix, inputs)
-        except (TypeError, ValueError):
-            inputs.check()  # the observer's own named error (or its float64 copies of the fields, then the core's)
-            out = self._apply(ix, inputs)
-        if out is None:
-            return inputs, None
-        torque, scale_sigma = out
-        return dataclasses.replace(inputs, wheel_torque=torque), scale_sigma
-
-    def _apply(self, ix: np.ndarray, inputs):
-        return self._core.apply(ix, inputs.stamp, inputs.specific_force_x, inputs.pitch, inputs.yaw_rate,
-                                inputs.wheel_speed, inputs.wheel_torque, inputs.ground_speed, inputs.normal_force)
-
     def band_sigma(self, sd) -> np.ndarray:
         """k's 1-sigma for K's band: the windows' information about k (the state's posterior precision less its
         prior's, ``state_sigma``) combined with the torque constant's prior ``prior_sigma``
@@ -130,34 +106,9 @@ class TorqueScaleBank:
             return sd
         return self._core.band_sigma(sd.reshape(-1)).reshape(sd.shape)
 
-    def feed_soil(self, ix: np.ndarray, soil_strength, slip=None) -> None:
-        """The soil stage's K for vehicles ``ix`` after this sample (NaN or None: none reported, the last is kept)
-        and its slips per wheel (k, 4) (NaN: none): the next samples' modelled motion resistance (eq. 4) uses
-        them (only there: without ``model_resistance`` the feed is not kept)."""
-        if not self.active or not self.cfg.model_resistance:
-            return
-        if type(soil_strength) is np.ndarray and soil_strength.dtype == np.float64:
-            k = soil_strength.reshape(-1)
-        else:
-            k = np.array([np.nan if v is None else v for v in np.atleast_1d(soil_strength)], dtype=float)
-        ix = np.asarray(ix, dtype=np.int64)
-        self._core.feed_soil(ix, k, None if slip is None else np.asarray(slip, dtype=float).reshape(-1, 4))
-
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """k's posterior mean and 1-sigma for the vehicles ``ix``."""
         ix = np.asarray(ix, dtype=np.int64)
         if not self.active:
             return np.ones(ix.size), np.sqrt(np.full(ix.size, self.state_sigma**2))
         return self._core.scale(ix)
-
-    def step(self, ix: np.ndarray, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed,
-             normal_force=None) -> tuple[np.ndarray, np.ndarray]:
-        """Add one sample per vehicle (stamps s, f_x m/s^2, pitch rad, yaw rate rad/s, wheel speeds (k, 4)
-        rad/s, logged torques (k, 4), ground speed m/s (NaN: the rims' mean), normal forces (k, 4) N (None:
-        no modelled resistance, b is the whole F_MR)); close the windows that are full and update their
-        vehicles' state.  Returns k's mean and 1-sigma after this sample."""
-        if not self.active:
-            return self.scale(ix)
-        f = lambda a: np.asarray(a, dtype=float)  # noqa: E731
-        return self._core.step(np.asarray(ix, dtype=np.int64), f(stamp), f(f_x), f(pitch), f(yaw_rate), f(wheel_speed),
-                               f(torque), f(speed), None if normal_force is None else f(normal_force))

@@ -26,11 +26,8 @@ soil/gate.rs); :data:`REASONS` names them, :func:`describe` words them, and the 
 
 from __future__ import annotations
 
-import numpy as np
-
 from soilocp import _core
-from soilocp.estimation.settings_model import core_values, model_from_core
-from soilocp.model.constants import DEFAULT_DEADBAND
+from soilocp.estimation.settings_model import model_from_core
 
 #: code -> name, 0 = usable: soilocp/_core/src/soil/usability.rs's table
 REASONS: tuple[str, ...] = tuple(getattr(_core.SoilGridBank, "unusable_names", ()))
@@ -49,35 +46,10 @@ EXPLAIN = {
                "model does not describe",
 }
 
-#: Thresholds of :func:`wheel_usability` (docs/method.md §17), declared in the compiled core
+#: Thresholds of the unusable codes (docs/method.md §17), declared in the compiled core
 #: (soilocp/_core/src/soil/usability.rs); whether the body moves is the pipeline's ``slip_deadband``.
 UsabilityLimits = model_from_core("UsabilityLimits", "usability", __name__,
-                                  "Thresholds of wheel_usability (docs/method.md §17).")
-
-
-def travel_slip(rim, ground, floor: float):
-    """Eq. 1 in the wheel's direction of travel (docs/method.md §17): S = d (R_w omega - V) /
-    max(|V|, |R_w omega|, floor), d the sign of the ground speed under the wheel, or of the rim where the
-    ground stands (|V| < 0.02 m/s, slip.rs's V_STILL), +1 where both stand.  Correction to the print: the print is for
-    forward travel only; :func:`soilocp.model.slip.slip_ratio` (the body frame, d = +1) gives a wheel that
-    drives backwards a negative slip, the sign of braking, so the traction law of §11 read it as a braking
-    wheel and flipped its motion resistance.  Returns (S, d), arrays of the broadcast shape of ``rim`` and
-    ``ground``.  The compiled core's (soilocp/_core/src/slip.rs), which the slip gate runs."""
-    return _core.travel_slip(np.asarray(rim, dtype=float), np.asarray(ground, dtype=float), float(floor))
-
-
-def wheel_usability(slip: np.ndarray, rim: np.ndarray, ground: np.ndarray, body_speed: np.ndarray,
-                    yaw_rate: np.ndarray, gross: np.ndarray, half_track: float,
-                    limits: UsabilityLimits = UsabilityLimits(), deadband: float = DEFAULT_DEADBAND) -> np.ndarray:
-    """Unusable code (k, 4) per wheel (module doc) from the travel-frame slip (k, 4) (eq. 1,
-    :func:`travel_slip`), rim speeds R_w omega (k, 4) and ground speeds under the wheels (k, 4) in m/s,
-    the body's ground speed (k,) m/s, yaw rate (k,) rad/s, each wheel's gross traction (k, 4) (eq. 13's
-    F_GT / W), the half-track (c + d) / 2 in m and the slip deadband in m/s (the pipeline's
-    ``slip_deadband``: above it the body moves).  The compiled core's (soilocp/_core/src/soil/usability.rs),
-    which the slip gate runs."""
-    f = (lambda a: np.asarray(a, dtype=float))
-    return _core.wheel_usability(f(slip), f(rim), f(ground), f(body_speed).reshape(-1), f(yaw_rate).reshape(-1),
-                                 f(gross), float(half_track), core_values(limits, "usability"), float(deadband))
+                                  "Thresholds of the wheels' unusable codes (docs/method.md §17).")
 
 
 def describe(codes) -> str:

@@ -1,8 +1,8 @@
 """Model constants: the improved Brixius constants (paper §2.2), the S_E line (eq. 10) and the
 reference soil strengths, in one configuration object that a calibration can replace.
 
-The defaults are the paper's: C1=1.3, C2=0.01, C3=7.058, C4=0.04, C5=-5, C6=4,
-alpha=677.4, beta=-5242.9.  ``soilocp calibrate`` writes a file of the same shape, and every
+The defaults are the paper's, defined once in the compiled core (``soilocp._core.Constants.PAPER``,
+soilocp/_core/src/constants.rs).  ``soilocp calibrate`` writes a file of the same shape, and every
 command that takes ``--constants FILE`` loads it with :func:`load_constants`.
 """
 
@@ -15,6 +15,7 @@ from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
+from soilocp import _core
 from soilocp.model.files import read_json
 
 # Paper §2.2 and §2.2 (EST): soil strength of the testbed soils.  "firm" is ours: the paper's
@@ -42,21 +43,25 @@ DEFAULT_FLOOR = 0.05
 _CALIBRATED = {"audience": "calibration"}
 
 
+#: the paper's constants, the core's (its Constants.PAPER): the defaults below
+_PAPER = _core.Constants.PAPER
+
+
 class ModelConstants(BaseModel):
     """Improved Brixius constants C1..C6 (eqs. 3-6), the S_E line (eq. 10) and model options."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    C1: float = Field(1.3, gt=0, description="Gross-traction amplitude (eq. 3)", json_schema_extra=_CALIBRATED)
-    C2: float = Field(0.01, gt=0, description="Soil-strength saturation rate, 1/K (eq. 3)", json_schema_extra=_CALIBRATED)
-    C3: float = Field(7.058, gt=0, description="Slip rate of the traction rise (eq. 3)", json_schema_extra=_CALIBRATED)
-    C4: float = Field(0.04, description="Constant of gross traction and motion resistance (eqs. 3-4)", json_schema_extra=_CALIBRATED)
-    C5: float = Field(-5.0, description="K-inverse motion-resistance term (eq. 4)", json_schema_extra=_CALIBRATED)
-    C6: float = Field(4.0, gt=0, description="Slip-proportional motion resistance over sqrt(K) (eq. 4)", json_schema_extra=_CALIBRATED)
-    alpha: float = Field(677.4, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
-    beta: float = Field(-5242.9, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
+    C1: float = Field(_PAPER.c1, gt=0, description="Gross-traction amplitude (eq. 3)", json_schema_extra=_CALIBRATED)
+    C2: float = Field(_PAPER.c2, gt=0, description="Soil-strength saturation rate, 1/K (eq. 3)", json_schema_extra=_CALIBRATED)
+    C3: float = Field(_PAPER.c3, gt=0, description="Slip rate of the traction rise (eq. 3)", json_schema_extra=_CALIBRATED)
+    C4: float = Field(_PAPER.c4, description="Constant of gross traction and motion resistance (eqs. 3-4)", json_schema_extra=_CALIBRATED)
+    C5: float = Field(_PAPER.c5, description="K-inverse motion-resistance term (eq. 4)", json_schema_extra=_CALIBRATED)
+    C6: float = Field(_PAPER.c6, gt=0, description="Slip-proportional motion resistance over sqrt(K) (eq. 4)", json_schema_extra=_CALIBRATED)
+    alpha: float = Field(_PAPER.alpha, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
+    beta: float = Field(_PAPER.beta, description="S_E = (K - alpha) / beta (eq. 10)", json_schema_extra=_CALIBRATED)
     bridge_slip: float = Field(
-        0.005,
+        _PAPER.bridge_slip,
         ge=0,
         lt=0.1,
         description=(
@@ -112,8 +117,6 @@ class ModelConstants(BaseModel):
         private = self.__pydantic_private__
         cached = private.get("_kernel")
         if cached is None or cached[0] != key:
-            from soilocp import _core
-
             cached = (key, _core.Constants(*key))
             private["_kernel"] = cached
         return cached[1]

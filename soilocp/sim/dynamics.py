@@ -365,7 +365,11 @@ class RoverDrive:
         ocp = self._ocp(seg.soil_strength)
         ke = 0.5 * (v.mass * self.V**2 + v.yaw_inertia * self.r**2 + v.wheel_inertia * float(w @ w))
         tup = lambda a: tuple(float(q) for q in a)  # noqa: E731
+        # the true motion: the truth record states it, the sensors read it
+        motion = dict(specific_force=self.f_used, roll=self.roll, pitch=self.pitch, yaw_rate=self.r,
+                      wheel_speed=self.w, wheel_torque=self.torque, ground_speed=self.V)
         truth = TruthRecord(
+            **{name: tup(a) if np.ndim(a) else a for name, a in motion.items()},
             vehicle_id=self.vehicle_id,
             seq=seq,
             stamp=stamp,
@@ -376,22 +380,15 @@ class RoverDrive:
             wheel_soil_strength=tup(self.k_wheels),
             grade=seg.grade,
             cross_slope=seg.cross_slope,
-            roll=self.roll,
-            pitch=self.pitch,
             distance=self.dist,
             heading=self.heading,
             x=self.px,
             y=self.py,
-            yaw_rate=self.r,
             slip=tup(s),
             mu=tup(mu),
             motion_resistance=tup(g - mu),
             gross_traction=tup(g),
             normal_force=tup(self.fz),
-            ground_speed=self.V,
-            wheel_speed=tup(self.w),
-            wheel_torque=tup(self.torque),
-            specific_force=tup(self.f_used),
             speed_command=self.controller.speed_cmd,
             slip_command=self.controller.slip_cmd,
             mu_T=ocp.mu_T,
@@ -401,16 +398,7 @@ class RoverDrive:
             potential_energy=v.mass * STANDARD_GRAVITY * self.z,
             **self.energy,
         )
-        read = self.sensors.read(
-            specific_force=self.f_used,
-            roll=self.roll,
-            pitch=self.pitch,
-            yaw_rate=self.r,
-            wheel_angle=self.wheel_angle,
-            wheel_speed=self.w,
-            wheel_torque=self.torque,
-            ground_speed=self.V,
-        )
+        read = self.sensors.read(wheel_angle=self.wheel_angle, **motion)
         if v.drive == "per_side":
             read = per_side_readings(read)
         if self.start is not None:  # true positions in the samples (a perfect odometry / GNSS)

@@ -1,13 +1,14 @@
 //! The model constants of the traction law (paper §2.2), the S_E line (eq. 10) and the zero-slip
-//! bridge (docs/method.md §8): the numbers of `soilocp.model.constants.ModelConstants`, which
-//! stays the validated, documented configuration; this struct is its copy on the Rust side.
+//! bridge (docs/method.md §8).  [`Constants::PAPER`] is the one definition of their defaults:
+//! `soilocp.model.constants.ModelConstants` (the validated, documented configuration a calibration
+//! replaces) reads them from `soilocp._core.Constants.PAPER` and builds this struct from its own.
 
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
 /// C1..C6 of eqs. 3-6, alpha and beta of eq. 10, and the half-width of the linear bridge
 /// through S = 0 (docs/method.md §8).  Built once per `ModelConstants` by the Python side.
-#[pyclass(frozen, module = "soilocp._core")]
+#[pyclass(frozen, get_all, module = "soilocp._core")]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Constants {
     pub c1: f64,
@@ -22,7 +23,8 @@ pub struct Constants {
 }
 
 impl Constants {
-    /// The paper's constants (`ModelConstants()`), for the Rust tests.
+    /// The paper's constants (§2.2; the bridge: docs/method.md §8), the defaults of
+    /// `ModelConstants` and of the Rust tests.
     pub const PAPER: Constants = Constants {
         c1: 1.3,
         c2: 0.01,
@@ -38,6 +40,13 @@ impl Constants {
 
 #[pymethods]
 impl Constants {
+    /// The paper's constants ([`Constants::PAPER`]): `ModelConstants`' defaults.
+    #[classattr]
+    #[pyo3(name = "PAPER")]
+    fn paper() -> Constants {
+        Constants::PAPER
+    }
+
     #[new]
     #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (c1, c2, c3, c4, c5, c6, alpha, beta, bridge_slip))]

@@ -6,6 +6,7 @@
 pub mod codes;
 pub mod constants;
 pub mod curve;
+pub mod index;
 pub mod normal_force;
 pub mod observer;
 pub mod ocp;
@@ -49,12 +50,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         fn py::ocp::ocp_one,
         // the soil-grid update
         class py::soil::SoilGridBank,
-        // the slip gate, eq. 1 and the wheels' usability codes
+        // the slip gate (with the wheels' usability codes) and eq. 1
         class py::soil::SlipGateBank,
         fn py::soil::soil_classes,
         fn py::slip::slip_ratio,
-        fn py::slip::travel_slip,
-        fn py::slip::wheel_usability,
         // the observer: its filter bank
         class py::observer::ObserverCore,
         fn py::observer::observer_layout,

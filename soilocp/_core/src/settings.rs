@@ -38,6 +38,29 @@ impl Given for f64 {
     }
 }
 
+/// A setting's value as Python gives it: a number, or a choice's name.
+#[derive(Clone, Debug, PartialEq, pyo3::FromPyObject)]
+pub enum Value {
+    Number(f64),
+    Name(String),
+}
+
+impl Given for Value {
+    fn number(&self) -> Option<f64> {
+        match self {
+            Value::Number(v) => Some(*v),
+            Value::Name(_) => None,
+        }
+    }
+
+    fn name(&self) -> Option<&str> {
+        match self {
+            Value::Number(_) => None,
+            Value::Name(n) => Some(n),
+        }
+    }
+}
+
 /// The index of `v` in `choices` (a const fn: a choice setting whose default is not one of its
 /// choices does not compile).
 pub const fn choice_index(choices: &[&str], v: &str) -> usize {
@@ -317,45 +340,23 @@ mod tests {
         }
     }
 
-    /// A number or a name, as the Python side gives them.
-    enum Any {
-        Num(f64),
-        Name(&'static str),
-    }
-
-    impl Given for Any {
-        fn number(&self) -> Option<f64> {
-            match self {
-                Any::Num(v) => Some(*v),
-                Any::Name(_) => None,
-            }
-        }
-
-        fn name(&self) -> Option<&str> {
-            match self {
-                Any::Num(_) => None,
-                Any::Name(n) => Some(n),
-            }
-        }
-    }
-
     #[test]
     fn a_choice_is_one_of_its_names() {
         assert_eq!(Demo::default().mode, "fast");
         assert_eq!(Demo::SPECS[2].default, 1.0);
         assert_eq!(Demo::SPECS[2].choices, ["exact", "fast"]);
-        let m: HashMap<String, Any> = [
-            ("mode".to_string(), Any::Name("exact")),
-            ("count".into(), Any::Num(2.0)),
+        let m: HashMap<String, Value> = [
+            ("mode".to_string(), Value::Name("exact".into())),
+            ("count".into(), Value::Number(2.0)),
         ]
         .into();
         let d = Demo::from_map(&m).unwrap();
         assert_eq!((d.mode, d.count), ("exact", 2.0));
-        let bad = |v: Any| Demo::from_map(&[("mode".to_string(), v)].into()).unwrap_err();
-        let e = bad(Any::Name("slow"));
+        let bad = |v: Value| Demo::from_map(&[("mode".to_string(), v)].into()).unwrap_err();
+        let e = bad(Value::Name("slow".into()));
         assert!(e.contains("mode = \"slow\" must be one of exact, fast"), "{e}");
-        assert!(bad(Any::Num(1.0)).contains("mode = a number must be one of"));
-        let e = Demo::from_map(&[("count".to_string(), Any::Name("x"))].into()).unwrap_err();
+        assert!(bad(Value::Number(1.0)).contains("mode = a number must be one of"));
+        let e = Demo::from_map(&[("count".to_string(), Value::Name("x".into()))].into()).unwrap_err();
         assert!(e.contains("count must be a number"), "{e}");
     }
 

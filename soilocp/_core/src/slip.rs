@@ -70,6 +70,31 @@ mod tests {
         );
     }
 
+    /// docs/method.md §17's table (floor 0.05 m/s): rim speed R_w omega, ground speed -> travel-frame
+    /// slip (to its 4 digits), direction; and §11's reversing wheel at travel slip 0.2.
+    #[test]
+    fn travel_vectors_of_method_md() {
+        #[rustfmt::skip]
+        let cases = [
+            (1.1, 1.0, 0.0909, 1.0),
+            (0.9, 1.0, -0.1, 1.0),
+            (-1.1, -1.0, 0.0909, -1.0), // driving backwards: the mirror image of driving forwards
+            (-0.9, -1.0, -0.1, -1.0),   // braking backwards
+            (-0.45, -0.04, 0.9111, -1.0), // a Husky reversing with spinning wheels
+            (0.45, -0.04, -1.0889, -1.0), // the body drifts back while the wheel turns forwards: beyond eq. 1
+            (-0.3, 0.0, 1.0, -1.0),     // spinning backwards at standstill
+            (0.0, 0.0, 0.0, 1.0),
+            (-0.15 * 1.25, -0.15, 0.2, -1.0),
+        ];
+        for (rim, ground, want_s, want_d) in cases {
+            let (s, d) = travel_slip(rim, ground, 0.05);
+            assert!(
+                (s - want_s).abs() < 5e-5 && d == want_d,
+                "({rim}, {ground}): ({s}, {d})"
+            );
+        }
+    }
+
     #[test]
     fn direction_follows_the_rim_where_the_ground_stands() {
         assert_eq!(travel_direction(-0.3, 0.01), -1.0);

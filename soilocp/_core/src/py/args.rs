@@ -1,11 +1,20 @@
-//! Argument checks the bindings share: a (k,) or a (k, 4) array of a step's k vehicles (and, for the
-//! observer's inputs, every entry finite), two arrays that broadcast together, refused with a ValueError
-//! that names the argument and what it came with.
+//! Argument checks the bindings share: a step's vehicle indices, a (k,) or a (k, 4) array of its k
+//! vehicles (and, for the observer's inputs, every entry finite), two arrays that broadcast together,
+//! refused with a ValueError that names the argument and what it came with.
 
 use numpy::ndarray::{ArrayD, ArrayView1, ArrayView2, ArrayViewD, IxDyn, Zip};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+
+/// The vehicles of a step of a bank of `n` from `idx` (None: all, in order): distinct indices in
+/// [0, n) (crate::index::vehicles), else a ValueError naming them.
+pub fn vehicles(idx: Option<&PyReadonlyArray1<'_, i64>>, n: usize) -> PyResult<Vec<usize>> {
+    match idx {
+        None => Ok((0..n).collect()),
+        Some(idx) => crate::index::vehicles(&idx.as_array().to_vec(), n).map_err(PyValueError::new_err),
+    }
+}
 
 /// `len` entries where the step has `k` vehicles.
 pub fn check_len(name: &str, len: usize, k: usize) -> PyResult<()> {

@@ -13,16 +13,15 @@ use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::args::{column, quads};
+use super::args::{self, column, quads};
 use super::observer::{blocks, Inputs, ObserverCore, StepOut};
 use super::soil::{gate_arrays, report_arrays, GateArrays, PendingGate, ReportArrays, SlipGateBank, SoilGridBank};
 use super::torque_scale::TorqueScaleCore;
-use crate::constants::Constants;
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw};
 use crate::ocp;
 use crate::soil::bank::Sample;
 use crate::soil::gate::{self, COLUMNS};
-use crate::torque_scale::bank::{Sample as ScaleSample, TorqueScaleBank};
+use crate::torque_scale::bank::TorqueScaleBank;
 
 type Arr<'py> = Bound<'py, PyArray1<f64>>;
 
@@ -38,25 +37,10 @@ pub struct ChainCore {
     observer: Py<ObserverCore>,
     gate: Py<SlipGateBank>,
     soil: Py<SoilGridBank>,
-    constants: Constants,
     /// None: the torque scale is off (k = 1 and the soil's scale prior as configured)
     scale: Option<Py<TorqueScaleCore>>,
     /// feed each step's K and slips back to the scale (its modelled motion resistance, eq. 4)
     feed_soil: bool,
-}
-
-/// The torque scale's sample of an observer input: the logged torques, before the scale.
-fn scale_sample(r: &Raw) -> ScaleSample {
-    ScaleSample {
-        stamp: r.stamp,
-        f_x: r.specific_force_x,
-        pitch: r.pitch,
-        yaw_rate: r.yaw_rate,
-        wheel_speed: r.wheel_speed,
-        torque: r.wheel_torque,
-        ground_speed: r.ground_speed,
-        normal_force: Some(r.normal_force),
-    }
 }
 
 /// The observer stage's output: the estimates and, once the torque scale has left its prior, each
@@ -72,7 +56,6 @@ struct Stages<'a> {
     scale: Option<&'a mut TorqueScaleBank>,
     gate: &'a mut SlipGateBank,
     soil: &'a mut SoilGridBank,
-    constants: &'a Constants,
     feed_soil: bool,
 }
 
@@ -87,13 +70,12 @@ struct Held<'py> {
 
 impl Held<'_> {
     /// The stages of the held objects, for one call.
-    fn stages<'a>(&'a mut self, constants: &'a Constants, feed_soil: bool) -> Stages<'a> {
+    fn stages(&mut self, feed_soil: bool) -> Stages<'_> {
         Stages {
             observer: self.observer.bank_mut(),
             scale: self.scale.as_mut().map(|s| s.bank_mut()),
             gate: &mut self.gate,
             soil: &mut self.soil,
-            constants,
             feed_soil,
         }
     }
@@ -114,11 +96,7 @@ impl Stages<'_> {
     fn observe(&mut self, vehicles: &[usize], mut raws: Vec<Raw>) -> PyResult<Observed> {
         let mut scaled = None;
         if let Some(bank) = self.scale.as_deref_mut() {
-            let stepped: Vec<(f64, f64)> = vehicles
-                .iter()
-                .zip(&raws)
-                .map(|(&g, r)| bank.step(g, &scale_sample(r)))
-                .collect();
+            let stepped: Vec<(f64, f64)> = vehicles.iter().zip(&raws).map(|(&g, r)| bank.step(g, r)).collect();
             scaled = bank.scaled(&stepped);
             if let Some(sc) = &scaled {
                 for (r, &(m, _)) in raws.iter_mut().zip(sc) {
@@ -177,7 +155,7 @@ impl Stages<'_> {
     fn feed(&mut self, vehicles: &[usize], ks: &[f64], slips: &[[f64; 4]]) {
         if let (true, Some(bank)) = (self.feed_soil, self.scale.as_deref_mut()) {
             for ((&g, &k), s) in vehicles.iter().zip(ks).zip(slips) {
-                bank.feed_soil(g, k, Some(*s));
+                bank.feed_soil(g, k, *s);
             }
         }
     }
@@ -194,7 +172,8 @@ impl Stages<'_> {
         let (samples, used, ks) = self.update(samples, pending, scale_sigma.as_deref(), informing)?;
         let slips: Vec<[f64; 4]> = samples.iter().map(|s| s.slip).collect();
         self.feed(vehicles, &ks, &slips);
-        let ocp = ocp::bank(&ks, self.constants).map_err(PyValueError::new_err)?;
+        // the OCPs of the traction law the soil update inverts
+        let ocp = ocp::bank(&ks, self.soil.constants()).map_err(PyValueError::new_err)?;
         Ok(Done {
             estimates,
             samples,
@@ -219,16 +198,15 @@ impl ChainCore {
 #[pymethods]
 impl ChainCore {
     /// The chain over the stage objects of one bank of N vehicles: the `observer`, the slip `gate`,
-    /// the `soil` bank (its records' settings given: `set_status`), the traction law's `constants`
-    /// (the OCPs'), the torque `scale` (None: off) and whether K is fed back to it (`feed_soil`).
+    /// the `soil` bank (its records' settings given: `set_status`; the OCPs are of its traction
+    /// law's constants), the torque `scale` (None: off) and whether K is fed back to it (`feed_soil`).
     #[new]
-    #[pyo3(signature = (observer, gate, soil, constants, scale=None, feed_soil=false))]
+    #[pyo3(signature = (observer, gate, soil, scale=None, feed_soil=false))]
     fn py_new(
         py: Python<'_>,
         observer: Py<ObserverCore>,
         gate: Py<SlipGateBank>,
         soil: Py<SoilGridBank>,
-        constants: Constants,
         scale: Option<Py<TorqueScaleCore>>,
         feed_soil: bool,
     ) -> PyResult<Self> {
@@ -254,7 +232,6 @@ impl ChainCore {
             observer,
             gate,
             soil,
-            constants,
             scale,
             feed_soil,
         })
@@ -279,7 +256,7 @@ impl ChainCore {
         let mut held = self.hold(py)?;
         let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
         let informing = informing.map(|a| quads("informing", &a, vehicles.len())).transpose()?;
-        let stages = held.stages(&self.constants, self.feed_soil);
+        let stages = held.stages(self.feed_soil);
         // the GIL is released for the step: a Zenoh callback can hand over the next samples meanwhile (the
         // stage objects stay borrowed: another thread that reads one of them now gets a RuntimeError, not a
         // half-stepped state)
@@ -305,7 +282,7 @@ impl ChainCore {
     ) -> PyResult<(StepOut<'py>, Option<(Arr<'py>, Arr<'py>)>)> {
         let mut held = self.hold(py)?;
         let (vehicles, raws) = held.observer.raws(idx.as_ref(), &inputs)?;
-        let (estimates, scaled) = held.stages(&self.constants, self.feed_soil).observe(&vehicles, raws)?;
+        let (estimates, scaled) = held.stages(self.feed_soil).observe(&vehicles, raws)?;
         let scaled = scaled.map(|s| {
             let (m, sd): (Vec<f64>, Vec<f64>) = s.into_iter().unzip();
             (m.into_pyarray(py), sd.into_pyarray(py))
@@ -317,7 +294,7 @@ impl ChainCore {
     /// observer outputs `rows` (k, `SlipGateBank.columns`, or one message's numbers) of the vehicles
     /// `idx` at `stamp` (k,), each wheel's map-prior `informing` flag (None: every wheel may inform
     /// K), and the update with the scale's relative 1-sigma (None: the prior).  Returns the gate's
-    /// arrays and the records (as `SoilGridBank.step_gated`).
+    /// arrays (as `SlipGateBank.step`) and the records (as `SoilGridBank.report`).
     #[pyo3(signature = (idx, stamp, rows, scale_sigma=None, informing=None))]
     fn update<'py>(
         &self,
@@ -333,12 +310,9 @@ impl ChainCore {
         let k = samples.len();
         let sig = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
         let informing = informing.map(|a| quads("informing", &a, k)).transpose()?;
-        let (samples, used, _) = held.stages(&self.constants, self.feed_soil).update(
-            samples,
-            pending,
-            sig.as_deref(),
-            informing.as_deref(),
-        )?;
+        let (samples, used, _) =
+            held.stages(self.feed_soil)
+                .update(samples, pending, sig.as_deref(), informing.as_deref())?;
         Ok((
             gate_arrays(py, &samples)?,
             report_arrays(py, held.soil.reports(), &used),
@@ -355,23 +329,12 @@ impl ChainCore {
         k: PyReadonlyArray1<'_, f64>,
         slip: PyReadonlyArray2<'_, f64>,
     ) -> PyResult<()> {
-        let n = idx.as_array().len();
-        let ix = column("idx", &idx, n)?;
+        let mut held = self.hold(py)?;
+        let vehicles = args::vehicles(Some(&idx), held.observer.bank_mut().filter.n_vehicles)?;
+        let n = vehicles.len();
         let ks = column("k", &k, n)?;
         let slips = quads("slip", &slip, n)?;
-        let mut held = self.hold(py)?;
-        let n_veh = held.observer.bank_mut().filter.n_vehicles;
-        let mut vehicles = Vec::with_capacity(n);
-        for &g in &ix {
-            if g < 0 || g as usize >= n_veh {
-                return Err(PyValueError::new_err(format!(
-                    "idx {g}: not a vehicle index in [0, {n_veh})"
-                )));
-            }
-            vehicles.push(g as usize);
-        }
-        held.stages(&self.constants, self.feed_soil)
-            .feed(&vehicles, &ks, &slips);
+        held.stages(self.feed_soil).feed(&vehicles, &ks, &slips);
         Ok(())
     }
 

@@ -3,7 +3,7 @@
 //! (soilocp.estimation.observer_bank.ObserverBank) words the reset reasons from the codes and
 //! wraps the arrays in its dataclass.
 
-use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
+use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -11,13 +11,13 @@ use pyo3::prelude::*;
 use std::collections::HashMap;
 
 use super::args;
-use super::settings::Given;
 use crate::observer::bank::{FilterBank, Settings as FilterSettings, RESET_REASONS};
 use crate::observer::intervals::IntervalSettings;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::settings::ObserverSettings;
 use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+use crate::settings::Value;
 
 /// One step's samples of k vehicles, read by attribute from
 /// soilocp.estimation.observer_bank.ObserverInputs: (k,) stamp, specific force x, yaw rate, pitch,
@@ -104,44 +104,23 @@ pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
     )
 }
 
-impl ObserverCore {
-    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
-    pub(crate) fn bank_mut(&mut self) -> &mut ObserverBank {
-        &mut self.inner
-    }
-
-    /// A step's vehicles (`idx`, None: all in order; distinct, in range) and their samples, every
-    /// input checked (shape, finite; ValueError naming the field) before any vehicle's state changes.
+impl Inputs<'_> {
+    /// A step's vehicles of a bank of `n_vehicles` (`idx`, None: all in order; distinct, in range)
+    /// and their samples, every input checked (shape, finite; ValueError naming the field) before
+    /// any vehicle's state changes.
     pub(crate) fn raws(
         &self,
         idx: Option<&PyReadonlyArray1<'_, i64>>,
-        inputs: &Inputs<'_>,
+        n_vehicles: usize,
     ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
-        let n_veh = self.inner.filter.n_vehicles;
-        let stamp = inputs.stamp.as_array();
+        let stamp = self.stamp.as_array();
         let k = stamp.len();
-        let idx_view = idx.map(|a| a.as_array());
-        let m = idx_view.as_ref().map_or(n_veh, |a| a.len());
-        let mut vehicles = Vec::with_capacity(k);
-        if let Some(ix) = &idx_view {
-            let mut seen = vec![false; n_veh];
-            for &g in ix.iter() {
-                if g < 0 || g as usize >= n_veh || seen[g as usize] {
-                    return Err(PyValueError::new_err(format!(
-                        "idx must be distinct vehicle indices in [0, {n_veh}), got {ix}"
-                    )));
-                }
-                seen[g as usize] = true;
-                vehicles.push(g as usize);
-            }
-        } else {
-            vehicles.extend(0..n_veh);
-        }
+        let vehicles = args::vehicles(idx, n_vehicles)?;
         let (fx, yaw, pitch, gs) = (
-            inputs.specific_force_x.as_array(),
-            inputs.yaw_rate.as_array(),
-            inputs.pitch.as_array(),
-            inputs.ground_speed.as_array(),
+            self.specific_force_x.as_array(),
+            self.yaw_rate.as_array(),
+            self.pitch.as_array(),
+            self.ground_speed.as_array(),
         );
         args::check_finite_column("stamp", &stamp, k, false)?;
         args::check_finite_column("specific_force_x", &fx, k, false)?;
@@ -149,33 +128,49 @@ impl ObserverCore {
         args::check_finite_column("pitch", &pitch, k, false)?;
         args::check_finite_column("ground_speed", &gs, k, true)?;
         let (ws, tq, fz) = (
-            inputs.wheel_speed.as_array(),
-            inputs.wheel_torque.as_array(),
-            inputs.normal_force.as_array(),
+            self.wheel_speed.as_array(),
+            self.wheel_torque.as_array(),
+            self.normal_force.as_array(),
         );
         args::check_finite_quads("wheel_speed", &ws, k)?;
         args::check_finite_quads("wheel_torque", &tq, k)?;
         args::check_finite_quads("normal_force", &fz, k)?;
         // after the fields, which are checked against the stamp's length: a field of another length is named
-        if k != m {
+        if k != vehicles.len() {
             return Err(PyValueError::new_err(format!(
-                "inputs hold {k} samples for {m} vehicle indices"
+                "inputs hold {k} samples for {} vehicle indices",
+                vehicles.len()
             )));
         }
-        let row4 = |a: &ArrayView2<'_, f64>, j: usize| -> [f64; 4] { std::array::from_fn(|w| a[[j, w]]) };
         let raws = (0..k)
             .map(|j| Raw {
                 stamp: stamp[j],
                 specific_force_x: fx[j],
                 yaw_rate: yaw[j],
                 pitch: pitch[j],
-                wheel_speed: row4(&ws, j),
-                wheel_torque: row4(&tq, j),
+                wheel_speed: args::row(&ws, j),
+                wheel_torque: args::row(&tq, j),
                 ground_speed: gs[j],
-                normal_force: row4(&fz, j),
+                normal_force: args::row(&fz, j),
             })
             .collect();
         Ok((vehicles, raws))
+    }
+}
+
+impl ObserverCore {
+    /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
+    pub(crate) fn bank_mut(&mut self) -> &mut ObserverBank {
+        &mut self.inner
+    }
+
+    /// A step's vehicles (`idx`, None: all in order) and their samples, checked ([`Inputs::raws`]).
+    pub(crate) fn raws(
+        &self,
+        idx: Option<&PyReadonlyArray1<'_, i64>>,
+        inputs: &Inputs<'_>,
+    ) -> PyResult<(Vec<usize>, Vec<Raw>)> {
+        inputs.raws(idx, self.inner.filter.n_vehicles)
     }
 }
 
@@ -193,7 +188,7 @@ impl ObserverCore {
         n_vehicles: usize,
         vehicle: Vec<f64>,
         wheel_y: Vec<f64>,
-        settings: HashMap<String, Given>,
+        settings: HashMap<String, Value>,
         per_side: bool,
         interval_mean: bool,
         bridge_slip: f64,

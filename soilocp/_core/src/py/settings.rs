@@ -11,29 +11,6 @@ use crate::soil::params::Params as SoilParams;
 use crate::soil::usability::Limits;
 use crate::torque_scale::params::Settings as TorqueScaleSettings;
 
-/// A setting's value as Python gives it: a number, or a choice's name.
-#[derive(FromPyObject)]
-pub enum Given {
-    Number(f64),
-    Name(String),
-}
-
-impl crate::settings::Given for Given {
-    fn number(&self) -> Option<f64> {
-        match self {
-            Given::Number(v) => Some(*v),
-            Given::Name(_) => None,
-        }
-    }
-
-    fn name(&self) -> Option<&str> {
-        match self {
-            Given::Number(_) => None,
-            Given::Name(n) => Some(n),
-        }
-    }
-}
-
 /// One declaration as Python sees it: (name, "float" | "int" | "choice", default (a choice's: its
 /// index in the choices), {"gt" | "ge" | "lt" | "le": bound}, unit, "user" | "internal",
 /// description, the choices (empty for a number)).

@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use super::args::{column, quads};
+use super::args::{column, quads, vehicles};
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
@@ -103,14 +103,8 @@ impl SlipGateBank {
         stamp: &PyReadonlyArray1<'_, f64>,
         rows: &Bound<'_, PyAny>,
     ) -> PyResult<(Vec<Sample>, PendingGate)> {
-        let k = idx.as_array().len();
-        let idx = column("idx", idx, k)?;
-        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
-            return Err(PyValueError::new_err(format!(
-                "idx {bad}: vehicle indices must be >= 0"
-            )));
-        }
-        let idx: Vec<usize> = idx.iter().map(|&i| i as usize).collect();
+        let idx = vehicles(Some(idx), self.inner.lp.len())?;
+        let k = idx.len();
         let stamp = column("stamp", stamp, k)?;
         let shape_error = |got: String| {
             PyValueError::new_err(format!(
@@ -345,7 +339,7 @@ impl SoilGridBank {
     ) -> PyResult<(Vec<Sample>, Vec<[bool; 4]>)> {
         if self.status.is_none() {
             return Err(PyValueError::new_err(
-                "step_gated: call set_status first (the records' settings)",
+                "soil: call set_status first (the records' settings)",
             ));
         }
         if let Some(sig) = scale_sigma {
@@ -363,6 +357,11 @@ impl SoilGridBank {
     /// Whether the records' settings were given (`set_status`).
     pub(crate) fn has_status(&self) -> bool {
         self.status.is_some()
+    }
+
+    /// The traction law's constants the grid's curves are of.
+    pub(crate) fn constants(&self) -> &Constants {
+        &self.inner.grid.c
     }
 
     /// The number of vehicles of the bank.
@@ -554,13 +553,8 @@ impl SoilGridBank {
             span,
             slip_ends,
         } = inputs;
-        let k = idx.as_array().len();
-        let idx = column("idx", &idx, k)?;
-        if let Some(bad) = idx.iter().find(|&&i| i < 0) {
-            return Err(PyValueError::new_err(format!(
-                "idx {bad}: vehicle indices must be >= 0"
-            )));
-        }
+        let idx = vehicles(Some(&idx), self.inner.vehicles.len())?;
+        let k = idx.len();
         let stamp = column("stamp", &stamp, k)?;
         let (slip, observed, variance, slip_sigma) = (
             quads("slip", &slip, k)?,
@@ -611,7 +605,7 @@ impl SoilGridBank {
         let scale_sigma = scale_sigma.map(|a| column("scale_sigma", &a, k)).transpose()?;
         let samples: Vec<Sample> = (0..k)
             .map(|j| Sample {
-                vehicle: idx[j] as usize,
+                vehicle: idx[j],
                 stamp: stamp[j],
                 slip: slip[j],
                 observed: observed[j],
@@ -633,31 +627,8 @@ impl SoilGridBank {
         self.run(py, &samples)
     }
 
-    /// The soil stage's one call per step: the slip gate `gate` on the packed observer outputs
-    /// `rows` (k, COLUMNS) (soilocp.estimation.slip_gate.GATE_FIELDS) of the vehicles `idx` at `stamp`
-    /// (k,), then the update of their beliefs with the gate's samples and `scale_sigma` (k,) (the
-    /// online torque scale's relative 1-sigma, None: the prior), and their records.  Returns (the
-    /// gate's arrays, as `SlipGateBank.step`; the records' arrays, as `report`).
-    #[pyo3(signature = (gate, idx, stamp, rows, scale_sigma=None))]
-    fn step_gated<'py>(
-        &mut self,
-        py: Python<'py>,
-        mut gate: PyRefMut<'py, SlipGateBank>,
-        idx: PyReadonlyArray1<'py, i64>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        rows: Bound<'py, PyAny>,
-        scale_sigma: Option<PyReadonlyArray1<'py, f64>>,
-    ) -> PyResult<(GateArrays<'py>, ReportArrays<'py>)> {
-        let (samples, pending) = gate.run(&idx, &stamp, &rows)?;
-        let sig = scale_sigma
-            .map(|a| column("scale_sigma", &a, samples.len()))
-            .transpose()?;
-        let (samples, used) = self.gated(&mut gate.inner, samples, pending, sig.as_deref())?;
-        Ok((gate_arrays(py, &samples)?, report_arrays(py, &self.reports, &used)))
-    }
-
-    /// Make records from now on: each step also makes its vehicles' records (`report`,
-    /// `step_gated`), with the bank's settings and the grid's ln K `span`.
+    /// Make records from now on: each step also makes its vehicles' records (`report`, the
+    /// chain's steps), with the bank's settings and the grid's ln K `span`.
     fn set_status(&mut self, span: f64) -> PyResult<()> {
         let n = self.inner.vehicles.len();
         let bank = StatusBank::new(self.inner.cfg, span, n).map_err(PyValueError::new_err)?;

@@ -1,6 +1,8 @@
-//! `soilocp._core.TorqueScaleCore`: the torque scales of N vehicles (crate::torque_scale), one call
-//! per step for k selected vehicles; `longitudinal_balance` and `modelled_resistance`: eq. TC and
-//! eq. 4 summed over arrays, for the offline fit (`soilocp calibrate-torque`) and the tests.
+//! `soilocp._core.TorqueScaleCore`: the torque scales of N vehicles (crate::torque_scale), which the
+//! chain (crate::py::chain) steps with the observer and feeds the soil's K back to; this binding
+//! holds the bank between the chain's calls and reads its state.
+//! `longitudinal_balance` and `modelled_resistance`: eq. TC and eq. 4 summed over arrays, for the
+//! offline fit (`soilocp calibrate-torque`) and the tests.
 
 use std::collections::HashMap;
 
@@ -11,22 +13,12 @@ use pyo3::prelude::*;
 
 use crate::constants::Constants;
 use crate::torque_scale::balance::{self, Body};
-use crate::torque_scale::bank::{self, Sample};
+use crate::torque_scale::bank;
 use crate::torque_scale::params::{Derived, Params, Settings};
 
-use super::args::{check_len, column, quads, row};
+use super::args::{check_len, column, quads, vehicles};
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
-/// `apply`'s result: the scaled torques (k, 4) and K's band scale (k,), or None (never learnt).
-type Scaled<'py> = Option<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)>;
-
-fn finite<'a>(name: &str, mut values: impl Iterator<Item = &'a f64>) -> PyResult<()> {
-    if values.all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(PyValueError::new_err(format!("inputs.{name} must be finite")))
-    }
-}
 
 /// The torque scales of N vehicles (docs/method.md §15).
 #[pyclass(module = "soilocp._core")]
@@ -38,75 +30,6 @@ impl TorqueScaleCore {
     /// The bank inside (the chain, crate::py::chain, steps it with the other stages).
     pub(crate) fn bank_mut(&mut self) -> &mut bank::TorqueScaleBank {
         &mut self.inner
-    }
-
-    /// The selected vehicles' indices, each in [0, N) and each once.
-    fn indices(&self, idx: &PyReadonlyArray1<'_, i64>) -> PyResult<Vec<usize>> {
-        let n = self.inner.len();
-        let ix = idx.as_array();
-        let mut out = Vec::with_capacity(ix.len());
-        for &i in ix.iter() {
-            if i < 0 || i as usize >= n {
-                return Err(PyValueError::new_err(format!(
-                    "idx {i}: vehicle indices must be in [0, {}]",
-                    n - 1
-                )));
-            }
-            out.push(i as usize);
-        }
-        if out.len() > 1 {
-            let mut seen = vec![false; n];
-            for &i in &out {
-                if std::mem::replace(&mut seen[i], true) {
-                    return Err(PyValueError::new_err(format!(
-                        "idx {i}: a vehicle can be stepped only once per call"
-                    )));
-                }
-            }
-        }
-        Ok(out)
-    }
-
-    /// Step the vehicles `ix` by their samples; (k's mean, 1-sigma) of each.
-    #[allow(clippy::too_many_arguments)]
-    fn run(
-        &mut self,
-        ix: &[usize],
-        stamp: &PyReadonlyArray1<'_, f64>,
-        f_x: &PyReadonlyArray1<'_, f64>,
-        pitch: &PyReadonlyArray1<'_, f64>,
-        yaw_rate: &PyReadonlyArray1<'_, f64>,
-        wheel_speed: &PyReadonlyArray2<'_, f64>,
-        wheel_torque: &PyReadonlyArray2<'_, f64>,
-        ground_speed: &PyReadonlyArray1<'_, f64>,
-        normal_force: Option<&PyReadonlyArray2<'_, f64>>,
-    ) -> PyResult<Vec<(f64, f64)>> {
-        let k = ix.len();
-        let stamp = column("stamp", stamp, k)?;
-        let f_x = column("specific_force_x", f_x, k)?;
-        let pitch = column("pitch", pitch, k)?;
-        let yaw_rate = column("yaw_rate", yaw_rate, k)?;
-        let ground_speed = column("ground_speed", ground_speed, k)?;
-        let ws = quads("wheel_speed", wheel_speed, k)?;
-        let tq = quads("wheel_torque", wheel_torque, k)?;
-        let nf = normal_force.map(|a| quads("normal_force", a, k)).transpose()?;
-        Ok(ix
-            .iter()
-            .enumerate()
-            .map(|(j, &i)| {
-                let s = Sample {
-                    stamp: stamp[j],
-                    f_x: f_x[j],
-                    pitch: pitch[j],
-                    yaw_rate: yaw_rate[j],
-                    wheel_speed: ws[j],
-                    torque: tq[j],
-                    ground_speed: ground_speed[j],
-                    normal_force: nf.as_ref().map(|a| a[j]),
-                };
-                self.inner.step(i, &s)
-            })
-            .collect())
     }
 }
 
@@ -149,132 +72,9 @@ impl TorqueScaleCore {
         Ok(TorqueScaleCore { inner })
     }
 
-    /// One sample per vehicle in `idx` (k distinct indices): the observer's inputs (stamp,
-    /// specific_force_x, pitch, yaw_rate, ground_speed (k,), NaN ground speed: none; wheel_speed,
-    /// wheel_torque, normal_force (k, 4)); ValueError before any step if one is not finite (the
-    /// caller's check then names it).  Steps the state, then returns the
-    /// torques times k's mean (k, 4) and k's relative 1-sigma for K's band (k,); or None while
-    /// every selected vehicle's k is exactly its prior (never learnt: the torques and the soil
-    /// estimator's scale prior stay as configured).
-    #[allow(clippy::too_many_arguments)]
-    fn apply<'py>(
-        &mut self,
-        py: Python<'py>,
-        idx: PyReadonlyArray1<'py, i64>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        specific_force_x: PyReadonlyArray1<'py, f64>,
-        pitch: PyReadonlyArray1<'py, f64>,
-        yaw_rate: PyReadonlyArray1<'py, f64>,
-        wheel_speed: PyReadonlyArray2<'py, f64>,
-        wheel_torque: PyReadonlyArray2<'py, f64>,
-        ground_speed: PyReadonlyArray1<'py, f64>,
-        normal_force: PyReadonlyArray2<'py, f64>,
-    ) -> PyResult<Scaled<'py>> {
-        let ix = self.indices(&idx)?;
-        // the observer's rule (ObserverInputs.check): all finite but an absent (NaN) ground speed;
-        // refused before any vehicle is stepped, so that the caller can name the field
-        for (name, a) in [
-            ("stamp", &stamp),
-            ("specific_force_x", &specific_force_x),
-            ("pitch", &pitch),
-            ("yaw_rate", &yaw_rate),
-        ] {
-            finite(name, a.as_array().iter())?;
-        }
-        finite("wheel_speed", wheel_speed.as_array().iter())?;
-        finite("wheel_torque", wheel_torque.as_array().iter())?;
-        finite("normal_force", normal_force.as_array().iter())?;
-        if ground_speed.as_array().iter().any(|v| v.is_infinite()) {
-            return Err(PyValueError::new_err(
-                "inputs.ground_speed must be finite or NaN (absent)",
-            ));
-        }
-        let out = self.run(
-            &ix,
-            &stamp,
-            &specific_force_x,
-            &pitch,
-            &yaw_rate,
-            &wheel_speed,
-            &wheel_torque,
-            &ground_speed,
-            Some(&normal_force),
-        )?;
-        let Some(scaled) = self.inner.scaled(&out) else {
-            return Ok(None);
-        };
-        let tq = wheel_torque.as_array();
-        let k = ix.len();
-        let mut torque = Vec::with_capacity(4 * k);
-        let mut sigma = Vec::with_capacity(k);
-        for (j, &(m, s)) in scaled.iter().enumerate() {
-            torque.extend(row(&tq, j).iter().map(|t| t * m));
-            sigma.push(s);
-        }
-        let torque = Array2::from_shape_vec((k, 4), torque).expect("4 per vehicle");
-        Ok(Some((
-            torque.into_pyarray(py),
-            Array1::from_vec(sigma).into_pyarray(py),
-        )))
-    }
-
-    /// `apply`'s step alone, its normal forces optional (None: no modelled resistance): k's mean
-    /// and 1-sigma after this sample, (k,) each.
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (idx, stamp, specific_force_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed,
-                        normal_force=None))]
-    fn step<'py>(
-        &mut self,
-        py: Python<'py>,
-        idx: PyReadonlyArray1<'py, i64>,
-        stamp: PyReadonlyArray1<'py, f64>,
-        specific_force_x: PyReadonlyArray1<'py, f64>,
-        pitch: PyReadonlyArray1<'py, f64>,
-        yaw_rate: PyReadonlyArray1<'py, f64>,
-        wheel_speed: PyReadonlyArray2<'py, f64>,
-        wheel_torque: PyReadonlyArray2<'py, f64>,
-        ground_speed: PyReadonlyArray1<'py, f64>,
-        normal_force: Option<PyReadonlyArray2<'py, f64>>,
-    ) -> PyResult<Pair<'py>> {
-        let ix = self.indices(&idx)?;
-        let out = self.run(
-            &ix,
-            &stamp,
-            &specific_force_x,
-            &pitch,
-            &yaw_rate,
-            &wheel_speed,
-            &wheel_torque,
-            &ground_speed,
-            normal_force.as_ref(),
-        )?;
-        let (m, sd): (Vec<f64>, Vec<f64>) = out.into_iter().unzip();
-        Ok((m.into_pyarray(py), sd.into_pyarray(py)))
-    }
-
-    /// The soil stage's K (k,) for the vehicles `idx` (NaN: none reported, the last is kept) and,
-    /// optionally, its slips (k, 4) (NaN: none, the readings' are used): the next samples' modelled
-    /// motion resistance (eq. 4) uses them.
-    #[pyo3(signature = (idx, soil_strength, slip=None))]
-    fn feed_soil(
-        &mut self,
-        idx: PyReadonlyArray1<'_, i64>,
-        soil_strength: PyReadonlyArray1<'_, f64>,
-        slip: Option<PyReadonlyArray2<'_, f64>>,
-    ) -> PyResult<()> {
-        let ix = self.indices(&idx)?;
-        let k = ix.len();
-        let ks = column("soil_strength", &soil_strength, k)?;
-        let slip = slip.as_ref().map(|a| quads("slip", a, k)).transpose()?;
-        for (j, &i) in ix.iter().enumerate() {
-            self.inner.feed_soil(i, ks[j], slip.as_ref().map(|a| a[j]));
-        }
-        Ok(())
-    }
-
     /// k's mean and 1-sigma for the vehicles `idx`.
     fn scale<'py>(&self, py: Python<'py>, idx: PyReadonlyArray1<'py, i64>) -> PyResult<Pair<'py>> {
-        let ix = self.indices(&idx)?;
+        let ix = vehicles(Some(&idx), self.inner.len())?;
         let (m, sd): (Vec<f64>, Vec<f64>) = ix.iter().map(|&i| self.inner.scale(i)).unzip();
         Ok((m.into_pyarray(py), sd.into_pyarray(py)))
     }

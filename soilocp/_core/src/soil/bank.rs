@@ -234,17 +234,8 @@ impl SoilGridBank {
 
     /// One step for k distinct vehicles: the update of each and what its status needs.
     pub fn step(&mut self, samples: &[Sample]) -> Result<Vec<Step>, String> {
-        let n = self.vehicles.len();
-        let mut seen = vec![false; n];
-        for s in samples {
-            if s.vehicle >= n {
-                return Err(format!("vehicle index {} out of range (bank of {n})", s.vehicle));
-            }
-            if seen[s.vehicle] {
-                return Err(format!("vehicle index {} given twice in one step", s.vehicle));
-            }
-            seen[s.vehicle] = true;
-        }
+        let idx: Vec<usize> = samples.iter().map(|s| s.vehicle).collect();
+        crate::index::vehicles(&idx, self.vehicles.len())?;
         let flags: Vec<[u8; 4]> = samples.iter().map(|s| self.wheel_flags(s)).collect();
         // the reference evaluates the curve of a step's pairs in one batch: one slip inside the
         // zero-slip bridge sends the whole batch through the law (Grid::curve)

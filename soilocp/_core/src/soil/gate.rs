@@ -219,17 +219,7 @@ impl SlipGateBank {
     /// [`Self::step`] without touching the state: the samples and each vehicle's new [`Memory`], for
     /// [`Self::commit`] once the caller has accepted them (a refused step leaves the gate as it was).
     pub fn samples(&self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<(Vec<Sample>, Vec<Memory>), String> {
-        let n = self.lp.len();
-        let mut seen = vec![false; n];
-        for &i in idx {
-            if i >= n {
-                return Err(format!("vehicle index {i} out of range for {n} vehicles"));
-            }
-            if seen[i] {
-                return Err(format!("vehicle index {i} appears twice in one step"));
-            }
-            seen[i] = true;
-        }
+        crate::index::vehicles(idx, self.lp.len())?;
         let cfg = &self.cfg;
         let refreshes = |row: &[f64]| cfg.gross && row4(row, quad::INTERVAL).iter().any(|&v| v > 0.0);
         let any_refresh = rows.iter().any(|r| refreshes(r));

@@ -99,54 +99,33 @@ mod tests {
         }
     }
 
+    /// docs/method.md §17's vectors (half-track 0.3 m) and a Husky's skid turns (0.25 m): in place,
+    /// the sides' rims at +-0.19 m/s and yaw -0.21 rad/s, and creeping at 0.12 m/s with yaw -0.6
+    /// rad/s; an arc at speed (the robustness drive's S-turns, 0.3 rad/s at 1 m/s) is no skid turn.
     #[test]
-    fn vectors_of_method_md() {
+    fn vectors() {
         // the pipeline's slip deadband (soilocp.model.constants.DEFAULT_DEADBAND)
         let (lim, deadband) = (Limits::default(), 0.15);
-        let ht = 0.3;
-        let c = codes(
-            &[1.2, 0.1, 0.1, 0.1],
-            &[0.5; 4],
-            &[0.5; 4],
-            0.5,
-            0.0,
-            &[0.3; 4],
-            ht,
-            &lim,
-            deadband,
-        );
-        assert_eq!(c, [SLIP_BEYOND_EQ1, 0, 0, 0]);
-        let c = codes(
-            &[-1.0, -1.0, 0.02, 0.02],
-            &[0.0, 0.0, 0.34, 0.34],
-            &[0.33; 4],
-            0.33,
-            0.0,
-            &[0.0, 0.0, 0.3, 0.3],
-            ht,
-            &lim,
-            deadband,
-        );
-        assert_eq!(c, [STOPPED_UNPOWERED, STOPPED_UNPOWERED, 0, 0]);
-        let c = codes(
-            &[0.8; 4], &[0.25; 4], &[0.05; 4], 0.05, 0.0, &[0.5; 4], ht, &lim, deadband,
-        );
-        assert_eq!(c, [STALL; 4]);
-        let c = codes(
-            &[0.9, 0.9, -0.9, -0.9],
-            &[0.3, 0.3, -0.3, -0.3],
-            &[0.0; 4],
-            0.0,
-            2.0,
-            &[0.5; 4],
-            ht,
-            &lim,
-            deadband,
-        );
-        assert_eq!(c, [SKID_TURN; 4]);
-        assert_eq!(
-            codes(&[0.0; 4], &[0.0; 4], &[0.0; 4], 0.0, 0.0, &[0.0; 4], ht, &lim, deadband),
-            [0; 4]
-        );
+        let (spin, husky) = ([0.9, 0.9, -0.9, -0.9], [0.19, 0.19, -0.19, -0.19]);
+        // slip, rim speed, ground speed under the wheels, body speed, yaw rate, gross traction, half-track: codes
+        #[rustfmt::skip]
+        let cases = [
+            ([1.2, 0.1, 0.1, 0.1], [0.5; 4], [0.5; 4], 0.5, 0.0, [0.3; 4], 0.3, [SLIP_BEYOND_EQ1, 0, 0, 0]),
+            ([-1.0, -1.0, 0.02, 0.02], [0.0, 0.0, 0.34, 0.34], [0.33; 4], 0.33, 0.0, [0.0, 0.0, 0.3, 0.3], 0.3,
+             [STOPPED_UNPOWERED, STOPPED_UNPOWERED, 0, 0]),
+            ([0.8; 4], [0.25; 4], [0.05; 4], 0.05, 0.0, [0.5; 4], 0.3, [STALL; 4]),
+            (spin, [0.3, 0.3, -0.3, -0.3], [0.0; 4], 0.0, 2.0, [0.5; 4], 0.3, [SKID_TURN; 4]),
+            ([0.0; 4], [0.0; 4], [0.0; 4], 0.0, 0.0, [0.0; 4], 0.3, [USABLE; 4]),
+            (spin, husky, [0.0; 4], 0.0, -0.21, [0.3; 4], 0.25, [SKID_TURN; 4]),
+            ([0.5, 0.5, -0.5, -0.5], husky, [0.12; 4], 0.12, -0.6, [0.3; 4], 0.25, [SKID_TURN; 4]),
+            ([0.1; 4], [1.1; 4], [1.0; 4], 1.0, 0.3, [0.3; 4], 0.25, [USABLE; 4]),
+        ];
+        for (i, (slip, rim, ground, v, yaw, gross, half_track, want)) in cases.into_iter().enumerate() {
+            assert_eq!(
+                codes(&slip, &rim, &ground, v, yaw, &gross, half_track, &lim, deadband),
+                want,
+                "case {i}"
+            );
+        }
     }
 }

@@ -10,26 +10,12 @@
 use crate::constants::Constants;
 use crate::normal_force::gravity_from_attitude;
 use crate::observer::numeric::nan_max;
+use crate::observer::vehicles::Raw;
 use crate::slip;
 use crate::torque_scale::balance::{longitudinal_balance_split, modelled_resistance, Body};
 use crate::torque_scale::kalman::ScaleState;
 use crate::torque_scale::params::Params;
 use crate::torque_scale::window::{Terms, Window};
-
-/// One vehicle's sample: stamp s, specific force f_x m/s^2, pitch rad, yaw rate rad/s, wheel
-/// speeds rad/s and logged torques per wheel (wheels 1 LR, 2 LF, 3 RF, 4 RR), ground speed m/s
-/// (NaN: none, the rims' mean is used), normal forces N (None: no modelled resistance).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Sample {
-    pub stamp: f64,
-    pub f_x: f64,
-    pub pitch: f64,
-    pub yaw_rate: f64,
-    pub wheel_speed: [f64; 4],
-    pub torque: [f64; 4],
-    pub ground_speed: f64,
-    pub normal_force: Option<[f64; 4]>,
-}
 
 /// The torque scales of N vehicles.
 #[derive(Clone, Debug)]
@@ -95,25 +81,25 @@ impl TorqueScaleBank {
         self.state[i].scale()
     }
 
-    /// The soil stage's K (ignored unless finite and > 0: the last is kept) and, if given, its
-    /// slips per wheel (NaN: none) for vehicle i: the next samples' modelled resistance uses them.
-    pub fn feed_soil(&mut self, i: usize, k: f64, slip: Option<[f64; 4]>) {
+    /// The soil stage's K (ignored unless finite and > 0: the last is kept) and its slips per wheel
+    /// (NaN: none, the readings' slip is used) for vehicle i: the next samples' modelled resistance
+    /// uses them.
+    pub fn feed_soil(&mut self, i: usize, k: f64, slip: [f64; 4]) {
         if k.is_finite() && k > 0.0 {
             self.soil_k[i] = k;
         }
-        if let Some(s) = slip {
-            self.soil_slip[i] = s;
-        }
+        self.soil_slip[i] = slip;
     }
 
-    /// Add vehicle i's sample (eq. 1 with the §10 floor for the window's slip test, eq. 20's gravity
-    /// reaction, eq. 4's resistance where modelled), close its window if full and update its state by
-    /// eq. TC (docs/method.md §15).  Returns k's
-    /// mean and 1-sigma after this sample.
-    pub fn step(&mut self, i: usize, s: &Sample) -> (f64, f64) {
+    /// Add vehicle i's sample as logged (the observer's input: its torques before the scale; NaN
+    /// ground speed: none, the rims' mean is used) by eq. 1 with the §10 floor for the window's slip
+    /// test, eq. 20's gravity reaction and eq. 4's resistance where modelled, close its window if full
+    /// and update its state by eq. TC (docs/method.md §15).  Returns k's mean and 1-sigma after this
+    /// sample.
+    pub fn step(&mut self, i: usize, s: &Raw) -> (f64, f64) {
         let (p, r) = (&self.params, self.body.wheel_radius);
         let w_sum: f64 = s.wheel_speed.iter().sum();
-        let t_sum: f64 = s.torque.iter().sum();
+        let t_sum: f64 = s.wheel_torque.iter().sum();
         let g_x = gravity_from_attitude(0.0, s.pitch, p.gravity)[0];
         let speed = if s.ground_speed.is_nan() {
             w_sum / 4.0 * r
@@ -121,24 +107,23 @@ impl TorqueScaleBank {
             s.ground_speed
         };
         let slips: [f64; 4] = std::array::from_fn(|j| slip::slip(s.wheel_speed[j] * r, speed, p.slip_floor));
-        let f_mr = match s.normal_force {
-            Some(fz) if p.model_resistance => {
-                // eq. 4 is even in S: the body-frame slip's magnitude is the travel frame's
-                let fed = &self.soil_slip[i];
-                let at: [f64; 4] = std::array::from_fn(|j| {
-                    let sj = if fed[j].is_finite() { fed[j] } else { slips[j] };
-                    if sj.is_finite() {
-                        sj
-                    } else {
-                        0.0
-                    }
-                });
-                let direction = if speed < 0.0 { -1.0 } else { 1.0 };
-                modelled_resistance(&at, self.soil_k[i], &fz, direction, &self.constants)
-            }
-            _ => 0.0,
+        let f_mr = if p.model_resistance {
+            // eq. 4 is even in S: the body-frame slip's magnitude is the travel frame's
+            let fed = &self.soil_slip[i];
+            let at: [f64; 4] = std::array::from_fn(|j| {
+                let sj = if fed[j].is_finite() { fed[j] } else { slips[j] };
+                if sj.is_finite() {
+                    sj
+                } else {
+                    0.0
+                }
+            });
+            let direction = if speed < 0.0 { -1.0 } else { 1.0 };
+            modelled_resistance(&at, self.soil_k[i], &s.normal_force, direction, &self.constants)
+        } else {
+            0.0
         };
-        let cur: Terms = [s.f_x, g_x, t_sum, f_mr];
+        let cur: Terms = [s.specific_force_x, g_x, t_sum, f_mr];
         let straight = s.yaw_rate.abs() <= p.s.max_yaw_rate; // false for NaN
         let unusable = !cur.iter().all(|v| v.is_finite())
             || !w_sum.is_finite()
@@ -246,16 +231,17 @@ mod tests {
     /// 25 N, wheels rolling without slip at 1 m/s plus a swing of `accel` m/s^2 (period 4 s).
     /// A sample of a robot driving straight on level ground: all four wheels at `omega`, the
     /// measured total torque `torque` shared equally.
-    fn straight(t: f64, f_x: f64, omega: f64, torque: f64, v: f64, normal_force: Option<[f64; 4]>) -> Sample {
-        Sample {
+    /// The normal forces are the static load's (read only where the resistance is modelled).
+    fn straight(t: f64, f_x: f64, omega: f64, torque: f64, v: f64) -> Raw {
+        Raw {
             stamp: t,
-            f_x,
-            pitch: 0.0,
+            specific_force_x: f_x,
             yaw_rate: 0.0,
+            pitch: 0.0,
             wheel_speed: [omega; 4],
-            torque: [torque / 4.0; 4],
+            wheel_torque: [torque / 4.0; 4],
             ground_speed: v,
-            normal_force,
+            normal_force: [BODY.mass * crate::normal_force::STANDARD_GRAVITY / 4.0; 4],
         }
     }
 
@@ -282,7 +268,7 @@ mod tests {
             let omega = v / BODY.wheel_radius;
             let od = 4.0 * a / BODY.wheel_radius;
             let torque = (rho * BODY.mass * a + f_mr(t)) * BODY.wheel_radius + BODY.wheel_inertia * od;
-            out = bank.step(0, &straight(t, a, omega, torque / c, v, None));
+            out = bank.step(0, &straight(t, a, omega, torque / c, v));
         }
         out
     }
@@ -358,7 +344,7 @@ mod tests {
                 let od = 4.0 * a / BODY.wheel_radius;
                 let f_mr = 25.0 + step * ((t - t_change) / 0.5).clamp(0.0, 1.0);
                 let torque = (BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
-                m = b.step(0, &straight(t, a, omega, torque, v, None)).0;
+                m = b.step(0, &straight(t, a, omega, torque, v)).0;
             }
             assert!(
                 (m - 1.0).abs() < 0.002,
@@ -428,8 +414,8 @@ mod tests {
                 };
                 prev_w = omega;
                 let torque = (BODY.mass * a + f_mr) * BODY.wheel_radius + BODY.wheel_inertia * od;
-                b.feed_soil(0, k_soil, None);
-                out = b.step(0, &straight(t, a, omega, torque / k_true, v, Some(fz))).0;
+                b.feed_soil(0, k_soil, [f64::NAN; 4]);
+                out = b.step(0, &straight(t, a, omega, torque / k_true, v)).0;
             }
             out
         };
@@ -453,12 +439,12 @@ mod tests {
     #[test]
     fn the_soil_feed_keeps_the_last_good_k() {
         let mut b = bank(0.10);
-        b.feed_soil(0, f64::NAN, None);
+        b.feed_soil(0, f64::NAN, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 120.0);
-        b.feed_soil(0, 50.0, None);
+        b.feed_soil(0, 50.0, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 50.0);
-        b.feed_soil(0, 200.0, Some([0.1; 4]));
-        b.feed_soil(0, -3.0, None);
+        b.feed_soil(0, 200.0, [0.1; 4]);
+        b.feed_soil(0, -3.0, [f64::NAN; 4]);
         assert_eq!(b.soil_k(0), 200.0);
     }
 }
