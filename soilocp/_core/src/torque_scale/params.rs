@@ -20,7 +20,9 @@ settings_struct! {
         max_gap: Float = 0.25, Internal, "s", [gt 0.0];
         /// A window whose mean |acceleration| (f_x less the pitch's gravity reaction) is below this
         /// informs nothing: at a steady speed the balance holds the resistance, not the torque's
-        /// scale, and that resistance is not the one at the slips of accelerating or braking.
+        /// scale, and that resistance is not the one at the slips of accelerating or braking.  Low
+        /// enough for a gentle swing (±30 % of 1 m/s every 6 s: 0.25-0.27 on 1-s windows), well
+        /// above the noise of a 1-s mean of f_x.
         min_accel: Float = 0.2, Internal, "m/s^2", [gt 0.0];
         /// |slip| (eq. 1, from the readings) above which a window informs nothing: motion resistance
         /// grows with slip (eq. 4), and the slip grows with the acceleration that makes a window
@@ -32,6 +34,9 @@ settings_struct! {
         scale_walk: Float = 0.002, Internal, "1/sqrt(s)", [ge 0.0];
         /// Random walk of the motion resistance F_MR (its part b that does not grow with |a|): it
         /// ties the windows of a swing together, whose contrast of the two signs is what informs k.
+        /// Slow enough that a gentle swing's windows, 2-3 s apart, share one b; fast enough that a
+        /// resistance that grows with the speed (a draft on a start from rest) is taken as a jump
+        /// rather than read as k.
         resistance_walk: Float = 0.7, Internal, "N/sqrt(s)", [ge 0.0];
         /// Prior 1-sigma of F_MR (prior mean 0).
         resistance_sigma: Float = 60.0, Internal, "N", [gt 0.0];
