@@ -14,7 +14,10 @@ have been fitted since then (a shadow posterior, which they all inform, becomes 
 jump is a mixed window" and "The wheels' inertia under an unknown payload"): a jump's shadow restarts from the
 reset state, without the jump window's b; a jump whose window adjoins the previous fitted window takes that
 one back (the state before it, predicted over both spans, then the jump); the wheel-inertia term of eq. TC
-carries 1 / rho = k^w, w = 1 - prior_sigma^2 / state_sigma^2, at the shadow's k before the window.
+carries 1 / rho = k^w, w = 1 - prior_sigma^2 / state_sigma^2, at the shadow's k before the window.  And
+(docs/method.md §15, "Gentle swings"): the state is (k, b, c), the balance y = k x - b - c |a| with c the
+resistance's growth with the window's |a| (prior ``resistance_slope_sigma``; a jump resets it with b), and a window
+below ``min_accel`` informs nothing.  The filter runs per vehicle in plain floats in the core's operation order.
 """
 
 from __future__ import annotations
@@ -69,11 +72,13 @@ class ReferenceTorqueScale:
         self.k_default = float(np.median(list(constants.soils.values())))
         self.soil_k = np.full(n, self.k_default)
         self.soil_slip = np.full((n, 4), np.nan)
-        self.theta = np.tile([1.0, 0.0], (n, 1))
-        self.P = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2]), (n, 1, 1))
+        # (k, b, c): c the resistance's growth with the window's |a| (F_MR = b + c |a| in the balance)
+        self.theta3 = np.tile([1.0, 0.0, 0.0], (n, 1))
+        self.P3 = np.tile(np.diag([self.state_sigma**2, cfg.resistance_sigma**2, cfg.resistance_slope_sigma**2]),
+                          (n, 1, 1))
         self.signs = np.zeros(n, dtype=np.int64)  # acceleration signs fitted since b's last reset: 1 accel, 2 brake
-        self.shadow_theta = self.theta.copy()  # as if every accelerating or braking window informed k
-        self.shadow_P = self.P.copy()
+        self.shadow_theta = self.theta3.copy()  # as if every accelerating or braking window informed k
+        self.shadow_P = self.P3.copy()
         self.jumps = np.zeros(n, dtype=int)  # windows taken as a jump of F_MR, per vehicle (for the tests)
         self.taken_back = np.zeros(n, dtype=int)  # of which the previous window was taken back (for the tests)
         self.t0 = np.full(n, np.nan)
@@ -83,9 +88,20 @@ class ReferenceTorqueScale:
         self.w0 = np.zeros(n)
         self.slow = np.zeros(n, dtype=bool)
         # the state before the last fitted window (theta, P, signs, shadow theta, shadow P), its span and last stamp
-        self.before = (self.theta.copy(), self.P.copy(), self.signs.copy(), self.shadow_theta.copy(), self.shadow_P.copy())
+        self.before = (self.theta3.copy(), self.P3.copy(), self.signs.copy(), self.shadow_theta.copy(),
+                       self.shadow_P.copy())
         self.last_span = np.full(n, np.nan)
         self.last_end = np.full(n, np.nan)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """(k, b) of every vehicle, (N, 2): what the core shows."""
+        return self.theta3[:, :2].copy()
+
+    @property
+    def P(self) -> np.ndarray:  # noqa: N802
+        """Their covariances, (N, 2, 2)."""
+        return self.P3[:, :2, :2].copy()
 
     def apply_arrays(self, ix, stamp, f_x, pitch, yaw_rate, wheel_speed, wheel_torque, ground_speed, normal_force):
         """(torques x k's mean, k's relative 1-sigma for K's band), or (the torques, None) while never learnt."""
@@ -109,7 +125,7 @@ class ReferenceTorqueScale:
             self.soil_slip[ix] = np.asarray(slip, dtype=float).reshape(-1, 4)
 
     def scale(self, ix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.theta[ix, 0].copy(), np.sqrt(self.P[ix, 0, 0])
+        return self.theta3[ix, 0].copy(), np.sqrt(self.P3[ix, 0, 0])
 
     def step(self, ix, stamp, f_x, pitch, yaw_rate, wheel_speed, torque, speed, normal_force=None):
         cfg, v = self.cfg, self.vehicle
@@ -171,59 +187,118 @@ class ReferenceTorqueScale:
         return self.scale(ix)
 
     def _update(self, iv, span, x, y, a, adjoins) -> None:
-        cfg = self.cfg
-        accel = np.abs(a) >= cfg.min_accel
-        sign = np.where(accel, np.where(a > 0, 1, 2), 0)
-        signs = self.signs[iv]
-        th, P = self.theta[iv], self.P[iv]
-        sth, sP = self.shadow_theta[iv], self.shadow_P[iv]
-        before = tuple(b[iv].copy() for b in (self.theta, self.P, self.signs, self.shadow_theta, self.shadow_P))
-        for M in (P, sP):
-            M[:, 0, 0] += cfg.scale_walk**2 * span * accel
-            M[:, 1, 1] += cfg.resistance_walk**2 * span
-        H = np.stack([x, -np.ones_like(x)], axis=1)
-        innov = y - np.einsum("mi,mi->m", H, th)
-        PH = np.einsum("mij,mj->mi", P, H)
-        S = np.einsum("mi,mi->m", H, PH) + cfg.force_sigma**2
-        # a jump of F_MR (only once windows of both signs have been fitted since b's last reset): b's variance
-        # back to its prior, uncorrelated with k; the window informs b alone, and the shadow restarts from it
-        jump_var = cfg.resistance_jump**2
-        jump = (jump_var > 0) & (signs == 3) & (innov * innov > jump_var * S)
-        self.jumps[iv] += jump
-        # a jump whose window adjoins the previous fitted one: from the state before that one, over both spans
-        back = jump & adjoins
-        self.taken_back[iv] += back
-        if back.any():
-            th[back], P[back] = self.before[0][iv[back]], self.before[1][iv[back]]
-            P[back, 0, 0] += cfg.scale_walk**2 * (self.last_span[iv[back]] + span[back]) * accel[back]
-            P[back, 1, 1] += cfg.resistance_walk**2 * (self.last_span[iv[back]] + span[back])
-            innov[back] = y[back] - np.einsum("mi,mi->m", H[back], th[back])
-        P[jump, 0, 1] = 0.0
-        P[jump, 1, 0] = 0.0
-        P[jump, 1, 1] = cfg.resistance_sigma**2
-        reset_th, reset_P = th.copy(), P.copy()  # a jump's shadow restarts here, without the window's b
-        signs = np.where(jump, sign, signs | sign)
-        # the shadow: every accelerating or braking window informs k; the state: once both signs are fitted
-        s_innov = y - np.einsum("mi,mi->m", H, sth)
-        sth, sP = self._correct(sth, sP, H, s_innov, accel)
-        th, P = self._correct(th, P, H, innov, np.zeros_like(accel))
-        both = ~jump & (signs == 3)
-        th = np.where(both[:, None], sth, th)
-        P = np.where(both[:, None, None], sP, P)
-        sth = np.where(jump[:, None], reset_th, sth)
-        sP = np.where(jump[:, None, None], reset_P, sP)
-        self.theta[iv], self.P[iv], self.signs[iv] = th, P, signs
-        self.shadow_theta[iv], self.shadow_P[iv] = sth, sP
-        for b, v in zip(self.before, before):
-            b[iv] = v
+        """Each vehicle's window in turn, in plain floats in the core's operation order (kalman.rs)."""
+        for m, i in enumerate(iv.tolist()):
+            st = self._get(i)
+            before = self._copy(st)
+            jumped = self._step(st, float(span[m]), float(x[m]), float(y[m]), float(a[m]))
+            self.jumps[i] += jumped
+            if jumped and adjoins[m]:
+                # a jump whose window adjoins the previous one: from the state before that one, over both spans
+                self.taken_back[i] += 1
+                st = self._get_before(i)
+                sg = self._sign(float(a[m]))
+                self._predict(st["P"], float(self.last_span[i]) + float(span[m]), sg != 0)
+                self._predict(st["sP"], float(self.last_span[i]) + float(span[m]), sg != 0)
+                self._jump(st, self._design(float(x[m]), float(a[m])), float(y[m]), sg)
+            self._put(i, st)
+            self._put_before(i, before)
 
-    def _correct(self, th, P, H, innov, informs):
-        """The update with these innovations; k's gain 0 where not ``informs`` (the Schmidt update)."""
-        PH = np.einsum("mij,mj->mi", P, H)
-        S = np.einsum("mi,mi->m", H, PH) + self.cfg.force_sigma**2
-        K = PH / S[:, None]
-        K[:, 0] = np.where(informs, K[:, 0], 0.0)
-        th = th + K * innov[:, None]
-        A = np.eye(2)[None] - K[:, :, None] * H[:, None, :]
-        P = np.einsum("mij,mjk,mlk->mil", A, P, A) + self.cfg.force_sigma**2 * K[:, :, None] * K[:, None, :]
-        return th, P
+    # ---- one vehicle's (k, b, c) filter: lists of floats ------------------------------------------------------
+
+    def _get(self, i):
+        return dict(th=self.theta3[i].tolist(), P=self.P3[i].tolist(), signs=int(self.signs[i]),
+                    sth=self.shadow_theta[i].tolist(), sP=self.shadow_P[i].tolist())
+
+    def _get_before(self, i):
+        b = self.before
+        return dict(th=b[0][i].tolist(), P=b[1][i].tolist(), signs=int(b[2][i]), sth=b[3][i].tolist(),
+                    sP=b[4][i].tolist())
+
+    @staticmethod
+    def _copy(st):
+        return dict(th=list(st["th"]), P=[list(r) for r in st["P"]], signs=st["signs"], sth=list(st["sth"]),
+                    sP=[list(r) for r in st["sP"]])
+
+    def _put(self, i, st) -> None:
+        self.theta3[i], self.P3[i], self.signs[i] = st["th"], st["P"], st["signs"]
+        self.shadow_theta[i], self.shadow_P[i] = st["sth"], st["sP"]
+
+    def _put_before(self, i, st) -> None:
+        for b, v in zip(self.before, (st["th"], st["P"], st["signs"], st["sth"], st["sP"])):
+            b[i] = v
+
+    def _sign(self, a: float) -> int:
+        return (1 if a > 0 else 2) if abs(a) >= self.cfg.min_accel else 0
+
+    @staticmethod
+    def _design(x: float, a: float) -> list:
+        return [x, -1.0, -abs(a)]
+
+    @staticmethod
+    def _dot(h, v) -> float:
+        return (h[0] * v[0] + h[1] * v[1]) + h[2] * v[2]
+
+    def _predict(self, P, span: float, acc: bool) -> None:
+        P[0][0] += self.cfg.scale_walk**2 * span * (1.0 if acc else 0.0)
+        P[1][1] += self.cfg.resistance_walk**2 * span
+
+    def _step(self, st, span: float, x: float, y: float, a: float) -> bool:
+        """One window: predict; a window below min_accel informs nothing; a jump of F_MR (once both signs
+        were fitted since b's last reset) informs b and c alone; else the shadow takes it, and is the state
+        once both signs were fitted (the state alone: k's gain 0)."""
+        sg = self._sign(a)
+        acc = sg != 0
+        self._predict(st["P"], span, acc)
+        self._predict(st["sP"], span, acc)
+        if not acc:
+            return False
+        h = self._design(x, a)
+        innov = y - self._dot(h, st["th"])
+        s = self._gain_terms(st["P"], h)[1]
+        jump_var = self.cfg.resistance_jump**2
+        if jump_var > 0 and st["signs"] == 3 and innov * innov > jump_var * s:
+            self._jump(st, h, y, sg)
+            return True
+        st["signs"] |= sg
+        st["sth"], st["sP"] = self._correct(st["sth"], st["sP"], h, y - self._dot(h, st["sth"]), True)
+        if st["signs"] == 3:
+            st["th"], st["P"] = list(st["sth"]), [list(r) for r in st["sP"]]
+        else:
+            st["th"], st["P"] = self._correct(st["th"], st["P"], h, innov, False)
+        return False
+
+    def _jump(self, st, h, y: float, sg: int) -> None:
+        """b's and c's variances back to their priors, uncorrelated with k and each other; the shadow restarts
+        here (without the window's b); the window informs b and c alone."""
+        P = st["P"]
+        for j in (1, 2):
+            for m in range(3):
+                if m != j:
+                    P[j][m] = 0.0
+                    P[m][j] = 0.0
+        P[1][1] = self.cfg.resistance_sigma**2
+        P[2][2] = self.cfg.resistance_slope_sigma**2
+        st["signs"], st["sth"], st["sP"] = sg, list(st["th"]), [list(r) for r in P]
+        st["th"], st["P"] = self._correct(st["th"], P, h, y - self._dot(h, st["th"]), False)
+
+    def _gain_terms(self, P, h):
+        ph = [self._dot(P[i], h) for i in range(3)]
+        return ph, self._dot(h, ph) + self.cfg.force_sigma**2
+
+    def _correct(self, th, P, h, innov: float, informs: bool):
+        """The update with this innovation; k's gain 0 unless ``informs`` (the Schmidt update); Joseph form."""
+        ph, s = self._gain_terms(P, h)
+        K = [v / s for v in ph]
+        if not informs:
+            K[0] = 0.0
+        th = [th[i] + K[i] * innov for i in range(3)]
+        A = [[(1.0 if i == j else 0.0) - K[i] * h[j] for j in range(3)] for i in range(3)]
+        r = self.cfg.force_sigma**2
+
+        def apa(i, l):
+            def row(j):
+                return ((A[i][j] * P[j][0]) * A[l][0] + (A[i][j] * P[j][1]) * A[l][1]) + (A[i][j] * P[j][2]) * A[l][2]
+            return (row(0) + row(1)) + row(2)
+
+        return th, [[apa(i, l) + r * K[i] * K[l] for l in range(3)] for i in range(3)]

@@ -51,9 +51,10 @@ class ChainScale:
 
 
 def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, seconds: float = 40.0, rate: float = 100.0,
-                    seed: int = 0):
-    """Samples that satisfy eq. TC exactly (true torque = k_true x logged) with a constant F_MR, wheels
-    rolling without slip at the speed 1 + accel-driven swing, and noisy readings."""
+                    seed: int = 0, mass_ratio: float = 1.0):
+    """Samples that satisfy eq. TC exactly (true torque = k_true x logged, true mass = mass_ratio x the vehicle
+    file's: k = k_true / mass_ratio) with a constant F_MR, wheels rolling without slip at the speed 1 +
+    accel-driven swing, and noisy readings."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / rate)
     w = 2.0 * math.pi / 4.0
@@ -61,7 +62,7 @@ def _balance_stream(k_true: float, accel: float, resistance: float = 25.0, secon
     v = 1.0 + accel / w * (1.0 - np.cos(w * t))
     omega = np.repeat((v / V.wheel_radius)[:, None], 4, axis=1)
     omega_dot_sum = 4.0 * a / V.wheel_radius
-    torque_true = (V.mass * a + resistance) * V.wheel_radius + V.wheel_inertia * omega_dot_sum
+    torque_true = (mass_ratio * V.mass * a + resistance) * V.wheel_radius + V.wheel_inertia * omega_dot_sum
     logged = np.repeat((torque_true / k_true / 4.0)[:, None], 4, axis=1) + rng.normal(0, 0.05, (t.size, 4))
     f_x = a + rng.normal(0, 0.02, t.size)
     return t, f_x, omega, logged, v
@@ -166,8 +167,10 @@ def test_the_pipeline_learns_a_payload_and_the_batched_path_matches():
 
 def test_a_wider_state_prior_lets_the_balance_reach_a_payload_sooner():
     """k 0.80 (a +25 % payload) is 4 sigma of the torque constant's 0.05: with that prior the state is still
-    pulled towards 1 after 10 s of swings; with the default state prior (0.10) it is nearer the truth."""
-    stream = _balance_stream(0.8, accel=0.8, seconds=10.0)
+    pulled towards 1 after 10 s of swings; with the default state prior (0.10) it is nearer the truth.  The drive
+    is a payload's (the wheels' inertia carries the vehicle file's mass, docs/method.md §15): read as a torque
+    constant of 0.80 instead, the wider prior's inertia term takes the payload's share and reads k ~1 % low."""
+    stream = _balance_stream(1.0, accel=0.8, seconds=10.0, mass_ratio=1.25)
     narrow = _run(stream)
     wide = _run(stream, TorqueScaleConfig(enabled=True))
     assert TorqueScaleConfig().prior_sigma == 0.10 and wide[0, 1] == pytest.approx(0.10)

@@ -12,7 +12,7 @@ straight, every wheel's slip within ``max_slip``, finite):
 * k: prior N(1, ``SoilConfig.gross_scale_sigma``), a random walk of ``scale_walk`` per sqrt(s);
 * b: the motion resistance the model does not give (and an accelerometer bias times m), a random walk
   of ``resistance_walk`` N per sqrt(s), and a jump where the soil under the wheels changes: a window whose
-  innovation is beyond ``resistance_jump`` of its sigmas returns b's variance to its prior and informs b alone
+  innovation is beyond ``resistance_jump`` of its sigmas returns b's (and c's) variance to its prior and informs them alone
   (a wrong k shifts the balance with the acceleration's sign, a jump of b does not, so a jump is taken only
   once windows of both signs have been fitted since b was last reset).  A jump's window is a mixed one (the
   axles cross the change one after the other): its b starts no contrast, and the adjoining window before it,
@@ -25,9 +25,12 @@ straight, every wheel's slip within ``max_slip``, finite):
   averaged over the window like the other terms.
 
 Only a window whose mean acceleration (f_x less the gravity reaction of the pitch, eq. 20) reaches
-``min_accel`` informs k; any other window informs F_MR alone (a Schmidt update: k's gain is 0), so
-at constant speed k stays at its prior, however long the drive, and a cruise fixes what F_MR is
-at the current k.  And k moves only once windows of both signs (accelerating and braking) have been
+``min_accel`` informs the state; any other informs nothing, so at constant speed k stays at its prior,
+however long the drive.  The resistance in the balance is b + c |a|: c (prior ``resistance_slope_sigma``, reset
+with b at a jump) is its growth with the window's |a|, eq. 4's resistance at the slips that accelerating and
+braking alike take, even in a, so that windows at different |a| (a start ramp, a gentle swing) do not read
+their resistances' difference as k (docs/method.md §15, "Gentle swings").  And k moves only once windows of
+both signs (accelerating and braking) have been
 fitted since F_MR was last reset (the prior or a jump): a force that does not flip sign with the
 acceleration (a draft growing with the speed of a start from rest, the resistance at a sweep's slips)
 shifts the windows of one sign alike, and only the contrast of the two tells it from k.  Until then a
@@ -36,7 +39,7 @@ The torques the observer sees are the logged ones times k's mean, and the soil
 estimator's scale prior becomes k's relative posterior 1-sigma (:class:`soilocp.estimation.soil_strength.SoilBank`,
 ``scale_sigma``): K's band includes the scale's posterior.
 
-The per-sample kernel (the window means, the Kalman and Schmidt updates, eq. 1, eq. 4 summed, eq. 20
+The per-sample kernel (the window means, the Kalman update and its Schmidt form, eq. 1, eq. 4 summed, eq. 20
 and eq. TC) is the compiled core's (``soilocp/_core/src/torque_scale/``, ``soilocp._core.TorqueScaleCore``),
 one call per step for the vehicles stepped: the single-vehicle stage and the batched path run the same
 kernel.  This module keeps the configuration and a thin bank over the core.

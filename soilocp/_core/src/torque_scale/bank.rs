@@ -5,7 +5,7 @@
 //! A window informs the state where eq. TC holds with a slow F_MR: moving at >= `min_speed`,
 //! straight (|yaw rate| <= `max_yaw_rate`), every wheel's slip (eq. 1 from the readings) within
 //! `max_slip`, all finite.  Only a window whose mean acceleration (f_x less the gravity reaction of
-//! the pitch, eq. 20) reaches `min_accel` informs k; any other informs b alone.
+//! the pitch, eq. 20) reaches `min_accel` informs the state; any other informs nothing.
 
 use crate::constants::Constants;
 use crate::normal_force::gravity_from_attitude;

@@ -5,7 +5,8 @@
 //!
 //! One kind per module: [`balance`] eq. TC and the modelled motion resistance (eq. 4 summed);
 //! [`params`] the settings; [`window`] the trapezoid window means; [`kalman`] the (k, F_MR)
-//! filter with its Schmidt update; [`bank`] the state of N vehicles, one call per step.
+//! filter (F_MR = b + c |a|) with its Schmidt update; [`bank`] the state of N vehicles, one call
+//! per step.
 //! `crate::py::torque_scale` binds the bank to Python.
 //!
 //! The arithmetic follows the numpy kernel it replaced operation by operation (its einsum orders;

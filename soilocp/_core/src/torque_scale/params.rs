@@ -18,8 +18,12 @@ settings_struct! {
         max_yaw_rate: Float = 0.1, Internal, "rad/s", [gt 0.0];
         /// A larger step between stamps restarts the window.
         max_gap: Float = 0.25, Internal, "s", [gt 0.0];
-        /// The window's mean acceleration that informs k.
-        min_accel: Float = 0.35, Internal, "m/s^2", [gt 0.0];
+        /// A window whose mean |acceleration| (f_x less the pitch's gravity reaction) is below this
+        /// informs nothing: at a steady speed the balance holds the resistance, not the torque's
+        /// scale, and that resistance is not the one at the slips of accelerating or braking.  Low
+        /// enough for a gentle swing (±30 % of 1 m/s every 6 s: 0.25-0.27 on 1-s windows), well
+        /// above the noise of a 1-s mean of f_x.
+        min_accel: Float = 0.2, Internal, "m/s^2", [gt 0.0];
         /// |slip| (eq. 1, from the readings) above which a window informs nothing: motion resistance
         /// grows with slip (eq. 4), and the slip grows with the acceleration that makes a window
         /// informative, so above this the resistance's change within the balance is read as torque
@@ -28,10 +32,21 @@ settings_struct! {
         max_slip: Float = 0.1, Internal, "", [gt 0.0];
         /// Random walk of k: how fast the torque scale may drift (temperature, battery).
         scale_walk: Float = 0.002, Internal, "1/sqrt(s)", [ge 0.0];
-        /// Random walk of the motion resistance F_MR.
-        resistance_walk: Float = 2.0, Internal, "N/sqrt(s)", [ge 0.0];
+        /// Random walk of the motion resistance F_MR (its part b that does not grow with |a|): it
+        /// ties the windows of a swing together, whose contrast of the two signs is what informs k.
+        /// Slow enough that a gentle swing's windows, 2-3 s apart, share one b; fast enough that a
+        /// resistance that grows with the speed (a draft on a start from rest) is taken as a jump
+        /// rather than read as k.
+        resistance_walk: Float = 0.7, Internal, "N/sqrt(s)", [ge 0.0];
         /// Prior 1-sigma of F_MR (prior mean 0).
         resistance_sigma: Float = 60.0, Internal, "N", [gt 0.0];
+        /// Prior 1-sigma (mean 0) of c, the growth of the motion resistance with the window's mean
+        /// |acceleration|: the balance's F_MR is b + c |a|.  Eq. 4's resistance grows with |slip|,
+        /// and accelerating and braking alike take slip, so windows at different |a| hold
+        /// different resistances; one b for all of them reads the difference as k (a start ramp
+        /// against a gentle swing's brake).  c is even in a, k x odd: the contrast of the two
+        /// signs still fits k.  0: one b at every |a|.
+        resistance_slope_sigma: Float = 20.0, Internal, "N s^2/m", [ge 0.0];
         /// 1-sigma of a window's force balance once F_MR's changes are the random walk's and
         /// resistance_jump's.
         force_sigma: Float = 1.0, Internal, "N", [gt 0.0];
@@ -56,6 +71,8 @@ pub struct Params {
     pub force_var: f64,
     /// resistance_sigma^2: F_MR's prior, N^2
     pub resistance_var: f64,
+    /// resistance_slope_sigma^2: the prior of F_MR's growth with |a|, (N s^2/m)^2
+    pub slope_var: f64,
     /// resistance_jump^2: a window whose squared innovation exceeds this many times its
     /// variance is a jump of F_MR (0: never), which informs F_MR alone
     pub jump_var: f64,
@@ -126,6 +143,7 @@ impl Params {
             resistance_walk_var: s.resistance_walk * s.resistance_walk,
             force_var: s.force_sigma * s.force_sigma,
             resistance_var: s.resistance_sigma * s.resistance_sigma,
+            slope_var: s.resistance_slope_sigma * s.resistance_slope_sigma,
             jump_var: s.resistance_jump * s.resistance_jump,
             state_sigma: d.state_sigma,
             state_var: d.state_sigma * d.state_sigma,
