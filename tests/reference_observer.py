@@ -7,6 +7,7 @@ step, on drawn and real drives.  Nothing in the product imports this module.
 * the ground-speed latency fit (§13; latency.rs);
 * the refresh pairs of slow wheel-speed and torque streams (§13; intervals.rs);
 * the skid-steer torque split and the encoder lead (§14; wheel_inputs.rs);
+* the resistance's random walk slowed while the slips spread (§12; walk.rs);
 * the filter on filterpy's ``KalmanFilter`` (:class:`TractionObserver`), with the same gating rule, low-speed
   re-anchoring and conditioning written in numpy, so that the core's predict / update is checked against a
   well-kept implementation.
@@ -666,6 +667,33 @@ def continuous_process_noise(layout: StateLayout, cfg: ObserverConfig) -> np.nda
                                     c.q_ground_speed, c.q_yaw_rate, c.q_speed_bias) ** 2)
 
 
+class SlipSpread:
+    """The spread of the wheels' load-weighted mean |slip| u over a window (the core's walk.rs): exponentially
+    weighted mean and mean square, the first u after a restart taken whole."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.mean, self.mean_sq, self.started = 0.0, 0.0, False
+
+    def update(self, u: float, dt: float, window: float) -> None:
+        if not (np.isfinite(u) and np.isfinite(dt)):
+            return
+        a = min(max(dt / window, 0.0), 1.0) if self.started else 1.0
+        self.mean += a * (u - self.mean)
+        self.mean_sq += a * (u * u - self.mean_sq)
+        self.started = True
+
+    def std(self) -> float:
+        return float(np.sqrt(max(self.mean_sq - self.mean * self.mean, 0.0)))
+
+
+def walk_variance_scale(sigma: float, spread: float) -> float:
+    """The factor on the resistance walks' variances: min(1, (spread / sigma)^4), 1 when off (spread 0)."""
+    return 1.0 if spread <= 0.0 or not sigma > spread else (spread / sigma) ** 4
+
+
 def initial_covariance(layout: StateLayout, cfg: ObserverConfig) -> np.ndarray:
     """P_0 (n, n): diagonal, from the config's initial 1-sigmas (speeds from their sensors' noise)."""
     c = cfg
@@ -705,6 +733,7 @@ class TractionObserver:
                          if cfg.ground_speed_latency_max > 0 else None)
         self._wheel_y = np.asarray(vehicle.wheel_y, dtype=float)
         self._lower, self._upper = state_bounds(L, cfg)
+        self._spread = SlipSpread()
         self.steps = 0
 
     def _initialise(self, wheel_speed, ground_speed, yaw_rate) -> None:
@@ -716,6 +745,7 @@ class TractionObserver:
         self.kf.x = np.clip(x, self._lower, self._upper)
         self.kf.P = initial_covariance(L, self.cfg)
         self._rejections[:] = 0
+        self._spread.reset()
 
     def _map(self) -> np.ndarray:
         L, x, v = self.layout, self.kf.x, self.vehicle
@@ -752,10 +782,18 @@ class TractionObserver:
                                                   np.array([ground_speed]), np.array([bool(fresh[4])]))[0])
         if reset:
             self._initialise(omega, ground_speed, yaw_rate)
+        M = self._map()
         A, b, H = (m[0] for m in model(self.layout, self.vehicle, fz[None], torque[None], np.array([pitch]),
-                                       self._map()[None], self.cfg.gravity))
+                                       M[None], self.cfg.gravity))
         if not reset and dt > 0:  # a repeated stamp (dt == 0) is a second measurement of the same instant
-            F, G, Qd = discretize(A, b, self._Qc, dt, self.cfg.discretization)
+            Qc = self._Qc
+            if self.layout.n_res == 2:  # the resistance's walk slows while the slips spread
+                self._spread.update(float(np.sum(fz * np.abs(M[:, 1])) / np.sum(fz)), dt,
+                                    self.cfg.resistance_walk_window)
+                Qc = Qc.copy()
+                Qc[self.layout.res, self.layout.res] *= walk_variance_scale(self._spread.std(),
+                                                                            self.cfg.resistance_walk_spread)
+            F, G, Qd = discretize(A, b, Qc, dt, self.cfg.discretization)
             self.kf.predict(u=np.ones(1), B=G[:, None], F=F, Q=Qd)
         self._last_stamp = stamp
         omega_now = omega + lead

@@ -10,6 +10,7 @@ use super::layout::{Layout, N_MEAS};
 use super::model::{build, init, resistance_map, Vehicle};
 use super::numeric::{matmul, matvec, nan_max};
 use super::settings::ObserverSettings;
+use super::walk::{walk_variance_scale, weighted_slip, SlipSpread};
 
 /// Reset reasons, in the order of soilocp.estimation.observer_bank.RESET_REASONS (code = index + 1).
 pub const RESET_REASONS: [&str; 5] = [
@@ -181,6 +182,10 @@ pub struct FilterBank {
     pub rejections: Vec<i64>,
     pub resets: [u64; 5],
     pub anchored: u64,
+    /// per vehicle: the spread of its slips that slows the resistance's walk (`walk`)
+    spread: Vec<SlipSpread>,
+    /// Q's diagonal at this step (the resistance's walk scaled)
+    q: Vec<f64>,
     a: Vec<f64>,
     b: Vec<f64>,
     h: Vec<f64>,
@@ -209,6 +214,7 @@ impl FilterBank {
         Ok(FilterBank {
             layout,
             vehicle,
+            q: settings.q.clone(),
             settings,
             n_vehicles,
             x: vec![0.0; n_vehicles * n],
@@ -216,6 +222,7 @@ impl FilterBank {
             rejections: vec![0; n_vehicles * N_MEAS],
             resets: [0; 5],
             anchored: 0,
+            spread: vec![SlipSpread::default(); n_vehicles],
             a,
             b,
             h,
@@ -246,6 +253,7 @@ impl FilterBank {
             p[i * n + i] = self.settings.p0[i];
         }
         self.rejections[g * N_MEAS..(g + 1) * N_MEAS].fill(0);
+        self.spread[g].reset();
         self.resets[(why - 1) as usize] += 1;
     }
 
@@ -329,7 +337,19 @@ impl FilterBank {
             let x = &mut self.x[g * n..(g + 1) * n];
             let p = &mut self.p[g * n * n..(g + 1) * n * n];
             if s.dt > 0.0 {
-                predict(x, p, &self.a, &self.b, &st.q, s.dt, s.dt_cubed, &mut self.ws);
+                if l.n_res == 2 {
+                    let spread = &mut self.spread[g];
+                    spread.update(
+                        weighted_slip(&self.m, &s.normal_force),
+                        s.dt,
+                        st.s.resistance_walk_window,
+                    );
+                    let f = walk_variance_scale(spread.std(), st.s.resistance_walk_spread);
+                    for i in l.res()..l.lat() {
+                        self.q[i] = st.q[i] * f;
+                    }
+                }
+                predict(x, p, &self.a, &self.b, &self.q, s.dt, s.dt_cubed, &mut self.ws);
             }
             let no_gs = s.ground_speed_z.is_nan();
             let mut z = [0.0; N_MEAS];

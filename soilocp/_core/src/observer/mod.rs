@@ -8,7 +8,7 @@
 //! Around the filter, `readings` tells which raw readings are new measurements, `wheel_inputs`
 //! splits a skid-steer side's torque and leads an interval-mean encoder speed, `latency` measures
 //! and leads a late ground speed, `intervals` serves the gross traction of a slow stream's
-//! refreshes, and `vehicles` runs all of it for N vehicles, one call per step.  `settings` declares
+//! refreshes, `walk` slows the resistance's random walk while the slips spread, and `vehicles` runs all of it for N vehicles, one call per step.  `settings` declares
 //! the observer's settings once and resolves them for a layout and a vehicle.
 
 // matrix code indexes rows and columns of several arrays in one loop: index loops read as the equations
@@ -24,4 +24,5 @@ pub mod numeric;
 pub mod readings;
 pub mod settings;
 pub mod vehicles;
+pub mod walk;
 pub mod wheel_inputs;

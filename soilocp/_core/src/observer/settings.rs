@@ -22,10 +22,26 @@ settings_struct! {
         /// mu by about 1 per second.
         q_mu: Float = 1.0, Internal, "1/sqrt(s)", [gt 0.0];
         /// Random-walk intensity of the motion-resistance coefficient (its constant part): soil
-        /// changes slower than traction.
+        /// changes slower than traction. Slowed while the slips spread widely
+        /// (`resistance_walk_spread`).
         q_resistance: Float = 0.1, Internal, "1/sqrt(s)", [gt 0.0];
-        /// Random-walk intensity of the resistance's slope in |slip| ("slip" structure).
+        /// Random-walk intensity of the resistance's slope in |slip| ("slip" structure). Slowed
+        /// with the constant part's (`resistance_walk_spread`).
         q_resistance_slope: Float = 0.1, Internal, "1/sqrt(s)", [gt 0.0];
+        /// Where the wheels' load-weighted mean |slip| spreads (its standard deviation sigma over
+        /// `resistance_walk_window`) beyond this, the data tell the resistance's constant part from
+        /// its slope, and both random walks (`q_resistance`, `q_resistance_slope`) slow: their
+        /// intensities are multiplied by min(1, (resistance_walk_spread / sigma)^2) ("slip"
+        /// structure, docs/method.md §12). A walk fast enough to follow a soil change would
+        /// otherwise take part of a wide sweep's swing as a change of the constant part, read the
+        /// slope low and place a flat traction peak late; a drive whose slips stay within a narrow
+        /// band (a narrow sweep, a skid steer's short traction test) keeps the full walk. Lower it
+        /// (to 0.05) where the OCPs on another tyre matter more than how fast K follows a change of
+        /// soil during wide sweeps; raise it for the opposite; 0 keeps the full walk.
+        resistance_walk_spread: Float = 0.1, Internal, "", [ge 0.0];
+        /// Memory of the slip spread that slows the resistance's walks (`resistance_walk_spread`):
+        /// about one traction sweep's cycle.
+        resistance_walk_window: Float = 3.0, Internal, "s", [gt 0.0];
         /// Initial 1-sigma of the resistance's slope in |slip| ("slip" structure).
         p0_resistance_slope: Float = 0.5, Internal, "", [gt 0.0];
         /// Random-walk intensity of the lateral resistance coefficient mu_yR.
