@@ -15,7 +15,7 @@ from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator
 
-from soilocp import _core
+from soilocp._core import Constants as _CoreConstants
 from soilocp.model.files import read_json
 
 # Paper §2.2 and §2.2 (EST): soil strength of the testbed soils.  "firm" is ours: the paper's
@@ -44,7 +44,7 @@ _CALIBRATED = {"audience": "calibration"}
 
 
 #: the paper's constants, the core's (its Constants.PAPER): the defaults below
-_PAPER = _core.Constants.PAPER
+_PAPER = _CoreConstants.PAPER
 
 
 class ModelConstants(BaseModel):
@@ -117,7 +117,7 @@ class ModelConstants(BaseModel):
         private = self.__pydantic_private__
         cached = private.get("_kernel")
         if cached is None or cached[0] != key:
-            cached = (key, _core.Constants(*key))
+            cached = (key, _CoreConstants(*key))
             private["_kernel"] = cached
         return cached[1]
 
