@@ -212,7 +212,7 @@ impl ChainCore {
     ) -> PyResult<Self> {
         let n = observer.bind(py).try_borrow_mut()?.bank_mut().filter.n_vehicles;
         let mut sizes = vec![
-            ("gate", gate.bind(py).try_borrow()?.inner.lp.len()),
+            ("gate", gate.bind(py).try_borrow()?.inner.memory.len()),
             ("soil", soil.bind(py).try_borrow()?.bank_len()),
         ];
         if let Some(s) = &scale {

@@ -103,7 +103,7 @@ impl SlipGateBank {
         stamp: &PyReadonlyArray1<'_, f64>,
         rows: &Bound<'_, PyAny>,
     ) -> PyResult<(Vec<Sample>, PendingGate)> {
-        let idx = vehicles(Some(idx), self.inner.lp.len())?;
+        let idx = vehicles(Some(idx), self.inner.memory.len())?;
         let k = idx.len();
         let stamp = column("stamp", stamp, k)?;
         let shape_error = |got: String| {
@@ -254,14 +254,14 @@ impl SlipGateBank {
 
     #[getter]
     fn n_vehicles(&self) -> usize {
-        self.inner.lp.len()
+        self.inner.memory.len()
     }
 
     /// The low-pass slips (N, 4).
     #[getter]
     fn lp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.lp.len();
-        Array2::from_shape_fn((n, 4), |(i, w)| self.inner.lp[i][w]).into_pyarray(py)
+        let n = self.inner.memory.len();
+        Array2::from_shape_fn((n, 4), |(i, w)| self.inner.memory[i].lp[w]).into_pyarray(py)
     }
 
     /// The stamp each vehicle's low-pass was last stepped at (N,) (NaN: never).

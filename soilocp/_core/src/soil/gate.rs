@@ -155,19 +155,16 @@ pub struct GateParams {
     pub limits: Limits,
 }
 
-/// N vehicles' gate state: the low-pass slip, the stamp it was last stepped at (NaN: never), and
-/// the ground speed's age at that stamp and its last refresh interval (s; NaN: not yet seen).
+/// N vehicles' gate state: each one's [`Memory`] and the stamp it was last stepped at (NaN: never).
 #[derive(Clone, Debug)]
 pub struct SlipGateBank {
     pub cfg: GateParams,
-    pub lp: Vec<[f64; 4]>,
+    pub memory: Vec<Memory>,
     pub lp_stamp: Vec<f64>,
-    pub ground_speed_age: Vec<f64>,
-    pub ground_speed_interval: Vec<f64>,
 }
 
 /// What one vehicle's gate carries to its next sample: the low-pass slip, the ground speed's age
-/// and its last refresh interval (s).
+/// and its last refresh interval (s; NaN: not yet seen).
 #[derive(Clone, Copy, Debug)]
 pub struct Memory {
     pub lp: [f64; 4],
@@ -199,10 +196,15 @@ impl SlipGateBank {
         }
         Ok(SlipGateBank {
             cfg,
-            lp: vec![[0.0; 4]; n],
+            memory: vec![
+                Memory {
+                    lp: [0.0; 4],
+                    ground_speed_age: f64::NAN,
+                    ground_speed_interval: f64::NAN,
+                };
+                n
+            ],
             lp_stamp: vec![f64::NAN; n],
-            ground_speed_age: vec![f64::NAN; n],
-            ground_speed_interval: vec![f64::NAN; n],
         })
     }
 
@@ -219,7 +221,7 @@ impl SlipGateBank {
     /// [`Self::step`] without touching the state: the samples and each vehicle's new [`Memory`], for
     /// [`Self::commit`] once the caller has accepted them (a refused step leaves the gate as it was).
     pub fn samples(&self, idx: &[usize], stamp: &[f64], rows: &[&[f64]]) -> Result<(Vec<Sample>, Vec<Memory>), String> {
-        crate::index::vehicles(idx, self.lp.len())?;
+        crate::index::vehicles(idx, self.memory.len())?;
         let cfg = &self.cfg;
         let refreshes = |row: &[f64]| cfg.gross && row4(row, quad::INTERVAL).iter().any(|&v| v > 0.0);
         let any_refresh = rows.iter().any(|r| refreshes(r));
@@ -234,10 +236,8 @@ impl SlipGateBank {
     /// Keep the [`Memory`]s `lps` of [`Self::samples`] as the vehicles' state at `stamp`.
     pub fn commit(&mut self, idx: &[usize], stamp: &[f64], lps: &[Memory]) {
         for ((&i, &t), m) in idx.iter().zip(stamp).zip(lps) {
-            self.lp[i] = m.lp;
+            self.memory[i] = *m;
             self.lp_stamp[i] = t;
-            self.ground_speed_age[i] = m.ground_speed_age;
-            self.ground_speed_interval[i] = m.ground_speed_interval;
         }
     }
 
@@ -347,11 +347,12 @@ impl SlipGateBank {
         let last = self.lp_stamp[i];
         let dt = stamp - last;
         let age = row[scalar::GROUND_SPEED_AGE];
-        let since = self.ground_speed_age[i] + dt; // the previous reading's age now
+        let mem = &self.memory[i];
+        let since = mem.ground_speed_age + dt; // the previous reading's age now
         let gs_interval = if since.is_finite() && age < since - 1e-9 {
             since - age // a new reading: the time since the one before it
         } else {
-            self.ground_speed_interval[i]
+            mem.ground_speed_interval
         };
         let repeats = if dt > 0.0 && gs_interval > dt {
             (gs_interval / dt * likelihood_exponent(&cfg.soil, dt)).max(1.0)
@@ -384,7 +385,7 @@ impl SlipGateBank {
             restart = true;
             1.0
         };
-        let prev = self.lp[i];
+        let prev = self.memory[i].lp;
         let lp: [f64; 4] = std::array::from_fn(|w| {
             if restart {
                 filtered_slip[w]
