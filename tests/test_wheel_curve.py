@@ -151,3 +151,36 @@ def test_learnt_ocps_stand_without_k_only_where_the_model_cannot_describe_the_tr
         assert (rec.mu_T, rec.S_T, rec.curve) == (0.8, 0.3, "learnt") and rec.mu_T_std > 0 and rec.S_T_std > 0
     else:
         assert rec.mu_T is None and rec.S_T is None
+
+
+@pytest.mark.parametrize("k, log_std, ok", [(80.0, 0.05, True), (80.0, 0.12, False), (20.0, 0.13, False),
+                                            (30.0, 0.12, True)])
+def test_an_ok_k_is_an_ok_ocp_only_where_its_band_keeps_the_ocps_within_a_controllers_tolerance(k, log_std, ok):
+    """K's ok allows +-30 % at 2 sigma; on firm soil that moves mu_T by 0.13 and on weak soil S_T by 0.06.  On a
+    checked curve every OCP record carries the 1-sigma K's band gives mu_T and S_T, and an ok soil estimate whose
+    band spreads them beyond curve.ok_mu_t / ok_s_t (at 2 sigma) is an uncertain OCP record naming that; near
+    mu_T's minimum in K (K 30) the same band keeps it ok."""
+    from soilocp.estimation.wheel_curve import WheelCurve
+    from soilocp.schemas.pipeline import SoilEstimate
+    from soilocp import _core
+
+    cfg = PipelineConfig()
+    curve = WheelCurve(cfg, 1)
+    soil = SoilEstimate(vehicle_id="r1", seq=1, stamp=0.0, slip=(0.1,) * 4, informative=(True,) * 4,
+                        soil_strength=k, soil_strength_std=k * log_std, log_k_std=log_std, soil_class="grass",
+                        soil_class_confidence=0.9, status="ok", last_update_stamp=0.0, mu=(0.3,) * 4)
+    values = _core.ocp_one(k, cfg.constants.kernel)
+    rec = curve.record(0, soil, values)
+    # the band is the OCPs' spread over ln K +- 2 log_std
+    ends = [_core.ocp_one(k * np.exp(z * log_std), cfg.constants.kernel) for z in np.linspace(-2, 2, 9)]
+    assert rec.mu_T_std == pytest.approx(0.5 * max(abs(e[0] - values[0]) for e in ends))
+    assert rec.S_T_std == pytest.approx(0.5 * max(abs(e[1] - values[1]) for e in ends))
+    assert rec.curve == "model" and rec.mu_T == values[0]
+    if ok:
+        assert rec.status == "ok" and rec.confirmed and rec.reason_code == "none"
+    else:
+        assert rec.status == "uncertain" and not rec.confirmed and rec.reason_code == "ocp_wide"
+        assert "curve.ok_mu_t" in rec.reason
+    # a looser tolerance (a controller that acts on coarser OCPs) makes the same record ok
+    loose = WheelCurve(cfg.model_copy(update={"curve": cfg.curve.model_copy(update={"ok_mu_t": 1.0, "ok_s_t": 1.0})}), 1)
+    assert loose.record(0, soil, values).status == "ok"

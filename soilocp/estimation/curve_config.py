@@ -2,7 +2,7 @@
 pydantic only, no numpy (:mod:`soilocp.estimation.config`).
 
 The learner's settings are declared once, in the compiled core (soilocp/_core/src/curve.rs);
-:class:`CurveConfig` is built from those declarations.  The switch and the OCP records' bands and range,
+:class:`CurveConfig` is built from those declarations.  The switch, the OCP records' bands, their tolerance for ok and range,
 which the Python side applies, are declared here.
 """
 
@@ -29,6 +29,14 @@ CurveConfig = model_from_core(
                                         "moves the fitted peak by tilt_sys / |mu''(S_T)|, added to S_T's band, so "
                                         "that a flat peak is not reported as precise")),
     mu_t_sys=(float, _internal(0.02, 0, "Systematic 1-sigma added to the learnt mu_T's band")),
+    ok_mu_t=(float, Field(
+        0.1, gt=0, description="Half-width of mu_T's 2-sigma band, carried from K's band through a checked curve, "
+        "beyond which an OCP record is not ok (uncertain, reason ocp_wide): the error in the maximum traction a "
+        "controller that acts on ok records tolerates", json_schema_extra={"audience": "user"})),
+    ok_s_t=(float, Field(
+        0.05, gt=0, description="Half-width of S_T's 2-sigma band, carried from K's band through a checked curve, "
+        "beyond which an OCP record is not ok (uncertain, reason ocp_wide): the error in the slip target a "
+        "controller that acts on ok records tolerates", json_schema_extra={"audience": "user"})),
     k_range_margin=(float, Field(
         1.25, ge=1, description="A calibrated curve's OCPs are served as ok for K within its fitted soils' range "
         "widened by this factor either way; beyond, they are extrapolated and flagged. Raise it to trust a "

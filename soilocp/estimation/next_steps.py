@@ -52,6 +52,9 @@ NEXT_STEPS: dict[str, str] = {
                        "name C.json as the vehicle file's traction_curve (docs/calibration.md)",
     "curve_learnt": "the OCPs are this drive's learnt curve: fit a calibration from such drives (soilocp calibrate "
                     "--from-drive) and name it as the vehicle file's traction_curve (docs/calibration.md)",
+    "ocp_wide": "keep driving with informative slip (a traction test narrows K's band), or, if the controller "
+                "tolerates more, raise curve.ok_mu_t / curve.ok_s_t; a constant-speed drive with an uncalibrated "
+                "torque constant needs soilocp calibrate-torque",
     "curve_extrapolated": "calibrate on this soil too: drive the calibration sweep here and refit with all the "
                           "drives (soilocp calibrate --from-drive OLD.jsonl NEW.jsonl ...)",
 }

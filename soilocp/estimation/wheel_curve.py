@@ -15,7 +15,9 @@ soilocp/_core/src/curve.rs) on each soil estimate's (slip, net traction) pairs a
   OCPs;
 * **model**: mu_T, S_T, S_E from K and the configured constants, whose curve somebody checked for this
   wheel: the paper's testbed wheel (the built-in rover) or a calibration file (the vehicle's
-  ``traction_curve``);
+  ``traction_curve``), with the 1-sigma K's band carries into mu_T and S_T.  Not ``ok`` where that band
+  is wider than a controller acts on (``CurveConfig.ok_mu_t``, ``ok_s_t``: reason ``ocp_wide``): K's own
+  ok allows +-30 % at 2 sigma, which on firm soil moves mu_T by 0.13;
 * **unchecked**: the same numbers, from a curve nobody checked for this wheel.  Never ``ok``: an ``ok``
   soil estimate becomes ``uncertain``, and the reason says why and what to do.
 
@@ -47,6 +49,9 @@ LEARNT_REASON = ("OCPs from the traction curve this drive showed (S_T {s_t:.2f} 
                  "{mu_t_std:.2f}): the learnt peak rests on the observer's split of traction and resistance and is "
                  "not checked; fit a calibration from such drives (soilocp calibrate --from-drive) and name it as the "
                  "vehicle's traction_curve")
+#: Why a checked curve's OCPs are not served as ok where K's band spreads them beyond a controller's tolerance.
+WIDE_REASON = ("K's 2-sigma band spreads the OCPs by mu_T +-{mu:.2f}, S_T +-{s:.2f}: wider than a controller acts on "
+               "(curve.ok_mu_t {ok_mu:.2f}, ok_s_t {ok_s:.2f})")
 #: Why a calibrated curve's OCPs beyond its soils are not served as ok.
 BEYOND_REASON = ("K {k:.0f} is beyond the soils the wheel's calibration was fitted over ({lo:.0f}...{hi:.0f}): its "
                  "OCPs are extrapolated; drive the calibration on this soil too")
@@ -83,6 +88,7 @@ class WheelCurve:
         self.config = c
         self.checked = curve_checked(config.vehicle)
         #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
+        self.kernel = config.constants.kernel
         kr = config.constants.k_range
         self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
         self.bank = _core.CurveBank(n_vehicles, core_values(c, "curve")) \
@@ -117,14 +123,30 @@ class WheelCurve:
             why = LEARNT_REASON.format(s_t=fit.s_t, s_t_std=s_t_std, mu_t=fit.mu_t, mu_t_std=mu_t_std)
             return _flagged(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
                             curve="learnt", bands=(mu_t_std, s_t_std))
-        if k is None or (self.checked and self.k_range is None):
+        if k is None:
             return ocp_message(soil, values)
         if not self.checked:
             return _flagged(soil, values, UNCHECKED_REASON, "curve_unchecked", curve="unchecked")
-        lo, hi = self.k_range
-        if not lo <= k <= hi:
-            return _flagged(soil, values, BEYOND_REASON.format(k=k, lo=lo, hi=hi), "curve_extrapolated")
-        return ocp_message(soil, values)
+        bands = self.model_bands(soil)
+        if self.k_range is not None:
+            lo, hi = self.k_range
+            if not lo <= k <= hi:
+                return _flagged(soil, values, BEYOND_REASON.format(k=k, lo=lo, hi=hi), "curve_extrapolated",
+                                bands=bands)
+        mu_std, s_std = bands
+        cfg = self.config
+        if soil.status == "ok" and (2.0 * mu_std > cfg.ok_mu_t or 2.0 * s_std > cfg.ok_s_t):
+            why = WIDE_REASON.format(mu=2.0 * mu_std, s=2.0 * s_std, ok_mu=cfg.ok_mu_t, ok_s=cfg.ok_s_t)
+            return _flagged(soil, values, why, "ocp_wide", bands=bands)
+        return ocp_message(soil, values, bands=bands)
+
+    def model_bands(self, soil: SoilEstimate) -> tuple[Optional[float], Optional[float]]:
+        """(mu_T's, S_T's) 1-sigma that the soil estimate's K band carries through the checked curve
+        (``soilocp._core.ocp_band``); (None, None) without a band."""
+        if soil.log_k_std is None:
+            return None, None
+        mu_std, s_std = _core.ocp_band(soil.soil_strength, soil.log_k_std, self.kernel)
+        return (None, None) if math.isnan(mu_std) else (mu_std, s_std)
 
 
 def _flagged(soil: SoilEstimate, values, why: str, code: str, **kw) -> OcpEstimate:

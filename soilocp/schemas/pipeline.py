@@ -222,8 +222,10 @@ class OcpEstimate(_Message):
                                              "the wheel's learnt curve's, whose efficiency line nobody fitted)")
     te_at_S_E: Optional[float] = Field(default=None, description="Tractive efficiency (eq. 9) at S_E, when defined")
     curve: OcpCurve = Field(default="model", description=_CURVE_DOC)
-    mu_T_std: Optional[float] = Field(default=None, description="1-sigma of mu_T when the curve is learnt")
-    S_T_std: Optional[float] = Field(default=None, description="1-sigma of S_T when the curve is learnt")
+    mu_T_std: Optional[float] = Field(default=None, description="1-sigma of mu_T: the learnt curve's band, or, on a "
+                                      "checked curve (curve 'model'), the one K's band carries through it (null: none)")
+    S_T_std: Optional[float] = Field(default=None, description="1-sigma of S_T: the learnt curve's band, or, on a "
+                                     "checked curve (curve 'model'), the one K's band carries through it (null: none)")
     status: EstimateStatus = Field(description=_STATUS_DOC)
     reason: str = Field(default="", description="Why there is no estimate / why it is flagged")
     reason_code: ReasonCode = Field(default="none", description=_REASON_CODE_DOC)

@@ -48,6 +48,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         fn py::traction::tractive_efficiency,
         fn py::ocp::ocp_bank,
         fn py::ocp::ocp_one,
+        fn py::ocp::ocp_band,
         // the soil-grid update
         class py::soil::SoilGridBank,
         // the slip gate (with the wheels' usability codes) and eq. 1

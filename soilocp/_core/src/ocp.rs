@@ -87,6 +87,28 @@ pub fn ocp(k: f64, c: &Constants) -> Ocp {
     }
 }
 
+/// Points of K's band at which [`band`] evaluates the OCPs (odd: K itself is one).
+const BAND_POINTS: usize = 9;
+
+/// The 1-sigma that K's own band carries into (mu_T, S_T): half the largest departure of each from
+/// its value at K over ln K +- 2 `log_std` (the 2-sigma band of a belief Gaussian in ln K),
+/// evaluated at [`BAND_POINTS`] points because mu_T(K) is not monotone (it has a minimum near
+/// K = 30 with the paper's constants).  NaN for a missing K or band.
+pub fn band(k: f64, log_std: f64, c: &Constants) -> [f64; 2] {
+    if !(k.is_finite() && k > 0.0 && log_std.is_finite() && log_std >= 0.0) {
+        return [f64::NAN; 2];
+    }
+    let at = ocp(k, c);
+    let (mut mu, mut s) = (0.0_f64, 0.0_f64);
+    for i in 0..BAND_POINTS {
+        let z = 4.0 * i as f64 / (BAND_POINTS - 1) as f64 - 2.0;
+        let o = ocp(k * (z * log_std).exp(), c);
+        mu = mu.max((o.mu_t - at.mu_t).abs());
+        s = s.max((o.s_t - at.s_t).abs());
+    }
+    [0.5 * mu, 0.5 * s]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -152,5 +174,22 @@ mod tests {
         assert!(got[1].mu_t.is_nan());
         let err = bank(&[50.0, f64::NAN, -1.0], &C).unwrap_err();
         assert!(err.starts_with("soil_strength[2] = -1"), "{err}");
+    }
+
+    #[test]
+    fn band_carries_k_band_through_the_curve() {
+        // no band: no spread; a missing K: none
+        assert_eq!(band(80.0, 0.0, &C), [0.0, 0.0]);
+        assert!(band(f64::NAN, 0.1, &C)[0].is_nan());
+        // at K 80 a 2-sigma band of +-29 % (ln K 1-sigma 0.143) moves mu_T by 0.13 and S_T by 0.05
+        let [mu, s] = band(80.0, 0.143, &C);
+        let hi = ocp(80.0 * 0.286_f64.exp(), &C);
+        let at = ocp(80.0, &C);
+        close(mu, 0.5 * (hi.mu_t - at.mu_t), 1e-12);
+        assert!(mu > 0.06 && mu < 0.07, "{mu}");
+        assert!(s > 0.02 && s < 0.03, "{s}");
+        // near mu_T's minimum (K 30) both ends rise: the largest departure, not the ends' difference
+        let [mu30, _] = band(30.0, 0.143, &C);
+        assert!(mu30 > 0.02, "{mu30}");
     }
 }

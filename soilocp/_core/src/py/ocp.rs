@@ -45,3 +45,11 @@ pub fn ocp_one(soil_strength: f64, constants: &Constants) -> PyResult<(f64, f64,
     let o = ocp::ocp(soil_strength, constants);
     Ok((o.mu_t, o.s_t, o.s_e, o.te_at_s_e))
 }
+
+/// (mu_T's, S_T's) 1-sigma carried from K's band through the curve ([`ocp::band`]): what K's
+/// uncertainty means for the OCPs a controller acts on.  NaN for a missing K or band.
+#[pyfunction]
+pub fn ocp_band(soil_strength: f64, log_k_std: f64, constants: &Constants) -> (f64, f64) {
+    let [mu, s] = ocp::band(soil_strength, log_k_std, constants);
+    (mu, s)
+}
