@@ -906,7 +906,7 @@ class ReferenceRecords:
                 reason = (f"gross traction is below what the model's weakest soil gives at this slip (K under "
                           f"{self.k_floor:g}, half the weakest reference soil's): torque scale or units?")
             elif status in ("no_estimate", "holding") and held[j].any() and not use[j].any():
-                status = "not_observable"
+                status = "holding" if status == "holding" else "not_observable"
                 since = f"for {st - hold.last_update:.1f} s" if hold.last_update is not None else "yet"
                 if stale[j]:
                     reason = (f"slip is informative but the ground speed is stale: no new reading for more than "
@@ -915,7 +915,7 @@ class ReferenceRecords:
                     reason = (f"slip is informative but the wheel speed / torque readings are held: no new reading of "
                               f"both {since} (sensor refresh too slow to measure traction)")
             elif status in ("no_estimate", "holding") and undetermined[j].any() and not use[j].any():
-                status = "not_observable"
+                status = "holding" if status == "holding" else "not_observable"
                 reason = "slip is informative but the wheel torque balance does not determine gross traction"
             if status == "ok":
                 status, reason = self._vouch(v, st, evidence, c_mean)

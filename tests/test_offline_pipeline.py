@@ -127,7 +127,8 @@ def test_k_learns_only_from_samples_with_a_new_torque_reading():
 def test_a_stale_ground_speed_is_named_not_the_wheel_readings():
     """The ground speed (GNSS, visual odometry) freezes mid-drive while the wheels keep reporting at
     100 Hz: K stops learning, and the record names the ground speed, not the wheels' readings (an
-    earlier release said "the wheel speed / torque readings are held" for either)."""
+    earlier release said "the wheel speed / torque readings are held" for either).  The K it learnt before is
+    held, flagged (holding, with its age), not dropped: the soil did not change because the speed froze."""
     from soilocp.sim.variants import get_variant
 
     cfg = PipelineConfig()
@@ -140,6 +141,8 @@ def test_a_stale_ground_speed_is_named_not_the_wheel_readings():
         if sample.stamp >= 11.5:  # repeats read as readings for observer.repeat_window, then soil.max_input_age
             assert not any(soil.informative)
             reasons.append(soil.reason or "")
+            if "ground speed is stale" in reasons[-1]:
+                assert soil.status == "holding" and soil.soil_strength is not None and soil.held_for_s > 0.5
     stale = [r for r in reasons if "ground speed is stale" in r]
     assert len(stale) >= 100, collections.Counter(r[:60] for r in reasons).most_common(5)
     assert not [r for r in reasons if "wheel speed / torque readings are held" in r]

@@ -66,7 +66,7 @@ code_table! {
     status {
         OK = "ok", Soil, "K is confirmed: within +-30 % at 2 sigma, and every model check vouches for it";
         UNCERTAIN = "uncertain", Soil, "K is reported with a wide band; the reason says why";
-        HOLDING = "holding", Soil, "slip is uninformative now: the last estimate is held";
+        HOLDING = "holding", Soil, "nothing informs K now: the last estimate is held, with its age";
         NO_ESTIMATE = "no_estimate", Soil, "no K: none yet, or withdrawn";
         NOT_OBSERVABLE = "not_observable", Soil, "the data do not determine K now";
         MODEL_MISMATCH = "model_mismatch", Soil,
@@ -97,11 +97,11 @@ code_table! {
         NIS = "nis", Soil, "the traction curve does not explain the (slip, traction) pairs at any K";
         BELOW_FLOOR = "below_floor", Soil,
             "traction below what the weakest soil gives at this slip (torque scale or units?): no K";
-        GROUND_STALE = "ground_stale", Soil, "slip is informative but the ground speed reading is stale";
+        GROUND_STALE = "ground_stale", Soil, "slip is informative but the ground speed reading is stale: the last K held, or none";
         READINGS_HELD = "readings_held", Soil,
-            "slip is informative but the wheel speed / torque readings are held (refresh too slow)";
+            "slip is informative but the wheel speed / torque readings are held (refresh too slow): the last K held, or none";
         UNDETERMINED = "undetermined", Soil,
-            "slip is informative but the torque balance does not determine gross traction";
+            "slip is informative but the torque balance does not determine gross traction: the last K held, or none";
         LEANS = "leans", Soil,
             "the data lean to another torque scale, which a drive at constant speed cannot tell from K";
         AXLE_WINDOW = "axle_window", Soil, "the axles read different soils for most of the evidence window";
@@ -119,6 +119,8 @@ code_table! {
             "OCP record: the OCPs are the traction curve this drive showed, not checked by a calibration";
         CURVE_EXTRAPOLATED = "curve_extrapolated", Ocp,
             "OCP record: K is beyond the soils the wheel's calibration was fitted over";
+        OCP_WIDE = "ocp_wide", Ocp,
+            "OCP record: K's band carries into mu_T or S_T wider than the controller's tolerance (curve.ok_mu_t, ok_s_t)";
     }
 }
 

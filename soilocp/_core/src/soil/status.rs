@@ -157,7 +157,9 @@ impl StatusParams {
         } else if est.is_some() && s.floor_cdf > 0.5 {
             (status, why, args) = (MODEL_MISMATCH, reason::BELOW_FLOOR, [0.0; 4]);
         } else if (status == NO_ESTIMATE || status == HOLDING) && any_flag(HELD) && !used {
-            status = NOT_OBSERVABLE;
+            // slip would inform but its readings are held: a held K stays held (flagged, with its
+            // age), naming why nothing updates it; without one the data determine no K now
+            status = if status == HOLDING { HOLDING } else { NOT_OBSERVABLE };
             why = if seen.ground_stale {
                 reason::GROUND_STALE
             } else {
@@ -165,7 +167,8 @@ impl StatusParams {
             };
             args = [since, 0.0, 0.0, 0.0];
         } else if (status == NO_ESTIMATE || status == HOLDING) && any_flag(UNDETERMINED) && !used {
-            (status, why, args) = (NOT_OBSERVABLE, reason::UNDETERMINED, [0.0; 4]);
+            status = if status == HOLDING { HOLDING } else { NOT_OBSERVABLE };
+            (why, args) = (reason::UNDETERMINED, [0.0; 4]);
         }
         if status == OK {
             (status, why, args) = self.vouch(h, seen, st, evidence, c_mean);
