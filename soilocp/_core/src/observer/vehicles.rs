@@ -118,7 +118,7 @@ impl Estimate {
     }
 }
 
-/// An [`Estimate`]'s numbers, each named once: the const array of their names (the ObserverOutput
+/// An [`Estimate`]'s numbers (and flags), each named once: the const array of their names (the ObserverOutput
 /// message's fields: ObserverCore.block_fields, the slip gate's packed row) and the method giving
 /// their values in that order.
 macro_rules! named_numbers {
@@ -168,6 +168,23 @@ named_numbers! {
         "ground_speed_age": self.ground_speed_age(),
         "ground_speed_latency": self.ground_speed_latency,
         "ground_speed_excess": self.ground_speed_excess,
+    }
+}
+
+named_numbers! {
+    /// The per-wheel flags.
+    BOOL_QUAD_NAMES, fn bool_quads(&self) -> [[bool; 4]; 3] {
+        "mu_determined": self.mu_determined,
+        "interval_learning": self.pairs.active,
+        "speed_rejected": self.speed_rejected,
+    }
+}
+
+named_numbers! {
+    /// The per-vehicle flags.
+    BOOL_FLAT_NAMES, fn bool_flats(&self) -> [bool; 2] {
+        "reset": self.reset > 0,
+        "ground_speed_measured": self.ground_speed_measured,
     }
 }
 
