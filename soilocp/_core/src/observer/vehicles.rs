@@ -52,35 +52,6 @@ pub struct Raw {
     pub normal_force: [f64; 4],
 }
 
-/// The names of an [`Estimate`]'s numbers, per wheel ([`Estimate::quads`]) and per vehicle
-/// ([`Estimate::flats`]): the ObserverOutput message's fields (ObserverCore.quad_fields, flat_fields).
-pub const QUAD_NAMES: [&str; 17] = [
-    "mu",
-    "mu_var",
-    "resistance",
-    "gross",
-    "gross_var",
-    "wheel_speed",
-    "normal_force",
-    "speed_age",
-    "torque_age",
-    "interval",
-    "interval_gross",
-    "interval_gross_var",
-    "interval_rim_start",
-    "interval_rim_end",
-    "interval_ground_start",
-    "interval_ground_end",
-    "interval_rim_sigma",
-];
-pub const FLAT_NAMES: [&str; 5] = [
-    "ground_speed",
-    "yaw_rate",
-    "ground_speed_age",
-    "ground_speed_latency",
-    "ground_speed_excess",
-];
-
 /// s: memory of the ground speed's disagreement with the accelerometer ([`Estimate::ground_speed_excess`])
 pub const EXCESS_WINDOW: f64 = 1.0;
 
@@ -132,41 +103,6 @@ impl Estimate {
         [self.age[5], self.age[6], self.age[7], self.age[8]]
     }
 
-    /// The per-wheel numbers, in [`QUAD_NAMES`]' order.
-    pub fn quads(&self) -> [[f64; 4]; 17] {
-        let p = &self.pairs;
-        [
-            self.mu,
-            self.mu_var,
-            self.resistance,
-            self.gross,
-            self.gross_var,
-            self.wheel_speed,
-            self.normal_force,
-            self.speed_age(),
-            self.torque_age(),
-            p.interval,
-            p.gross,
-            p.gross_var,
-            p.rim_start,
-            p.rim_end,
-            p.ground_start,
-            p.ground_end,
-            p.rim_sigma,
-        ]
-    }
-
-    /// The per-vehicle numbers, in [`FLAT_NAMES`]' order.
-    pub fn flats(&self) -> [f64; 5] {
-        [
-            self.ground_speed,
-            self.yaw_rate,
-            self.ground_speed_age(),
-            self.ground_speed_latency,
-            self.ground_speed_excess,
-        ]
-    }
-
     /// The first number that is not finite, by its output name (soilocp's ObserverOutput message,
     /// whose fields must be finite), or None.
     pub fn first_non_finite(&self) -> Option<&'static str> {
@@ -179,6 +115,76 @@ impl Estimate {
                 .find(|(_, v)| !v.is_finite())
                 .map(|(n, _)| *n)
         })
+    }
+}
+
+/// An [`Estimate`]'s numbers (and flags), each named once: the const array of their names (the ObserverOutput
+/// message's fields: ObserverCore.block_fields, the slip gate's packed row) and the method giving
+/// their values in that order.
+macro_rules! named_numbers {
+    ($(#[$doc:meta])* $names:ident, fn $values:ident(&$e:ident) -> [$t:ty; $n:literal] {
+        $($name:literal: $value:expr,)+
+    }) => {
+        $(#[$doc])*
+        pub const $names: [&str; $n] = [$($name),+];
+
+        impl Estimate {
+            $(#[$doc])*
+            pub fn $values(&$e) -> [$t; $n] {
+                [$($value),+]
+            }
+        }
+    };
+}
+
+named_numbers! {
+    /// The per-wheel numbers.
+    QUAD_NAMES, fn quads(&self) -> [[f64; 4]; 17] {
+        "mu": self.mu,
+        "mu_var": self.mu_var,
+        "resistance": self.resistance,
+        "gross": self.gross,
+        "gross_var": self.gross_var,
+        "wheel_speed": self.wheel_speed,
+        "normal_force": self.normal_force,
+        "speed_age": self.speed_age(),
+        "torque_age": self.torque_age(),
+        "interval": self.pairs.interval,
+        "interval_gross": self.pairs.gross,
+        "interval_gross_var": self.pairs.gross_var,
+        "interval_rim_start": self.pairs.rim_start,
+        "interval_rim_end": self.pairs.rim_end,
+        "interval_ground_start": self.pairs.ground_start,
+        "interval_ground_end": self.pairs.ground_end,
+        "interval_rim_sigma": self.pairs.rim_sigma,
+    }
+}
+
+named_numbers! {
+    /// The per-vehicle numbers.
+    FLAT_NAMES, fn flats(&self) -> [f64; 5] {
+        "ground_speed": self.ground_speed,
+        "yaw_rate": self.yaw_rate,
+        "ground_speed_age": self.ground_speed_age(),
+        "ground_speed_latency": self.ground_speed_latency,
+        "ground_speed_excess": self.ground_speed_excess,
+    }
+}
+
+named_numbers! {
+    /// The per-wheel flags.
+    BOOL_QUAD_NAMES, fn bool_quads(&self) -> [[bool; 4]; 3] {
+        "mu_determined": self.mu_determined,
+        "interval_learning": self.pairs.active,
+        "speed_rejected": self.speed_rejected,
+    }
+}
+
+named_numbers! {
+    /// The per-vehicle flags.
+    BOOL_FLAT_NAMES, fn bool_flats(&self) -> [bool; 2] {
+        "reset": self.reset > 0,
+        "ground_speed_measured": self.ground_speed_measured,
     }
 }
 

@@ -1,9 +1,10 @@
 //! Argument checks the bindings share: a step's vehicle indices, a (k,) or a (k, 4) array of its k
 //! vehicles (and, for the observer's inputs, every entry finite), two arrays that broadcast together,
-//! refused with a ValueError that names the argument and what it came with.
+//! refused with a ValueError that names the argument and what it came with; and the other way, the
+//! numpy arrays the bindings return of their vehicles' (or samples') numbers, one row each.
 
-use numpy::ndarray::{ArrayD, ArrayView1, ArrayView2, ArrayViewD, IxDyn, Zip};
-use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
+use numpy::ndarray::{Array1, Array2, ArrayD, ArrayView1, ArrayView2, ArrayViewD, IxDyn, Zip};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -123,4 +124,34 @@ pub fn map_broadcast<R>(
 /// several outputs per pair (eq. 1's slip and scale, a curve's value and derivatives) return each.
 pub fn part<T>(a: &ArrayD<T>, part: impl Fn(&T) -> f64) -> ArrayD<f64> {
     ArrayD::from_shape_vec(a.raw_dim(), a.iter().map(part).collect()).expect("one value per entry")
+}
+
+/// One number per item (a vehicle, a sample) as a (k,) array.
+pub fn to_column<'py, E: numpy::Element>(py: Python<'py>, items: impl Iterator<Item = E>) -> Bound<'py, PyArray1<E>> {
+    Array1::from_iter(items).into_pyarray(py)
+}
+
+/// One row of `M` numbers per item (a vehicle's four wheels, a step's statistics) as a (k, M) array.
+pub fn to_rows<'py, E: numpy::Element, const M: usize>(
+    py: Python<'py>,
+    items: impl ExactSizeIterator<Item = [E; M]>,
+) -> Bound<'py, PyArray2<E>> {
+    let k = items.len();
+    let flat: Vec<E> = items.flatten().collect();
+    Array2::from_shape_vec((k, M), flat)
+        .expect("M numbers per row")
+        .into_pyarray(py)
+}
+
+/// One row of `width` numbers per item (a vehicle's belief over the grid) as a (k, width) array.
+pub fn to_rows_of<'a, 'py, E: numpy::Element + Copy + 'a>(
+    py: Python<'py>,
+    width: usize,
+    items: impl ExactSizeIterator<Item = &'a [E]>,
+) -> Bound<'py, PyArray2<E>> {
+    let k = items.len();
+    let flat: Vec<E> = items.flat_map(|r| r[..width].iter().copied()).collect();
+    Array2::from_shape_vec((k, width), flat)
+        .expect("width numbers per row")
+        .into_pyarray(py)
 }

@@ -16,7 +16,9 @@ use crate::observer::intervals::IntervalSettings;
 use crate::observer::layout::{Layout, N_MEAS};
 use crate::observer::model::{build, init, resistance_map, Vehicle};
 use crate::observer::settings::ObserverSettings;
-use crate::observer::vehicles::{Estimate, ObserverBank, Raw, Reading, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES};
+use crate::observer::vehicles::{
+    Estimate, ObserverBank, Raw, Reading, BOOL_FLAT_NAMES, BOOL_QUAD_NAMES, FLAT_NAMES, LIFT_OFF_FORCE, QUAD_NAMES,
+};
 use crate::settings::Value;
 
 /// One step's samples of k vehicles, read by attribute from
@@ -45,11 +47,6 @@ fn fixed<const K: usize>(name: &str, v: &[f64]) -> PyResult<[f64; K]> {
         .map_err(|_| PyValueError::new_err(format!("{name} must have {K} entries, got {}", v.len())))
 }
 
-/// The names of the step's bool blocks, in their order (the ObserverOutput message's fields; the
-/// float blocks' are the Estimate's, QUAD_NAMES and FLAT_NAMES).
-const BOOL_QUADS: [&str; 3] = ["mu_determined", "interval_learning", "speed_rejected"];
-const BOOL_FLATS: [&str; 2] = ["reset", "ground_speed_measured"];
-
 pub(crate) type StepOut<'py> = (
     Bound<'py, PyArray3<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -65,32 +62,30 @@ type Model<'py> = (
     Bound<'py, PyArray2<f64>>,
 );
 
+/// Vehicle `j`'s column of a per-wheel block (block row, vehicle, wheel) and of a per-vehicle one.
+fn put_vehicle<T: Copy>(quads: &mut Array3<T>, flats: &mut Array2<T>, j: usize, q: &[[T; 4]], f: &[T]) {
+    for (r, row) in q.iter().enumerate() {
+        for (w, &v) in row.iter().enumerate() {
+            quads[[r, j, w]] = v;
+        }
+    }
+    for (r, &v) in f.iter().enumerate() {
+        flats[[r, j]] = v;
+    }
+}
+
 /// The step's output blocks (module doc of `step`) of the vehicles' estimates, in their order.
 pub(crate) fn blocks<'py>(py: Python<'py>, out: &[Estimate]) -> StepOut<'py> {
     let k = out.len();
     let mut quads = Array3::<f64>::zeros((QUAD_NAMES.len(), k, 4));
     let mut flats = Array2::<f64>::zeros((FLAT_NAMES.len(), k));
-    let mut bquads = Array3::<bool>::from_elem((BOOL_QUADS.len(), k, 4), false);
-    let mut bflats = Array2::<bool>::from_elem((BOOL_FLATS.len(), k), false);
+    let mut bquads = Array3::<bool>::from_elem((BOOL_QUAD_NAMES.len(), k, 4), false);
+    let mut bflats = Array2::<bool>::from_elem((BOOL_FLAT_NAMES.len(), k), false);
     let mut rejected = Array1::<i64>::zeros(k);
     let mut codes = Array1::<u8>::zeros(k);
     for (j, o) in out.iter().enumerate() {
-        let p = &o.pairs;
-        for (f, row) in o.quads().iter().enumerate() {
-            for w in 0..4 {
-                quads[[f, j, w]] = row[w];
-            }
-        }
-        for (f, v) in o.flats().into_iter().enumerate() {
-            flats[[f, j]] = v;
-        }
-        for w in 0..4 {
-            bquads[[0, j, w]] = o.mu_determined[w];
-            bquads[[1, j, w]] = p.active[w];
-            bquads[[2, j, w]] = o.speed_rejected[w];
-        }
-        bflats[[0, j]] = o.reset > 0;
-        bflats[[1, j]] = o.ground_speed_measured;
+        put_vehicle(&mut quads, &mut flats, j, &o.quads(), &o.flats());
+        put_vehicle(&mut bquads, &mut bflats, j, &o.bool_quads(), &o.bool_flats());
         rejected[j] = o.rejected;
         codes[j] = o.reset;
     }
@@ -294,8 +289,8 @@ impl ObserverCore {
         [
             QUAD_NAMES.to_vec(),
             FLAT_NAMES.to_vec(),
-            BOOL_QUADS.to_vec(),
-            BOOL_FLATS.to_vec(),
+            BOOL_QUAD_NAMES.to_vec(),
+            BOOL_FLAT_NAMES.to_vec(),
         ]
     }
 

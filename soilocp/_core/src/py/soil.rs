@@ -4,9 +4,9 @@
 
 use std::collections::HashMap;
 
-use super::args::{column, quads, vehicles};
+use super::args::{column, quads, to_column, to_rows, to_rows_of, vehicles};
 
-use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::ndarray::{Array1, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -49,8 +49,8 @@ pub(crate) type GateArrays<'py> = Bound<'py, PyTuple>;
 
 pub(crate) fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateArrays<'py>> {
     let k = s.len();
-    let f = |get: fn(&Sample) -> [f64; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
-    let b = |get: fn(&Sample) -> [bool; 4]| Array2::from_shape_fn((k, 4), |(j, w)| get(&s[j])[w]).into_pyarray(py);
+    let f = |get: fn(&Sample) -> [f64; 4]| to_rows(py, s.iter().map(get));
+    let b = |get: fn(&Sample) -> [bool; 4]| to_rows(py, s.iter().map(get));
     let any_span = s.first().is_some_and(|x| x.span.is_some());
     let items: [Bound<'py, PyAny>; 14] = [
         f(|x| x.slip).into_any(),
@@ -61,13 +61,9 @@ pub(crate) fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateAr
         f(|x| x.gate_slip).into_any(),
         f(|x| x.gate_sigma).into_any(),
         b(|x| x.held).into_any(),
-        Array1::from_iter(s.iter().map(|x| x.ground_stale))
-            .into_pyarray(py)
-            .into_any(),
-        Array1::from_iter(s.iter().map(|x| x.identifiable))
-            .into_pyarray(py)
-            .into_any(),
-        Array1::from_iter(s.iter().map(|x| x.speed)).into_pyarray(py).into_any(),
+        to_column(py, s.iter().map(|x| x.ground_stale)).into_any(),
+        to_column(py, s.iter().map(|x| x.identifiable)).into_any(),
+        to_column(py, s.iter().map(|x| x.speed)).into_any(),
         if any_span {
             f(|x| x.span.unwrap_or([0.0; 4])).into_any()
         } else {
@@ -80,9 +76,7 @@ pub(crate) fn gate_arrays<'py>(py: Python<'py>, s: &[Sample]) -> PyResult<GateAr
         } else {
             py.None().into_bound(py)
         },
-        Array2::from_shape_fn((k, 4), |(j, w)| s[j].unusable[w])
-            .into_pyarray(py)
-            .into_any(),
+        to_rows(py, s.iter().map(|x| x.unusable)).into_any(),
     ];
     PyTuple::new(py, items)
 }
@@ -260,14 +254,13 @@ impl SlipGateBank {
     /// The low-pass slips (N, 4).
     #[getter]
     fn lp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.memory.len();
-        Array2::from_shape_fn((n, 4), |(i, w)| self.inner.memory[i].lp[w]).into_pyarray(py)
+        to_rows(py, self.inner.memory.iter().map(|m| m.lp))
     }
 
     /// The stamp each vehicle's low-pass was last stepped at (N,) (NaN: never).
     #[getter]
     fn lp_stamp<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        Array1::from_vec(self.inner.lp_stamp.clone()).into_pyarray(py)
+        to_column(py, self.inner.lp_stamp.iter().copied())
     }
 }
 
@@ -300,21 +293,17 @@ pub(crate) type ReportArrays<'py> = (
 );
 
 pub(crate) fn report_arrays<'py>(py: Python<'py>, reports: &[Report], used: &[[bool; 4]]) -> ReportArrays<'py> {
-    let k = reports.len();
-    let codes = Array2::from_shape_fn((k, 3), |(j, i)| {
-        let r = &reports[j];
-        [r.status as i64, r.reason as i64, i64::from(r.k.is_some())][i]
+    let codes = reports
+        .iter()
+        .map(|r| [r.status as i64, r.reason as i64, i64::from(r.k.is_some())]);
+    let nums = reports.iter().map(|r| {
+        // K, its 1-sigma, ln K's (NaN: none), the last update's stamp, the reason's numbers
+        let mut row = [r.last_update.unwrap_or(f64::NAN); 8];
+        row[..3].copy_from_slice(&r.k.unwrap_or([f64::NAN; 3]));
+        row[4..].copy_from_slice(&r.args);
+        row
     });
-    let nums = Array2::from_shape_fn((k, 8), |(j, i)| {
-        let r = &reports[j];
-        match i {
-            0..=2 => r.k.map_or(f64::NAN, |v| v[i]),
-            3 => r.last_update.unwrap_or(f64::NAN),
-            _ => r.args[i - 4],
-        }
-    });
-    let used = Array2::from_shape_fn((k, 4), |(j, w)| used[j][w]);
-    (codes.into_pyarray(py), nums.into_pyarray(py), used.into_pyarray(py))
+    (to_rows(py, codes), to_rows(py, nums), to_rows(py, used.iter().copied()))
 }
 
 fn finite(name: &str, rows: &[[f64; 4]]) -> PyResult<()> {
@@ -389,25 +378,21 @@ impl SoilGridBank {
     fn run<'py>(&mut self, py: Python<'py>, samples: &[Sample]) -> PyResult<StepArrays<'py>> {
         check_finite(samples)?;
         let out = self.step_samples(samples)?;
-        let k = out.len();
-        let wheel = Array2::from_shape_fn((k, 4), |(j, w)| out[j].wheel[w]);
-        let col = |f: &dyn Fn(&bank::Step) -> f64| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
-        let flag = |f: &dyn Fn(&bank::Step) -> bool| Array1::from_iter(out.iter().map(f)).into_pyarray(py);
+        let col = |f: fn(&bank::Step) -> f64| to_column(py, out.iter().map(f));
+        let flag = |f: fn(&bank::Step) -> bool| to_column(py, out.iter().map(f));
+        let rows = |f: fn(&bank::Step) -> [f64; 3]| to_rows(py, out.iter().map(f));
         Ok((
-            wheel.into_pyarray(py),
-            col(&|s| s.dt),
-            flag(&|s| s.informed),
-            flag(&|s| s.taken),
-            col(&|s| s.k_report),
-            col(&|s| s.log_stat),
-            Array2::from_shape_fn((k, 5), |(j, i)| out[j].stats[i]).into_pyarray(py),
-            Array2::from_shape_fn((k, 3), |(j, i)| out[j].scale[i]).into_pyarray(py),
-            flag(&|s| s.axle.mismatch),
-            Array2::from_shape_fn((k, 3), |(j, i)| {
-                [out[j].axle.z, out[j].axle.theta_front, out[j].axle.theta_rear][i]
-            })
-            .into_pyarray(py),
-            col(&|s| s.floor_cdf),
+            to_rows(py, out.iter().map(|s| s.wheel)),
+            col(|s| s.dt),
+            flag(|s| s.informed),
+            flag(|s| s.taken),
+            col(|s| s.k_report),
+            col(|s| s.log_stat),
+            to_rows(py, out.iter().map(|s| s.stats)),
+            rows(|s| s.scale),
+            flag(|s| s.axle.mismatch),
+            rows(|s| [s.axle.z, s.axle.theta_front, s.axle.theta_rear]),
+            col(|s| s.floor_cdf),
         ))
     }
 }
@@ -671,15 +656,17 @@ impl SoilGridBank {
     /// The pooled beliefs (N, G).
     #[getter]
     fn p<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let (n, g) = (self.inner.vehicles.len(), self.inner.grid.len());
-        Array2::from_shape_fn((n, g), |(i, j)| self.inner.vehicles[i].p[j]).into_pyarray(py)
+        to_rows_of(py, self.inner.grid.len(), self.inner.vehicles.iter().map(|b| &b.p[..]))
     }
 
     /// The no-change beliefs (N, G).
     #[getter]
     fn p_stay<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let (n, g) = (self.inner.vehicles.len(), self.inner.grid.len());
-        Array2::from_shape_fn((n, g), |(i, j)| self.inner.vehicles[i].p_stay[j]).into_pyarray(py)
+        to_rows_of(
+            py,
+            self.inner.grid.len(),
+            self.inner.vehicles.iter().map(|b| &b.p_stay[..]),
+        )
     }
 
     /// The front and rear axle beliefs (N, 2, G).
@@ -692,34 +679,32 @@ impl SoilGridBank {
     /// P(no change | data) per vehicle (N,).
     #[getter]
     fn w_stay<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.w_stay)).into_pyarray(py)
+        to_column(py, self.inner.vehicles.iter().map(|b| b.w_stay))
     }
 
     /// The recent log-evidence for no change against the pooled belief (N,).
     #[getter]
     fn stay_llr<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.stay_llr)).into_pyarray(py)
+        to_column(py, self.inner.vehicles.iter().map(|b| b.stay_llr))
     }
 
     /// The window statistics (N, 5): evidence, NIS sum, sum w h_K^2, sum w h_K h, sum w h_K h_S dS.
     #[getter]
     fn stats<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.vehicles.len();
-        Array2::from_shape_fn((n, 5), |(i, j)| self.inner.vehicles[i].stats[j]).into_pyarray(py)
+        to_rows(py, self.inner.vehicles.iter().map(|b| b.stats))
     }
 
     /// The scale's systematic term of the last informative sample (N, 3): 1-sigma of ln K, c's
     /// mean and 1-sigma.
     #[getter]
     fn scale_sys<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.vehicles.len();
-        Array2::from_shape_fn((n, 3), |(i, j)| self.inner.vehicles[i].scale_sys[j]).into_pyarray(py)
+        to_rows(py, self.inner.vehicles.iter().map(|b| b.scale_sys))
     }
 
     /// The scale's 1-sigma per vehicle (N,): the prior, or the online state's last value.
     #[getter]
     fn scale_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        Array1::from_iter(self.inner.vehicles.iter().map(|b| b.scale_prior)).into_pyarray(py)
+        to_column(py, self.inner.vehicles.iter().map(|b| b.scale_prior))
     }
 }
 

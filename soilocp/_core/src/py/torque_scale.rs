@@ -6,7 +6,7 @@
 
 use std::collections::HashMap;
 
-use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::ndarray::Array3;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -16,7 +16,7 @@ use crate::torque_scale::balance::{self, Body};
 use crate::torque_scale::bank;
 use crate::torque_scale::params::{Derived, Params, Settings};
 
-use super::args::{check_len, column, quads, vehicles};
+use super::args::{check_len, column, quads, to_column, to_rows, vehicles};
 
 type Pair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
@@ -88,8 +88,8 @@ impl TorqueScaleCore {
     /// (k, F_MR) of every vehicle, (N, 2).
     #[getter]
     fn theta<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let n = self.inner.len();
-        Array2::from_shape_fn((n, 2), |(i, j)| self.inner.state(i).theta[j]).into_pyarray(py)
+        let theta = |i: usize| self.inner.state(i).theta;
+        to_rows(py, (0..self.inner.len()).map(|i| [theta(i)[0], theta(i)[1]]))
     }
 
     /// Their covariances, (N, 2, 2).
@@ -102,8 +102,7 @@ impl TorqueScaleCore {
     /// The soil's K each vehicle's modelled resistance uses now, (N,).
     #[getter]
     fn soil_k<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        let n = self.inner.len();
-        Array1::from_shape_fn(n, |i| self.inner.soil_k(i)).into_pyarray(py)
+        to_column(py, (0..self.inner.len()).map(|i| self.inner.soil_k(i)))
     }
 }
 
