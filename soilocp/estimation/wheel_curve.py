@@ -135,14 +135,15 @@ class WheelCurve:
                                 bands=bands)
         mu_std, s_std = bands
         cfg = self.config
-        if soil.status == "ok" and (2.0 * mu_std > cfg.ok_mu_t or 2.0 * s_std > cfg.ok_s_t):
+        if soil.status == "ok" and mu_std is not None and (2.0 * mu_std > cfg.ok_mu_t or 2.0 * s_std > cfg.ok_s_t):
             why = WIDE_REASON.format(mu=2.0 * mu_std, s=2.0 * s_std, ok_mu=cfg.ok_mu_t, ok_s=cfg.ok_s_t)
             return _flagged(soil, values, why, "ocp_wide", bands=bands)
         return ocp_message(soil, values, bands=bands)
 
     def model_bands(self, soil: SoilEstimate) -> tuple[Optional[float], Optional[float]]:
         """(mu_T's, S_T's) 1-sigma that the soil estimate's K band carries through the checked curve
-        (``soilocp._core.ocp_band``); (None, None) without a band."""
+        (``soilocp._core.ocp_band``); (None, None) without a band (the paper's soil method gives none: its
+        records keep the soil estimate's status)."""
         if soil.log_k_std is None:
             return None, None
         mu_std, s_std = _core.ocp_band(soil.soil_strength, soil.log_k_std, self.kernel)
