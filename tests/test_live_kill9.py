@@ -188,8 +188,8 @@ def _run_kills(tmp_path, victims: list[str], interval_s: float, duration_s: floa
             assert wait_for(lambda: acks.totals, 60), "the map acknowledged nothing before the first kill"
             results = _kill_and_measure(run, log_dir, victims, interval_s, vid, ocps, lock, acks)
             time.sleep(1.0)  # the last restart's report reaches the router
-            t_status = time.time()
             rows = _fleet_status(ep)
+            t_status = time.time()  # the ages are taken while the call runs: bound them by its end
         run.send_signal(signal.SIGTERM)
         out, _ = run.communicate(timeout=60)
     finally:
