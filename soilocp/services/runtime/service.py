@@ -30,6 +30,9 @@ class Service:
     """Base of the pipeline services: per-vehicle declarations, one worker, health and liveliness."""
 
     name: ClassVar[str] = "service"
+    #: whether :meth:`handle` reads each sample's own key (``WorkItem.key``, ``str(sample.key_expr)``: 0.8 us a
+    #: message); else ``WorkItem.key`` is the key the subscriber was declared on
+    needs_key: ClassVar[bool] = False
 
     def __init__(self, cfg: ServiceConfig, log: JsonLog):
         self.cfg = cfg
@@ -70,9 +73,14 @@ class Service:
         offer = self.worker.offer
         clock = time.time
 
-        def _cb(sample) -> None:
-            counters.received += 1
-            offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), str(sample.key_expr)))
+        if self.needs_key:
+            def _cb(sample) -> None:
+                counters.received += 1
+                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), str(sample.key_expr)))
+        else:
+            def _cb(sample) -> None:
+                counters.received += 1
+                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), key))
 
         self.keep(session.declare_subscriber(key, _cb))
 
