@@ -43,7 +43,7 @@ from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
 from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.soil_config import SoilConfig, Status
-from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
+from soilocp.estimation.soil_state import SoilInputs, SoilState, class_bounds, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
 from soilocp.estimation.wheel_usability import REASONS, describe
 
@@ -125,6 +125,7 @@ class SoilBank:
         self.core.set_status(self.grid.span)
         #: wheel-samples the longitudinal model did not describe, by the unusable code's name (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
+        self._bounds = class_bounds(constants)  # the soil classes' (names, ln K edges), for every state's class
 
     # the core's state, as it holds it (each a copy)
     p = core_attribute("p", "The pooled beliefs over the grid (N, G) (a copy).", "core")
@@ -175,7 +176,7 @@ class SoilBank:
         if unusable is None:
             return None
         codes = np.asarray(unusable, dtype=np.int64).reshape(k, 4)
-        if not codes.any():
+        if not np.count_nonzero(codes):  # (a C call; ndarray.any goes through numpy's Python wrappers)
             return None
         for c, n in enumerate(np.bincount(codes.ravel(), minlength=len(REASONS)).tolist()):
             if c and n:
@@ -205,7 +206,7 @@ class SoilBank:
                         _REASON_NAMES[why]])
         if rep:  # the class from the whole band (statistical and systematic), as reported
             js, ks, ls = zip(*rep)
-            cls, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            cls, conf = classify_many(np.log(ks), np.array(ls), self.c, self._bounds)
             for j, name, c in zip(js, cls, conf.tolist()):
                 out[j][3:5] = name, c
         return [SoilState(*o) for o in out]
