@@ -102,17 +102,21 @@ def _forces(normal_forces) -> np.ndarray:
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
-                 j: int) -> SoilEstimate:
+                 j: int, **where) -> SoilEstimate:
     """The j-th vehicle of a soil-kernel step as the SoilEstimate message: slip (4,) from ``inp``,
     K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,) and its
-    determined flags (4,) passed through."""
-    return SoilEstimate(
+    determined flags (4,) passed through; ``where=`` the estimate's place, where it has one."""
+    # the model's validator on the fields (what SoilEstimate(**fields) runs, without the keyword call)
+    return _validate_soil(dict(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
         reason=st.reason, reason_code=st.reason_code, last_update_stamp=st.last_update_stamp, mu=_quad(mu),
-        mu_determined=_bools(mu_determined), held_for_s=st.held_for_s, unusable=st.unusable,
-    )
+        mu_determined=_bools(mu_determined), held_for_s=st.held_for_s, unusable=st.unusable, **where,
+    ))
+
+
+_validate_soil = SoilEstimate.__pydantic_validator__.validate_python
 
 
 class Estimator:
@@ -236,14 +240,12 @@ class Estimator:
         inputs = _observer_input(sample, forces.normal_force, self.config.torque_constant)
         blocks, scaled = self.observer.run(self.chain.observe, ix, inputs)
         out = ObserverBlocks(*blocks)
+        # the sample's position and geo, for the soil estimate's place (docs/map.md)
+        place = sample if sample.position is not None or sample.geo is not None else None
         if scaled is None:
-            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
-        else:
-            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, float(scaled[0][0]),
-                                   float(scaled[1][0]))
-        if sample.position is not None or sample.geo is not None:  # for the soil estimate's place (docs/map.md)
-            msg = msg.model_copy(update={"position": sample.position, "geo": sample.geo})
-        return msg
+            return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, place=place)
+        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, float(scaled[0][0]),
+                                float(scaled[1][0]), place=place)
 
     def update(self, j: int, obs: ObserverOutput) -> SoilEstimate:
         """Vehicle ``j``'s soil stage: slip per wheel (eq. 1) from the filtered speeds, the gate (§9),
@@ -269,10 +271,10 @@ class Estimator:
                 use = use & informing[0]
             st = self.paper[j].update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0], use,
                                       inp.slip_sigma[0])
-        msg = soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
         if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
-            msg = msg.model_copy(update={"where": estimate_place(self.config.vehicle, obs.position, obs.geo, st.used)})
-        return msg
+            return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0,
+                                where=estimate_place(self.config.vehicle, obs.position, obs.geo, st.used))
+        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
 
     def feed(self, j: int, soil: SoilEstimate) -> None:
         """Vehicle ``j``'s soil estimate back to its torque scale: the next samples' modelled motion
