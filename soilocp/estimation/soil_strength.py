@@ -187,16 +187,17 @@ class SoilBank:
         """Each vehicle's state from the core's records ``report`` (``SoilGridBank.report``: codes, numbers,
         used wheels) and the wheels' unusable ``codes`` (k, 4) (None: all usable): the status and reason text
         from their codes, the class from the reported band (statistical and systematic)."""
-        flags, nums, used = (a.tolist() for a in report)
-        rows = [(0, 0, 0, 0)] * ix.size if codes is None else codes.tolist()
+        flags, nums, used = report[0].tolist(), report[1].tolist(), report[2].tolist()
+        rows = [_NO_CODES] * ix.size if codes is None else codes.tolist()
+        stamps = np.asarray(stamp, dtype=float).tolist()
         out, rep = [], []  # rep: (row, K, ln K 1-sigma) of the states that report a class
         for j, ((status, why, have), (k, k_std, log_std, last, *args), use, row) in enumerate(
                 zip(flags, nums, used, rows)):
-            st = float(stamp[j])
+            st = stamps[j]
             last = None if math.isnan(last) else last
             status = _STATUSES[status]
             reason = self._reason(why, args, row) if why else ""
-            unusable = tuple(REASONS[c] for c in row)
+            unusable = _ALL_USABLE if row is _NO_CODES else tuple(map(REASONS.__getitem__, row))
             if not have:
                 k = k_std = log_std = None
             elif status != "model_mismatch":
@@ -247,6 +248,9 @@ class SoilBank:
                     f"both {since} (sensor refresh too slow to measure traction)")
         raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
+
+_NO_CODES = (0, 0, 0, 0)  # every wheel usable: the unusable codes
+_ALL_USABLE = (REASONS[0],) * 4  # and their names
 
 #: the soil stage's status and reason codes, code -> name (soilocp/_core/src/codes.rs, the one definition)
 _STATUSES: tuple[Status, ...] = tuple(_core.SoilGridBank.status_names)
