@@ -58,6 +58,10 @@ class Service:
     def tick(self, now: float) -> None:
         """Periodic hook on the main thread (about every 50 ms); may set ``self.stop_event``."""
 
+    def ticks(self) -> bool:
+        """Whether :meth:`tick` has work in this process (else the main thread wakes only for the health)."""
+        return type(self).tick is not Service.tick
+
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
         """Extra fields of :class:`ServiceHealth` (``state``, ``stale``...)."""
         return {}
@@ -199,7 +203,7 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
         log.info("running", vehicle_ids=cfg.vehicle_ids)
         # the main thread wakes every 50 ms for a service with a tick, else only for its health (an idle wake-up
         # per 50 ms is a fifth of a 100 Hz stream's)
-        ticks = type(svc).tick is not Service.tick
+        ticks = svc.ticks()
         period = 0.05 if ticks else min(cfg.status_period_s, 0.5)
         next_status = 0.0
         while not stop.wait(period):

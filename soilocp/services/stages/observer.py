@@ -192,6 +192,9 @@ class ObserverService(StageService):
         else:
             super().handle(item)
 
+    def ticks(self) -> bool:
+        return bool(self.feedback)  # the soil feed's timeouts: nothing to time without a feedback
+
     def tick(self, now: float) -> None:
         mono = time.monotonic()
         for vid, fb in self.feedback.items():
