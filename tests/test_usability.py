@@ -109,6 +109,24 @@ def test_confirmed_cannot_contradict_the_status():
         OcpEstimate(status="ok", reason_code="made_up", **kw)
 
 
+def test_confirmed_null_is_filled_in_and_anything_but_the_status_bool_refused():
+    # confirmed is checked by a field validator and a model validator after the fields (no model validator
+    # before them, which would turn every record's JSON into Python objects first): the same rule
+    q = (0.0,) * 4
+    kw = dict(vehicle_id="v", seq=0, stamp=0.0, soil_strength=40.0, soil_strength_std=30.0, soil_class="sand",
+              mu_T=0.3, S_T=0.2, S_E=0.1, mu=q, slip=q)
+    for status, ok in (("ok", True), ("uncertain", False)):
+        extra = {} if ok else {"reason_code": "wide"}
+        absent, null = OcpEstimate(status=status, **extra, **kw), OcpEstimate(status=status, confirmed=None, **extra, **kw)
+        given = OcpEstimate.model_validate_json(absent.model_dump_json())
+        assert absent.confirmed is null.confirmed is given.confirmed is ok
+        assert "confirmed" in absent.model_fields_set and absent.model_dump_json() == given.model_dump_json()
+        for bad in (not ok, 1, 0, "true", "false", 1.0):
+            with pytest.raises(ValidationError, match="contradicts status"):
+                OcpEstimate.model_validate_json(absent.model_dump_json().replace(
+                    f'"confirmed":{str(ok).lower()}', f'"confirmed":{json.dumps(bad)}'))
+
+
 def test_every_reason_code_has_a_next_step_and_the_table_sorts_by_count():
     assert set(NEXT_STEPS) == set(REASON_CODES)
     rows = status_rows({("ok", "none"): 3, ("no_estimate", "not_yet"): 5})

@@ -45,13 +45,15 @@ __all__ = ["Estimator", "observer_inputs", "soil_message"]
 
 
 def _quad(a) -> tuple[float, float, float, float]:
+    if type(a) is tuple:  # a message's quad (the live soil stage's mu): the same floats, without an array
+        return tuple(map(float, a))  # type: ignore[return-value]
     if type(a) is not np.ndarray or a.dtype != np.float64:
         a = np.asarray(a, dtype=float)
     return tuple(a.tolist())  # type: ignore[return-value]
 
 
 def _bools(a) -> tuple[bool, bool, bool, bool]:
-    return tuple(a.tolist() if isinstance(a, np.ndarray) else (bool(v) for v in a))  # type: ignore[return-value]
+    return tuple(a.tolist() if isinstance(a, np.ndarray) else map(bool, a))  # type: ignore[return-value]
 
 
 def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence,
@@ -76,6 +78,21 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence,
     )
 
 
+def _observer_input(sample: SensorSample, normal_force, torque_constant: float = 1.0) -> ObserverInputs:
+    """:func:`observer_inputs` of one sample (k = 1), in two arrays (the live observer's, on every sample): the
+    same numbers, in the same shapes and dtype."""
+    s = sample
+    gs = s.ground_speed
+    sc = np.array(((s.stamp,), (s.specific_force[0],), (s.yaw_rate,), (s.pitch,), (np.nan if gs is None else gs,)),
+                  dtype=float)
+    q = np.array((s.wheel_speed, s.wheel_torque, normal_force), dtype=float)
+    torque = q[1:2]
+    if torque_constant != 1.0:
+        torque *= torque_constant
+    return ObserverInputs(stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
+                          wheel_speed=q[0:1], wheel_torque=torque, normal_force=q[2:3])
+
+
 def _forces(normal_forces) -> np.ndarray:
     """The normal-force quads as a new (k, 4) float array: a solver's (k, 4) block is copied whole (the
     batched service's), anything else stacked quad by quad."""
@@ -85,17 +102,21 @@ def _forces(normal_forces) -> np.ndarray:
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
-                 j: int) -> SoilEstimate:
+                 j: int, **where) -> SoilEstimate:
     """The j-th vehicle of a soil-kernel step as the SoilEstimate message: slip (4,) from ``inp``,
     K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,) and its
-    determined flags (4,) passed through."""
-    return SoilEstimate(
+    determined flags (4,) passed through; ``where=`` the estimate's place, where it has one."""
+    # the model's validator on the fields (what SoilEstimate(**fields) runs, without the keyword call)
+    return _validate_soil(dict(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
         reason=st.reason, reason_code=st.reason_code, last_update_stamp=st.last_update_stamp, mu=_quad(mu),
-        mu_determined=_bools(mu_determined), held_for_s=st.held_for_s, unusable=st.unusable,
-    )
+        mu_determined=_bools(mu_determined), held_for_s=st.held_for_s, unusable=st.unusable, **where,
+    ))
+
+
+_validate_soil = SoilEstimate.__pydantic_validator__.validate_python
 
 
 class Estimator:
@@ -133,6 +154,16 @@ class Estimator:
         self.curve = WheelCurve(cfg, n)  # the wheel's learnt curve and the OCP records' rule
         self.chain = _core.ChainCore(self.observer._core, self.gate.core, self.soil.core, self.scale._core,
                                      feed_soil=self.scale.active and cfg.torque_scale.model_resistance)
+        # each vehicle's index as the core's (1,) int64 array, for the stage steps (read-only: shared by every call)
+        self._ix: list[np.ndarray] = []
+        for j in range(n):
+            a = np.array([j], dtype=np.int64)
+            a.flags.writeable = False
+            self._ix.append(a)
+
+    def _one(self, j: int) -> np.ndarray:
+        """Vehicle ``j`` as the core's (1,) index array (one out of range goes to the core as it is, which refuses it)."""
+        return self._ix[j] if 0 <= j < self.n_vehicles else np.array([j], dtype=np.int64)
 
     @property
     def feeds_soil(self) -> bool:
@@ -205,18 +236,16 @@ class Estimator:
             raise ValueError(
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
-        ix = np.array([j], dtype=np.int64)
-        inputs = observer_inputs([sample], [forces.normal_force], self.config.torque_constant)
+        ix = self._one(j)
+        inputs = _observer_input(sample, forces.normal_force, self.config.torque_constant)
         blocks, scaled = self.observer.run(self.chain.observe, ix, inputs)
         out = ObserverBlocks(*blocks)
+        # the sample's position and geo, for the soil estimate's place (docs/map.md)
+        place = sample if sample.position is not None or sample.geo is not None else None
         if scaled is None:
-            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0)
-        else:
-            msg = observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, float(scaled[0][0]),
-                                   float(scaled[1][0]))
-        if sample.position is not None or sample.geo is not None:  # for the soil estimate's place (docs/map.md)
-            msg = msg.model_copy(update={"position": sample.position, "geo": sample.geo})
-        return msg
+            return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, place=place)
+        return observer_message(sample.vehicle_id, sample.seq, sample.stamp, out, 0, float(scaled[0][0]),
+                                float(scaled[1][0]), place=place)
 
     def update(self, j: int, obs: ObserverOutput) -> SoilEstimate:
         """Vehicle ``j``'s soil stage: slip per wheel (eq. 1) from the filtered speeds, the gate (§9),
@@ -226,7 +255,7 @@ class Estimator:
         Returns K (>0, dimensionless, the paper's soil strength) and its 1-sigma, the soil class
         with its probability, and a status that says when K is not determined, not observable, or
         not explained by the traction curve (§11-13), with the reason."""
-        ix = np.array([j], dtype=np.int64)
+        ix = self._one(j)
         rows = pack_message(obs)  # the observer's output as the one array the core reads
         stamp = np.array([obs.stamp])
         scale_sigma = None if obs.torque_scale_std is None else np.array([obs.torque_scale_std])
@@ -242,10 +271,10 @@ class Estimator:
                 use = use & informing[0]
             st = self.paper[j].update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0], use,
                                       inp.slip_sigma[0])
-        msg = soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
         if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
-            msg = msg.model_copy(update={"where": estimate_place(self.config.vehicle, obs.position, obs.geo, st.used)})
-        return msg
+            return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0,
+                                where=estimate_place(self.config.vehicle, obs.position, obs.geo, st.used))
+        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
 
     def feed(self, j: int, soil: SoilEstimate) -> None:
         """Vehicle ``j``'s soil estimate back to its torque scale: the next samples' modelled motion
@@ -254,4 +283,4 @@ class Estimator:
         if not self.chain.feeds_soil:
             return
         k = np.array([np.nan if soil.soil_strength is None else soil.soil_strength])
-        self.chain.feed(np.array([j], dtype=np.int64), k, np.array([soil.slip], dtype=float))
+        self.chain.feed(self._one(j), k, np.array([soil.slip], dtype=float))

@@ -27,9 +27,13 @@ class NormalForceStage:
         Returns F_z per wheel (4,), N, wheels 1 LR, 2 LF, 3 RF, 4 RR (eqs. 21-25, the zero-warp
         solution; not clipped: <= 0 is a lifted wheel, docs/method.md §2-3).  ValueError naming
         ``specific_force`` and its value if it is not three finite numbers."""
-        return NormalForces(
+        # the model's validator on the fields (what NormalForces(**fields) runs, without the keyword call)
+        return _validate(dict(
             vehicle_id=sample.vehicle_id,
             seq=sample.seq,
             stamp=sample.stamp,
             normal_force=solve_one(self._solver, sample.specific_force),
-        )
+        ))
+
+
+_validate = NormalForces.__pydantic_validator__.validate_python

@@ -180,11 +180,11 @@ if _shadowed:
 
 
 def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBlocks, j: int,
-                     torque_scale: float = 1.0, torque_scale_std: float | None = None) -> ObserverOutput:
+                     torque_scale: float = 1.0, torque_scale_std: float | None = None, place=None) -> ObserverOutput:
     """The j-th vehicle of an observer step (eqs. 26-35: the posterior's traction, resistance and speeds, with the
     readings clock, latency and refresh pairs of docs/method.md §13) as the ObserverOutput message, every row as
     the field of its name, with the online torque scale the torques were multiplied by and its relative 1-sigma
-    (None: the state is off)."""
+    (None: the state is off); ``place``: the sample whose position and geo it passes on (None: none)."""
     quads, flats, bool_quads, bool_flats, rejected, codes = out
     # one tolist per block (a (len, 4) view for vehicle j) and tuples, which pydantic takes for the Quad
     # fields without a conversion
@@ -193,9 +193,16 @@ def observer_message(vehicle_id: str, seq: int, stamp: float, out: ObserverBlock
     rows.update(zip(BOOL_QUAD_FIELDS, map(tuple, bool_quads[:, j].tolist())))
     rows.update(zip(BOOL_FLAT_FIELDS, bool_flats[:, j].tolist()))
     code = int(codes[j])
-    return ObserverOutput(vehicle_id=vehicle_id, seq=seq, stamp=stamp, rejected_measurements=int(rejected[j]),
-                          reset_reason=RESET_REASONS[code - 1] if code else "", torque_scale=torque_scale,
-                          torque_scale_std=torque_scale_std, **rows)
+    rows.update(vehicle_id=vehicle_id, seq=seq, stamp=stamp, rejected_measurements=int(rejected[j]),
+                reset_reason=RESET_REASONS[code - 1] if code else "", torque_scale=torque_scale,
+                torque_scale_std=torque_scale_std)
+    if place is not None:
+        rows.update(position=place.position, geo=place.geo)
+    # the model's validator on the fields (what ObserverOutput(**rows) runs, without the keyword call)
+    return _validate_observer(rows)
+
+
+_validate_observer = ObserverOutput.__pydantic_validator__.validate_python
 
 
 class ObserverBank:

@@ -71,11 +71,12 @@ def classify(soil_strength: float, log_k_std: float, constants: ModelConstants =
 
 
 def classify_many(log_k: np.ndarray, log_k_std: np.ndarray,
-                  constants: ModelConstants = DEFAULT_CONSTANTS) -> tuple[list[str], np.ndarray]:
+                  constants: ModelConstants = DEFAULT_CONSTANTS, bounds=None) -> tuple[list[str], np.ndarray]:
     """For n beliefs ln K ~ N(log_k, log_k_std^2) (n,): the most probable soil class of each and its
     probability (the Gaussian's mass between the class boundaries of :func:`class_bounds`; the compiled
-    core's soil/classes.rs, with the C library's erf, as math.erf)."""
-    names, edges = class_bounds(constants)
+    core's soil/classes.rs, with the C library's erf, as math.erf).  ``bounds``: ``class_bounds(constants)``,
+    when the caller holds them (else looked up by the soil table, on every call)."""
+    names, edges = class_bounds(constants) if bounds is None else bounds
     i, conf = _core.soil_classes(_row(log_k), _row(log_k_std), edges)
     return [names[j] for j in i.tolist()], conf
 

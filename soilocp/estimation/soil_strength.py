@@ -43,7 +43,7 @@ from soilocp.model.constants import DEFAULT_CONSTANTS, ModelConstants
 from soilocp.model.traction import gross_traction_with_derivatives, net_traction_with_derivatives
 from soilocp.estimation.core_attribute import core_attribute
 from soilocp.estimation.soil_config import SoilConfig, Status
-from soilocp.estimation.soil_state import SoilInputs, SoilState, classify, classify_many
+from soilocp.estimation.soil_state import SoilInputs, SoilState, class_bounds, classify, classify_many
 from soilocp.estimation.soil_grid import LogKGrid
 from soilocp.estimation.wheel_usability import REASONS, describe
 
@@ -125,6 +125,7 @@ class SoilBank:
         self.core.set_status(self.grid.span)
         #: wheel-samples the longitudinal model did not describe, by the unusable code's name (the health counters)
         self.unusable_by_reason: dict[str, int] = {r: 0 for r in REASONS if r}
+        self._bounds = class_bounds(constants)  # the soil classes' (names, ln K edges), for every state's class
 
     # the core's state, as it holds it (each a copy)
     p = core_attribute("p", "The pooled beliefs over the grid (N, G) (a copy).", "core")
@@ -175,7 +176,7 @@ class SoilBank:
         if unusable is None:
             return None
         codes = np.asarray(unusable, dtype=np.int64).reshape(k, 4)
-        if not codes.any():
+        if not np.count_nonzero(codes):  # (a C call; ndarray.any goes through numpy's Python wrappers)
             return None
         for c, n in enumerate(np.bincount(codes.ravel(), minlength=len(REASONS)).tolist()):
             if c and n:
@@ -186,16 +187,17 @@ class SoilBank:
         """Each vehicle's state from the core's records ``report`` (``SoilGridBank.report``: codes, numbers,
         used wheels) and the wheels' unusable ``codes`` (k, 4) (None: all usable): the status and reason text
         from their codes, the class from the reported band (statistical and systematic)."""
-        flags, nums, used = (a.tolist() for a in report)
-        rows = [(0, 0, 0, 0)] * ix.size if codes is None else codes.tolist()
+        flags, nums, used = report[0].tolist(), report[1].tolist(), report[2].tolist()
+        rows = [_NO_CODES] * ix.size if codes is None else codes.tolist()
+        stamps = np.asarray(stamp, dtype=float).tolist()
         out, rep = [], []  # rep: (row, K, ln K 1-sigma) of the states that report a class
         for j, ((status, why, have), (k, k_std, log_std, last, *args), use, row) in enumerate(
                 zip(flags, nums, used, rows)):
-            st = float(stamp[j])
+            st = stamps[j]
             last = None if math.isnan(last) else last
             status = _STATUSES[status]
             reason = self._reason(why, args, row) if why else ""
-            unusable = tuple(REASONS[c] for c in row)
+            unusable = _ALL_USABLE if row is _NO_CODES else tuple(map(REASONS.__getitem__, row))
             if not have:
                 k = k_std = log_std = None
             elif status != "model_mismatch":
@@ -205,7 +207,7 @@ class SoilBank:
                         _REASON_NAMES[why]])
         if rep:  # the class from the whole band (statistical and systematic), as reported
             js, ks, ls = zip(*rep)
-            cls, conf = classify_many(np.log(ks), np.array(ls), self.c)
+            cls, conf = classify_many(np.log(ks), np.array(ls), self.c, self._bounds)
             for j, name, c in zip(js, cls, conf.tolist()):
                 out[j][3:5] = name, c
         return [SoilState(*o) for o in out]
@@ -246,6 +248,9 @@ class SoilBank:
                     f"both {since} (sensor refresh too slow to measure traction)")
         raise ValueError(f"reason code {why}: unknown to this version of soilocp (the core is newer?)")
 
+
+_NO_CODES = (0, 0, 0, 0)  # every wheel usable: the unusable codes
+_ALL_USABLE = (REASONS[0],) * 4  # and their names
 
 #: the soil stage's status and reason codes, code -> name (soilocp/_core/src/codes.rs, the one definition)
 _STATUSES: tuple[Status, ...] = tuple(_core.SoilGridBank.status_names)

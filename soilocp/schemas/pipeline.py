@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from soilocp.schemas.codes import REASONS, STATUSES
 from soilocp.schemas.position import EstimatePlace, GeoPosition, MapPosition
@@ -49,18 +49,27 @@ _CONFIRMED_DOC = (
 )
 
 
-def _confirmed_from_status(data):
-    """``confirmed`` from ``status`` (a record's input as a dict): filled in when absent, refused when it
-    contradicts the status (the flag a consumer acts on must not disagree with the status it summarises)."""
-    if isinstance(data, dict):
-        ok = data.get("status") == "ok"
-        given = data.get("confirmed")
-        if given is None:
-            return {**data, "confirmed": ok}
-        if given is not ok:
-            raise ValueError(f"confirmed={given!r} contradicts status {data.get('status')!r}: confirmed is true "
-                             "exactly when status is 'ok'")
-    return data
+def _confirmed_given(value, info: ValidationInfo):
+    """A given ``confirmed`` (a field validator, before the bool's own): null is filled in from ``status``, anything
+    but the bool that the status implies is refused (the flag a consumer acts on must not disagree with the status
+    it summarises).  Paired with :func:`_confirmed_absent`.  (Not one model validator before the fields: that one
+    makes pydantic turn every record's JSON into Python objects first, 10 us a record at 100 Hz.)"""
+    status = info.data.get("status")
+    ok = status == "ok"
+    if value is None:
+        return ok
+    if value is not ok:
+        raise ValueError(f"confirmed={value!r} contradicts status {status!r}: confirmed is true "
+                         "exactly when status is 'ok'")
+    return value
+
+
+def _confirmed_absent(record):
+    """An absent ``confirmed`` from ``status`` (a model validator, after the fields), set as if given."""
+    if "confirmed" not in record.__pydantic_fields_set__:
+        object.__setattr__(record, "confirmed", record.status == "ok")
+        record.__pydantic_fields_set__.add("confirmed")
+    return record
 
 
 class _Message(BaseModel):
@@ -199,7 +208,8 @@ class SoilEstimate(_Message):
         description="Contact patches of the wheels that informed this estimate (absent without a position or "
         "without an informing wheel): what the fleet soil map fuses (docs/map.md)")
 
-    _confirmed = model_validator(mode="before")(_confirmed_from_status)
+    _confirmed = field_validator("confirmed", mode="before")(_confirmed_given)
+    _confirmed_default = model_validator(mode="after")(_confirmed_absent)
 
 
 class OcpEstimate(_Message):
@@ -238,4 +248,5 @@ class OcpEstimate(_Message):
         default=("", "", "", ""), description="Per wheel: why it informs no K now (the soil estimate's unusable)"
     )
 
-    _confirmed = model_validator(mode="before")(_confirmed_from_status)
+    _confirmed = field_validator("confirmed", mode="before")(_confirmed_given)
+    _confirmed_default = model_validator(mode="after")(_confirmed_absent)

@@ -30,6 +30,9 @@ class Service:
     """Base of the pipeline services: per-vehicle declarations, one worker, health and liveliness."""
 
     name: ClassVar[str] = "service"
+    #: whether :meth:`handle` reads each sample's own key (``WorkItem.key``, ``str(sample.key_expr)``: 0.8 us a
+    #: message); else ``WorkItem.key`` is the key the subscriber was declared on
+    needs_key: ClassVar[bool] = False
 
     def __init__(self, cfg: ServiceConfig, log: JsonLog):
         self.cfg = cfg
@@ -55,6 +58,10 @@ class Service:
     def tick(self, now: float) -> None:
         """Periodic hook on the main thread (about every 50 ms); may set ``self.stop_event``."""
 
+    def ticks(self) -> bool:
+        """Whether :meth:`tick` has work in this process (else the main thread wakes only for the health)."""
+        return type(self).tick is not Service.tick
+
     def health_extra(self, vehicle_id: str) -> dict[str, Any]:
         """Extra fields of :class:`ServiceHealth` (``state``, ``stale``...)."""
         return {}
@@ -70,9 +77,14 @@ class Service:
         offer = self.worker.offer
         clock = time.time
 
-        def _cb(sample) -> None:
-            counters.received += 1
-            offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), str(sample.key_expr)))
+        if self.needs_key:
+            def _cb(sample) -> None:
+                counters.received += 1
+                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), str(sample.key_expr)))
+        else:
+            def _cb(sample) -> None:
+                counters.received += 1
+                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), key))
 
         self.keep(session.declare_subscriber(key, _cb))
 
@@ -191,7 +203,7 @@ def run_service(service_cls: type[Service], cfg: ServiceConfig, **kwargs: Any) -
         log.info("running", vehicle_ids=cfg.vehicle_ids)
         # the main thread wakes every 50 ms for a service with a tick, else only for its health (an idle wake-up
         # per 50 ms is a fifth of a 100 Hz stream's)
-        ticks = type(svc).tick is not Service.tick
+        ticks = svc.ticks()
         period = 0.05 if ticks else min(cfg.status_period_s, 0.5)
         next_status = 0.0
         while not stop.wait(period):

@@ -15,7 +15,7 @@ class WorkItem(NamedTuple):
     kind: str  # which of the service's inputs (a row's ``StageInput.kind``)
     payload: bytes
     wall: float  # receive time, s since the epoch
-    key: str
+    key: str  # the sample's key where the service reads it (Service.needs_key), else the key subscribed
 
 
 #: The :class:`Counters` fields that a ServiceHealth reports as they are.

@@ -120,6 +120,7 @@ class GatewayService(StageService):
     (the next published one counts those not published in ``suppressed``)."""
 
     spec = BY_NAME["gateway"]
+    needs_key = True  # the raw sample's own key is checked (bad_key)
 
     def __init__(self, cfg, log):
         super().__init__(cfg, log)

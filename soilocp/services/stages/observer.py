@@ -186,12 +186,14 @@ class ObserverService(StageService):
 
     def handle(self, item: WorkItem) -> None:
         if item.kind == "soil":
-            soil = self.spec.input_model("soil").model_validate_json(item.payload)
-            self.feedback[item.vehicle_id].add_soil(soil)
+            self.feedback[item.vehicle_id].add_soil(self.parsers["soil"](item.payload))
         elif item.kind == "feed_timeout":
             self.feedback[item.vehicle_id].drain()
         else:
             super().handle(item)
+
+    def ticks(self) -> bool:
+        return bool(self.feedback)  # the soil feed's timeouts: nothing to time without a feedback
 
     def tick(self, now: float) -> None:
         mono = time.monotonic()
