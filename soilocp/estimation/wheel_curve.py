@@ -29,6 +29,7 @@ loads none.
 from __future__ import annotations
 
 import math
+import operator
 from typing import Optional, Sequence
 
 from soilocp.estimation.settings_model import core_values
@@ -57,6 +58,10 @@ BEYOND_REASON = ("K {k:.0f} is beyond the soils the wheel's calibration was fitt
                  "OCPs are extrapolated; drive the calibration on this soil too")
 
 
+#: what ``OcpEstimate(**fields)`` runs (the whole validation), without the keyword call
+_validate_ocp = OcpEstimate.__pydantic_validator__.validate_python
+
+
 def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model", bands=(None, None),
                 status: Optional[str] = None, reason: Optional[str] = None,
                 reason_code: Optional[str] = None) -> OcpEstimate:
@@ -69,7 +74,7 @@ def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model
     k, log_std = soil.soil_strength, soil.log_k_std
     low, high = (None, None) if k is None or log_std is None else (k * math.exp(-2.0 * log_std),
                                                                     k * math.exp(2.0 * log_std))
-    return OcpEstimate(
+    return _validate_ocp(dict(
         vehicle_id=soil.vehicle_id, seq=soil.seq, stamp=soil.stamp, soil_strength=k,
         soil_strength_std=soil.soil_strength_std, soil_strength_low=low, soil_strength_high=high,
         soil_class=soil.soil_class,
@@ -77,7 +82,7 @@ def ocp_message(soil: SoilEstimate, values: Sequence[float], curve: str = "model
         reason=soil.reason if reason is None else reason, reason_code=reason_code or soil.reason_code, mu=soil.mu,
         mu_determined=soil.mu_determined, slip=soil.slip, mu_T=mu_t, S_T=s_t, S_E=s_e, te_at_S_E=te,
         curve=curve, mu_T_std=bands[0], S_T_std=bands[1], held_for_s=soil.held_for_s, unusable=soil.unusable,
-    )
+    ))
 
 
 class WheelCurve:
@@ -98,7 +103,7 @@ class WheelCurve:
         """Vehicle ``j``'s learnt curve after this soil estimate (None: none yet, or learning is off)."""
         if self.bank is None:
             return None
-        used = tuple(i and d for i, d in zip(soil.informative, soil.mu_determined))
+        used = tuple(map(operator.and_, soil.informative, soil.mu_determined))
         return self.bank.step(j, soil.stamp, soil.slip, soil.mu, used)
 
     def bands(self, fit) -> tuple[float, float]:
