@@ -92,8 +92,8 @@ class WheelCurve:
         c = config.curve
         self.config = c
         self.checked = curve_checked(config.vehicle)
-        #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
         self.kernel = config.constants.kernel
+        #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
         kr = config.constants.k_range
         self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
         self.bank = _core.CurveBank(n_vehicles, core_values(c, "curve")) \
