@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Instructions per sample of the offline chain (soilocp.estimation.estimate.estimate_lines), counted by
 # valgrind's callgrind: a figure that does not depend on how busy the machine is.
-# Ir(n = N2 samples) - Ir(n = N1 samples), divided by N2 - N1: start-up and imports cancel out.
-#   scripts/instructions_per_sample.sh [PYTHON] [N1] [N2]      (default .venv/bin/python 200 300)
+# Ir(n = N2 samples) - Ir(n = N1 samples), divided by N2 - N1: start-up and imports cancel out.  The two totals
+# (~1.4e9 each) vary by a few 1e6 from run to run, so N2 - N1 must be ~1000 for a figure good to ~1 %
+# (with 100 it swings by +-10 %).
+#   scripts/instructions_per_sample.sh [PYTHON] [N1] [N2]      (default .venv/bin/python 200 1200)
 set -euo pipefail
-PY=${1:-.venv/bin/python}; N1=${2:-200}; N2=${3:-300}
+PY=${1:-.venv/bin/python}; N1=${2:-200}; N2=${3:-1200}
 DRIVE=$(mktemp --suffix=.jsonl)
 trap 'rm -f "$DRIVE"' EXIT
 "$PY" - "$DRIVE" "$N2" <<'PYEOF'
