@@ -64,33 +64,18 @@ def observer_inputs(samples: Sequence[SensorSample], normal_forces: Sequence,
     logged torques times ``torque_constant`` (N m per unit of the log's column, PipelineConfig)."""
     if len(samples) != len(normal_forces):
         raise ValueError(f"{len(samples)} samples but {len(normal_forces)} normal-force quads")
-    # one array for the scalars and one per quad: a handful of numpy calls whatever k is
+    # one array for the scalars and one for the speed and torque quads: a handful of numpy calls whatever k is
+    # (the live observer builds one sample's on every message)
     sc = np.array([(s.stamp, s.specific_force[0], s.yaw_rate, s.pitch, np.nan if s.ground_speed is None
                     else s.ground_speed) for s in samples], dtype=float).reshape(-1, 5).T
-    torque = np.array([s.wheel_torque for s in samples], dtype=float).reshape(-1, 4)
+    q = np.array(([s.wheel_speed for s in samples], [s.wheel_torque for s in samples]), dtype=float).reshape(2, -1, 4)
+    torque = q[1]
     if torque_constant != 1.0:
         torque *= torque_constant
     return ObserverInputs(
         stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
-        wheel_speed=np.array([s.wheel_speed for s in samples], dtype=float).reshape(-1, 4),
-        wheel_torque=torque,
-        normal_force=_forces(normal_forces),
+        wheel_speed=q[0], wheel_torque=torque, normal_force=_forces(normal_forces),
     )
-
-
-def _observer_input(sample: SensorSample, normal_force, torque_constant: float = 1.0) -> ObserverInputs:
-    """:func:`observer_inputs` of one sample (k = 1), in two arrays (the live observer's, on every sample): the
-    same numbers, in the same shapes and dtype."""
-    s = sample
-    gs = s.ground_speed
-    sc = np.array(((s.stamp,), (s.specific_force[0],), (s.yaw_rate,), (s.pitch,), (np.nan if gs is None else gs,)),
-                  dtype=float)
-    q = np.array((s.wheel_speed, s.wheel_torque, normal_force), dtype=float)
-    torque = q[1:2]
-    if torque_constant != 1.0:
-        torque *= torque_constant
-    return ObserverInputs(stamp=sc[0], specific_force_x=sc[1], yaw_rate=sc[2], pitch=sc[3], ground_speed=sc[4],
-                          wheel_speed=q[0:1], wheel_torque=torque, normal_force=q[2:3])
 
 
 def _forces(normal_forces) -> np.ndarray:
@@ -237,7 +222,7 @@ class Estimator:
                 f"normal forces are for {forces.vehicle_id}#{forces.seq}, sample is {sample.vehicle_id}#{sample.seq}"
             )
         ix = self._one(j)
-        inputs = _observer_input(sample, forces.normal_force, self.config.torque_constant)
+        inputs = observer_inputs((sample,), (forces.normal_force,), self.config.torque_constant)
         blocks, scaled = self.observer.run(self.chain.observe, ix, inputs)
         out = ObserverBlocks(*blocks)
         # the sample's position and geo, for the soil estimate's place (docs/map.md)

@@ -77,14 +77,12 @@ class Service:
         offer = self.worker.offer
         clock = time.time
 
-        if self.needs_key:
-            def _cb(sample) -> None:
-                counters.received += 1
-                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), str(sample.key_expr)))
-        else:
-            def _cb(sample) -> None:
-                counters.received += 1
-                offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(), key))
+        needs_key = self.needs_key
+
+        def _cb(sample) -> None:
+            counters.received += 1
+            offer(WorkItem(vehicle_id, kind, sample.payload.to_bytes(), clock(),
+                           str(sample.key_expr) if needs_key else key))
 
         self.keep(session.declare_subscriber(key, _cb))
 
