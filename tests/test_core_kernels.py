@@ -163,6 +163,18 @@ def test_constants_kernel_follows_model_copy():
     assert net_traction_with_derivatives(0.001, 50.0, printed)[0] == pytest.approx(ref.curve("net", 0.001, 50.0, printed)[0], rel=REL)
 
 
+def test_constants_equal_whether_or_not_their_kernel_was_built():
+    """The kernel is a cache: constants read back from a file equal the ones whose kernel a stage built."""
+    from soilocp.model.constants import ModelConstants
+
+    built = ModelConstants(C3=5.2)
+    assert built.kernel is not None
+    fresh = ModelConstants.model_validate_json(built.model_dump_json())
+    assert fresh == built and built == fresh
+    assert fresh != built.model_copy(update={"C3": 5.3})
+    assert built != "C3=5.2"
+
+
 def test_the_core_imports_nothing_above_it():
     """The core is below the library that calls it: importing it loads no soilocp module but the
     package itself (and numpy only when an array crosses)."""

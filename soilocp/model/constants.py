@@ -121,6 +121,13 @@ class ModelConstants(BaseModel):
             private["_kernel"] = cached
         return cached[1]
 
+    def __eq__(self, other: object) -> bool:
+        """Constants of the same values are equal whether or not either has built its kernel (a cache, not a
+        value: pydantic's own equality would compare it too)."""
+        if not isinstance(other, BaseModel):
+            return NotImplemented
+        return type(other) is type(self) and self.__dict__ == other.__dict__
+
 
 _KERNEL_FIELDS = ("C1", "C2", "C3", "C4", "C5", "C6", "alpha", "beta", "bridge_slip")
 

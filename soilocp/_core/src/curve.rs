@@ -31,7 +31,8 @@ settings_struct! {
         /// Mean departure of those pairs' traction coefficient from the curve beyond which the soil
         /// changed (the pairs are dropped and the fit starts over).
         change_shift: Float = 0.04, Internal, "", [gt 0.0];
-        /// Recent pairs needed to judge a change of soil.
+        /// Recent pairs needed to judge a change of soil, counted as pairs on the curve's flat part
+        /// (pair_slip_sigma).
         change_pairs: Int = 20.0, Internal, "", [ge 1.0];
         /// |slip| below this is not fitted (the zero-slip bridge, eq. 1's noise).
         slip_min: Float = 0.02, Internal, "", [ge 0.0];
@@ -46,6 +47,13 @@ settings_struct! {
         peak_span: Float = 0.1, Internal, "", [gt 0.0];
         /// Time between two fits (and at once after a change of soil).
         interval: Float = 0.5, Internal, "s", [ge 0.0];
+        /// 1-sigma of a pair's slip (the ground speed's noise and lag): where the curve rises steeply
+        /// a small slip error is a large traction error, so in the change test a pair counts as
+        /// s_mu^2 / (s_mu^2 + (dmu/dS s_slip)^2) of a pair on the curve's flat part (s_slip this,
+        /// s_mu pair_mu_sigma).
+        pair_slip_sigma: Float = 0.03, Internal, "", [ge 0.0];
+        /// 1-sigma of a pair's net traction coefficient where the curve is flat (the observer's).
+        pair_mu_sigma: Float = 0.02, Internal, "", [gt 0.0];
     }
 }
 
@@ -90,6 +98,20 @@ pub struct Fit {
 /// Net traction mu(S) = A (1 - e^(-C3 S)) - c - b S on one soil (eq. 6, S > 0).
 pub fn shape(s: f64, a: f64, c3: f64, b: f64, c: f64) -> f64 {
     a * (1.0 - (-c3 * s).exp()) - c - b * s
+}
+
+/// Slope dmu/dS of [`shape`] at `s`.
+pub fn slope(s: f64, a: f64, c3: f64, b: f64) -> f64 {
+    a * c3 * (-c3 * s).exp() - b
+}
+
+/// How much a pair on a curve of slope `dmu` tells of its traction, as a share of a pair where the
+/// curve is flat: s_mu^2 / (s_mu^2 + (dmu s_slip)^2) with s_mu `pair_mu_sigma` and s_slip
+/// `pair_slip_sigma`, the slip's error carried into traction (errors in variables).
+fn weight(p: &Params, dmu: f64) -> f64 {
+    let m2 = p.pair_mu_sigma * p.pair_mu_sigma;
+    let e = dmu * p.pair_slip_sigma;
+    m2 / (m2 + e * e)
 }
 
 /// S_T and mu_T of a shape: the slip where dmu/dS = 0 (eq. 7's form) and mu there (eq. 8's); None
@@ -170,24 +192,37 @@ impl CurveLearner {
         // after a change, would read the next flank's pairs as another change
         if let Some(f) = self.fit.filter(|f| f.shown) {
             let since = stamp - p.change_window;
-            let recent: Vec<f64> = self
+            // (weight, residual) of the recent pairs, newest first: on the curve's steep rise a GNSS-grade
+            // ground speed's slip error alone leaves a pair well below or above the curve, so such a pair
+            // counts for little (`weight`) and a few of them tell no change
+            let recent: Vec<(f64, f64)> = self
                 .pairs
                 .iter()
                 .rev()
                 .take_while(|q| q.t > since)
-                .map(|q| q.mu - shape(q.s, f.a, f.c3, f.b, f.c))
+                .map(|q| {
+                    (
+                        weight(&p, slope(q.s, f.a, f.c3, f.b)),
+                        q.mu - shape(q.s, f.a, f.c3, f.b, f.c),
+                    )
+                })
                 .collect();
             let n = recent.len();
-            // a shift beyond the noise the fit leaves, and beyond change_shift
+            let (total_w, total) = recent.iter().fold((0.0, 0.0), |(sw, sr), (w, r)| (sw + w, sr + w * r));
+            // change_pairs flat-part pairs' worth, whose weighted mean shift is beyond the noise the fit
+            // leaves and beyond change_shift
             let shift = p.change_shift.max(CHANGE_RMS * f.rms);
-            if n as f64 >= p.change_pairs && (recent.iter().sum::<f64>() / n as f64).abs() > shift {
-                // the change's moment: the split of the recent residuals (newest first) whose two means differ
-                // the most, weighted by their counts; the pairs before it are the old soil's
-                let total: f64 = recent.iter().sum();
-                let (mut head, mut best, mut keep) = (0.0, 0.0, n);
-                for (k, r) in recent.iter().enumerate().take(n - 1) {
-                    head += r;
-                    let (na, nb) = ((k + 1) as f64, (n - k - 1) as f64);
+            if total_w >= p.change_pairs && (total / total_w).abs() > shift {
+                // the change's moment: the split of the recent residuals (newest first) whose two weighted
+                // means differ the most, weighted by their weights; the pairs before it are the old soil's
+                let (mut head_w, mut head, mut best, mut keep) = (0.0, 0.0, 0.0, n);
+                for (k, (w, r)) in recent.iter().enumerate().take(n - 1) {
+                    head_w += w;
+                    head += w * r;
+                    let (na, nb) = (head_w, total_w - head_w);
+                    if na <= 0.0 || nb <= 0.0 {
+                        continue;
+                    }
                     let gap = head / na - (total - head) / nb;
                     let score = na * nb / (na + nb) * gap * gap;
                     if score > best {
@@ -582,6 +617,28 @@ mod tests {
         }
         assert!(fit.is_none(), "{fit:?}");
         assert!(l.pairs.iter().all(|q| q.t >= 6.0), "older pairs kept");
+        assert_eq!(l.changes(), 1);
+    }
+
+    #[test]
+    fn slip_errors_on_the_steep_rise_tell_no_change() {
+        let mut l = CurveLearner::new(Params::default());
+        assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some_and(|f| f.shown));
+        // the sweep's low end with every slip read 0.04 high for 0.3 s (a late GNSS ground speed): the
+        // traction sits about 0.1 below the curve at those slips, yet the ground did not change
+        let (a, c3, b, c) = tyre_shape();
+        for i in 0..30 {
+            let t = 6.0 + i as f64 / 100.0;
+            let s = 0.05 + 0.001 * i as f64;
+            l.step(t, &[s + 0.04; 4], &[shape(s, a, c3, b, c); 4], &[true; 4]);
+        }
+        assert_eq!(l.changes(), 0);
+        // the traction 0.1 lower near the peak, where the curve is flat: another soil
+        for i in 0..50 {
+            let t = 6.3 + i as f64 / 100.0;
+            let s = 0.4 + 0.001 * i as f64;
+            l.step(t, &[s; 4], &[shape(s, a, c3, b, c) - 0.1; 4], &[true; 4]);
+        }
         assert_eq!(l.changes(), 1);
     }
 
