@@ -84,20 +84,24 @@ class DriveFit:
 
 def soil_pairs(records: Iterable[dict], source: str, curve: CurveConfig, min_pairs: int) -> list[SoilPairs]:
     """The informative (slip, net traction) pairs of a drive's estimate records, split into soils where the
-    core's curve learner sees a change, each soil with at least ``min_pairs`` pairs."""
+    core's curve learner sees a change, each soil with at least ``min_pairs`` pairs.  As in the learner, pairs
+    formed under a ground-speed latency estimate more than ``curve.latency_change`` from the soil's last are
+    left out: their slips carry the old lag's error."""
     bank = _core.CurveBank(1, core_values(curve, "curve"))
-    rows: list[tuple[int, float, float, float, int]] = []
+    rows: list[tuple[int, float, float, float, int, float]] = []
     for r in records:
         used = tuple(bool(i and d) for i, d in zip(r["informative"], r["mu_determined"]))
-        bank.step(0, r["stamp"], tuple(r["slip"]), tuple(r["mu"]), used)
+        latency = float(r.get("ground_speed_latency", 0.0))
+        bank.step(0, r["stamp"], tuple(r["slip"]), tuple(r["mu"]), used, latency)
         soil = bank.changes(0)
         for w, (s, m, u) in enumerate(zip(r["slip"], r["mu"], used)):
             if u and curve.slip_min <= abs(s) <= curve.slip_max:
                 sign = 1.0 if s > 0 else -1.0
-                rows.append((soil, r["stamp"], s * sign, m * sign, w))
+                rows.append((soil, r["stamp"], s * sign, m * sign, w, latency))
     out = []
     for j in sorted({q[0] for q in rows}):
         sel = np.array([q[1:] for q in rows if q[0] == j])
+        sel = sel[np.abs(sel[:, 4] - sel[-1, 4]) <= curve.latency_change]
         if len(sel) >= min_pairs:
             out.append(SoilPairs(source, j, sel[:, 0], sel[:, 1], sel[:, 2], sel[:, 3].astype(int)))
     return out

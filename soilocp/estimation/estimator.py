@@ -87,17 +87,19 @@ def _forces(normal_forces) -> np.ndarray:
 
 
 def soil_message(vehicle_id: str, seq: int, stamp: float, inp: SoilInputs, st: SoilState, mu, mu_determined,
-                 j: int, **where) -> SoilEstimate:
+                 latency: float, j: int, **where) -> SoilEstimate:
     """The j-th vehicle of a soil-kernel step as the SoilEstimate message: slip (4,) from ``inp``,
-    K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,) and its
-    determined flags (4,) passed through; ``where=`` the estimate's place, where it has one."""
+    K, its std (and ln K's), class, status and reason from ``st``, the observer's mu (4,), its
+    determined flags (4,) and ground-speed latency estimate (s) passed through; ``where=`` the
+    estimate's place, where it has one."""
     # the model's validator on the fields (what SoilEstimate(**fields) runs, without the keyword call)
     return _validate_soil(dict(
         vehicle_id=vehicle_id, seq=seq, stamp=stamp, slip=_quad(inp.slip[j]), informative=st.used,
         soil_strength=st.soil_strength, soil_strength_std=st.soil_strength_std, log_k_std=st.log_k_std,
         soil_class=st.soil_class, soil_class_confidence=st.soil_class_confidence, status=st.status,
         reason=st.reason, reason_code=st.reason_code, last_update_stamp=st.last_update_stamp, mu=_quad(mu),
-        mu_determined=_bools(mu_determined), held_for_s=st.held_for_s, unusable=st.unusable, **where,
+        mu_determined=_bools(mu_determined), ground_speed_latency=float(latency), held_for_s=st.held_for_s,
+        unusable=st.unusable, **where,
     ))
 
 
@@ -178,7 +180,8 @@ class Estimator:
         states = self.soil.states(ix, inputs.stamp, inp, report)
         soils, ocps = [], []
         for j, (sample, st) in enumerate(zip(samples, states)):
-            soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j], j)
+            soil = soil_message(sample.vehicle_id, sample.seq, sample.stamp, inp, st, ob.mu[j], ob.mu_determined[j],
+                                ob.ground_speed_latency[j], j)
             soils.append(soil)
             ocps.append(self.curve.record(int(ix[j]), soil, [a[j] for a in ocp]))
         return ob, soils, ocps
@@ -257,9 +260,11 @@ class Estimator:
             st = self.paper[j].update(obs.stamp, inp.slip[0], inp.observed[0], inp.variance[0], use,
                                       inp.slip_sigma[0])
         if obs.position is not None or obs.geo is not None:  # where: the informing wheels' contact patches
-            return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0,
+            return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined,
+                                obs.ground_speed_latency, 0,
                                 where=estimate_place(self.config.vehicle, obs.position, obs.geo, st.used))
-        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined, 0)
+        return soil_message(obs.vehicle_id, obs.seq, obs.stamp, inp, st, obs.mu, obs.mu_determined,
+                            obs.ground_speed_latency, 0)
 
     def feed(self, j: int, soil: SoilEstimate) -> None:
         """Vehicle ``j``'s soil estimate back to its torque scale: the next samples' modelled motion

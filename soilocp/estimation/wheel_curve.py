@@ -104,7 +104,7 @@ class WheelCurve:
         if self.bank is None:
             return None
         used = tuple(map(operator.and_, soil.informative, soil.mu_determined))
-        return self.bank.step(j, soil.stamp, soil.slip, soil.mu, used)
+        return self.bank.step(j, soil.stamp, soil.slip, soil.mu, used, soil.ground_speed_latency)
 
     def bands(self, fit) -> tuple[float, float]:
         """(S_T's, mu_T's) 1-sigma of a learnt curve: the fit's own, the learner's systematic error, and for S_T

@@ -203,6 +203,10 @@ class SoilEstimate(_Message):
     )
     mu: Quad = Field(description="Observed net traction per wheel (passed through for consumers)")
     mu_determined: BoolQuad = Field(default=(True,) * 4, description="Per wheel: mu is determined by the data")
+    ground_speed_latency: float = Field(
+        default=0.0, ge=0, description="s: the observer's ground-speed latency estimate the slips were formed under "
+        "(passed through: the curve learner drops pairs formed under another; docs/method.md §19)"
+    )
     where: Optional[EstimatePlace] = Field(
         default=None, exclude_if=lambda v: v is None,
         description="Contact patches of the wheels that informed this estimate (absent without a position or "

@@ -54,6 +54,14 @@ settings_struct! {
         pair_slip_sigma: Float = 0.03, Internal, "", [ge 0.0];
         /// 1-sigma of a pair's net traction coefficient where the curve is flat (the observer's).
         pair_mu_sigma: Float = 0.02, Internal, "", [gt 0.0];
+        /// Prior 1-sigma of a wheel's traction scale about the common curve (a torque constant or
+        /// wheel radius a few percent off on one wheel): each wheel's pairs are fitted as
+        /// g_w mu(S), g_w shrunk towards 1 by this prior, so a wheel held at one slip that reads low
+        /// moves no peak.  0 fits one curve to every wheel as read.
+        wheel_scale_sigma: Float = 0.05, Internal, "", [ge 0.0];
+        /// Change of the ground-speed latency estimate (the observer's) beyond which the pairs
+        /// formed under the old estimate are dropped: their slips carry the old lag's error.
+        latency_change: Float = 0.03, Internal, "s", [gt 0.0];
     }
 }
 
@@ -64,6 +72,8 @@ struct Pair {
     wheel: u8,
     s: f64,
     mu: f64,
+    /// the ground-speed latency estimate the slip was formed under, s
+    lat: f64,
 }
 
 /// The fitted shape mu(S) = a (1 - e^(-c3 S)) - c - b S on the current soil and the OCPs that follow from it:
@@ -88,6 +98,9 @@ pub struct Fit {
     pub slip_top: f64,
     /// rms of the residuals
     pub rms: f64,
+    /// each wheel's traction scale g_w about the common curve (mu = g_w mu(S); 1 for a wheel without
+    /// pairs), normalised to a mean of 1 weighted by what each wheel's pairs tell
+    pub wheel_scale: [f64; 4],
     /// the fitted slips surround the peak (`below` and `beyond` >= `min_beyond`): not an extrapolation,
     /// nor an interpolation over a gap
     pub shown: bool,
@@ -159,19 +172,27 @@ impl CurveLearner {
         self.changes = 0;
     }
 
-    /// One sample: the wheels' slips and net traction coefficients (4,) and which of them inform
-    /// (`used`).  Returns the current soil's fit (refitted at most every `interval` s), or None while
+    /// One sample: the wheels' slips and net traction coefficients (4,), which of them inform
+    /// (`used`) and the ground-speed latency estimate the slips were formed under (s).  Returns the current soil's fit (refitted at most every `interval` s), or None while
     /// the current soil has too few pairs or shows no peak.
     ///
     /// A change of soil is read from the fit itself: when the pairs of the last `change_window` s
     /// leave a fitted curve that shows its peak by more than `change_shift` on average, the ground
     /// under the wheels is another, and only those pairs are kept.  The soil strength that a curve nobody checked reads
     /// is no guide here: on another tyre it swings by factors on one soil.
-    pub fn step(&mut self, stamp: f64, slip: &[f64; 4], mu: &[f64; 4], used: &[bool; 4]) -> Option<Fit> {
+    ///
+    /// A latency estimate that moved by more than `latency_change` since a pair was formed drops that
+    /// pair (its slip carries the old lag's error: acceleration read as slip) and refits at once; the
+    /// soil did not change.
+    pub fn step(&mut self, stamp: f64, slip: &[f64; 4], mu: &[f64; 4], used: &[bool; 4], latency: f64) -> Option<Fit> {
         let p = self.params;
         if stamp < self.last_fit {
             self.reset(); // time ran backwards: another run
         }
+        let latency = if latency.is_finite() { latency } else { 0.0 };
+        let before = self.pairs.len();
+        self.pairs.retain(|q| (q.lat - latency).abs() <= p.latency_change);
+        let relagged = self.pairs.len() < before;
         for w in 0..4 {
             let (s, m) = (slip[w], mu[w]);
             if used[w] && s.is_finite() && m.is_finite() && s.abs() >= p.slip_min && s.abs() <= p.slip_max {
@@ -181,6 +202,7 @@ impl CurveLearner {
                     wheel: w as u8,
                     s: s * sign,
                     mu: m * sign,
+                    lat: latency,
                 });
             }
         }
@@ -201,9 +223,10 @@ impl CurveLearner {
                 .rev()
                 .take_while(|q| q.t > since)
                 .map(|q| {
+                    let g = f.wheel_scale[q.wheel as usize];
                     (
-                        weight(&p, slope(q.s, f.a, f.c3, f.b)),
-                        q.mu - shape(q.s, f.a, f.c3, f.b, f.c),
+                        weight(&p, g * slope(q.s, f.a, f.c3, f.b)),
+                        q.mu - g * shape(q.s, f.a, f.c3, f.b, f.c),
                     )
                 })
                 .collect();
@@ -236,7 +259,7 @@ impl CurveLearner {
                 self.changes += 1;
             }
         }
-        if changed || stamp - self.last_fit >= p.interval {
+        if changed || relagged || stamp - self.last_fit >= p.interval {
             self.last_fit = stamp;
             self.fit = fit_pairs(self.pairs.make_contiguous(), &p, stamp);
         }
@@ -438,31 +461,86 @@ const TUKEY: f64 = 4.685;
 /// Reweighting passes of the robust fit.
 const PASSES: usize = 3;
 
+/// Each wheel's traction scale about the common shape `h` (mu = g_w h(S)): per wheel the weighted
+/// least squares of g_w, shrunk towards 1 by the prior `sigma_g` against the residuals' scale
+/// `sigma_r` (the posterior mean of g_w given g_w ~ N(1, sigma_g^2)), then normalised to a mean of 1
+/// weighted by each wheel's information sum w h^2: the common shape keeps the vehicle's level, the
+/// scales only share it out.  All 1 when `sigma_g` is 0.
+fn wheel_scales(pairs: &[Pair], weights: &[f64], h: &[f64], sigma_r: f64, sigma_g: f64) -> [f64; 4] {
+    if sigma_g <= 0.0 {
+        return [1.0; 4];
+    }
+    let prior = (sigma_r / sigma_g).powi(2);
+    let (mut hy, mut hh) = ([0.0f64; 4], [0.0f64; 4]);
+    for ((q, w), h) in pairs.iter().zip(weights).zip(h) {
+        let k = q.wheel as usize;
+        hy[k] += w * h * q.mu;
+        hh[k] += w * h * h;
+    }
+    let g: [f64; 4] = std::array::from_fn(|k| (hy[k] + prior) / (hh[k] + prior).max(1e-12));
+    let info: f64 = hh.iter().sum();
+    let mean = if info > 0.0 {
+        (0..4).map(|k| hh[k] * g[k]).sum::<f64>() / info
+    } else {
+        1.0
+    };
+    if mean.is_finite() && mean > 0.0 {
+        g.map(|x| x / mean)
+    } else {
+        [1.0; 4]
+    }
+}
+
 /// Fit the shape to the current soil's pairs, robustly: Tukey's biweight on the residuals (scale by
 /// their median absolute deviation), so that the few pairs of a soil the wheels just left (a rear
-/// axle still on it) weigh nothing.  None when there are too few pairs or the fit has no peak.
+/// axle still on it) weigh nothing.  The common shape and each wheel's scale (`wheel_scales`) are
+/// fitted in turn: the shape to the pairs divided by their wheel's scale, weighted by its square.
+/// None when there are too few pairs or the fit has no peak.
 fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     if (pairs.len() as f64) < p.min_pairs.max(5.0) {
         return None;
     }
     let mut weights = vec![1.0; pairs.len()];
+    let mut scales = [1.0f64; 4];
     let mut near = None;
     let mut fitted = None;
     for pass in 0..=PASSES {
-        let (c3, (amp, slope, offset, _)) = Bins::of(pairs, &weights).search(near)?;
+        let scaled: Vec<Pair> = pairs
+            .iter()
+            .map(|q| Pair {
+                mu: q.mu / scales[q.wheel as usize],
+                ..*q
+            })
+            .collect();
+        let scaled_w: Vec<f64> = pairs
+            .iter()
+            .zip(&weights)
+            .map(|(q, w)| w * scales[q.wheel as usize].powi(2))
+            .collect();
+        let (c3, (amp, slope, offset, _)) = Bins::of(&scaled, &scaled_w).search(near)?;
         near = Some(c3);
         fitted = Some((c3, amp, slope, offset));
         if pass == PASSES {
             break;
         }
+        let h: Vec<f64> = pairs.iter().map(|q| shape(q.s, amp, c3, slope, offset)).collect();
+        let mad_of = |res: &[f64]| {
+            let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+            let mid = abs.len() / 2;
+            *abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+        };
         let res: Vec<f64> = pairs
             .iter()
-            .map(|q| q.mu - shape(q.s, amp, c3, slope, offset))
+            .zip(&h)
+            .map(|(q, h)| q.mu - scales[q.wheel as usize] * h)
             .collect();
-        let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
-        let mid = abs.len() / 2;
-        let mad = *abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
-        let cut = TUKEY * 1.4826 * mad.max(1e-6);
+        scales = wheel_scales(pairs, &weights, &h, 1.4826 * mad_of(&res), p.wheel_scale_sigma);
+        let res: Vec<f64> = pairs
+            .iter()
+            .zip(&h)
+            .map(|(q, h)| q.mu - scales[q.wheel as usize] * h)
+            .collect();
+        let cut = TUKEY * 1.4826 * mad_of(&res).max(1e-6);
         for (w, r) in weights.iter_mut().zip(&res) {
             let u = r / cut;
             *w = if u.abs() < 1.0 { (1.0 - u * u).powi(2) } else { 0.0 };
@@ -479,7 +557,10 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         .map(|(q, &w)| (*q, w))
         .collect();
     let kept: Vec<Pair> = inliers.iter().map(|(q, _)| *q).collect();
-    let res: Vec<f64> = kept.iter().map(|q| q.mu - shape(q.s, amp, c3, slope, offset)).collect();
+    let res: Vec<f64> = kept
+        .iter()
+        .map(|q| q.mu - scales[q.wheel as usize] * shape(q.s, amp, c3, slope, offset))
+        .collect();
     let sum_w: f64 = inliers.iter().map(|(_, w)| w).sum();
     let wrss: f64 = inliers.iter().zip(&res).map(|((_, w), r)| w * r * r).sum();
     let rho = residual_correlation(&kept, &res);
@@ -488,7 +569,8 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     let mut jtj = [[0.0f64; 4]; 4];
     for (q, w) in &inliers {
         let e = (-c3 * q.s).exp();
-        let j = [1.0 - e, amp * q.s * e, -q.s, -1.0];
+        let g = scales[q.wheel as usize];
+        let j = [g * (1.0 - e), g * amp * q.s * e, -g * q.s, -g];
         for r in 0..4 {
             for c in 0..4 {
                 jtj[r][c] += w * j[r] * j[c];
@@ -527,6 +609,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         beyond,
         slip_top,
         rms: (wrss / sum_w.max(1e-12)).sqrt(),
+        wheel_scale: scales,
         shown: below as f64 >= p.min_beyond && beyond as f64 >= p.min_beyond,
         stamp,
     })
@@ -574,7 +657,7 @@ mod tests {
                 let jitter = noise * ((i * 7 + w * 13) as f64 * 0.618).sin();
                 mu[w] = s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
             }
-            out = learner.step(t, &slip, &mu, &[true; 4]);
+            out = learner.step(t, &slip, &mu, &[true; 4], 0.0);
         }
         out
     }
@@ -610,7 +693,7 @@ mod tests {
         for i in 0..60 {
             let t = 6.0 + i as f64 / 100.0;
             let s = 0.1 + 0.005 * i as f64;
-            fit = l.step(t, &[s; 4], &[shape(s, a, c3, b, c) + 0.3; 4], &[true; 4]);
+            fit = l.step(t, &[s; 4], &[shape(s, a, c3, b, c) + 0.3; 4], &[true; 4], 0.0);
             if fit.is_none() {
                 break;
             }
@@ -630,14 +713,14 @@ mod tests {
         for i in 0..30 {
             let t = 6.0 + i as f64 / 100.0;
             let s = 0.05 + 0.001 * i as f64;
-            l.step(t, &[s + 0.04; 4], &[shape(s, a, c3, b, c); 4], &[true; 4]);
+            l.step(t, &[s + 0.04; 4], &[shape(s, a, c3, b, c); 4], &[true; 4], 0.0);
         }
         assert_eq!(l.changes(), 0);
         // the traction 0.1 lower near the peak, where the curve is flat: another soil
         for i in 0..50 {
             let t = 6.3 + i as f64 / 100.0;
             let s = 0.4 + 0.001 * i as f64;
-            l.step(t, &[s; 4], &[shape(s, a, c3, b, c) - 0.1; 4], &[true; 4]);
+            l.step(t, &[s; 4], &[shape(s, a, c3, b, c) - 0.1; 4], &[true; 4], 0.0);
         }
         assert_eq!(l.changes(), 1);
     }
@@ -646,5 +729,64 @@ mod tests {
     fn too_few_pairs_give_no_fit() {
         let mut l = CurveLearner::new(Params::default());
         assert!(drive(&mut l, 0.0, 0.3, 0.0).is_none());
+    }
+
+    /// A sweep whose rear wheels, held braking at one slip, read `rear_gain` of their traction (a
+    /// torque constant off on that axle), with fronts sweeping 0.02..0.7; the fit of it.
+    fn drive_with_a_low_axle(sigma_g: f64, rear_gain: f64) -> Fit {
+        let mut l = CurveLearner::new(Params {
+            wheel_scale_sigma: sigma_g,
+            ..Params::default()
+        });
+        let (a, c3, b, c) = tyre_shape();
+        let mut out = None;
+        for i in 0..600 {
+            let t = i as f64 / 100.0;
+            let phase = (t % 1.6) / 1.6;
+            let s_front = 0.02 + 0.68 * (1.0 - (2.0 * phase - 1.0).abs());
+            let s_rear = -0.35 - 0.01 * phase;
+            let slip = [s_rear, s_front, s_front, s_rear];
+            let mut mu = [0.0; 4];
+            for w in 0..4 {
+                let s = slip[w];
+                let gain = if s < 0.0 { rear_gain } else { 1.0 };
+                let jitter = 0.01 * ((i * 7 + w * 13) as f64 * 0.618).sin();
+                mu[w] = gain * s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
+            }
+            out = l.step(t, &slip, &mu, &[true; 4], 0.0).or(out);
+        }
+        out.expect("a fit")
+    }
+
+    #[test]
+    fn a_wheel_that_reads_low_moves_no_peak() {
+        // one curve for every wheel: the rear axle's many low pairs at one slip pull the curve down
+        // there and move the peak
+        let one = drive_with_a_low_axle(0.0, 0.95);
+        assert!((one.s_t - 0.4431).abs() > 0.02, "{one:?}");
+        assert_eq!(one.wheel_scale, [1.0; 4]);
+        // a scale per wheel: the peak stays, and the rear wheels' scale reads their gain
+        let own = drive_with_a_low_axle(0.05, 0.95);
+        assert!(own.shown, "{own:?}");
+        close(own.s_t, 0.4431, 0.01);
+        let ratio = own.wheel_scale[0] / own.wheel_scale[1];
+        close(ratio, 0.95, 0.01);
+        close(own.wheel_scale[0], own.wheel_scale[3], 0.005);
+    }
+
+    #[test]
+    fn pairs_of_another_latency_are_dropped() {
+        let mut l = CurveLearner::new(Params::default());
+        assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some());
+        let n = l.pairs.len();
+        let (a, c3, b, c) = tyre_shape();
+        // the same latency within latency_change: every pair stays
+        l.step(6.0, &[0.3; 4], &[shape(0.3, a, c3, b, c); 4], &[true; 4], 0.02);
+        assert_eq!(l.pairs.len(), n + 4);
+        // a latency estimate 0.1 s on: the pairs of the old one go, without a change of soil
+        let fit = l.step(6.01, &[0.3; 4], &[shape(0.3, a, c3, b, c); 4], &[true; 4], 0.1);
+        assert_eq!(l.pairs.len(), 4);
+        assert!(fit.is_none(), "{fit:?}");
+        assert_eq!(l.changes(), 0);
     }
 }

@@ -44,11 +44,21 @@ impl CurveBank {
         })
     }
 
-    /// Vehicle `j`'s sample: stamp (s), slips (4,), net traction (4,), which wheels inform (4,).
-    /// Returns the current soil's fit, or None while it has too few pairs or shows no peak.
-    fn step(&mut self, j: usize, stamp: f64, slip: [f64; 4], mu: [f64; 4], used: [bool; 4]) -> PyResult<Option<Fit>> {
+    /// Vehicle `j`'s sample: stamp (s), slips (4,), net traction (4,), which wheels inform (4,), the
+    /// ground-speed latency estimate the slips were formed under (s).  Returns the current soil's
+    /// fit, or None while it has too few pairs or shows no peak.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        j: usize,
+        stamp: f64,
+        slip: [f64; 4],
+        mu: [f64; 4],
+        used: [bool; 4],
+        latency: f64,
+    ) -> PyResult<Option<Fit>> {
         let j = self.vehicle(j)?;
-        Ok(self.learners[j].step(stamp, &slip, &mu, &used))
+        Ok(self.learners[j].step(stamp, &slip, &mu, &used, latency))
     }
 
     /// Forget vehicle `j`'s pairs (a restarted chain).
