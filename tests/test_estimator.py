@@ -76,3 +76,24 @@ def test_the_papers_soil_method_runs_through_the_stage_steps():
     assert abs(recs[-1]["soil_strength"] / 50.0 - 1) < 0.2
     with pytest.raises(ValueError, match="'paper'"):
         Estimator(cfg, 1).step(np.array([0]), [], [])
+
+
+def test_the_soil_estimate_carries_the_ground_speeds_latency_on_both_paths():
+    """A late GNSS-grade ground speed: the soil estimate passes on the latency estimate its slips were formed
+    under (the curve learner drops the pairs of another, docs/method.md §19), the same on the stage steps
+    (as the live services) and the whole step."""
+    from soilocp.sim.variants import get_variant
+
+    cfg = PipelineConfig()
+    stages, whole = VehiclePipeline(cfg), Estimator(cfg, 1)
+    solve = NormalForceSolver(cfg.vehicle)
+    seen = []
+    for s, _ in get_variant("gnss-5hz-lost").simulate(0, duration=12.0):
+        _, obs, soil, _ = stages.process_all(s)
+        fz = solve(np.array([s.specific_force], dtype=float))
+        ob, soils, _ = whole.step_all(np.array([0]), [s], fz)
+        assert soil.ground_speed_latency == obs.ground_speed_latency == soils[0].ground_speed_latency, s.seq
+        assert soils[0].ground_speed_latency == float(ob.ground_speed_latency[0])
+        seen.append(soil.ground_speed_latency)
+    # the variant's speed is 0.15 s late: undetermined at first, then measured
+    assert seen[0] == 0.0 and abs(seen[-1] - 0.15) < 0.05, (seen[0], seen[-1])

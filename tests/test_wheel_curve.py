@@ -184,3 +184,29 @@ def test_an_ok_k_is_an_ok_ocp_only_where_its_band_keeps_the_ocps_within_a_contro
     # a looser tolerance (a controller that acts on coarser OCPs) makes the same record ok
     loose = WheelCurve(cfg.model_copy(update={"curve": cfg.curve.model_copy(update={"ok_mu_t": 1.0, "ok_s_t": 1.0})}), 1)
     assert loose.record(0, soil, values).status == "ok"
+
+
+def test_the_learner_drops_the_pairs_of_another_ground_speed_latency():
+    """The OCP stage's learner reads the latency each soil estimate's slips were formed under: a sweep's fit
+    stands while the estimate holds, and goes with its pairs when the ground speed's latency is measured anew
+    (their slips carry the old lag's error), without a change of soil."""
+    from soilocp.estimation.wheel_curve import WheelCurve
+    from soilocp.schemas.pipeline import SoilEstimate
+
+    a, c3, b, c = 1.2 * (1 - np.exp(-1.5)), 6.4, 0.35, -0.03  # method.md §19's test tyre at K = 100
+
+    def soil(i: int, latency: float) -> SoilEstimate:
+        t = i / 100.0
+        s = 0.02 + 0.68 * (1 - abs(2 * ((t % 1.6) / 1.6) - 1))
+        mu = a * (1 - np.exp(-c3 * s)) - c - b * s + 0.01 * np.sin(i * 0.618)
+        return SoilEstimate(vehicle_id="r1", seq=i, stamp=t, slip=(s,) * 4, informative=(True,) * 4,
+                            soil_strength=None, soil_strength_std=None, log_k_std=None, soil_class=None,
+                            soil_class_confidence=None, status="uncertain", last_update_stamp=None,
+                            mu=(float(mu),) * 4, ground_speed_latency=latency)
+
+    curve = WheelCurve(PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None})), 1)
+    fits = [curve.fit(0, soil(i, 0.1)) for i in range(600)]
+    assert fits[-1] is not None and fits[-1].shown and abs(fits[-1].s_t - 0.4431) < 0.01, fits[-1]
+    assert curve.fit(0, soil(600, 0.12)) is not None  # within curve.latency_change
+    assert curve.fit(0, soil(601, 0.2)) is None
+    assert curve.bank.changes(0) == 0
