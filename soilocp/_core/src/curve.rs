@@ -13,6 +13,11 @@
 //! the fit's covariance, with the residual variance inflated for the residuals' correlation in time
 //! (consecutive samples of one wheel are not independent).  A peak beyond the slips the window holds
 //! is an extrapolation: the fit then says `shown = false`.
+//!
+//! Each wheel's pairs are fitted as g_w mu(S), one shape with a traction scale per wheel shrunk
+//! towards 1 (a torque gain or load share a few percent off on one wheel, which would otherwise
+//! move the peak where the wheels sit at different slips), and a pair formed under another
+//! ground-speed latency estimate than the current one is dropped (its slip carries the old lag).
 
 use std::collections::VecDeque;
 
@@ -173,8 +178,9 @@ impl CurveLearner {
     }
 
     /// One sample: the wheels' slips and net traction coefficients (4,), which of them inform
-    /// (`used`) and the ground-speed latency estimate the slips were formed under (s).  Returns the current soil's fit (refitted at most every `interval` s), or None while
-    /// the current soil has too few pairs or shows no peak.
+    /// (`used`) and the ground-speed latency estimate the slips were formed under (s).  Returns the
+    /// current soil's fit (refitted at most every `interval` s), or None while the current soil has
+    /// too few pairs or shows no peak.
     ///
     /// A change of soil is read from the fit itself: when the pairs of the last `change_window` s
     /// leave a fitted curve that shows its peak by more than `change_shift` on average, the ground
@@ -640,8 +646,16 @@ mod tests {
         assert!(peak(a, c3, -0.1, c).is_none());
     }
 
-    /// A sweep of four wheels over 0.02..0.7, braking pairs mirrored, with deterministic noise.
-    fn drive(learner: &mut CurveLearner, from: f64, secs: f64, noise: f64) -> Option<Fit> {
+    /// A sweep of the front wheels over 0.02..0.7 with the rear wheels braking at `rear(phase)` and
+    /// reading `rear_gain` of their traction, with deterministic noise; the last step's fit.
+    fn sweep(
+        learner: &mut CurveLearner,
+        from: f64,
+        secs: f64,
+        noise: f64,
+        rear: impl Fn(f64) -> f64,
+        rear_gain: f64,
+    ) -> Option<Fit> {
         let (a, c3, b, c) = tyre_shape();
         let mut out = None;
         let steps = (secs * 100.0) as usize;
@@ -649,17 +663,23 @@ mod tests {
             let t = from + i as f64 / 100.0;
             let phase = (t % 1.6) / 1.6;
             let s_front = 0.02 + 0.68 * (1.0 - (2.0 * phase - 1.0).abs());
-            let s_rear = -0.03 - 0.05 * phase;
+            let s_rear = rear(phase);
             let slip = [s_rear, s_front, s_front, s_rear];
             let mut mu = [0.0; 4];
             for w in 0..4 {
                 let s = slip[w];
+                let gain = if s < 0.0 { rear_gain } else { 1.0 };
                 let jitter = noise * ((i * 7 + w * 13) as f64 * 0.618).sin();
-                mu[w] = s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
+                mu[w] = gain * s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
             }
             out = learner.step(t, &slip, &mu, &[true; 4], 0.0);
         }
         out
+    }
+
+    /// The sweep with the rear wheels braking lightly (-0.03..-0.08), every wheel read as it is.
+    fn drive(learner: &mut CurveLearner, from: f64, secs: f64, noise: f64) -> Option<Fit> {
+        sweep(learner, from, secs, noise, |phase| -0.03 - 0.05 * phase, 1.0)
     }
 
     #[test]
@@ -731,31 +751,14 @@ mod tests {
         assert!(drive(&mut l, 0.0, 0.3, 0.0).is_none());
     }
 
-    /// A sweep whose rear wheels, held braking at one slip, read `rear_gain` of their traction (a
-    /// torque constant off on that axle), with fronts sweeping 0.02..0.7; the fit of it.
+    /// The sweep with the rear wheels held braking at |S| 0.35..0.36, reading `rear_gain` of their
+    /// traction (a torque constant off on that axle); the fit of it.
     fn drive_with_a_low_axle(sigma_g: f64, rear_gain: f64) -> Fit {
         let mut l = CurveLearner::new(Params {
             wheel_scale_sigma: sigma_g,
             ..Params::default()
         });
-        let (a, c3, b, c) = tyre_shape();
-        let mut out = None;
-        for i in 0..600 {
-            let t = i as f64 / 100.0;
-            let phase = (t % 1.6) / 1.6;
-            let s_front = 0.02 + 0.68 * (1.0 - (2.0 * phase - 1.0).abs());
-            let s_rear = -0.35 - 0.01 * phase;
-            let slip = [s_rear, s_front, s_front, s_rear];
-            let mut mu = [0.0; 4];
-            for w in 0..4 {
-                let s = slip[w];
-                let gain = if s < 0.0 { rear_gain } else { 1.0 };
-                let jitter = 0.01 * ((i * 7 + w * 13) as f64 * 0.618).sin();
-                mu[w] = gain * s.signum() * shape(s.abs(), a, c3, b, c) + jitter;
-            }
-            out = l.step(t, &slip, &mu, &[true; 4], 0.0).or(out);
-        }
-        out.expect("a fit")
+        sweep(&mut l, 0.0, 6.0, 0.01, |phase| -0.35 - 0.01 * phase, rear_gain).expect("a fit")
     }
 
     #[test]
