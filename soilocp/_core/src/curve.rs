@@ -497,6 +497,47 @@ fn wheel_scales(pairs: &[Pair], weights: &[f64], h: &[f64], sigma_r: f64, sigma_
     }
 }
 
+/// Covariance of the shape's (A, C3, b, c): sigma2 (J^T W J)^-1 over the weighted pairs, with the
+/// wheels' scales as parameters too and their prior N(1, sigma_g^2) added to the normal matrix, so
+/// that what the scales leave uncertain of the shape (the vehicle's level, which the scales share
+/// with A, b and c; a scale that trades with the curve's bend where a wheel sits at one slip) widens
+/// the band.  With `sigma_g` 0 the scales are fixed and only the shape's block is inverted.
+fn shape_covariance(
+    inliers: &[(Pair, f64)],
+    scales: &[f64; 4],
+    (amp, c3, slope, offset): (f64, f64, f64, f64),
+    sigma2: f64,
+    sigma_g: f64,
+) -> Option<[[f64; 4]; 4]> {
+    // columns: A, C3, b, c of g_w h(S), then g_0 .. g_3 (h(S) for the pair's own wheel)
+    let mut n = [[0.0f64; 8]; 8];
+    for (q, w) in inliers {
+        let e = (-c3 * q.s).exp();
+        let k = q.wheel as usize;
+        let g = scales[k];
+        let mut j = [0.0f64; 8];
+        j[..4].copy_from_slice(&[g * (1.0 - e), g * amp * q.s * e, -g * q.s, -g]);
+        j[4 + k] = shape(q.s, amp, c3, slope, offset);
+        for r in 0..8 {
+            for c in 0..8 {
+                n[r][c] += w * j[r] * j[c];
+            }
+        }
+    }
+    let block = if sigma_g > 0.0 {
+        let prior = sigma2 / (sigma_g * sigma_g);
+        for (k, row) in n.iter_mut().enumerate().skip(4) {
+            row[k] += prior;
+        }
+        let identity = std::array::from_fn(|i| std::array::from_fn(|k| if i == k { 1.0 } else { 0.0 }));
+        let inv: [[f64; 8]; 8] = gauss_jordan(n, identity, 1e-14)?;
+        std::array::from_fn(|r| std::array::from_fn(|c| inv[r][c]))
+    } else {
+        invert4(std::array::from_fn(|r| std::array::from_fn(|c| n[r][c])))?
+    };
+    Some(block.map(|row| row.map(|x| x * sigma2)))
+}
+
 /// Fit the shape to the current soil's pairs, robustly: Tukey's biweight on the residuals (scale by
 /// their median absolute deviation), so that the few pairs of a soil the wheels just left (a rear
 /// axle still on it) weigh nothing.  The common shape and each wheel's scale (`wheel_scales`) are
@@ -572,18 +613,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     let rho = residual_correlation(&kept, &res);
     let inflation = (1.0 + rho) / (1.0 - rho);
     let sigma2 = wrss / (sum_w - 4.0).max(1.0) * inflation;
-    let mut jtj = [[0.0f64; 4]; 4];
-    for (q, w) in &inliers {
-        let e = (-c3 * q.s).exp();
-        let g = scales[q.wheel as usize];
-        let j = [g * (1.0 - e), g * amp * q.s * e, -g * q.s, -g];
-        for r in 0..4 {
-            for c in 0..4 {
-                jtj[r][c] += w * j[r] * j[c];
-            }
-        }
-    }
-    let cov = invert4(jtj)?;
+    let cov = shape_covariance(&inliers, &scales, (amp, c3, slope, offset), sigma2, p.wheel_scale_sigma)?;
     let e_t = (-c3 * s_t).exp();
     // dS_T/d(A, C3, b, c) and dmu_T/d(A, C3, b, c) (the envelope theorem: dmu/dS = 0 at S_T)
     let ln_arg = (amp * c3 / slope).ln();
@@ -596,7 +626,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
                 acc += g[r] * cov[r][c] * g[c];
             }
         }
-        (acc * sigma2).max(0.0).sqrt()
+        acc.max(0.0).sqrt()
     };
     let beyond = kept.iter().filter(|q| q.s > s_t && q.s <= s_t + p.peak_span).count();
     let below = kept.iter().filter(|q| q.s <= s_t && q.s > s_t - p.peak_span).count();
@@ -791,5 +821,20 @@ mod tests {
         assert_eq!(l.pairs.len(), 4);
         assert!(fit.is_none(), "{fit:?}");
         assert_eq!(l.changes(), 0);
+    }
+
+    #[test]
+    fn the_band_carries_what_the_wheel_scales_leave_uncertain() {
+        // the scales share the vehicle's level with A, b and c: only their prior pins it, so the learnt
+        // mu_T keeps about mu_T sigma_g / 2 (four wheels) of band however many pairs there are; S_T does
+        // not depend on the level
+        let fixed = drive_with_a_low_axle(0.0, 1.0);
+        let free = drive_with_a_low_axle(0.05, 1.0);
+        let level = free.mu_t * 0.05 / 2.0;
+        assert!(
+            free.mu_t_std > 0.9 * level && free.mu_t_std > 2.0 * fixed.mu_t_std,
+            "{fixed:?} {free:?}"
+        );
+        assert!(free.s_t_std < 1.5 * fixed.s_t_std + 1e-3, "{fixed:?} {free:?}");
     }
 }
