@@ -581,7 +581,15 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
             .zip(&h)
             .map(|(q, h)| q.mu - scales[q.wheel as usize] * h)
             .collect();
-        scales = wheel_scales(pairs, &weights, &h, 1.4826 * mad_of(&res), p.wheel_scale_sigma);
+        // a pair on the curve's steep rise tells little of its wheel's gain: there a small slip error (a
+        // wheel radius a little off, which moves driving and braking slips opposite ways) is a large
+        // traction error, so each pair weighs as in the change test (`weight`)
+        let gain_w: Vec<f64> = pairs
+            .iter()
+            .zip(&weights)
+            .map(|(q, w)| w * weight(p, scales[q.wheel as usize] * crate::curve::slope(q.s, amp, c3, slope)))
+            .collect();
+        scales = wheel_scales(pairs, &gain_w, &h, 1.4826 * mad_of(&res), p.wheel_scale_sigma);
         let res: Vec<f64> = pairs
             .iter()
             .zip(&h)
