@@ -51,7 +51,7 @@ def run(name: str, seed: int, config: dict) -> str:
             used = tuple(bool(i and d) for i, d in zip(r["informative"], r["mu_determined"]))
             s = tuple(t.slip) if slips == "true" else tuple(r["slip"])
             mu = tuple(t.mu) if traction == "true" else tuple(r["mu"])
-            fit = bank.step(0, r["stamp"], s, mu, used, r.get("ground_speed_latency", 0.0))
+            fit = bank.step(0, r["stamp"], s, mu, used, r["ground_speed_latency"])
             if fit is not None and fit.shown and t.stamp - begins[t.segment] > JUDGED_AFTER_S:
                 errs.setdefault(t.segment, []).append(fit.s_t - t.S_T)
         out.append(f"  {label:>13}: " + ("; ".join(

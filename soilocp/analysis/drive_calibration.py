@@ -91,7 +91,7 @@ def soil_pairs(records: Iterable[dict], source: str, curve: CurveConfig, min_pai
     rows: list[tuple[int, float, float, float, int, float]] = []
     for r in records:
         used = tuple(bool(i and d) for i, d in zip(r["informative"], r["mu_determined"]))
-        latency = float(r.get("ground_speed_latency", 0.0))
+        latency = float(r["ground_speed_latency"])
         bank.step(0, r["stamp"], tuple(r["slip"]), tuple(r["mu"]), used, latency)
         soil = bank.changes(0)
         for w, (s, m, u) in enumerate(zip(r["slip"], r["mu"], used)):

@@ -394,8 +394,8 @@ fn solve3(m: [[f64; 3]; 3], v: [f64; 3]) -> Option<[f64; 3]> {
     gauss_jordan(m, v.map(|x| [x]), 1e-12).map(|x| x.map(|[x]| x))
 }
 
-/// Inverse of a symmetric positive definite 4 x 4 matrix; None if singular.
-fn invert4(a: [[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
+/// Inverse of a symmetric positive definite N x N matrix; None if singular.
+fn invert<const N: usize>(a: [[f64; N]; N]) -> Option<[[f64; N]; N]> {
     let identity = std::array::from_fn(|i| std::array::from_fn(|k| if i == k { 1.0 } else { 0.0 }));
     gauss_jordan(a, identity, 1e-14)
 }
@@ -505,7 +505,7 @@ fn wheel_scales(pairs: &[Pair], weights: &[f64], h: &[f64], sigma_r: f64, sigma_
 fn shape_covariance(
     inliers: &[(Pair, f64)],
     scales: &[f64; 4],
-    (amp, c3, slope, offset): (f64, f64, f64, f64),
+    (amp, c3, b, offset): (f64, f64, f64, f64),
     sigma2: f64,
     sigma_g: f64,
 ) -> Option<[[f64; 4]; 4]> {
@@ -517,7 +517,7 @@ fn shape_covariance(
         let g = scales[k];
         let mut j = [0.0f64; 8];
         j[..4].copy_from_slice(&[g * (1.0 - e), g * amp * q.s * e, -g * q.s, -g]);
-        j[4 + k] = shape(q.s, amp, c3, slope, offset);
+        j[4 + k] = shape(q.s, amp, c3, b, offset);
         for r in 0..8 {
             for c in 0..8 {
                 n[r][c] += w * j[r] * j[c];
@@ -529,11 +529,10 @@ fn shape_covariance(
         for (k, row) in n.iter_mut().enumerate().skip(4) {
             row[k] += prior;
         }
-        let identity = std::array::from_fn(|i| std::array::from_fn(|k| if i == k { 1.0 } else { 0.0 }));
-        let inv: [[f64; 8]; 8] = gauss_jordan(n, identity, 1e-14)?;
+        let inv = invert(n)?;
         std::array::from_fn(|r| std::array::from_fn(|c| inv[r][c]))
     } else {
-        invert4(std::array::from_fn(|r| std::array::from_fn(|c| n[r][c])))?
+        invert(std::array::from_fn(|r| std::array::from_fn(|c| n[r][c])))?
     };
     Some(block.map(|row| row.map(|x| x * sigma2)))
 }
@@ -564,17 +563,17 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
             .zip(&weights)
             .map(|(q, w)| w * scales[q.wheel as usize].powi(2))
             .collect();
-        let (c3, (amp, slope, offset, _)) = Bins::of(&scaled, &scaled_w).search(near)?;
+        let (c3, (amp, b, offset, _)) = Bins::of(&scaled, &scaled_w).search(near)?;
         near = Some(c3);
-        fitted = Some((c3, amp, slope, offset));
+        fitted = Some((c3, amp, b, offset));
         if pass == PASSES {
             break;
         }
-        let h: Vec<f64> = pairs.iter().map(|q| shape(q.s, amp, c3, slope, offset)).collect();
+        let h: Vec<f64> = pairs.iter().map(|q| shape(q.s, amp, c3, b, offset)).collect();
         let mad_of = |res: &[f64]| {
             let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
             let mid = abs.len() / 2;
-            *abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+            *abs.select_nth_unstable_by(mid, |x, y| x.total_cmp(y)).1
         };
         let res: Vec<f64> = pairs
             .iter()
@@ -587,7 +586,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         let gain_w: Vec<f64> = pairs
             .iter()
             .zip(&weights)
-            .map(|(q, w)| w * weight(p, scales[q.wheel as usize] * crate::curve::slope(q.s, amp, c3, slope)))
+            .map(|(q, w)| w * weight(p, scales[q.wheel as usize] * slope(q.s, amp, c3, b)))
             .collect();
         scales = wheel_scales(pairs, &gain_w, &h, 1.4826 * mad_of(&res), p.wheel_scale_sigma);
         let res: Vec<f64> = pairs
@@ -601,8 +600,8 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
             *w = if u.abs() < 1.0 { (1.0 - u * u).powi(2) } else { 0.0 };
         }
     }
-    let (c3, amp, slope, offset) = fitted?;
-    let (s_t, mu_t) = peak(amp, c3, slope, offset)?;
+    let (c3, amp, b, offset) = fitted?;
+    let (s_t, mu_t) = peak(amp, c3, b, offset)?;
 
     // the band: delta method on the weighted covariance of (A, C3, b, c), over the pairs that weigh
     let inliers: Vec<(Pair, f64)> = pairs
@@ -614,18 +613,18 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     let kept: Vec<Pair> = inliers.iter().map(|(q, _)| *q).collect();
     let res: Vec<f64> = kept
         .iter()
-        .map(|q| q.mu - scales[q.wheel as usize] * shape(q.s, amp, c3, slope, offset))
+        .map(|q| q.mu - scales[q.wheel as usize] * shape(q.s, amp, c3, b, offset))
         .collect();
     let sum_w: f64 = inliers.iter().map(|(_, w)| w).sum();
     let wrss: f64 = inliers.iter().zip(&res).map(|((_, w), r)| w * r * r).sum();
     let rho = residual_correlation(&kept, &res);
     let inflation = (1.0 + rho) / (1.0 - rho);
     let sigma2 = wrss / (sum_w - 4.0).max(1.0) * inflation;
-    let cov = shape_covariance(&inliers, &scales, (amp, c3, slope, offset), sigma2, p.wheel_scale_sigma)?;
+    let cov = shape_covariance(&inliers, &scales, (amp, c3, b, offset), sigma2, p.wheel_scale_sigma)?;
     let e_t = (-c3 * s_t).exp();
     // dS_T/d(A, C3, b, c) and dmu_T/d(A, C3, b, c) (the envelope theorem: dmu/dS = 0 at S_T)
-    let ln_arg = (amp * c3 / slope).ln();
-    let g_s = [1.0 / (amp * c3), (1.0 - ln_arg) / (c3 * c3), -1.0 / (slope * c3), 0.0];
+    let ln_arg = (amp * c3 / b).ln();
+    let g_s = [1.0 / (amp * c3), (1.0 - ln_arg) / (c3 * c3), -1.0 / (b * c3), 0.0];
     let g_m = [1.0 - e_t, amp * s_t * e_t, -s_t, -1.0];
     let quad = |g: &[f64; 4]| -> f64 {
         let mut acc = 0.0;
@@ -642,7 +641,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     Some(Fit {
         a: amp,
         c3,
-        b: slope,
+        b,
         c: offset,
         s_t,
         s_t_std: quad(&g_s),
@@ -791,7 +790,7 @@ mod tests {
 
     /// The sweep with the rear wheels held braking at |S| 0.35..0.36, reading `rear_gain` of their
     /// traction (a torque constant off on that axle); the fit of it.
-    fn drive_with_a_low_axle(sigma_g: f64, rear_gain: f64) -> Fit {
+    fn drive_with_the_rear_held(sigma_g: f64, rear_gain: f64) -> Fit {
         let mut l = CurveLearner::new(Params {
             wheel_scale_sigma: sigma_g,
             ..Params::default()
@@ -803,11 +802,11 @@ mod tests {
     fn a_wheel_that_reads_low_moves_no_peak() {
         // one curve for every wheel: the rear axle's many low pairs at one slip pull the curve down
         // there and move the peak
-        let one = drive_with_a_low_axle(0.0, 0.95);
+        let one = drive_with_the_rear_held(0.0, 0.95);
         assert!((one.s_t - 0.4431).abs() > 0.02, "{one:?}");
         assert_eq!(one.wheel_scale, [1.0; 4]);
         // a scale per wheel: the peak stays, and the rear wheels' scale reads their gain
-        let own = drive_with_a_low_axle(0.05, 0.95);
+        let own = drive_with_the_rear_held(0.05, 0.95);
         assert!(own.shown, "{own:?}");
         close(own.s_t, 0.4431, 0.01);
         let ratio = own.wheel_scale[0] / own.wheel_scale[1];
@@ -836,8 +835,8 @@ mod tests {
         // the scales share the vehicle's level with A, b and c: only their prior pins it, so the learnt
         // mu_T keeps about mu_T sigma_g / 2 (four wheels) of band however many pairs there are; S_T does
         // not depend on the level
-        let fixed = drive_with_a_low_axle(0.0, 1.0);
-        let free = drive_with_a_low_axle(0.05, 1.0);
+        let fixed = drive_with_the_rear_held(0.0, 1.0);
+        let free = drive_with_the_rear_held(0.05, 1.0);
         let level = free.mu_t * 0.05 / 2.0;
         assert!(
             free.mu_t_std > 0.9 * level && free.mu_t_std > 2.0 * fixed.mu_t_std,
