@@ -210,3 +210,21 @@ def test_the_learner_drops_the_pairs_of_another_ground_speed_latency():
     assert curve.fit(0, soil(600, 0.12)) is not None  # within curve.latency_change
     assert curve.fit(0, soil(601, 0.2)) is None
     assert curve.bank.changes(0) == 0
+
+
+def test_a_learnt_mu_t_band_carries_a_torque_channel_read_10_percent_low():
+    """Torques read 0.90x give a curve 10 % low at every slip: no shape shows it, so the learnt mu_T's band must
+    carry the torques' common scale (0.90 is 2 sigma of SoilConfig.gross_scale_sigma)."""
+    from soilocp.sim.variants import get_variant
+
+    v = get_variant("torque-10")
+    nominal = DEFAULT_VEHICLE.model_copy(update={"traction_curve": None})
+    pairs = list(v.simulate(0, nominal=nominal))
+    cfg = PipelineConfig(vehicle=v.known_vehicle(nominal).model_copy(update={"traction_curve": None}))
+    learnt = [(r, t) for r, t in _records(pairs, cfg) if r["curve"] == "learnt"]
+    assert len(learnt) > 1000
+    m_err = np.array([abs(r["mu_T"] - t.mu_T) for r, t in learnt])
+    m_std = np.array([r["mu_T_std"] for r, _ in learnt])
+    assert np.median(m_err) > 0.05  # the level is off: the test would pass on any band otherwise
+    assert np.mean(m_err <= 2 * m_std) >= 0.95, np.mean(m_err <= 2 * m_std)
+    assert all(r["status"] != "ok" for r, _ in learnt)

@@ -7,10 +7,11 @@ soilocp/_core/src/curve.rs) on each soil estimate's (slip, net traction) pairs a
 
 * **learnt**, for a wheel whose curve nobody checked: where the current soil's pairs spread over the bend (the
   peak lies inside them), mu_T and S_T are the fitted curve's, with their 1-sigma (the fit's own, the
-  learner's systematic error ``CurveConfig.s_t_sys``, ``mu_t_sys``, and for S_T the peak's flatness
-  ``tilt_sys``).  Never ``ok``: the learnt peak rests on the observer's split of gross traction into net and
-  resistance (docs/method.md §12, §19), which places it within +-0.05 on most simulated drives but not on
-  all (scripts/curve_learner_errors.py); the reason says how to make the curve checked.  S_E is null: eq.
+  learner's systematic error ``CurveConfig.s_t_sys``, ``mu_t_sys``, for S_T the peak's flatness
+  ``tilt_sys``, and for mu_T the torques' common scale, ``SoilConfig.gross_scale_sigma`` of it).  Never
+  ``ok``: the learnt peak rests on the observer's split of gross traction into net and resistance
+  (docs/method.md §12, §19), which places it within +-0.05 on most simulated drives but not on all
+  (scripts/curve_learner_errors.py); the reason says how to make the curve checked.  S_E is null: eq.
   10's line is the paper wheel's, and the efficiency line is not learnt.  A checked curve keeps its own
   OCPs;
 * **model**: mu_T, S_T, S_E from K and the configured constants, whose curve somebody checked for this
@@ -92,6 +93,9 @@ class WheelCurve:
         c = config.curve
         self.config = c
         self.checked = curve_checked(config.vehicle)
+        #: relative 1-sigma of the torques' common scale (a motor constant, a payload): the level of the traction
+        #: the learner fits, which no shape shows; the torque constant's prior, which K's band starts from
+        self.scale_sigma = config.soil.gross_scale_sigma
         self.kernel = config.constants.kernel
         #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
         kr = config.constants.k_range
@@ -107,12 +111,17 @@ class WheelCurve:
         return self.bank.step(j, soil.stamp, soil.slip, soil.mu, used, soil.ground_speed_latency)
 
     def bands(self, fit) -> tuple[float, float]:
-        """(S_T's, mu_T's) 1-sigma of a learnt curve: the fit's own, the learner's systematic error, and for S_T
-        the peak's flatness, which turns a tilt of the observed traction into a shift of the peak."""
+        """(S_T's, mu_T's) 1-sigma of a learnt curve: the fit's own, the learner's systematic error, for S_T
+        the peak's flatness, which turns a tilt of the observed traction into a shift of the peak, and for
+        mu_T the torques' common scale: traction read through torques a few percent off (a motor constant, a
+        payload) is a curve a few percent high or low at every slip, which moves mu_T by as much and no
+        peak, so no shape tells it (mu_T times ``SoilConfig.gross_scale_sigma``, the torque constant's prior,
+        which K's band starts from)."""
         cfg = self.config
         curvature = fit.a * fit.c3 * fit.c3 * math.exp(-fit.c3 * fit.s_t)  # |mu''(S_T)|
         flat = cfg.tilt_sys / curvature if curvature > 0 else math.inf
-        return math.hypot(fit.s_t_std, cfg.s_t_sys, flat), math.hypot(fit.mu_t_std, cfg.mu_t_sys)
+        level = abs(fit.mu_t) * self.scale_sigma
+        return math.hypot(fit.s_t_std, cfg.s_t_sys, flat), math.hypot(fit.mu_t_std, cfg.mu_t_sys, level)
 
     def record(self, j: int, soil: SoilEstimate, values: Sequence[float]) -> OcpEstimate:
         """Vehicle ``j``'s OCP record: the soil estimate, the model's (mu_T, S_T, S_E, TE at S_E) at its K
