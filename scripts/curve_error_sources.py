@@ -44,7 +44,7 @@ def run(name: str, seed: int, config: dict) -> str:
     recs = list(estimate_lines([s.model_dump_json() for s, _ in pairs], cfg, full=True))
     out = []
     for label, (slips, traction) in SOURCES.items():
-        bank = _core.CurveBank(1, core_values(cfg.curve, "curve"))
+        bank = _core.CurveBank(1, core_values(cfg.curve, "curve"), cfg.soil.gross_scale_sigma)
         errs: dict[int, list[float]] = {}
         for r in recs:
             t = truth[r["seq"]]

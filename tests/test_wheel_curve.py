@@ -140,7 +140,7 @@ def test_learnt_ocps_stand_without_k_only_where_the_model_cannot_describe_the_tr
 
     cfg = PipelineConfig(vehicle=DEFAULT_VEHICLE.model_copy(update={"traction_curve": None}))
     curve = WheelCurve(cfg, 1)
-    fit = SimpleNamespace(shown=True, mu_t=0.8, s_t=0.3, s_t_std=0.01, mu_t_std=0.01, a=1.2, c3=6.0)
+    fit = SimpleNamespace(shown=True, mu_t=0.8, s_t=0.3, s_t_band=0.03, mu_t_band=0.04)
     curve.bank = SimpleNamespace(step=lambda *args: fit)
     soil = SoilEstimate(vehicle_id="r1", seq=1, stamp=0.0, slip=(0.1,) * 4, informative=(True,) * 4,
                         soil_strength=None, soil_strength_std=None, log_k_std=None, soil_class=None,
@@ -148,7 +148,7 @@ def test_learnt_ocps_stand_without_k_only_where_the_model_cannot_describe_the_tr
     rec = curve.record(0, soil, [float("nan")] * 4)
     assert rec.status == status and rec.soil_strength is None and not rec.confirmed
     if served:
-        assert (rec.mu_T, rec.S_T, rec.curve) == (0.8, 0.3, "learnt") and rec.mu_T_std > 0 and rec.S_T_std > 0
+        assert (rec.mu_T, rec.S_T, rec.curve, rec.mu_T_std, rec.S_T_std) == (0.8, 0.3, "learnt", 0.04, 0.03)
     else:
         assert rec.mu_T is None and rec.S_T is None
 

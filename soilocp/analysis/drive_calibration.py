@@ -87,7 +87,7 @@ def soil_pairs(records: Iterable[dict], source: str, curve: CurveConfig, min_pai
     core's curve learner sees a change, each soil with at least ``min_pairs`` pairs.  As in the learner, pairs
     formed under a ground-speed latency estimate more than ``curve.latency_change`` from the soil's last are
     left out: their slips carry the old lag's error."""
-    bank = _core.CurveBank(1, core_values(curve, "curve"))
+    bank = _core.CurveBank(1, core_values(curve, "curve"), 0.0)  # its changes of soil only: no band is read
     rows: list[tuple[int, float, float, float, int, float]] = []
     for r in records:
         used = tuple(bool(i and d) for i, d in zip(r["informative"], r["mu_determined"]))

@@ -1,9 +1,9 @@
 """Settings of the wheel-curve learner (:mod:`soilocp.estimation.wheel_curve` says what it learns and how):
 pydantic only, no numpy (:mod:`soilocp.estimation.config`).
 
-The learner's settings are declared once, in the compiled core (soilocp/_core/src/curve.rs);
-:class:`CurveConfig` is built from those declarations.  The switch, the OCP records' bands, their tolerance for ok and range,
-which the Python side applies, are declared here.
+The learner's settings and its bands' systematic errors are declared once, in the compiled core
+(soilocp/_core/src/curve.rs); :class:`CurveConfig` is built from those declarations.  The switch, the OCP
+records' tolerance for ok and a calibration's range, which the Python side applies, are declared here.
 """
 
 from __future__ import annotations
@@ -13,22 +13,12 @@ from pydantic import Field
 from soilocp.estimation.settings_model import model_from_core
 
 
-def _internal(default: float, ge: float, description: str):
-    return Field(default, ge=ge, description=description, json_schema_extra={"audience": "internal"})
-
-
 CurveConfig = model_from_core(
     "CurveConfig", "curve", __name__, "Settings of the wheel's traction-curve learner (docs/method.md §19).",
     enabled=(bool, Field(
         True, description="Learn the curve of a wheel nobody checked where the drive shows it, and serve its OCPs, "
         "flagged (False: the OCPs always follow from K and the configured constants)",
         json_schema_extra={"audience": "user"})),
-    s_t_sys=(float, _internal(0.02, 0, "Systematic 1-sigma added to the learnt S_T's band, whatever the curve's "
-                                       "shape: the learnt peak's error against a known curve")),
-    tilt_sys=(float, _internal(0.06, 0, "Systematic error of the observed net traction per unit slip: a tilt that "
-                                        "moves the fitted peak by tilt_sys / |mu''(S_T)|, added to S_T's band, so "
-                                        "that a flat peak is not reported as precise")),
-    mu_t_sys=(float, _internal(0.02, 0, "Systematic 1-sigma added to the learnt mu_T's band")),
     ok_mu_t=(float, Field(
         0.1, gt=0, description="Half-width of mu_T's 2-sigma band, carried from K's band through a checked curve, "
         "beyond which an OCP record is not ok (uncertain, reason ocp_wide): the error in the maximum traction a "

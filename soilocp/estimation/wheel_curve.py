@@ -6,7 +6,7 @@ alone.  :class:`WheelCurve` runs the compiled core's learners (``soilocp._core.C
 soilocp/_core/src/curve.rs) on each soil estimate's (slip, net traction) pairs and decides each record's OCPs:
 
 * **learnt**, for a wheel whose curve nobody checked: where the current soil's pairs spread over the bend (the
-  peak lies inside them), mu_T and S_T are the fitted curve's, with their 1-sigma (the fit's own, the
+  peak lies inside them), mu_T and S_T are the fitted curve's, with the core's band (the fit's own 1-sigma, the
   learner's systematic error ``CurveConfig.s_t_sys``, ``mu_t_sys``, for S_T the peak's flatness
   ``tilt_sys``, and for mu_T the torques' common scale, ``SoilConfig.gross_scale_sigma`` of it).  Never
   ``ok``: the learnt peak rests on the observer's split of gross traction into net and resistance
@@ -93,14 +93,13 @@ class WheelCurve:
         c = config.curve
         self.config = c
         self.checked = curve_checked(config.vehicle)
-        #: relative 1-sigma of the torques' common scale (a motor constant, a payload): the level of the traction
-        #: the learner fits, which no shape shows; the torque constant's prior, which K's band starts from
-        self.scale_sigma = config.soil.gross_scale_sigma
         self.kernel = config.constants.kernel
         #: a calibration's soils, widened by CurveConfig.k_range_margin (None: not limited)
         kr = config.constants.k_range
         self.k_range = None if kr is None else (kr[0] / c.k_range_margin, kr[1] * c.k_range_margin)
-        self.bank = _core.CurveBank(n_vehicles, core_values(c, "curve")) \
+        # the learnt mu_T's band carries the torques' common scale at the torque constant's prior, which K's band
+        # starts from (the level of the traction the learner fits, which no shape shows)
+        self.bank = _core.CurveBank(n_vehicles, core_values(c, "curve"), config.soil.gross_scale_sigma) \
             if c.enabled and not self.checked else None  # a checked curve keeps its own OCPs: nothing to learn
 
     def fit(self, j: int, soil: SoilEstimate):
@@ -109,19 +108,6 @@ class WheelCurve:
             return None
         used = tuple(map(operator.and_, soil.informative, soil.mu_determined))
         return self.bank.step(j, soil.stamp, soil.slip, soil.mu, used, soil.ground_speed_latency)
-
-    def bands(self, fit) -> tuple[float, float]:
-        """(S_T's, mu_T's) 1-sigma of a learnt curve: the fit's own, the learner's systematic error, for S_T
-        the peak's flatness, which turns a tilt of the observed traction into a shift of the peak, and for
-        mu_T the torques' common scale: traction read through torques a few percent off (a motor constant, a
-        payload) is a curve a few percent high or low at every slip, which moves mu_T by as much and no
-        peak, so no shape tells it (mu_T times ``SoilConfig.gross_scale_sigma``, the torque constant's prior,
-        which K's band starts from)."""
-        cfg = self.config
-        curvature = fit.a * fit.c3 * fit.c3 * math.exp(-fit.c3 * fit.s_t)  # |mu''(S_T)|
-        flat = cfg.tilt_sys / curvature if curvature > 0 else math.inf
-        level = abs(fit.mu_t) * self.scale_sigma
-        return math.hypot(fit.s_t_std, cfg.s_t_sys, flat), math.hypot(fit.mu_t_std, cfg.mu_t_sys, level)
 
     def record(self, j: int, soil: SoilEstimate, values: Sequence[float]) -> OcpEstimate:
         """Vehicle ``j``'s OCP record: the soil estimate, the model's (mu_T, S_T, S_E, TE at S_E) at its K
@@ -133,7 +119,7 @@ class WheelCurve:
         # any K (model_mismatch, which serves no K below the model's floor), though not where the data do
         # not determine the state now (not_observable)
         if learnt and (k is not None or soil.status == "model_mismatch"):
-            s_t_std, mu_t_std = self.bands(fit)
+            s_t_std, mu_t_std = fit.s_t_band, fit.mu_t_band
             why = LEARNT_REASON.format(s_t=fit.s_t, s_t_std=s_t_std, mu_t=fit.mu_t, mu_t_std=mu_t_std)
             return _flagged(soil, (fit.mu_t, fit.s_t, math.nan, math.nan), why, "curve_learnt",
                             curve="learnt", bands=(mu_t_std, s_t_std))

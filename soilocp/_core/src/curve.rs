@@ -67,6 +67,15 @@ settings_struct! {
         /// Change of the ground-speed latency estimate (the observer's) beyond which the pairs
         /// formed under the old estimate are dropped: their slips carry the old lag's error.
         latency_change: Float = 0.03, Internal, "s", [gt 0.0];
+        /// Systematic 1-sigma added to the learnt S_T's band, whatever the curve's shape: the learnt
+        /// peak's error against a known curve.
+        s_t_sys: Float = 0.02, Internal, "", [ge 0.0];
+        /// Systematic error of the observed net traction per unit slip: a tilt that moves the fitted
+        /// peak by tilt_sys / |mu''(S_T)|, added to S_T's band, so that a flat peak is not reported as
+        /// precise.
+        tilt_sys: Float = 0.06, Internal, "", [ge 0.0];
+        /// Systematic 1-sigma added to the learnt mu_T's band.
+        mu_t_sys: Float = 0.02, Internal, "", [ge 0.0];
     }
 }
 
@@ -96,6 +105,11 @@ pub struct Fit {
     /// maximum net traction coefficient and its 1-sigma
     pub mu_t: f64,
     pub mu_t_std: f64,
+    /// the 1-sigma the OCP records serve for S_T and mu_T: the fit's own with the learner's
+    /// systematic errors (`s_t_sys`, `mu_t_sys`), S_T's flatness (`tilt_sys`) and mu_T's level
+    /// (the torques' common scale); see [`Fit::with_bands`]
+    pub s_t_band: f64,
+    pub mu_t_band: f64,
     /// pairs fitted, pairs within `peak_span` below and above S_T, the largest |S| fitted
     pub pairs: usize,
     pub below: usize,
@@ -111,6 +125,27 @@ pub struct Fit {
     pub shown: bool,
     /// stamp of the fit, s
     pub stamp: f64,
+}
+
+impl Fit {
+    /// This fit with the bands the OCP records serve: S_T's 1-sigma is the fit's own, `s_t_sys`, and
+    /// the peak's flatness, a tilt `tilt_sys` of the observed traction per unit slip moving the peak by
+    /// tilt_sys / |mu''(S_T)|; mu_T's is the fit's own, `mu_t_sys`, and the level: traction read through
+    /// torques a few percent off (a motor constant, a payload; relative 1-sigma `scale_sigma`) is a
+    /// curve as much high or low at every slip, which moves mu_T by mu_T `scale_sigma`, no peak, and so
+    /// shows in no shape.
+    pub fn with_bands(mut self, p: &Params, scale_sigma: f64) -> Fit {
+        let curvature = self.a * self.c3 * self.c3 * (-self.c3 * self.s_t).exp(); // |mu''(S_T)|
+        let flat = if curvature > 0.0 {
+            p.tilt_sys / curvature
+        } else {
+            f64::INFINITY
+        };
+        let level = self.mu_t.abs() * scale_sigma;
+        self.s_t_band = self.s_t_std.hypot(p.s_t_sys).hypot(flat);
+        self.mu_t_band = self.mu_t_std.hypot(p.mu_t_sys).hypot(level);
+        self
+    }
 }
 
 /// Net traction mu(S) = A (1 - e^(-C3 S)) - c - b S on one soil (eq. 6, S > 0).
@@ -146,6 +181,8 @@ pub fn peak(a: f64, c3: f64, b: f64, c: f64) -> Option<(f64, f64)> {
 #[derive(Clone, Debug)]
 pub struct CurveLearner {
     params: Params,
+    /// relative 1-sigma of the torques' common scale, the level no shape shows (`Fit::with_bands`)
+    scale_sigma: f64,
     pairs: VecDeque<Pair>,
     last_fit: f64,
     fit: Option<Fit>,
@@ -154,9 +191,12 @@ pub struct CurveLearner {
 }
 
 impl CurveLearner {
-    pub fn new(params: Params) -> Self {
+    /// A learner with the curve settings `params`, whose traction is read through torques of common
+    /// scale relative 1-sigma `scale_sigma` (the soil estimator's `gross_scale_sigma`).
+    pub fn new(params: Params, scale_sigma: f64) -> Self {
         CurveLearner {
             params,
+            scale_sigma,
             pairs: VecDeque::new(),
             last_fit: f64::NEG_INFINITY,
             fit: None,
@@ -267,7 +307,7 @@ impl CurveLearner {
         }
         if changed || relagged || stamp - self.last_fit >= p.interval {
             self.last_fit = stamp;
-            self.fit = fit_pairs(self.pairs.make_contiguous(), &p, stamp);
+            self.fit = fit_pairs(self.pairs.make_contiguous(), &p, stamp).map(|f| f.with_bands(&p, self.scale_sigma));
         }
         self.fit
     }
@@ -647,6 +687,8 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         s_t_std: quad(&g_s),
         mu_t,
         mu_t_std: quad(&g_m),
+        s_t_band: f64::NAN,
+        mu_t_band: f64::NAN,
         pairs: kept.len(),
         below,
         beyond,
@@ -721,7 +763,7 @@ mod tests {
 
     #[test]
     fn learns_the_peak_of_a_sweep() {
-        let mut l = CurveLearner::new(Params::default());
+        let mut l = CurveLearner::new(Params::default(), 0.05);
         let f = drive(&mut l, 0.0, 6.0, 0.01).expect("a fit");
         assert!(f.shown, "{f:?}");
         close(f.s_t, 0.4431, 0.01);
@@ -731,18 +773,48 @@ mod tests {
     }
 
     #[test]
+    fn the_served_band_adds_the_systematic_errors_the_flatness_and_the_level() {
+        let f = drive(&mut CurveLearner::new(Params::default(), 0.05), 0.0, 6.0, 0.01).expect("a fit");
+        let p = Params::default();
+        // without systematic errors and scale the band is the fit's own
+        let none = Params {
+            s_t_sys: 0.0,
+            tilt_sys: 0.0,
+            mu_t_sys: 0.0,
+            ..p
+        };
+        let own = f.with_bands(&none, 0.0);
+        close(own.s_t_band, f.s_t_std, 1e-12);
+        close(own.mu_t_band, f.mu_t_std, 1e-12);
+        // the level: mu_T's band grows with the torques' scale, S_T's does not
+        let level = f.with_bands(&none, 0.1);
+        close(level.mu_t_band, f.mu_t_std.hypot(0.1 * f.mu_t), 1e-12);
+        close(level.s_t_band, f.s_t_std, 1e-12);
+        // the flatness: a flatter peak (half the |mu''(S_T)|) serves a wider S_T band
+        let served = f.with_bands(&p, 0.05);
+        let flatter = Fit { a: f.a * 0.5, ..f }.with_bands(&p, 0.05);
+        assert!(served.s_t_band > f.s_t_std.hypot(p.s_t_sys), "{served:?}");
+        assert!(flatter.s_t_band > served.s_t_band, "{flatter:?} vs {served:?}");
+        // the learner serves its fits with these bands
+        assert_eq!(f, f.with_bands(&p, 0.05));
+    }
+
+    #[test]
     fn a_peak_beyond_the_slips_is_not_shown() {
-        let mut l = CurveLearner::new(Params {
-            slip_max: 0.3,
-            ..Params::default()
-        });
+        let mut l = CurveLearner::new(
+            Params {
+                slip_max: 0.3,
+                ..Params::default()
+            },
+            0.05,
+        );
         let f = drive(&mut l, 0.0, 6.0, 0.01);
         assert!(f.map_or(true, |f| !f.shown), "{f:?}");
     }
 
     #[test]
     fn another_soil_starts_anew() {
-        let mut l = CurveLearner::new(Params::default());
+        let mut l = CurveLearner::new(Params::default(), 0.05);
         assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some());
         // the same sweep on ground whose traction is 0.3 higher at every slip: the old pairs go at once
         let (a, c3, b, c) = tyre_shape();
@@ -762,7 +834,7 @@ mod tests {
 
     #[test]
     fn slip_errors_on_the_steep_rise_tell_no_change() {
-        let mut l = CurveLearner::new(Params::default());
+        let mut l = CurveLearner::new(Params::default(), 0.05);
         assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some_and(|f| f.shown));
         // the sweep's low end with every slip read 0.04 high for 0.3 s (a late GNSS ground speed): the
         // traction sits about 0.1 below the curve at those slips, yet the ground did not change
@@ -784,17 +856,20 @@ mod tests {
 
     #[test]
     fn too_few_pairs_give_no_fit() {
-        let mut l = CurveLearner::new(Params::default());
+        let mut l = CurveLearner::new(Params::default(), 0.05);
         assert!(drive(&mut l, 0.0, 0.3, 0.0).is_none());
     }
 
     /// The sweep with the rear wheels held braking at |S| 0.35..0.36, reading `rear_gain` of their
     /// traction (a torque constant off on that axle); the fit of it.
     fn drive_with_the_rear_held(sigma_g: f64, rear_gain: f64) -> Fit {
-        let mut l = CurveLearner::new(Params {
-            wheel_scale_sigma: sigma_g,
-            ..Params::default()
-        });
+        let mut l = CurveLearner::new(
+            Params {
+                wheel_scale_sigma: sigma_g,
+                ..Params::default()
+            },
+            0.05,
+        );
         sweep(&mut l, 0.0, 6.0, 0.01, |phase| -0.35 - 0.01 * phase, rear_gain).expect("a fit")
     }
 
@@ -816,7 +891,7 @@ mod tests {
 
     #[test]
     fn pairs_of_another_latency_are_dropped() {
-        let mut l = CurveLearner::new(Params::default());
+        let mut l = CurveLearner::new(Params::default(), 0.05);
         assert!(drive(&mut l, 0.0, 6.0, 0.01).is_some());
         let n = l.pairs.len();
         let (a, c3, b, c) = tyre_shape();

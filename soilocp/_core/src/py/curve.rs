@@ -29,9 +29,15 @@ impl CurveBank {
 #[pymethods]
 impl CurveBank {
     /// N learners with the curve `settings` (by the names of crate::curve::Params; a missing one
-    /// takes its default).
+    /// takes its default), whose traction is read through torques of common scale relative 1-sigma
+    /// `scale_sigma` (the soil estimator's `gross_scale_sigma`: the level of the learnt mu_T's band).
     #[new]
-    fn new(n_vehicles: usize, settings: HashMap<String, f64>) -> PyResult<Self> {
+    fn new(n_vehicles: usize, settings: HashMap<String, f64>, scale_sigma: f64) -> PyResult<Self> {
+        if !(scale_sigma.is_finite() && scale_sigma >= 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "scale_sigma = {scale_sigma}: the torques' relative 1-sigma must be finite and >= 0 (soil.gross_scale_sigma)"
+            )));
+        }
         let params = Params::from_map(&settings).map_err(PyValueError::new_err)?;
         if params.slip_max <= params.slip_min {
             return Err(PyValueError::new_err(format!(
@@ -40,7 +46,7 @@ impl CurveBank {
             )));
         }
         Ok(CurveBank {
-            learners: vec![CurveLearner::new(params); n_vehicles],
+            learners: vec![CurveLearner::new(params, scale_sigma); n_vehicles],
         })
     }
 
