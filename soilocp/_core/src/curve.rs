@@ -106,8 +106,8 @@ pub struct Fit {
     pub mu_t: f64,
     pub mu_t_std: f64,
     /// the 1-sigma the OCP records serve for S_T and mu_T: the fit's own with the learner's
-    /// systematic errors (`s_t_sys`, `mu_t_sys`), S_T's flatness (`tilt_sys`) and mu_T's level
-    /// (the torques' common scale); see [`Fit::with_bands`]
+    /// systematic errors (`s_t_sys`, `mu_t_sys`), S_T's flatness (`tilt_sys`) and the slips' reach,
+    /// and mu_T's level (the torques' common scale); see [`Fit::with_bands`]
     pub s_t_band: f64,
     pub mu_t_band: f64,
     /// pairs fitted, pairs within `peak_span` below and above S_T, the largest |S| fitted
@@ -115,6 +115,8 @@ pub struct Fit {
     pub below: usize,
     pub beyond: usize,
     pub slip_top: f64,
+    /// the slip that `min_beyond` of the fitted pairs reach or pass
+    pub reach: f64,
     /// rms of the residuals
     pub rms: f64,
     /// each wheel's traction scale g_w about the common curve (mu = g_w mu(S); 1 for a wheel without
@@ -128,9 +130,11 @@ pub struct Fit {
 }
 
 impl Fit {
-    /// This fit with the bands the OCP records serve: S_T's 1-sigma is the fit's own, `s_t_sys`, and
-    /// the peak's flatness, a tilt `tilt_sys` of the observed traction per unit slip moving the peak by
-    /// tilt_sys / |mu''(S_T)|; mu_T's is the fit's own, `mu_t_sys`, and the level: traction read through
+    /// This fit with the bands the OCP records serve: S_T's 1-sigma is the fit's own, `s_t_sys`, the
+    /// peak's flatness, a tilt `tilt_sys` of the observed traction per unit slip moving the peak by
+    /// tilt_sys / |mu''(S_T)|, and the part of `peak_span` past S_T that the slips do not reach
+    /// (`reach`: a sweep that stops just past a peak it places there, short of the true one, shows
+    /// nothing of the curve beyond); mu_T's is the fit's own, `mu_t_sys`, and the level: traction read through
     /// torques a few percent off (a motor constant, a payload; relative 1-sigma `scale_sigma`) is a
     /// curve as much high or low at every slip, which moves mu_T by mu_T `scale_sigma`, no peak, and so
     /// shows in no shape.
@@ -142,7 +146,10 @@ impl Fit {
             f64::INFINITY
         };
         let level = self.mu_t.abs() * scale_sigma;
-        self.s_t_band = self.s_t_std.hypot(p.s_t_sys).hypot(flat);
+        // slips that pass the peak by less than peak_span leave the rest of that span unseen: the
+        // true peak may lie there, past the slips the drive reached
+        let unseen = (p.peak_span - (self.reach - self.s_t)).max(0.0);
+        self.s_t_band = self.s_t_std.hypot(p.s_t_sys).hypot(flat).hypot(unseen);
         self.mu_t_band = self.mu_t_std.hypot(p.mu_t_sys).hypot(level);
         self
     }
@@ -678,6 +685,9 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
     let beyond = kept.iter().filter(|q| q.s > s_t && q.s <= s_t + p.peak_span).count();
     let below = kept.iter().filter(|q| q.s <= s_t && q.s > s_t - p.peak_span).count();
     let slip_top = kept.iter().fold(0.0f64, |acc, q| acc.max(q.s));
+    let mut slips: Vec<f64> = kept.iter().map(|q| q.s).collect();
+    let nth = (p.min_beyond as usize).clamp(1, slips.len()) - 1;
+    let reach = *slips.select_nth_unstable_by(nth, |x, y| y.total_cmp(x)).1;
     Some(Fit {
         a: amp,
         c3,
@@ -693,6 +703,7 @@ fn fit_pairs(pairs: &[Pair], p: &Params, stamp: f64) -> Option<Fit> {
         below,
         beyond,
         slip_top,
+        reach,
         rms: (wrss / sum_w.max(1e-12)).sqrt(),
         wheel_scale: scales,
         shown: below as f64 >= p.min_beyond && beyond as f64 >= p.min_beyond,
@@ -797,6 +808,21 @@ mod tests {
         assert!(flatter.s_t_band > served.s_t_band, "{flatter:?} vs {served:?}");
         // the learner serves its fits with these bands
         assert_eq!(f, f.with_bands(&p, 0.05));
+    }
+
+    #[test]
+    fn a_sweep_that_stops_just_past_the_peak_serves_a_wider_s_t_band() {
+        let full = drive(&mut CurveLearner::new(Params::default(), 0.05), 0.0, 6.0, 0.01).expect("a fit");
+        // the same sweep fitted up to |S| 0.5 only: 0.06 past the peak (0.443)
+        let short_params = Params {
+            slip_max: 0.5,
+            ..Params::default()
+        };
+        let short = drive(&mut CurveLearner::new(short_params, 0.05), 0.0, 6.0, 0.01).expect("a fit");
+        assert!(full.shown && short.shown, "{full:?} {short:?}");
+        assert!(full.reach - full.s_t >= Params::default().peak_span, "{full:?}");
+        assert!(short.reach <= 0.5 && short.reach - short.s_t < 0.07, "{short:?}");
+        assert!(short.s_t_band > full.s_t_band + 0.02, "{short:?} vs {full:?}");
     }
 
     #[test]
