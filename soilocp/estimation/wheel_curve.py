@@ -8,7 +8,8 @@ soilocp/_core/src/curve.rs) on each soil estimate's (slip, net traction) pairs a
 * **learnt**, for a wheel whose curve nobody checked: where the current soil's pairs spread over the bend (the
   peak lies inside them), mu_T and S_T are the fitted curve's, with the core's band (the fit's own 1-sigma, the
   learner's systematic error ``CurveConfig.s_t_sys``, ``mu_t_sys``, for S_T the peak's flatness
-  ``tilt_sys``, and for mu_T the torques' common scale, ``SoilConfig.gross_scale_sigma`` of it).  Never
+  ``tilt_sys`` and the part of ``peak_span`` past it the slips do not reach, and for mu_T the torques' common
+  scale, ``SoilConfig.gross_scale_sigma`` of it).  Never
   ``ok``: the learnt peak rests on the observer's split of gross traction into net and resistance
   (docs/method.md §12, §19), which places it within +-0.05 on most simulated drives but not on all
   (scripts/curve_learner_errors.py); the reason says how to make the curve checked.  S_E is null: eq.
