@@ -130,14 +130,14 @@ pub struct Fit {
 }
 
 impl Fit {
-    /// This fit with the bands the OCP records serve: S_T's 1-sigma is the fit's own, `s_t_sys`, the
-    /// peak's flatness, a tilt `tilt_sys` of the observed traction per unit slip moving the peak by
-    /// tilt_sys / |mu''(S_T)|, and the part of `peak_span` past S_T that the slips do not reach
+    /// This fit with the bands the OCP records serve.  S_T's 1-sigma is the fit's own, `s_t_sys`, the
+    /// peak's flatness (a tilt `tilt_sys` of the observed traction per unit slip moves the peak by
+    /// tilt_sys / |mu''(S_T)|) and the part of `peak_span` past S_T that the slips do not reach
     /// (`reach`: a sweep that stops just past a peak it places there, short of the true one, shows
-    /// nothing of the curve beyond); mu_T's is the fit's own, `mu_t_sys`, and the level: traction read through
-    /// torques a few percent off (a motor constant, a payload; relative 1-sigma `scale_sigma`) is a
-    /// curve as much high or low at every slip, which moves mu_T by mu_T `scale_sigma`, no peak, and so
-    /// shows in no shape.
+    /// nothing of the curve beyond).  mu_T's is the fit's own, `mu_t_sys` and the level: traction
+    /// read through torques a few percent off (a motor constant, a payload; relative 1-sigma
+    /// `scale_sigma`) is a curve as much high or low at every slip, which moves mu_T by
+    /// mu_T `scale_sigma`, moves no peak, and so shows in no shape.
     pub fn with_bands(mut self, p: &Params, scale_sigma: f64) -> Fit {
         let curvature = self.a * self.c3 * self.c3 * (-self.c3 * self.s_t).exp(); // |mu''(S_T)|
         let flat = if curvature > 0.0 {
@@ -787,7 +787,9 @@ mod tests {
     fn the_served_band_adds_the_systematic_errors_the_flatness_and_the_level() {
         let f = drive(&mut CurveLearner::new(Params::default(), 0.05), 0.0, 6.0, 0.01).expect("a fit");
         let p = Params::default();
-        // without systematic errors and scale the band is the fit's own
+        // the sweep's slips reach peak_span past the peak: no part of it is unseen
+        assert!(f.reach - f.s_t >= p.peak_span, "{f:?}");
+        // without systematic errors and scale the band is then the fit's own
         let none = Params {
             s_t_sys: 0.0,
             tilt_sys: 0.0,
